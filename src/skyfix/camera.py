@@ -1,0 +1,268 @@
+"""Camera model: pinhole intrinsics + OpenCV Brown–Conrady distortion, pixel <-> ray, TOML I/O.
+
+Conventions (DESIGN.md): pixel ``(x, y)`` = (column, row), 0-based, ``(0, 0)`` is the centre
+of the top-left pixel. Camera ``+z`` is the boresight, ``+x`` toward increasing column,
+``+y`` toward increasing row. ``x_n = X/Z``, ``y_n = Y/Z``; distortion acts on ``(x_n, y_n)``;
+``u = fx·x_d + s·y_d + cx``, ``v = fy·y_d + cy``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from skyfix.errors import CameraError
+
+__all__ = ["Camera", "PRESETS", "camera_from_preset"]
+
+_FLOAT_KEYS = ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "k3", "p1", "p2")
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Intrinsics (pixels) and Brown–Conrady distortion coefficients (OpenCV's meaning)."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    skew: float = 0.0
+    k1: float = 0.0
+    k2: float = 0.0
+    k3: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    name: str = ""
+    pixel_pitch_um: float | None = None
+    focal_length_mm: float | None = None
+
+    def __post_init__(self) -> None:
+        if not (int(self.width) > 0 and int(self.height) > 0):
+            raise CameraError(f"camera size must be positive, got {self.width}x{self.height}")
+        vals = [getattr(self, k) for k in _FLOAT_KEYS]
+        if not all(math.isfinite(float(v)) for v in vals):
+            raise CameraError("camera parameters must be finite numbers")
+        if self.fx <= 0 or self.fy <= 0:
+            raise CameraError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        fov = self.fov_deg
+        if not 0.01 < fov < 170.0:
+            raise CameraError(f"impossible field of view {fov:.4g}° (must be 0.01°–170°)")
+
+    # --- construction -------------------------------------------------------------------
+    @classmethod
+    def from_fov(cls, width: int, height: int, fov_deg: float, **kw: float) -> Camera:
+        """Square-pixel, centred camera whose horizontal field of view is ``fov_deg``."""
+        if not (isinstance(fov_deg, (int, float)) and 0.01 < fov_deg < 170.0):
+            raise CameraError(f"impossible field of view {fov_deg}° (must be 0.01°–170°)")
+        f = (width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
+        return cls(width=int(width), height=int(height), fx=f, fy=f,
+                   cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, **kw)
+
+    @classmethod
+    def from_optics(cls, width: int, height: int, focal_length_mm: float, pixel_pitch_um: float,
+                    **kw: float) -> Camera:
+        """Square-pixel, centred camera from focal length (mm) and pixel pitch (µm)."""
+        if focal_length_mm <= 0 or pixel_pitch_um <= 0:
+            raise CameraError("focal length and pixel pitch must be positive")
+        f = focal_length_mm * 1000.0 / pixel_pitch_um
+        return cls(width=int(width), height=int(height), fx=f, fy=f,
+                   cx=(width - 1) / 2.0, cy=(height - 1) / 2.0,
+                   focal_length_mm=focal_length_mm, pixel_pitch_um=pixel_pitch_um, **kw)
+
+    def replace(self, **changes: float) -> Camera:
+        """A copy with some fields changed."""
+        return dataclasses.replace(self, **changes)
+
+    def scaled_focal(self, factor: float) -> Camera:
+        """A copy with both focal lengths multiplied by ``factor``."""
+        return self.replace(fx=self.fx * factor, fy=self.fy * factor)
+
+    # --- derived ------------------------------------------------------------------------
+    @property
+    def fov_deg(self) -> float:
+        """Horizontal field of view through the principal point, degrees (pinhole)."""
+        return math.degrees(2.0 * math.atan((self.width / 2.0) / self.fx))
+
+    @property
+    def fov_diagonal_deg(self) -> float:
+        """Diagonal field of view, degrees (pinhole, centred)."""
+        half = math.hypot(self.width / self.fx, self.height / self.fy) / 2.0
+        return math.degrees(2.0 * math.atan(half))
+
+    @property
+    def has_distortion(self) -> bool:
+        return any(getattr(self, k) != 0.0 for k in ("k1", "k2", "k3", "p1", "p2"))
+
+    @property
+    def plate_scale_rad(self) -> float:
+        """Angular size of one pixel at the centre, radians."""
+        return 1.0 / math.sqrt(self.fx * self.fy)
+
+    # --- distortion ---------------------------------------------------------------------
+    def distort(self, xn: np.ndarray, yn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Apply Brown–Conrady distortion to normalised coordinates."""
+        if not self.has_distortion:
+            return xn, yn
+        r2 = xn * xn + yn * yn
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        xd = xn * radial + 2.0 * self.p1 * xn * yn + self.p2 * (r2 + 2.0 * xn * xn)
+        yd = yn * radial + self.p1 * (r2 + 2.0 * yn * yn) + 2.0 * self.p2 * xn * yn
+        return xd, yd
+
+    def undistort(self, xd: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Invert :meth:`distort` by fixed-point iteration (converged well below 1e-3 px)."""
+        if not self.has_distortion:
+            return xd, yd
+        xn, yn = np.array(xd, dtype=np.float64), np.array(yd, dtype=np.float64)
+        tol = 1e-5 / max(self.fx, self.fy)  # 1e-5 px
+        for _ in range(50):
+            r2 = xn * xn + yn * yn
+            radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+            dx = 2.0 * self.p1 * xn * yn + self.p2 * (r2 + 2.0 * xn * xn)
+            dy = self.p1 * (r2 + 2.0 * yn * yn) + 2.0 * self.p2 * xn * yn
+            xn_new = (xd - dx) / radial
+            yn_new = (yd - dy) / radial
+            step = np.max(np.abs(xn_new - xn) + np.abs(yn_new - yn), initial=0.0)
+            xn, yn = xn_new, yn_new
+            if step < tol:
+                break
+        return xn, yn
+
+    # --- projection ---------------------------------------------------------------------
+    def pixel_to_normalized(self, xy: np.ndarray) -> np.ndarray:
+        """Undistorted normalised coordinates (N, 2) ``(X/Z, Y/Z)`` of pixels (N, 2)."""
+        xy = np.asarray(xy, dtype=np.float64)
+        yd = (xy[..., 1] - self.cy) / self.fy
+        xd = (xy[..., 0] - self.cx - self.skew * yd) / self.fx
+        xn, yn = self.undistort(xd, yd)
+        return np.stack([xn, yn], axis=-1)
+
+    def pixel_to_ray(self, xy: np.ndarray) -> np.ndarray:
+        """Unit rays (N, 3) in the camera frame for pixel positions (N, 2)."""
+        n = self.pixel_to_normalized(xy)
+        v = np.concatenate([n, np.ones(n.shape[:-1] + (1,))], axis=-1)
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    def ray_to_pixel(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel positions (N, 2) of camera-frame rays (N, 3), and a mask of rays in front (Z > 0)."""
+        rays = np.asarray(rays, dtype=np.float64)
+        z = rays[..., 2]
+        front = z > 1e-9
+        zs = np.where(front, z, 1.0)
+        xd, yd = self.distort(rays[..., 0] / zs, rays[..., 1] / zs)
+        u = self.fx * xd + self.skew * yd + self.cx
+        v = self.fy * yd + self.cy
+        return np.stack([u, v], axis=-1), front
+
+    def in_frame(self, xy: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Mask of pixel positions inside the frame (pixel centres' extent ± 0.5 px, less a margin)."""
+        xy = np.asarray(xy)
+        return ((xy[..., 0] >= -0.5 + margin) & (xy[..., 0] <= self.width - 0.5 - margin)
+                & (xy[..., 1] >= -0.5 + margin) & (xy[..., 1] <= self.height - 0.5 - margin))
+
+    # --- TOML ---------------------------------------------------------------------------
+    def to_toml(self) -> str:
+        """The ``[camera]`` table of DESIGN.md as TOML text."""
+        lines = ["[camera]"]
+        if self.name:
+            lines.append(f'name = "{self.name}"')
+        lines += [f"width = {int(self.width)}", f"height = {int(self.height)}"]
+        lines += [f"{k} = {float(getattr(self, k))!r}" for k in _FLOAT_KEYS]
+        for k in ("pixel_pitch_um", "focal_length_mm"):
+            if getattr(self, k) is not None:
+                lines.append(f"{k} = {float(getattr(self, k))!r}")
+        return "\n".join(lines) + "\n"
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(self.to_toml())
+
+    @classmethod
+    def from_toml(cls, text: str) -> Camera:
+        try:
+            table = tomllib.loads(text)["camera"]
+        except (tomllib.TOMLDecodeError, KeyError, TypeError) as exc:
+            raise CameraError(f"not a camera file ({exc.__class__.__name__}: {exc})") from None
+        return cls.from_dict(table)
+
+    @classmethod
+    def from_dict(cls, table: dict) -> Camera:
+        """Camera from a ``[camera]`` table; ``fx`` may be replaced by ``fov_deg`` or by
+        ``focal_length_mm`` with ``pixel_pitch_um``."""
+        table = dict(table)
+        try:
+            width, height = int(table.pop("width")), int(table.pop("height"))
+        except (KeyError, TypeError, ValueError):
+            raise CameraError("camera file needs integer width and height") from None
+        known = {f.name for f in dataclasses.fields(cls)} | {"fov_deg"}
+        unknown = set(table) - known
+        if unknown:
+            raise CameraError(f"unknown camera keys: {', '.join(sorted(unknown))}")
+        try:
+            if "fx" not in table:
+                if "fov_deg" in table:
+                    base = cls.from_fov(width, height, float(table.pop("fov_deg")))
+                elif "focal_length_mm" in table and "pixel_pitch_um" in table:
+                    base = cls.from_optics(width, height, float(table["focal_length_mm"]),
+                                           float(table["pixel_pitch_um"]))
+                else:
+                    raise CameraError("camera file needs fx/fy, fov_deg, or focal_length_mm"
+                                      " with pixel_pitch_um")
+                table.setdefault("fx", base.fx)
+                table.setdefault("fy", base.fy)
+            table.pop("fov_deg", None)
+            table.setdefault("fy", table["fx"])
+            table.setdefault("cx", (width - 1) / 2.0)
+            table.setdefault("cy", (height - 1) / 2.0)
+            kw = {k: (float(v) if k in _FLOAT_KEYS or k in ("pixel_pitch_um", "focal_length_mm")
+                      else str(v)) for k, v in table.items()}
+        except (TypeError, ValueError) as exc:
+            raise CameraError(f"bad camera value: {exc}") from None
+        return cls(width=width, height=height, **kw)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Camera:
+        p = Path(path)
+        try:
+            text = p.read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise CameraError(f"cannot read camera file {p}: {exc}") from None
+        return cls.from_toml(text)
+
+
+# The seeds' cameras (SEEDS.md); sizes and optics as the theses state them.
+PRESETS: dict[str, dict] = {
+    # Thesis 000: Aptina MT9V022 752×480, 6 µm pixels, 8.5 mm f/1.3.
+    "mt9v022": dict(name="MT9V022 + 8.5 mm f/1.3", width=752, height=480,
+                    focal_length_mm=8.5, pixel_pitch_um=6.0),
+    # Thesis 002: Cypress HAS2 1024×1024, 18 µm pixels (ExoplanetSat star camera).
+    "has2": dict(name="Cypress HAS2", width=1024, height=1024,
+                 focal_length_mm=85.0, pixel_pitch_um=18.0),
+    # Thesis 003: Aptina MT9P031 2592×1944, 2.2 µm pixels.
+    "mt9p031": dict(name="Aptina MT9P031", width=2592, height=1944,
+                    focal_length_mm=16.0, pixel_pitch_um=2.2),
+    # Thesis 003: Droid X2 phone camera, 3264×2448, 1.4 µm pixels, ~4.4 mm lens.
+    "droid_x2": dict(name="Droid X2", width=3264, height=2448,
+                     focal_length_mm=4.44, pixel_pitch_um=1.4),
+    # Thesis 004: Sunsat Sony CCD 752×582 (8.6×8.3 µm), 25 mm f/1.4 — 11.17° × 8.32° as quoted.
+    "sunsat": dict(name="Sunsat Sony CCD + 25 mm f/1.4", width=752, height=582,
+                   focal_length_mm=25.0, pixel_pitch_um=6.5),
+    # A generic modern CMOS star camera (1280×960, 3.75 µm, 16 mm: ~17° wide).
+    "generic": dict(name="generic CMOS 1280x960", width=1280, height=960,
+                    focal_length_mm=16.0, pixel_pitch_um=3.75),
+}
+
+
+def camera_from_preset(name: str) -> Camera:
+    """A :class:`Camera` from a preset name in :data:`PRESETS`."""
+    try:
+        spec = dict(PRESETS[name.lower()])
+    except KeyError:
+        raise CameraError(f"unknown camera preset {name!r}; known: {', '.join(PRESETS)}") from None
+    return Camera.from_dict(spec)

@@ -1,0 +1,21 @@
+"""Exceptions skyfix raises for bad input; each carries a one-line message for the user."""
+
+
+class SkyfixError(Exception):
+    """Base class: a problem with the user's input, reported as one line, never a traceback."""
+
+
+class ImageReadError(SkyfixError):
+    """The image file is missing, empty, truncated or not an image."""
+
+
+class CameraError(SkyfixError):
+    """A camera model or camera file is invalid (impossible FOV, missing keys, ...)."""
+
+
+class DatabaseError(SkyfixError):
+    """The pattern database is missing, corrupt or was built for other settings."""
+
+
+class CatalogError(SkyfixError):
+    """The star catalogue cannot be read."""

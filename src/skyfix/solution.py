@@ -1,0 +1,80 @@
+"""The Solution that ``solve`` returns and ``skyfix solve --json`` prints (DESIGN.md)."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+__all__ = ["Match", "Solution"]
+
+
+@dataclass(frozen=True)
+class Match:
+    """One image star matched to a catalogue star."""
+
+    x: float
+    y: float
+    id: int
+    ra_deg: float
+    dec_deg: float
+    mag: float
+    residual_arcsec: float
+
+
+@dataclass
+class Solution:
+    """Result of solving one image; ``status`` is ``"solved"`` or ``"failed"`` (with ``reason``)."""
+
+    image: str = ""
+    status: str = "failed"
+    reason: str = ""
+    ra_deg: float | None = None
+    dec_deg: float | None = None
+    roll_deg: float | None = None
+    fov_deg: float | None = None
+    quaternion_xyzw: list[float] | None = None
+    covariance_arcsec2: list[list[float]] | None = None
+    n_detected: int = 0
+    n_matched: int = 0
+    prob_false: float | None = None
+    rmse_arcsec: float | None = None
+    method: str = ""
+    time_ms: dict[str, float] = field(default_factory=dict)
+    matches: list[Match] = field(default_factory=list)
+    # Not part of the JSON: the full numeric results for the API.
+    A_icrs_to_cam: np.ndarray | None = field(default=None, repr=False)
+    camera: object | None = field(default=None, repr=False)
+
+    @property
+    def solved(self) -> bool:
+        return self.status == "solved"
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("A_icrs_to_cam")
+        d.pop("camera")
+        if not self.reason:
+            d.pop("reason")
+        return _clean(d)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), separators=(", ", ": "))
+
+
+def _clean(obj):
+    """JSON-safe: numpy scalars to Python, non-finite floats to None."""
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    return obj
