@@ -1,0 +1,159 @@
+"""The ``skyfix`` command.
+
+Exit codes: 0 all images solved; 1 some image failed to solve (its reason is printed);
+2 bad input (unreadable file, bad option, corrupt database) with a one-line error.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+import typer
+
+from skyfix.errors import SkyfixError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="skyfix — a star tracker: solve sky images for the camera's attitude.")
+database_app = typer.Typer(no_args_is_help=True, help="Build or inspect the pattern database.")
+app.add_typer(database_app, name="database")
+
+
+def _fail(message: str, code: int = 2) -> None:
+    typer.echo(f"skyfix: error: {message}", err=True)
+    raise typer.Exit(code)
+
+
+def _setup_logging(verbose: int) -> None:
+    level = logging.WARNING if verbose == 0 else logging.INFO if verbose == 1 else logging.DEBUG
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+
+
+def _output_path(template: Path | None, image: Path, n_images: int, suffix: str) -> Path | None:
+    """One output per image: the path itself for one image, else ``{stem}`` filled or the stem appended."""
+    if template is None:
+        return None
+    text = str(template)
+    if "{stem}" in text:
+        return Path(text.replace("{stem}", image.stem))
+    if n_images == 1:
+        return template
+    return template.with_name(f"{template.stem}-{image.stem}{template.suffix or suffix}")
+
+
+@app.command()
+def solve(
+    images: list[Path] = typer.Argument(..., help="Image files (FITS, PNG, TIFF, JPEG)."),
+    fov: float = typer.Option(None, "--fov", help="Horizontal field of view, degrees (optional)."),
+    fov_tolerance: float = typer.Option(None, "--fov-tolerance", help="Tolerance on --fov, degrees."),
+    camera_file: Path = typer.Option(None, "--camera", help="Camera TOML file (intrinsics + distortion)."),
+    epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: now)."),
+    method: str = typer.Option("svd", "--attitude", help="Wahba solver: svd, quest, esoq2, q-method, triad."),
+    json_out: bool = typer.Option(False, "--json", help="One JSON Solution per image per line."),
+    wcs: Path = typer.Option(None, "--wcs", help="Write a FITS WCS header (use {stem} for many images)."),
+    plot: Path = typer.Option(None, "--plot", help="Write a PNG with identified stars circled."),
+    verbose: int = typer.Option(0, "--verbose", "-v", count=True, help="Log what each stage decided."),
+) -> None:
+    """Solve sky images lost in space: print RA, Dec, roll and the error bars."""
+    _setup_logging(verbose)
+    from skyfix.pipeline import solve as solve_image
+
+    try:
+        camera = None
+        if camera_file is not None:
+            from skyfix.camera import Camera
+
+            camera = Camera.load(camera_file)
+        if fov is not None and not 0.1 <= fov <= 120:
+            _fail(f"--fov {fov} is not a plausible field of view (0.1–120 degrees)")
+        from skyfix.identify import default_database
+
+        database = default_database()
+    except SkyfixError as exc:
+        _fail(str(exc))
+
+    any_failed = False
+    progress = _progress(len(images), json_out)
+    for path in images:
+        try:
+            sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
+                              database=database, epoch=epoch, attitude_method=method)
+        except SkyfixError as exc:
+            _fail(f"{path}: {exc}")
+        any_failed |= not sol.solved
+        if json_out:
+            typer.echo(sol.to_json())
+        else:
+            typer.echo(_summary(sol))
+        if sol.solved:
+            wcs_path = _output_path(wcs, path, len(images), ".wcs")
+            if wcs_path is not None:
+                from skyfix.wcs import write_wcs
+
+                write_wcs(wcs_path, sol.A_icrs_to_cam, sol.camera)
+        plot_path = _output_path(plot, path, len(images), ".png")
+        if plot_path is not None:
+            from skyfix.io import read_image
+            from skyfix.plot import plot_solution
+
+            plot_solution(read_image(path), sol, plot_path)
+        if progress is not None:
+            progress.advance(0)
+    if progress is not None:
+        progress.stop()
+    raise typer.Exit(1 if any_failed else 0)
+
+
+def _progress(n: int, quiet: bool):
+    """A progress bar on stderr for long batches (not for one image, not when piping JSON)."""
+    if n < 5 or quiet or not sys.stderr.isatty():
+        return None
+    from rich.console import Console
+    from rich.progress import Progress
+
+    progress = Progress(console=Console(stderr=True), transient=True)
+    progress.add_task("solving", total=n)
+    progress.start()
+    return progress
+
+
+def _summary(sol) -> str:
+    if not sol.solved:
+        return f"{sol.image}: failed: {sol.reason}"
+    sig = [v**0.5 for v in (sol.covariance_arcsec2[0][0], sol.covariance_arcsec2[1][1],
+                            sol.covariance_arcsec2[2][2])]
+    return (f"{sol.image}: solved RA {sol.ra_deg:.5f}° Dec {sol.dec_deg:+.5f}° roll {sol.roll_deg:.3f}° "
+            f"FOV {sol.fov_deg:.3f}° | {sol.n_matched}/{sol.n_detected} stars, rmse {sol.rmse_arcsec:.1f}″, "
+            f"σ(x,y,roll) {sig[0]:.1f}″ {sig[1]:.1f}″ {sig[2]:.0f}″, P(false) {sol.prob_false:.1e} | "
+            f"{sol.time_ms.get('total', 0):.1f} ms")
+
+
+@database_app.command("build")
+def database_build(
+    fov_min: float = typer.Option(10.0, help="Smallest field of view, degrees."),
+    fov_max: float = typer.Option(30.0, help="Largest field of view, degrees."),
+    output: Path = typer.Option(None, "--output", "-o", help="Where to write (default: user cache)."),
+    verbose: int = typer.Option(0, "--verbose", "-v", count=True),
+) -> None:
+    """Build the lost-in-space pattern database for a FOV range."""
+    _setup_logging(verbose)
+    from skyfix.identify import PatternDatabase, default_database_path
+
+    try:
+        if not 0.5 <= fov_min <= fov_max <= 100:
+            _fail(f"need 0.5 <= fov-min <= fov-max <= 100, got {fov_min}..{fov_max}")
+        db = PatternDatabase.build(fov_min_deg=fov_min, fov_max_deg=fov_max, progress=True)
+        path = output or default_database_path()
+        db.save(path)
+    except SkyfixError as exc:
+        _fail(str(exc))
+    typer.echo(f"wrote {path} ({db.summary()})")
+
+
+def main() -> None:  # pragma: no cover - console entry point
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

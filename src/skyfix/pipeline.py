@@ -1,0 +1,174 @@
+"""``solve()``: image → centroids → identification → attitude → :class:`Solution`.
+
+The same path serves the Python API and ``skyfix solve``. Each stage is a plain function
+of its own module; this one only composes them, times them and fills in the Solution.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from skyfix.attitude import attitude_covariance, solve_attitude
+from skyfix.camera import Camera
+from skyfix.errors import CameraError
+from skyfix.geometry import angle_between, quaternion_from_attitude, radec_roll_from_attitude, vector_to_radec
+from skyfix.solution import Match, Solution
+
+__all__ = ["solve", "solve_centroids"]
+
+log = logging.getLogger("skyfix")
+
+_ARCSEC = math.pi / (180 * 3600)
+
+
+def solve(
+    image: str | Path | np.ndarray,
+    *,
+    fov_deg: float | None = None,
+    fov_tolerance_deg: float | None = None,
+    camera: Camera | None = None,
+    database=None,
+    epoch: float | None = None,
+    attitude_method: str = "svd",
+    max_stars: int = 50,
+    name: str | None = None,
+    **identify_options,
+) -> Solution:
+    """Solve one sky image, lost in space.
+
+    Parameters
+    ----------
+    image : path or (H, W) array
+        FITS, PNG, TIFF or JPEG file, or image data.
+    fov_deg : float, optional
+        Horizontal field of view, degrees. Unknown when omitted (it is then fitted).
+    fov_tolerance_deg : float, optional
+        How far the true FOV may be from ``fov_deg``, degrees.
+    camera : Camera, optional
+        Full camera model (intrinsics + distortion); overrides ``fov_deg``.
+    database : PatternDatabase, optional
+        Pattern database (default: the cached default one).
+    epoch : float, optional
+        Observation epoch, Julian year, for proper motion (default: now).
+    attitude_method : str
+        Wahba solver for the final fit: ``svd``, ``quest``, ``esoq2``, ``q-method``, ``triad``.
+    max_stars : int
+        Brightest centroids passed to identification.
+
+    Returns
+    -------
+    Solution
+        ``status == "solved"`` with attitude and error bars, or ``"failed"`` with a reason.
+
+    Raises
+    ------
+    skyfix.errors.ImageReadError
+        The file cannot be read as an image.
+    """
+    from skyfix.detect import extract_centroids
+    from skyfix.io import read_image
+
+    t0 = time.perf_counter()
+    label = name if name is not None else (str(image) if isinstance(image, (str, Path)) else "<array>")
+    data = read_image(image)
+    t_read = time.perf_counter()
+    centroids = extract_centroids(data, max_stars=max_stars)
+    t_extract = time.perf_counter()
+    log.info("%s: %d×%d image, %d centroids (noise %.3g)", label, data.shape[1], data.shape[0],
+             len(centroids), getattr(centroids, "noise", float("nan")))
+    sol = solve_centroids(
+        centroids.xy, data.shape[1], data.shape[0], fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
+        camera=camera, database=database, epoch=epoch, attitude_method=attitude_method,
+        name=label, **identify_options,
+    )
+    t_end = time.perf_counter()
+    sol.time_ms = {
+        "read": 1e3 * (t_read - t0),
+        "extract": 1e3 * (t_extract - t_read),
+        "identify": sol.time_ms.get("identify", 0.0),
+        "attitude": sol.time_ms.get("attitude", 0.0),
+        "total": 1e3 * (t_end - t0),
+    }
+    return sol
+
+
+def solve_centroids(
+    xy: np.ndarray,
+    width: int,
+    height: int,
+    *,
+    fov_deg: float | None = None,
+    fov_tolerance_deg: float | None = None,
+    camera: Camera | None = None,
+    database=None,
+    epoch: float | None = None,
+    attitude_method: str = "svd",
+    name: str = "",
+    **identify_options,
+) -> Solution:
+    """Identify centroids (N, 2) (pixels, brightest first) and fit the attitude."""
+    from skyfix.identify import identify
+
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    sol = Solution(image=name, n_detected=len(xy))
+    if camera is not None and (camera.width, camera.height) != (width, height):
+        raise CameraError(f"camera is {camera.width}×{camera.height} but the image is {width}×{height}")
+    if len(xy) < 3:
+        sol.reason = f"too few stars detected ({len(xy)}; need at least 3)"
+        return sol
+    t0 = time.perf_counter()
+    ident = identify(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
+                     camera=camera, database=database, epoch=epoch, **identify_options)
+    t1 = time.perf_counter()
+    sol.time_ms = {"identify": 1e3 * (t1 - t0)}
+    sol.method = ident.method
+    if not ident.success:
+        sol.reason = ident.reason
+        log.info("%s: identification failed: %s", name, ident.reason)
+        return sol
+    _fill_attitude(sol, xy, ident, attitude_method)
+    sol.time_ms["attitude"] = 1e3 * (time.perf_counter() - t1)
+    sol.time_ms["total"] = 1e3 * (time.perf_counter() - t0)
+    log.info("%s: solved with %d stars, P(false) %.2g, rmse %.2f″", name, sol.n_matched,
+             sol.prob_false, sol.rmse_arcsec)
+    return sol
+
+
+def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str) -> None:
+    camera: Camera = ident.camera
+    idx = np.asarray(ident.star_index)
+    b = camera.pixel_to_ray(xy[idx])
+    r = np.asarray(ident.catalog_vectors)
+    A = solve_attitude(b, r, method=attitude_method)
+    resid = angle_between(b, r @ A.T)
+    n = len(idx)
+    rmse = float(np.sqrt(np.mean(resid**2)))
+    # Per-axis centroid σ from the fit's own residuals (3 attitude dof used), floored at
+    # 0.05 px so a lucky tiny residual does not claim an impossible precision.
+    dof = max(2 * n - 3, 1)
+    sigma = max(float(np.sqrt(np.sum(resid**2) / dof)), 0.05 * camera.plate_scale_rad)
+    cov = attitude_covariance(A, b, sigma) / _ARCSEC**2
+    ra, dec, roll = radec_roll_from_attitude(A)
+    cat_ra, cat_dec = vector_to_radec(r)
+    sol.status = "solved"
+    sol.reason = ""
+    sol.ra_deg, sol.dec_deg, sol.roll_deg = math.degrees(ra), math.degrees(dec), math.degrees(roll)
+    sol.fov_deg = camera.fov_deg
+    sol.quaternion_xyzw = quaternion_from_attitude(A).tolist()
+    sol.covariance_arcsec2 = cov.tolist()
+    sol.n_matched = n
+    sol.prob_false = float(ident.prob_false)
+    sol.rmse_arcsec = rmse / _ARCSEC
+    sol.A_icrs_to_cam = A
+    sol.camera = camera
+    mags = np.asarray(ident.catalog_mag, dtype=float)
+    sol.matches = [
+        Match(x=float(xy[i, 0]), y=float(xy[i, 1]), id=int(hid), ra_deg=math.degrees(a),
+              dec_deg=math.degrees(d), mag=float(m), residual_arcsec=float(e / _ARCSEC))
+        for i, hid, a, d, m, e in zip(idx, ident.catalog_ids, cat_ra, cat_dec, mags, resid, strict=True)
+    ]

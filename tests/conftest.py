@@ -1,0 +1,31 @@
+"""Shared fixtures: the real images beside the repository and the cached pattern database."""
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+REAL_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+
+
+@pytest.fixture(scope="session")
+def real_dir() -> Path:
+    if not REAL_DIR.is_dir():
+        if os.environ.get("CI"):
+            pytest.fail(f"real images not found at {REAL_DIR}")
+        pytest.skip("real images (../shared/data/real) not present")
+    return REAL_DIR
+
+
+@pytest.fixture(scope="session")
+def real_solutions(real_dir) -> dict[str, dict]:
+    lines = (real_dir / "solutions.jsonl").read_text().splitlines()
+    return {d["image"]: d for d in map(json.loads, lines)}
+
+
+@pytest.fixture(scope="session")
+def database():
+    from skyfix.identify import default_database
+
+    return default_database()

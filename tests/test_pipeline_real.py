@@ -1,0 +1,40 @@
+"""Acceptance on the 21 real images: every one solves with no FOV hint, near the reference."""
+
+import numpy as np
+import pytest
+
+from skyfix.geometry import angle_between, radec_to_vector
+from skyfix.pipeline import solve
+
+IMAGES = [
+    "cedar-solve/crappy.jpg", "cedar-solve/hale_bopp.jpg", "cedar-solve/jan1_g90_e100ms.jpg",
+    "cedar-solve/jan1_g90_e50ms.jpg", "cedar-solve/orion2.jpg", "cedar-solve/orion_belt.jpg",
+    "cedar-solve/orion_trees.jpg", "cedar-solve/pleiades.jpg", "cedar-solve/roof.jpg",
+    "cedar-solve/test2_g100_e50ms.jpg", "cedar-solve/test_5mp_g100_e50ms.jpg", "cedar-solve/tree.jpg",
+    "cedar-solve/virgo.jpg",
+    "esa-tetra3/2019-07-29T204726_Alt40_Azi-135_Try1.tiff", "esa-tetra3/2019-07-29T204726_Alt40_Azi-45_Try1.tiff",
+    "esa-tetra3/2019-07-29T204726_Alt40_Azi135_Try1.tiff", "esa-tetra3/2019-07-29T204726_Alt40_Azi45_Try1.tiff",
+    "esa-tetra3/2019-07-29T204726_Alt60_Azi-135_Try1.tiff", "esa-tetra3/2019-07-29T204726_Alt60_Azi-45_Try1.tiff",
+    "esa-tetra3/2019-07-29T204726_Alt60_Azi135_Try1.tiff", "esa-tetra3/2019-07-29T204726_Alt60_Azi45_Try1.tiff",
+]
+
+
+def test_all_reference_images_are_listed(real_solutions):
+    assert sorted(IMAGES) == sorted(real_solutions)
+
+
+@pytest.mark.parametrize("name", IMAGES)
+def test_real_image_solves_near_reference(name, real_dir, real_solutions, database):
+    ref = real_solutions[name]
+    sol = solve(real_dir / name, database=database)
+    assert sol.status == "solved", sol.reason
+    sep = angle_between(radec_to_vector(np.radians(sol.ra_deg), np.radians(sol.dec_deg)),
+                        radec_to_vector(np.radians(ref["ra_deg"]), np.radians(ref["dec_deg"])))
+    sep_arcsec = np.degrees(sep) * 3600
+    assert sep_arcsec < (20.0 if name.startswith("esa") else 60.0)
+    droll = (sol.roll_deg - ref["roll_deg"] + 180.0) % 360.0 - 180.0
+    assert abs(droll) < 0.5
+    fov_ref = ref["fov_w_deg"]
+    assert sol.fov_deg == pytest.approx(fov_ref, rel=0.01)
+    assert sol.n_matched >= 6
+    assert sol.prob_false < 1e-6
