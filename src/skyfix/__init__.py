@@ -1,3 +1,29 @@
-"""skyfix — a star tracker in Python."""
+"""skyfix — a star tracker in Python.
+
+>>> import skyfix
+>>> sol = skyfix.solve("sky.png")          # lost in space, no FOV needed
+>>> sol.ra_deg, sol.dec_deg, sol.roll_deg  # boresight and roll, degrees
+"""
+
+from __future__ import annotations
 
 __version__ = "0.1.0"
+
+__all__ = ["solve", "solve_centroids", "Camera", "Solution", "load_hipparcos"]
+
+_LAZY = {
+    "solve": "skyfix.pipeline",
+    "solve_centroids": "skyfix.pipeline",
+    "Camera": "skyfix.camera",
+    "Solution": "skyfix.solution",
+    "load_hipparcos": "skyfix.catalog",
+}
+
+
+def __getattr__(name: str):
+    # Lazy so that `import skyfix` stays cheap for the CLI and for stage-only users.
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'skyfix' has no attribute {name!r}")
