@@ -19,3 +19,7 @@ class DatabaseError(SkyfixError):
 
 class CatalogError(SkyfixError):
     """The star catalogue cannot be read."""
+
+
+class SimulationError(SkyfixError):
+    """Simulator settings are invalid (unknown preset, negative exposure, bad sensor value, ...)."""
