@@ -1,0 +1,103 @@
+"""The one place where the benchmarks call skyfix (so an API change is a change here only).
+
+Calls: ``skyfix.pipeline.solve`` (image file or array → Solution), ``skyfix.pipeline.solve_centroids``
+(centroids → Solution), ``skyfix.detect.extract_centroids`` and ``skyfix.identify``'s
+``PatternDatabase`` / ``default_database``. Timings are wall clock around each call, measured
+exactly as for the peers.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from common import CACHE_DIR, Attempt, now_ms
+
+
+class Skyfix:
+    name = "skyfix"
+
+    def __init__(self, min_fov_deg: float | None = None, max_fov_deg: float | None = None):
+        import skyfix
+        import skyfix.pipeline
+
+        self.version = skyfix.__version__
+        self.pipeline = skyfix.pipeline
+        self.build_ms = None
+        self.db, self.load_ms = self._database(min_fov_deg, max_fov_deg)
+
+    # --- database --------------------------------------------------------------------------------
+    def _database(self, min_fov: float | None, max_fov: float | None):
+        """The default cached database, or one for a custom FOV range cached in benchmarks/.cache."""
+        from skyfix import identify
+
+        if min_fov is None:
+            t0 = now_ms()
+            db = identify.default_database()
+            return db, now_ms() - t0
+        path = CACHE_DIR / f"skyfix_{min_fov:g}-{max_fov:g}.npz"
+        if not path.exists():
+            self.build_ms, db = self.build(min_fov, max_fov)
+            CACHE_DIR.mkdir(parents=True, exist_ok=True)
+            db.save(path)
+        return self.load(path)
+
+    @staticmethod
+    def build(min_fov: float, max_fov: float):
+        from skyfix.identify import PatternDatabase
+
+        t0 = now_ms()
+        db = PatternDatabase.build(fov_min_deg=min_fov, fov_max_deg=max_fov)
+        return now_ms() - t0, db
+
+    @staticmethod
+    def load(path: str | Path):
+        from skyfix.identify import PatternDatabase
+
+        t0 = now_ms()
+        db = PatternDatabase.load(path)
+        return db, now_ms() - t0
+
+    # --- solving ---------------------------------------------------------------------------------
+    @staticmethod
+    def _attempt(sol, dt: float) -> Attempt:
+        if sol.status != "solved":
+            return Attempt(False, None, dt, sol.reason or sol.status,
+                           extra={"n_detected": sol.n_detected, "self_ms": dict(sol.time_ms)})
+        return Attempt(True, np.asarray(sol.A_icrs_to_cam, float), dt, "solved", int(sol.n_matched),
+                       sol.fov_deg, {"n_detected": sol.n_detected, "self_ms": dict(sol.time_ms),
+                                     "prob_false": sol.prob_false})
+
+    def solve_centroids(self, xy: np.ndarray, width: int, height: int, fov_deg: float | None,
+                        fov_max_error_deg: float | None = None, flux: np.ndarray | None = None,
+                        timeout_ms: int = 5000) -> Attempt:
+        t0 = now_ms()
+        sol = self.pipeline.solve_centroids(xy, width, height, fov_deg=fov_deg,
+                                            fov_tolerance_deg=fov_max_error_deg, database=self.db)
+        return self._attempt(sol, now_ms() - t0)
+
+    def solve_file(self, path: str | Path | np.ndarray, fov_deg: float | None = None,
+                   fov_max_error_deg: float | None = None) -> Attempt:
+        """End to end: file (or array) → Solution."""
+        t0 = now_ms()
+        sol = self.pipeline.solve(path, fov_deg=fov_deg, fov_tolerance_deg=fov_max_error_deg,
+                                  database=self.db)
+        return self._attempt(sol, now_ms() - t0)
+
+    solve_image = solve_file
+
+    @staticmethod
+    def extract(image: np.ndarray) -> tuple[np.ndarray, float]:
+        from skyfix.detect import extract_centroids
+
+        t0 = now_ms()
+        c = extract_centroids(image)
+        dt = now_ms() - t0
+        return np.asarray(c.xy, float).reshape(-1, 2), dt
+
+    @staticmethod
+    def read(path: str | Path) -> np.ndarray:
+        from skyfix.io import read_image
+
+        return read_image(path)
