@@ -10,6 +10,7 @@ from skyfix import attitude as att
 from skyfix.attitude import (
     METHODS,
     attitude_covariance,
+    attitude_error,
     covariance_to_arcsec2,
     refine_focal,
     residuals_arcsec,
@@ -179,7 +180,7 @@ def test_covariance_matches_monte_carlo() -> None:
     errs = np.empty((2000, 3))
     for k in range(len(errs)):
         Ah = solve_attitude(_tangent_noise(rng, b, sigma), r, w, method="quest")
-        errs[k] = Rotation.from_matrix(Ah @ A.T).as_rotvec()  # A_est = R(δθ) A_true, camera frame
+        errs[k] = attitude_error(A, Ah)  # A_est = R(δθ) A_true, camera frame
     P = attitude_covariance(A, b, sigma)
     C = np.cov(errs.T)
     assert np.allclose(np.diag(C) / np.diag(P), 1.0, atol=0.10)
@@ -257,3 +258,17 @@ def test_refine_focal_needs_enough_stars() -> None:
     xy = np.array([[10.0, 10.0], [300.0, 200.0]])
     with pytest.raises(ValueError, match="needs more than"):
         refine_focal(xy, cam, cam.pixel_to_ray(xy))
+
+
+def test_attitude_error_axes_and_quaternion_inverse() -> None:
+    A = attitude_from_radec_roll(1.2, 0.4, 0.7)
+    roll = np.radians(30 / 3600)
+    A_est = Rotation.from_rotvec([0.0, 0.0, roll]).as_matrix() @ A  # pure roll about the boresight
+    d = attitude_error(A, A_est)
+    assert d == pytest.approx([0.0, 0.0, roll], abs=1e-15)
+    assert np.allclose(A_est[2], A[2])  # boresight unchanged
+    # Thesis 003 Eq. 7.15 corrected: the error quaternion needs the inverse of the truth.
+    q_t = Rotation.from_matrix(A)
+    q_e = Rotation.from_matrix(A_est)
+    assert np.allclose((q_e * q_t.inv()).as_rotvec(), d, atol=1e-15)
+    assert not np.allclose((q_e * q_t).as_rotvec(), d, atol=1e-3)  # the printed form

@@ -42,6 +42,7 @@ __all__ = [
     "triad_attitude",
     "attitude_covariance",
     "covariance_to_arcsec2",
+    "attitude_error",
     "residuals_arcsec",
     "rmse_arcsec",
     "refine_focal",
@@ -372,6 +373,17 @@ def attitude_covariance(A_icrs_to_cam: np.ndarray, b_cam: np.ndarray, sigma_rad:
         A = np.asarray(A_icrs_to_cam, dtype=np.float64)
         return A.T @ P @ A
     raise ValueError(f"unknown covariance frame {frame!r}; use 'camera' or 'icrs'")
+
+
+def attitude_error(A_true: np.ndarray, A_est: np.ndarray) -> np.ndarray:
+    """Error rotation vector ``δθ`` (3,) in the camera frame, radians: ``A_est = R(δθ) A_true``.
+
+    ``δθ[:2]`` is the cross-boresight (pointing) error and ``δθ[2]`` the roll error, the axes of
+    :func:`attitude_covariance`. In quaternions (scipy's composition) this is
+    ``q_err = q_est ⊗ q_true⁻¹`` — the inverse that thesis 003's Eq. 7.15 omits.
+    """
+    dA = np.asarray(A_est, dtype=np.float64) @ np.asarray(A_true, dtype=np.float64).T
+    return Rotation.from_matrix(dA).as_rotvec()
 
 
 def covariance_to_arcsec2(P_rad2: np.ndarray) -> np.ndarray:
