@@ -1,0 +1,274 @@
+"""render(): attitude → stars in view → camera model → PSF → sensor → image, with the truth.
+
+Random streams: ``SeedSequence(seed, spawn_key=(frame_index,))`` is split into one stream per
+source (:data:`STREAMS`), so a frame is bit-for-bit repeatable, frames of a sequence are
+independent, and switching one source off leaves every other source's draws unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from skyfix.camera import Camera, camera_from_preset
+from skyfix.catalog import Catalog
+from skyfix.errors import SimulationError, SkyfixError
+from skyfix.geometry import quaternion_from_attitude, radec_roll_from_attitude
+from skyfix.simulate.motion import star_tracks
+from skyfix.simulate.optics import Optics
+from skyfix.simulate.photometry import sky_electrons_per_pixel, star_electrons
+from skyfix.simulate.presets import load_preset
+from skyfix.simulate.psf import add_gaussians
+from skyfix.simulate.scene import (
+    aberrate,
+    candidate_stars,
+    catalog_at,
+    cosmic_ray_hits,
+    false_star_list,
+    parse_time,
+    stray_light_map,
+)
+from skyfix.simulate.sensor import Sensor, apply_detector, fixed_pattern, noise_switches
+
+__all__ = ["SimulatedFrame", "render", "resolve_setup", "STREAMS"]
+
+#: Independent random streams of one frame, in spawn order (never reorder: it changes every draw).
+STREAMS = ("shot", "dark", "read", "ktc", "false_stars", "cosmic_rays")
+
+
+@dataclass
+class SimulatedFrame:
+    """A rendered frame.
+
+    Attributes
+    ----------
+    image : (H, W) ndarray
+        ``uint16`` ADU (``float32`` ADU when quantisation is switched off).
+    truth : dict
+        ``ra_deg``, ``dec_deg``, ``roll_deg``, ``quaternion_xyzw``, ``time`` (ISO UTC, mid-exposure),
+        ``epoch_jyear``, ``exposure_s``, ``rate_rad_s``, ``seed``, ``frame_index``, ``camera``
+        (the ``[camera]`` table), ``sensor``, ``optics``, ``noise``, ``stars``
+        (``[{id, x, y, mag, electrons}]``, x/y at the star's mid-exposure in DESIGN.md's pixel
+        convention, electrons = expected photo-electrons before noise), ``false_stars``,
+        ``cosmic_rays``, ``hot_pixels``, ``background_e``.
+    expected_e : (H, W) float32 ndarray
+        Expected photo-electrons per pixel before the detector (no noise, no PRNU).
+    """
+
+    image: np.ndarray
+    truth: dict
+    expected_e: np.ndarray = field(repr=False)
+
+
+def _camera_table(camera: Camera) -> dict:
+    import tomllib
+
+    return tomllib.loads(camera.to_toml())["camera"]
+
+
+def resolve_setup(camera: Camera | str, sensor: Sensor | str | None, optics: Optics | str | None,
+                  exposure_s: float | None) -> tuple[Camera, Sensor, Optics, float]:
+    """Camera, sensor, optics and exposure from objects or preset names.
+
+    A preset name for the camera also supplies the sensor, optics and exposure left as None;
+    otherwise the ``generic`` preset does.
+    """
+    preset = None
+    if isinstance(camera, str):
+        preset = camera.lower()
+        try:
+            tables = load_preset(preset)
+            camera = Camera.from_dict(tables["camera"])
+        except SimulationError:
+            try:
+                camera = camera_from_preset(preset)  # a camera.py preset without sensor data
+            except SkyfixError:
+                raise SimulationError(f"unknown camera preset {preset!r}") from None
+            preset = "generic"
+    elif not isinstance(camera, Camera):
+        raise SimulationError(f"camera must be a Camera or a preset name, got {type(camera).__name__}")
+    base = load_preset(preset or "generic")
+    if sensor is None:
+        sensor = Sensor.from_dict(base["sensor"])
+    elif isinstance(sensor, str):
+        sensor = Sensor.from_preset(sensor)
+    elif not isinstance(sensor, Sensor):
+        raise SimulationError(f"sensor must be a Sensor or a preset name, got {type(sensor).__name__}")
+    if optics is None:
+        optics = Optics.from_dict(base.get("optics", {}))
+    elif isinstance(optics, str):
+        optics = Optics.from_preset(optics)
+    elif not isinstance(optics, Optics):
+        raise SimulationError(f"optics must be an Optics or a preset name, got {type(optics).__name__}")
+    if exposure_s is None:
+        exposure_s = float(base.get("defaults", {}).get("exposure_s", 0.1))
+    try:
+        exposure_s = float(exposure_s)
+    except (TypeError, ValueError):
+        raise SimulationError(f"exposure must be a number of seconds, got {exposure_s!r}") from None
+    if not (math.isfinite(exposure_s) and exposure_s > 0):
+        raise SimulationError(f"exposure must be a positive number of seconds, got {exposure_s}")
+    return camera, sensor, optics, exposure_s
+
+
+def _check_attitude(A: np.ndarray) -> np.ndarray:
+    A = np.asarray(A, dtype=np.float64)
+    if A.shape != (3, 3) or not np.all(np.isfinite(A)):
+        raise SimulationError("attitude must be a finite 3x3 matrix")
+    if np.max(np.abs(A @ A.T - np.eye(3))) > 1e-6 or np.linalg.det(A) < 0:
+        raise SimulationError("attitude must be a rotation matrix (orthonormal, determinant +1)")
+    return A
+
+
+def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | str | None = None,
+           optics: Optics | str | None = None, exposure_s: float | None = None, epoch=None,
+           rate_rad_s=None, seed: int = 0, catalog: Catalog | None = None, mag_limit: float | None = None,
+           false_stars: int = 0, false_star_mags: tuple[float, float] = (3.0, 8.0), hot_pixels: int = 0,
+           cosmic_rays: int = 0, stray_light: Mapping | None = None, sky_mag_arcsec2: float | None = 22.0,
+           observer_velocity_km_s=None, noise: bool | Mapping[str, bool] = True, frame_index: int = 0
+           ) -> SimulatedFrame:
+    """Render a star-camera frame and its truth.
+
+    Parameters
+    ----------
+    A_icrs_to_cam : (3, 3) array
+        Attitude at mid-exposure (of the centre row), ``b = A r``.
+    camera : Camera or str
+        Camera model, or a preset name (which also supplies sensor, optics and exposure).
+    sensor, optics : Sensor / Optics / preset name, optional
+    exposure_s : float, optional
+        Integration time, seconds (> 0).
+    epoch : None, float, str, datetime
+        Mid-exposure time: Julian year, ISO-8601 text or datetime (default: now). Pass it for
+        bit-for-bit repeatable frames (proper motion is applied to this epoch).
+    rate_rad_s : (3,) array, optional
+        Body rate about the camera x, y, z axes, rad/s: smear during the exposure (and rolling
+        shutter skew when ``sensor.line_time_s > 0``).
+    seed : int
+        Seed of the temporal noise streams.
+    catalog : Catalog, optional
+        Stars to render (default: Hipparcos at ``epoch``); moved to ``epoch`` if needed.
+    mag_limit : float, optional
+        Render only stars brighter than this.
+    false_stars : int
+        Number of false stars/debris (uniform positions, magnitudes in ``false_star_mags``).
+    hot_pixels : int
+        Number of hot pixels (fixed positions for the sensor).
+    cosmic_rays : int
+        Number of cosmic-ray tracks.
+    stray_light : mapping, optional
+        Smooth gradient, see :func:`skyfix.simulate.scene.stray_light_map`.
+    sky_mag_arcsec2 : float or None
+        Sky background surface brightness, mag arcsec⁻² (None: dark sky).
+    observer_velocity_km_s : (3,) array, optional
+        Observer velocity in ICRS for stellar aberration, km/s.
+    noise : bool or mapping
+        Detector sources on/off (see :data:`skyfix.simulate.sensor.NOISE_SOURCES`).
+    frame_index : int
+        Index in a sequence; selects independent noise streams for the same seed.
+    """
+    A = _check_attitude(A_icrs_to_cam)
+    camera, sensor, optics, exposure_s = resolve_setup(camera, sensor, optics, exposure_s)
+    switches = noise_switches(noise)
+    epoch_jy, time_iso = parse_time(epoch)
+    rate = None if rate_rad_s is None else np.asarray(rate_rad_s, dtype=np.float64).reshape(3)
+    if rate is not None and not np.all(np.isfinite(rate)):
+        raise SimulationError("rate_rad_s must be three finite numbers")
+    counts = (("false_stars", false_stars), ("hot_pixels", hot_pixels), ("cosmic_rays", cosmic_rays))
+    for name, value in counts:
+        if int(value) < 0:
+            raise SimulationError(f"{name} must be >= 0, got {value}")
+    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
+        raise SimulationError(f"seed must be a non-negative integer, got {seed!r}")
+    ss = np.random.SeedSequence(int(seed), spawn_key=(int(frame_index),))
+    streams = dict(zip(STREAMS, (np.random.default_rng(s) for s in ss.spawn(len(STREAMS))), strict=True))
+
+    # --- stars in view ---------------------------------------------------------------
+    if catalog is None:
+        catalog = catalog_at(epoch_jy, mag_limit)
+    else:
+        if mag_limit is not None:
+            catalog = catalog.brighter_than(mag_limit)
+        if abs(catalog.epoch - epoch_jy) > 1e-6:
+            catalog = catalog.at_epoch(epoch_jy)
+    h, w = camera.height, camera.width
+    span_s = exposure_s / 2 + abs(sensor.line_time_s) * h
+    sigma_max = optics.psf_sigma_px * (1 + optics.ellipticity_edge) + optics.defocus_px
+    extra = ((np.linalg.norm(rate) * span_s if rate is not None else 0.0)
+             + (8 * sigma_max + 2) * camera.plate_scale_rad)
+    idx = candidate_stars(A, camera, catalog, extra)
+    vectors = aberrate(catalog.vectors[idx], observer_velocity_km_s)
+    xy_mid, front, tracks, b_mid = star_tracks(A, rate, vectors, camera, exposure_s, sensor.line_time_s)
+    margin = -(6 * sigma_max + 1)  # stars just outside still spill light in
+    near = front & camera.in_frame(xy_mid, margin=margin) & np.all(np.isfinite(tracks), axis=(0, 2))
+    idx, xy_mid, tracks, b_mid = idx[near], xy_mid[near], tracks[:, near], b_mid[near]
+    beta = np.arccos(np.clip(b_mid[:, 2], -1.0, 1.0))
+    electrons = star_electrons(catalog.mag[idx], optics, sensor, exposure_s, optics.transmission(beta))
+
+    # --- expected photo-electrons ------------------------------------------------------
+    expected = np.zeros((h, w), dtype=np.float64)
+    background = 0.0
+    if sky_mag_arcsec2 is not None:
+        background = sky_electrons_per_pixel(sky_mag_arcsec2, optics, sensor, exposure_s,
+                                             camera.plate_scale_rad)
+        expected += background
+    if stray_light is not None:
+        expected += stray_light_map(stray_light, camera, A, exposure_s)
+    _add_sources(expected, tracks, electrons, optics, camera)
+    fs_records = []
+    if false_stars:
+        fxy, fmag = false_star_list(int(false_stars), camera, streams["false_stars"], false_star_mags)
+        fe = star_electrons(fmag, optics, sensor, exposure_s)
+        _add_sources(expected, fxy[None], fe, optics, camera)
+        fs_records = [dict(x=float(x), y=float(y), mag=float(m), electrons=float(e))
+                      for (x, y), m, e in zip(fxy, fmag, fe, strict=True)]
+    extra_e, cr_records = None, []
+    if cosmic_rays:
+        extra_e, cr_records = cosmic_ray_hits(int(cosmic_rays), (h, w), streams["cosmic_rays"])
+
+    image = apply_detector(expected, sensor, exposure_s, streams, noise=switches,
+                           hot_pixels=int(hot_pixels), extra_e=extra_e)
+
+    # --- truth ------------------------------------------------------------------------
+    inside = camera.in_frame(xy_mid)
+    ra, dec, roll = radec_roll_from_attitude(A)
+    hot_records = []
+    if hot_pixels and switches["hot_pixels"]:
+        pat = fixed_pattern(sensor, (h, w), int(hot_pixels))
+        hot_records = [dict(x=int(i % w), y=int(i // w), dark_e_s=float(d))
+                       for i, d in zip(pat.hot_index, pat.hot_dark_e_s, strict=True)]
+    truth = dict(
+        ra_deg=math.degrees(ra), dec_deg=math.degrees(dec), roll_deg=math.degrees(roll),
+        quaternion_xyzw=[float(q) for q in quaternion_from_attitude(A)],
+        time=time_iso, epoch_jyear=epoch_jy, exposure_s=exposure_s,
+        rate_rad_s=None if rate is None else [float(r) for r in rate],
+        observer_velocity_km_s=None if observer_velocity_km_s is None
+        else [float(v) for v in np.asarray(observer_velocity_km_s).reshape(3)],
+        seed=int(seed), frame_index=int(frame_index),
+        camera=_camera_table(camera), sensor=sensor.to_dict(), optics=optics.to_dict(), noise=switches,
+        sky_mag_arcsec2=sky_mag_arcsec2, background_e=float(background),
+        stars=[dict(id=int(i), x=float(x), y=float(y), mag=float(m), electrons=float(e))
+               for i, (x, y), m, e in zip(catalog.ids[idx][inside], xy_mid[inside], catalog.mag[idx][inside],
+                                          electrons[inside], strict=True)],
+        false_stars=fs_records, cosmic_rays=cr_records, hot_pixels=hot_records,
+    )
+    return SimulatedFrame(image=image, truth=truth, expected_e=expected.astype(np.float32))
+
+
+def _add_sources(image: np.ndarray, tracks: np.ndarray, electrons: np.ndarray, optics: Optics,
+                 camera: Camera) -> None:
+    """Add stars along their tracks (K sub-steps × defocus points), electrons split evenly."""
+    k, n, _ = tracks.shape
+    if n == 0:
+        return
+    offsets, weights = optics.defocus_offsets()
+    pos = tracks[:, :, None, :] + offsets[None, None, :, :]  # (K, N, D, 2)
+    flux = (electrons[None, :, None] / k) * weights[None, None, :]
+    flux = np.broadcast_to(flux, pos.shape[:3])
+    pos = pos.reshape(-1, 2)
+    sxx, syy, sxy = optics.covariance(np.broadcast_to(tracks[:, :, None, :], pos.reshape(k, n, -1, 2).shape
+                                                      ).reshape(-1, 2), camera)
+    add_gaussians(image, pos[:, 0], pos[:, 1], flux.reshape(-1), sxx, syy, sxy)

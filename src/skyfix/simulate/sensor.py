@@ -1,0 +1,439 @@
+"""Detector model: electrons in a pixel -> ADU, with every noise source switchable.
+
+Order of the chain (physical; each step names the thesis 002 equation it corrects):
+
+1. PRNU: the expected photo-electrons of each pixel are scaled by a fixed gain map
+   ``1 + prnu·R`` (Eq. 3-10; applied to the *expected* signal so that shot noise follows the
+   pixel's real response).
+2. Shot noise: Poisson draw of the photo-electrons (Eq. 3-8 used a Gaussian; Poisson here).
+3. Dark current: mean ``dark_current_e_s · t`` (plus hot pixels) with its own Poisson shot
+   noise (Eq. 3-9).
+4. Full-well clipping of the collected charge (absent in the thesis).
+5. DSNU / fixed-pattern offset: fixed map ``dsnu_e·R`` (Eq. 3-11).
+6. Read noise and 7. kTC reset noise: Gaussian (Eqs. 3-12, 3-13).
+8. Gain to ADU (Eq. 3-15: ``gain_e_per_adu = V_swing / ((2^bits - 1)·A_g·I2V)``), bias,
+   clipping to ``[0, 2^bits - 1]`` and rounding.
+
+Each temporal source draws from its own ``numpy.random.Generator`` (spawned from one
+``SeedSequence``), so a frame is bit-for-bit repeatable and switching one source off does not
+change the others' draws. Fixed-pattern maps (PRNU, DSNU, hot pixels) come from
+``Sensor.pattern_seed``: they belong to the sensor, not to the frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numba
+import numpy as np
+import tomllib
+
+from skyfix.errors import SimulationError
+
+__all__ = [
+    "Sensor",
+    "NOISE_SOURCES",
+    "noise_switches",
+    "conversion_gain_e_per_adu",
+    "fixed_pattern",
+    "FixedPattern",
+    "apply_detector",
+]
+
+#: The switchable detector effects, in the order they are applied.
+NOISE_SOURCES = ("prnu", "shot", "dark", "hot_pixels", "dsnu", "read", "ktc", "quantization")
+
+
+def conversion_gain_e_per_adu(adc_swing_v: float, charge_to_voltage_uv_per_e: float,
+                              bit_depth: int, amp_gain: float = 1.0) -> float:
+    """Electrons per ADU of the readout chain (thesis 002 Eq. 3-15, inverted).
+
+    ``I_ADU = (2^bits - 1) / V_s · A_g · I2V · I_e``, so one ADU is
+    ``V_s / ((2^bits - 1) · A_g · I2V)`` electrons. HAS2: 1.15 V, 14.8 µV/e⁻, 12 bit -> 18.98 e⁻/ADU.
+    """
+    return adc_swing_v / ((2**bit_depth - 1) * amp_gain * charge_to_voltage_uv_per_e * 1e-6)
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """Radiometric and noise parameters of an image sensor.
+
+    Attributes
+    ----------
+    qe : float
+        Quantum efficiency × fill factor averaged over the band, electrons per photon.
+    full_well_e : float
+        Pixel charge capacity, electrons.
+    read_noise_e : float
+        Temporal read noise σ, electrons.
+    dark_current_e_s : float
+        Mean dark current, electrons per second per pixel.
+    prnu : float
+        Photo-response non-uniformity σ, as a fraction of the mean response.
+    dsnu_e : float
+        Fixed-pattern (dark signal non-uniformity) offset σ, electrons.
+    gain_e_per_adu : float
+        Conversion gain, electrons per ADU.
+    bit_depth : int
+        ADC resolution, bits; output is clipped to ``[0, 2^bit_depth - 1]``.
+    bias_adu : float
+        Constant offset added after the gain, ADU.
+    ktc_noise_e : float
+        Reset (kTC) noise σ, electrons (0 with correlated double sampling).
+    line_time_s : float
+        Rolling-shutter row delay, seconds per row (0: global shutter).
+    hot_pixel_dark_e_s : float
+        Median extra dark current of a hot pixel, electrons per second.
+    pattern_seed : int
+        Seed of this sensor's fixed-pattern maps (PRNU, DSNU, hot pixel positions).
+    pixel_pitch_um : float or None
+        Pixel pitch, µm (informational).
+    name : str
+        Human-readable name.
+    """
+
+    qe: float = 0.6
+    full_well_e: float = 15000.0
+    read_noise_e: float = 3.0
+    dark_current_e_s: float = 1.0
+    prnu: float = 0.01
+    dsnu_e: float = 1.0
+    gain_e_per_adu: float = 4.0
+    bit_depth: int = 12
+    bias_adu: float = 64.0
+    ktc_noise_e: float = 0.0
+    line_time_s: float = 0.0
+    hot_pixel_dark_e_s: float = 2000.0
+    pattern_seed: int = 0
+    pixel_pitch_um: float | None = None
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        for key in ("qe", "full_well_e", "gain_e_per_adu"):
+            v = float(getattr(self, key))
+            if not (math.isfinite(v) and v > 0):
+                raise SimulationError(f"sensor {key} must be a positive number, got {v}")
+        for key in ("read_noise_e", "dark_current_e_s", "prnu", "dsnu_e", "ktc_noise_e", "line_time_s",
+                    "hot_pixel_dark_e_s"):
+            v = float(getattr(self, key))
+            if not (math.isfinite(v) and v >= 0):
+                raise SimulationError(f"sensor {key} must be a non-negative number, got {v}")
+        if self.qe > 1.0:
+            raise SimulationError(f"sensor qe must be at most 1, got {self.qe}")
+        if not (isinstance(self.bit_depth, int) and 1 <= self.bit_depth <= 16):
+            raise SimulationError(f"sensor bit_depth must be an integer 1–16, got {self.bit_depth}")
+
+    @property
+    def max_adu(self) -> int:
+        """Largest output value, ``2^bit_depth - 1``."""
+        return 2**self.bit_depth - 1
+
+    def replace(self, **changes) -> Sensor:
+        """A copy with some fields changed."""
+        return dataclasses.replace(self, **changes)
+
+    # --- I/O ------------------------------------------------------------------------------
+    @classmethod
+    def from_dict(cls, table: Mapping) -> Sensor:
+        """Sensor from a ``[sensor]`` table. ``gain_e_per_adu`` may be replaced by the chain
+        ``adc_swing_v`` + ``charge_to_voltage_uv_per_e`` (+ ``amp_gain``), thesis 002 Eq. 3-15."""
+        table = dict(table)
+        chain = {k: table.pop(k) for k in ("adc_swing_v", "charge_to_voltage_uv_per_e", "amp_gain")
+                 if k in table}
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(table) - known
+        if unknown:
+            raise SimulationError(f"unknown sensor keys: {', '.join(sorted(unknown))}")
+        try:
+            if "gain_e_per_adu" not in table and {"adc_swing_v", "charge_to_voltage_uv_per_e"} <= set(chain):
+                table["gain_e_per_adu"] = conversion_gain_e_per_adu(
+                    float(chain["adc_swing_v"]), float(chain["charge_to_voltage_uv_per_e"]),
+                    int(table.get("bit_depth", 12)), float(chain.get("amp_gain", 1.0)))
+            kw = {}
+            for f in dataclasses.fields(cls):
+                if f.name not in table:
+                    continue
+                v = table[f.name]
+                if f.name in ("bit_depth", "pattern_seed"):
+                    kw[f.name] = int(v)
+                elif f.name == "name":
+                    kw[f.name] = str(v)
+                else:
+                    kw[f.name] = float(v)
+        except (TypeError, ValueError) as exc:
+            raise SimulationError(f"bad sensor value: {exc}") from None
+        return cls(**kw)
+
+    @classmethod
+    def from_toml(cls, text: str) -> Sensor:
+        try:
+            table = tomllib.loads(text)["sensor"]
+        except (tomllib.TOMLDecodeError, KeyError, TypeError) as exc:
+            raise SimulationError(f"not a sensor file ({exc.__class__.__name__}: {exc})") from None
+        return cls.from_dict(table)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Sensor:
+        """Sensor from the ``[sensor]`` table of a TOML file."""
+        p = Path(path)
+        try:
+            text = p.read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise SimulationError(f"cannot read sensor file {p}: {exc}") from None
+        return cls.from_toml(text)
+
+    @classmethod
+    def from_preset(cls, name: str) -> Sensor:
+        """Sensor of a bundled preset (``skyfix/presets/<name>.toml``)."""
+        from skyfix.simulate.presets import load_preset
+
+        return cls.from_dict(load_preset(name)["sensor"])
+
+    def to_dict(self) -> dict:
+        """The ``[sensor]`` table (None fields left out)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                if getattr(self, f.name) is not None}
+
+    def to_toml(self) -> str:
+        import tomli_w
+
+        return tomli_w.dumps({"sensor": self.to_dict()})
+
+
+def noise_switches(noise: bool | Mapping[str, bool]) -> dict[str, bool]:
+    """Normalise ``noise`` (True/False, or a mapping of source -> bool) to all sources.
+
+    A mapping switches the named sources; unnamed ones stay on.
+    """
+    if isinstance(noise, bool):
+        return {k: noise for k in NOISE_SOURCES}
+    if not isinstance(noise, Mapping):
+        raise SimulationError("noise must be True, False or a mapping of source names to booleans")
+    unknown = set(noise) - set(NOISE_SOURCES)
+    if unknown:
+        raise SimulationError(f"unknown noise sources: {', '.join(sorted(unknown))};"
+                              f" known: {', '.join(NOISE_SOURCES)}")
+    return {k: bool(noise.get(k, True)) for k in NOISE_SOURCES}
+
+
+# --- fixed pattern -----------------------------------------------------------------------
+@dataclass(frozen=True)
+class FixedPattern:
+    """A sensor's fixed-pattern maps for one frame size.
+
+    ``prnu_gain`` (H, W) float32 = ``1 + prnu·R``; ``dsnu_e`` (H, W) float32 offsets, electrons;
+    ``hot_index`` (K,) flat indices of hot pixels; ``hot_dark_e_s`` (K,) their extra dark current.
+    """
+
+    prnu_gain: np.ndarray
+    dsnu_e: np.ndarray
+    hot_index: np.ndarray
+    hot_dark_e_s: np.ndarray
+
+
+_PATTERN_CACHE: dict[tuple, FixedPattern] = {}
+
+
+def fixed_pattern(sensor: Sensor, shape: tuple[int, int], hot_pixels: int = 0) -> FixedPattern:
+    """The fixed-pattern maps of ``sensor`` for a ``shape`` frame (cached; drawn from
+    ``sensor.pattern_seed`` with one stream per map, so they never change between frames)."""
+    key = (sensor.pattern_seed, float(sensor.prnu), float(sensor.dsnu_e), float(sensor.hot_pixel_dark_e_s),
+           tuple(shape), int(hot_pixels))
+    hit = _PATTERN_CACHE.get(key)
+    if hit is not None:
+        return hit
+    s_prnu, s_dsnu, s_hot = np.random.SeedSequence([int(sensor.pattern_seed), 0x5EED]).spawn(3)
+    h, w = shape
+    prnu = np.random.default_rng(s_prnu).standard_normal((h, w), dtype=np.float32)
+    prnu *= np.float32(sensor.prnu)
+    prnu += np.float32(1.0)
+    np.maximum(prnu, 0.0, out=prnu)
+    dsnu = np.random.default_rng(s_dsnu).standard_normal((h, w), dtype=np.float32)
+    dsnu *= np.float32(sensor.dsnu_e)
+    rng_hot = np.random.default_rng(s_hot)
+    n_hot = min(int(hot_pixels), h * w)
+    hot_index = np.sort(rng_hot.choice(h * w, size=n_hot, replace=False)) if n_hot else np.zeros(0, np.int64)
+    # Hot-pixel dark currents are log-normal around the median (a few decades of spread).
+    hot_dark = sensor.hot_pixel_dark_e_s * np.exp(rng_hot.normal(0.0, 1.0, n_hot))
+    pattern = FixedPattern(prnu, dsnu, hot_index.astype(np.int64), hot_dark)
+    if len(_PATTERN_CACHE) > 8:
+        _PATTERN_CACHE.clear()
+    _PATTERN_CACHE[key] = pattern
+    return pattern
+
+
+# --- Poisson sampling --------------------------------------------------------------------
+def _poisson_table(lam0: float) -> tuple[np.ndarray, int, np.ndarray]:
+    """CDF table of Poisson(lam0) over ``lo .. lo+len-1`` (±12σ: the tails beyond hold < 1e-30),
+    and a guide table for O(1) inversion."""
+    from scipy.stats import poisson
+
+    sd = math.sqrt(lam0)
+    lo = max(0, int(math.floor(lam0 - 12.0 * sd - 10.0)))
+    hi = int(math.ceil(lam0 + 12.0 * sd + 10.0))
+    k = np.arange(lo, hi + 1)
+    cdf = poisson.cdf(k, lam0)
+    cdf[-1] = 1.0
+    m = len(cdf)
+    guide = np.searchsorted(cdf, np.arange(m) / m, side="left").astype(np.int64)
+    return cdf, lo, guide
+
+
+@numba.njit(cache=True, nogil=True)
+def _draw_table(u, cdf, lo, guide):
+    m = cdf.size
+    j = guide[int(u * m)]
+    while cdf[j] < u:
+        j += 1
+    return lo + j
+
+
+@numba.njit(cache=True, nogil=True)
+def _poisson_small(rng, lam):
+    # Inversion by sequential search: about lam + 1 steps, one uniform.
+    u = rng.random()
+    p = math.exp(-lam)
+    s = p
+    k = 0
+    while u > s and k < 1000:
+        k += 1
+        p *= lam / k
+        s += p
+    return k
+
+
+@numba.njit(cache=True, nogil=True)
+def _poisson_image(lam, lam0, cdf, lo, guide, rng, out):
+    """out[i] = Poisson(lam[i]) drawn as Poisson(lam0) (table) + Poisson(lam[i] - lam0)."""
+    flat = lam.ravel()
+    o = out.ravel()
+    use_table = lam0 > 0.0
+    for i in range(flat.size):
+        k = 0
+        if use_table:
+            k = _draw_table(rng.random(), cdf, lo, guide)
+        d = flat[i] - lam0
+        if d > 0.0:
+            if d < 12.0:
+                k += _poisson_small(rng, d)
+            else:
+                k += rng.poisson(d)
+        o[i] = k
+
+
+def poisson_image(lam: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Poisson draws (float32, same shape) with per-pixel means ``lam`` (electrons).
+
+    Exact Poisson, fast for star-tracker frames: the common floor of the means is drawn from a
+    cached CDF table, the excess per pixel by inversion (small) or PTRS (``Generator.poisson``).
+    """
+    lam = np.ascontiguousarray(lam, dtype=np.float32)
+    out = np.empty(lam.shape, dtype=np.float32)
+    if lam.size == 0:
+        return out
+    if not np.all(np.isfinite(lam)) or lam.min() < 0:
+        raise SimulationError("expected electron counts must be finite and non-negative")
+    lam0 = float(lam.min())
+    if lam0 > 1e6:  # the table would be too long; no star-tracker background is this bright
+        return rng.poisson(lam).astype(np.float32)
+    cdf, lo, guide = _poisson_table(lam0) if lam0 > 0 else (np.ones(1), 0, np.zeros(1, np.int64))
+    _poisson_image(lam, lam0, cdf, lo, guide, rng, out)
+    return out
+
+
+def poisson_constant(lam: float, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+    """Poisson draws (float32) with one mean ``lam`` for every pixel (table inversion)."""
+    out = np.empty(shape, dtype=np.float32)
+    if lam <= 0:
+        out[:] = 0.0
+        return out
+    _poisson_image(np.full(shape, lam, np.float32), float(np.float32(lam)), *_poisson_table(
+        float(np.float32(lam))), rng, out)
+    return out
+
+
+# --- the chain ---------------------------------------------------------------------------
+@numba.njit(cache=True, nogil=True)
+def _readout(charge, dsnu, read_sigma, ktc_sigma, rng_read, rng_ktc, inv_gain, bias, max_adu,
+             full_well, do_dsnu, do_read, do_ktc, do_round, out):
+    c = charge.ravel()
+    dm = dsnu.ravel()
+    o = out.ravel()
+    for i in range(c.size):
+        e = c[i]
+        if e > full_well:
+            e = full_well
+        if do_dsnu:
+            e += dm[i]
+        if do_read:
+            e += read_sigma * rng_read.standard_normal()
+        if do_ktc:
+            e += ktc_sigma * rng_ktc.standard_normal()
+        a = e * inv_gain + bias
+        if a < 0.0:
+            a = 0.0
+        elif a > max_adu:
+            a = max_adu
+        if do_round:
+            a = math.floor(a + 0.5)
+        o[i] = a
+
+
+def apply_detector(photo_e: np.ndarray, sensor: Sensor, exposure_s: float,
+                   streams: Mapping[str, np.random.Generator], *, noise: bool | Mapping[str, bool] = True,
+                   hot_pixels: int = 0, extra_e: np.ndarray | None = None) -> np.ndarray:
+    """Turn expected photo-electrons into an image in ADU.
+
+    Parameters
+    ----------
+    photo_e : (H, W) array
+        Expected photo-electrons per pixel (stars, sky, stray light; QE already applied).
+    sensor : Sensor
+    exposure_s : float
+        Integration time, seconds (scales dark current).
+    streams : mapping
+        One ``Generator`` per temporal source: ``"shot"``, ``"dark"``, ``"read"``, ``"ktc"``.
+    noise : bool or mapping
+        Which sources are on (see :data:`NOISE_SOURCES`); switched-off sources are absent,
+        not just noiseless (``dark`` off removes the dark mean as well).
+    hot_pixels : int
+        Number of hot pixels (positions fixed by ``sensor.pattern_seed``).
+    extra_e : (H, W) array, optional
+        Charge added after shot noise (cosmic-ray hits), electrons.
+
+    Returns
+    -------
+    (H, W) ndarray
+        ``uint16`` ADU when ``quantization`` is on (rounded), else ``float32`` ADU.
+    """
+    on = noise_switches(noise)
+    photo_e = np.asarray(photo_e, dtype=np.float32)
+    shape = photo_e.shape
+    need_pattern = on["prnu"] or on["dsnu"] or (on["hot_pixels"] and hot_pixels > 0)
+    pattern = fixed_pattern(sensor, shape, hot_pixels if on["hot_pixels"] else 0) if need_pattern else None
+
+    mean_e = photo_e * pattern.prnu_gain if (on["prnu"] and sensor.prnu > 0) else photo_e
+    charge = poisson_image(mean_e, streams["shot"]) if on["shot"] else np.array(mean_e, dtype=np.float32)
+    if on["dark"] and sensor.dark_current_e_s > 0:
+        dark_mean = sensor.dark_current_e_s * exposure_s
+        charge += poisson_constant(dark_mean, shape, streams["dark"]) if on["shot"] else np.float32(dark_mean)
+    if on["hot_pixels"] and pattern is not None and pattern.hot_index.size:
+        hot_mean = pattern.hot_dark_e_s * exposure_s
+        hot = streams["dark"].poisson(hot_mean) if on["shot"] else hot_mean
+        charge.ravel()[pattern.hot_index] += hot.astype(np.float32)
+    if extra_e is not None:
+        charge += np.asarray(extra_e, dtype=np.float32)
+
+    do_round = on["quantization"]
+    out = np.empty(shape, dtype=np.float32)
+    dsnu_map = pattern.dsnu_e if (pattern is not None and on["dsnu"]) else np.zeros((1, 1), np.float32)
+    _readout(charge, dsnu_map, float(sensor.read_noise_e), float(sensor.ktc_noise_e),
+             streams["read"], streams["ktc"], 1.0 / sensor.gain_e_per_adu, float(sensor.bias_adu),
+             float(sensor.max_adu), float(sensor.full_well_e),
+             bool(on["dsnu"] and sensor.dsnu_e > 0), bool(on["read"] and sensor.read_noise_e > 0),
+             bool(on["ktc"] and sensor.ktc_noise_e > 0), do_round, out)
+    return out.astype(np.uint16) if do_round else out
