@@ -1,0 +1,105 @@
+"""Centroids: the star list one extraction returns, as parallel arrays, brightest first."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Centroids"]
+
+_ARRAYS = ("x", "y", "flux", "area", "snr", "elongation", "peak", "sigma_x", "sigma_y")
+
+
+@dataclass(frozen=True)
+class Centroids:
+    """Stars found in one frame, sorted by flux, brightest first.
+
+    Pixel convention (DESIGN.md): ``(x, y)`` = (column, row), 0-based, ``(0, 0)`` is the centre
+    of the top-left pixel.
+
+    Attributes
+    ----------
+    x, y : (N,) float64 — centroid, pixels.
+    flux : (N,) float64 — background-subtracted sum over the star's pixels, ADU.
+    area : (N,) float64 — number of pixels in the star's footprint.
+    snr : (N,) float64 — ``flux / (noise·sqrt(area))`` (background-limited; shot noise of the
+        star itself is not included because the gain is unknown).
+    elongation : (N,) float64 — ratio of the long to the short axis from the intensity
+        second moments (1 = round).
+    peak : (N,) float64 — highest background-subtracted pixel, ADU.
+    sigma_x, sigma_y : (N,) float64 — 1-σ centroid uncertainty from background noise, pixels.
+    saturated : (N,) bool — the star has pixels at the saturation level.
+    image_shape : (height, width) of the frame.
+    background_level : median sky level of the frame, ADU.
+    noise : robust per-pixel noise (σ) of the sky, ADU.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    flux: np.ndarray
+    area: np.ndarray
+    snr: np.ndarray
+    elongation: np.ndarray
+    peak: np.ndarray
+    sigma_x: np.ndarray
+    sigma_y: np.ndarray
+    saturated: np.ndarray
+    image_shape: tuple[int, int] = (0, 0)
+    background_level: float = 0.0
+    noise: float = 0.0
+    meta: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        n = None
+        for name in _ARRAYS:
+            arr = np.ascontiguousarray(getattr(self, name), dtype=np.float64).reshape(-1)
+            object.__setattr__(self, name, arr)
+            if n is None:
+                n = arr.size
+            elif arr.size != n:
+                raise ValueError(f"Centroids.{name} has {arr.size} entries, expected {n}")
+        sat = np.ascontiguousarray(self.saturated, dtype=bool).reshape(-1)
+        if sat.size != n:
+            raise ValueError(f"Centroids.saturated has {sat.size} entries, expected {n}")
+        object.__setattr__(self, "saturated", sat)
+        object.__setattr__(self, "image_shape", (int(self.image_shape[0]), int(self.image_shape[1])))
+        object.__setattr__(self, "background_level", float(self.background_level))
+        object.__setattr__(self, "noise", float(self.noise))
+
+    def __len__(self) -> int:
+        return int(self.x.size)
+
+    @property
+    def xy(self) -> np.ndarray:
+        """(N, 2) float64 array of ``(x, y)`` pixel positions."""
+        return np.column_stack([self.x, self.y])
+
+    @property
+    def flags(self) -> np.ndarray:
+        """Alias of ``saturated`` (the only flag so far)."""
+        return self.saturated
+
+    @classmethod
+    def empty(cls, image_shape: tuple[int, int] = (0, 0), background_level: float = 0.0,
+              noise: float = 0.0, **meta: object) -> Centroids:
+        """A list with no stars (for blank, constant or unusable frames)."""
+        z = np.zeros(0)
+        return cls(*(z for _ in _ARRAYS), saturated=np.zeros(0, bool), image_shape=image_shape,
+                   background_level=background_level, noise=noise, meta=dict(meta))
+
+    def subset(self, index: np.ndarray | slice) -> Centroids:
+        """The stars selected by an index array, boolean mask or slice (order as given)."""
+        kw = {name: getattr(self, name)[index] for name in _ARRAYS}
+        return Centroids(**kw, saturated=self.saturated[index], image_shape=self.image_shape,
+                         background_level=self.background_level, noise=self.noise, meta=self.meta)
+
+    def brightest(self, n: int) -> Centroids:
+        """The ``n`` brightest stars."""
+        return self.subset(slice(0, max(int(n), 0)))
+
+    def to_records(self) -> list[dict]:
+        """One dict per star, brightest first (for JSON output)."""
+        cols = {name: getattr(self, name).tolist() for name in _ARRAYS}
+        sat = self.saturated.tolist()
+        return [{**{k: v[i] for k, v in cols.items()}, "saturated": sat[i]} for i in range(len(self))]

@@ -1,0 +1,400 @@
+"""The default star extractor: background, k·σ threshold, connected components, centroids.
+
+Pipeline of :func:`extract_centroids`:
+
+1. Tiled robust background and noise (:mod:`skyfix.detect.background`) of the raw frame and of
+   the frame smoothed by a 3×3 binomial kernel (a cheap matched filter for a PSF of σ ≈ 1 px).
+2. Pixels whose smoothed value exceeds the smoothed sky by ``sigma``·σ are grouped into
+   8-connected components by a flood fill (numba), which also records each component's size,
+   bounding box and summed excess.
+3. Components that are too small, too large or too extended (foreground, Moon, trees, roof
+   edges and the like) are dropped.
+4. The survivors are measured on the raw frame minus the interpolated sky, over the component
+   grown by one pixel so faint wings count: intensity-weighted centroid (negative residuals
+   weigh zero), flux, peak, second moments → elongation, SNR, the centroid's noise σ, and
+   saturation.
+5. Hot pixels (a peak much sharper than any optics gives: the mean of its 8 neighbours is a
+   tiny fraction of it) are dropped; the rest are sorted by flux and cut to ``max_stars``.
+
+Bad frames (constant, black, saturated, 1×1, too many non-finite pixels) give an empty list.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from skyfix.detect.background import (
+    Background,
+    _robust_level_noise,
+    estimate_background,
+    interp_weights,
+    smooth3,
+)
+from skyfix.detect.centroids import Centroids
+from skyfix.errors import ImageReadError
+from skyfix.io import as_image
+
+__all__ = ["extract_centroids", "saturation_level"]
+
+# Full-scale values of common integer sensors and of normalised float images.
+_FULL_SCALES = np.array([1.0, 255.0, 1023.0, 4095.0, 16383.0, 65535.0])
+_MAX_COMPONENTS = 1 << 16
+_DEBUG: dict = {}
+# A diffuse object must have a faint peak, below this many σ, to be dropped at the lower ratio.
+_DIFFUSE_MAX_PEAK_SNR = 15.0
+
+
+def extract_centroids(
+    image: np.ndarray,
+    *,
+    sigma: float = 5.0,
+    max_stars: int = 100,
+    min_area: int = 3,
+    max_area: int | None = None,
+    max_extent: int | None = None,
+    min_sharpness: float = 0.05,
+    max_noise_ratio: float | None = 3.0,
+    max_diffuseness: float | None = 3.0,
+    max_elongation: float | None = None,
+    saturation: float | None = None,
+    tile: int | None = None,
+    background: Background | None = None,
+) -> Centroids:
+    """Find stars in a frame and measure their centroids, brightest first.
+
+    Parameters
+    ----------
+    image : (H, W) array
+        The frame (any real dtype; colour is converted to luminance), ADU.
+    sigma : float
+        Detection threshold in units of the smoothed frame's noise σ (k in k·σ).
+    max_stars : int
+        Keep at most this many stars (the brightest by flux).
+    min_area : int
+        Smallest footprint (pixels above threshold in the smoothed frame) kept.
+    max_area : int, optional
+        Largest footprint kept; larger blobs are foreground, the Moon or a planet's glare.
+        Default ``max(400, 0.002·H·W)`` pixels.
+    max_extent : int, optional
+        Largest bounding-box side kept, pixels. Default ``max(15, 0.06·min(H, W))``.
+    min_sharpness : float
+        Smallest ratio of the mean of the 8 neighbours of the peak to the peak (both above
+        sky). A hot pixel is near 0; a star with PSF σ = 0.5 px is about 0.15.
+    max_noise_ratio : float, optional
+        Drop stars where the local sky noise exceeds this multiple of the frame's median
+        noise: such tiles hold lit foreground (trees, roofs), a comet or glare, whose texture
+        makes false stars. ``None`` keeps them.
+    max_diffuseness : float, optional
+        Drop diffuse blobs (foliage, cloud, nebulae, galaxies): a faint object (peak below
+        15σ) whose effective area ``flux/peak`` exceeds this multiple of the frame's typical
+        star, or any unsaturated object beyond ``10/3`` times this multiple. The typical star
+        is the 30th percentile of ``flux/peak`` over unsaturated candidates with SNR > 10.
+        ``None`` keeps them.
+    max_elongation : float, optional
+        Drop stars more elongated than this (axis ratio); default keeps all (streaks count).
+    saturation : float, optional
+        Pixel level at or above which a star is flagged saturated. Default: the frame maximum
+        when it is a full-scale value (1, 255, 1023, 4095, 16383, 65535 within 0.5%).
+    tile : int, optional
+        Background tile size, pixels (default: about 1/16 of the short side, 16–64).
+    background : Background, optional
+        A precomputed background (e.g. shared with another extraction of the same frame).
+
+    Returns
+    -------
+    Centroids
+        Empty for blank, constant, saturated or unreadable frames.
+    """
+    try:
+        img = as_image(image, name="image")
+    except ImageReadError:
+        return Centroids.empty((0, 0) if np.ndim(image) != 2 else np.shape(image), reason="unusable")
+    h, w = img.shape
+    if h < 3 or w < 3:
+        return Centroids.empty((h, w), reason="too small")
+    bg = estimate_background(img, tile=tile) if background is None else background
+    level, noise = bg.global_level, bg.global_noise
+    if not np.any(bg.noise_smooth > 0):
+        return Centroids.empty((h, w), level, noise, reason="flat frame")
+    if max_area is None:
+        max_area = int(max(400, 0.002 * h * w))
+    if max_extent is None:
+        max_extent = int(max(15, 0.06 * min(h, w)))
+    if saturation is None:
+        saturation = saturation_level(img)
+
+    sm = smooth3(img)
+    iy, fy = interp_weights(bg.centers_y, h)
+    ix, fx = interp_weights(bg.centers_x, w)
+    # The threshold never falls below a tiny fraction of the frame's range, so an exactly
+    # flat (noise-free) sky is not detected everywhere.
+    floor = 1e-6 * max(1.0, float(np.abs(bg.level_smooth).max()))
+    thr_grid = bg.level_smooth + np.maximum(sigma * bg.noise_smooth, floor)
+    labels = np.zeros((h, w), np.int32)
+    comps = _label(sm, labels, thr_grid, bg.level_smooth, iy, fy, ix, fx, _MAX_COMPONENTS)
+    n_comp = comps.shape[0]
+    if n_comp == 0:
+        return Centroids.empty((h, w), level, noise, n_components=0)
+    area = comps[:, 0]
+    extent = np.maximum(comps[:, 2] - comps[:, 1], comps[:, 4] - comps[:, 3]) + 1
+    keep = (area >= min_area) & (area <= max_area) & (extent <= max_extent)
+    idx = np.flatnonzero(keep)
+    # Measure only the brightest candidates (hot pixels removed below need some spare).
+    order = np.argsort(-comps[idx, 5], kind="stable")
+    idx = idx[order[: max(2 * max_stars + 20, 50)]]
+    m = _measure(img, labels, (idx + 1).astype(np.int32), comps[idx, 1:5].astype(np.int64),
+                 bg.level, iy, fy, ix, fx, float(saturation), 3)
+    flux, x, y, npix, peak, sharp, mxx, myy, mxy, sxx, syy, nsat, ring_level, ring_noise = m.T
+    noise_px = _noise_at(bg.noise, iy, fy, ix, fx, x, y)
+    tr = mxx + myy
+    det = np.sqrt(np.maximum((mxx - myy) ** 2 + 4.0 * mxy**2, 0.0))
+    # second moments of the pixel-integrated light: add the 1/12 px² of a uniform pixel
+    lam1, lam2 = 0.5 * (tr + det) + 1.0 / 12.0, np.maximum(0.5 * (tr - det), 0.0) + 1.0 / 12.0
+    elong = np.sqrt(lam1 / lam2)
+    good = (flux > 0) & (sharp >= min_sharpness)
+    if max_elongation is not None:
+        good &= elong <= max_elongation
+    if max_diffuseness is not None:
+        good &= ~_diffuse(flux, peak, flux / (noise_px * np.sqrt(np.maximum(npix, 1.0))),
+                          peak / noise_px, nsat > 0, good, max_diffuseness)
+    if max_noise_ratio is not None:
+        local = _noise_at(bg.noise_smooth, iy, fy, ix, fx, x, y)
+        good &= local <= max_noise_ratio * float(np.median(bg.noise_smooth))
+    sel = np.flatnonzero(good)
+    sel = sel[np.argsort(-flux[sel], kind="stable")][:max_stars]
+    npx = np.maximum(npix[sel], 1.0)
+    if _DEBUG:
+        _DEBUG["ring_level"] = ring_level[sel] / noise_px[sel]
+        _DEBUG["ring_noise"] = ring_noise[sel] / noise_px[sel]
+        _DEBUG["sharp"] = sharp[sel]
+        _DEBUG["r2"] = (mxx + myy)[sel]
+    return Centroids(
+        x=x[sel], y=y[sel], flux=flux[sel], area=npix[sel],
+        snr=flux[sel] / (noise_px[sel] * np.sqrt(npx)),
+        elongation=elong[sel], peak=peak[sel],
+        sigma_x=noise_px[sel] * np.sqrt(sxx[sel]) / flux[sel],
+        sigma_y=noise_px[sel] * np.sqrt(syy[sel]) / flux[sel],
+        saturated=nsat[sel] > 0, image_shape=(h, w), background_level=level, noise=noise,
+        meta={"n_components": int(n_comp), "saturation": float(saturation), "tile": bg.tile},
+    )
+
+
+def saturation_level(image: np.ndarray) -> float:
+    """The frame's saturation level: its maximum if that is a full-scale value, else +inf.
+
+    Full scale means 1, 255, 1023, 4095, 16383 or 65535 within 0.5% (8- to 16-bit sensors and
+    normalised floats). A frame whose brightest pixel is below full scale has no saturated star.
+    """
+    vmax = float(np.max(image))
+    near = np.abs(_FULL_SCALES - vmax) <= 0.005 * _FULL_SCALES
+    return vmax if near.any() else math.inf
+
+
+def _diffuse(flux, peak, snr, peak_snr, saturated, candidate, ratio):
+    """Objects far more spread out than the frame's typical star (see ``max_diffuseness``)."""
+    aeff = flux / np.maximum(peak, 1e-30)
+    typical = candidate & ~saturated & (snr > 10.0)
+    if not typical.any():
+        return np.zeros(flux.size, bool)
+    rel = aeff / np.percentile(aeff[typical], 30)
+    return ((rel > ratio) & (peak_snr < _DIFFUSE_MAX_PEAK_SNR)) | ((rel > ratio * 10.0 / 3.0) & ~saturated)
+
+
+def _noise_at(grid, iy, fy, ix, fx, x, y):
+    """Bilinearly interpolated noise σ at (rounded) positions."""
+    if x.size == 0:
+        return np.zeros(0)
+    xi = np.clip(np.rint(x).astype(np.int64), 0, ix.size - 1)
+    yi = np.clip(np.rint(y).astype(np.int64), 0, iy.size - 1)
+    ny, nx = grid.shape
+    i, j = iy[yi], ix[xi]
+    i1, j1 = np.minimum(i + 1, ny - 1), np.minimum(j + 1, nx - 1)
+    f, g = fy[yi], fx[xi]
+    top = (1 - g) * grid[i, j] + g * grid[i, j1]
+    bot = (1 - g) * grid[i1, j] + g * grid[i1, j1]
+    return np.maximum((1 - f) * top + f * bot, 1e-12)
+
+
+# --- numba kernels ------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _grid_row(grid, i, f, out):
+    ny = grid.shape[0]
+    j = min(i + 1, ny - 1)
+    for c in range(grid.shape[1]):
+        out[c] = (1.0 - f) * grid[i, c] + f * grid[j, c]
+
+
+@njit(cache=True)
+def _label(sm, labels, thr_grid, bg_grid, iy, fy, ix, fx, max_components):
+    """8-connected flood fill of pixels with ``sm > threshold``; labels are 1-based.
+
+    Returns (K, 6) float64: area, ymin, ymax, xmin, xmax, summed excess over the sky.
+    """
+    h, w = sm.shape
+    nx = thr_grid.shape[1]
+    comps = np.zeros((max_components, 6))
+    stack = np.empty(h * w, np.int64)
+    thr_row = np.empty(nx, np.float64)
+    # the threshold map is needed at arbitrary rows during the fill: precompute it once
+    thr = np.empty((h, w), np.float32)
+    for y in range(h):
+        _grid_row(thr_grid, iy[y], fy[y], thr_row)
+        for x in range(w):
+            a = ix[x]
+            b = min(a + 1, nx - 1)
+            thr[y, x] = (1.0 - fx[x]) * thr_row[a] + fx[x] * thr_row[b]
+    bg_row = np.empty(nx, np.float64)
+    k = 0
+    for y in range(h):
+        for x in range(w):
+            if sm[y, x] <= thr[y, x] or labels[y, x] != 0:
+                continue
+            if k >= max_components:
+                return comps[:k]
+            lab = k + 1
+            labels[y, x] = lab
+            stack[0] = y * w + x
+            top = 1
+            n = 0
+            ymin, ymax, xmin, xmax = y, y, x, x
+            excess = 0.0
+            while top > 0:
+                top -= 1
+                p = stack[top]
+                py, px = p // w, p % w
+                n += 1
+                ymin, ymax = min(ymin, py), max(ymax, py)
+                xmin, xmax = min(xmin, px), max(xmax, px)
+                _grid_row(bg_grid, iy[py], fy[py], bg_row)
+                a = ix[px]
+                b = min(a + 1, nx - 1)
+                excess += sm[py, px] - ((1.0 - fx[px]) * bg_row[a] + fx[px] * bg_row[b])
+                for dy in range(-1, 2):
+                    qy = py + dy
+                    if qy < 0 or qy >= h:
+                        continue
+                    for dx in range(-1, 2):
+                        qx = px + dx
+                        if qx < 0 or qx >= w or labels[qy, qx] != 0:
+                            continue
+                        if sm[qy, qx] > thr[qy, qx]:
+                            labels[qy, qx] = lab
+                            stack[top] = qy * w + qx
+                            top += 1
+            comps[k, 0] = n
+            comps[k, 1] = ymin
+            comps[k, 2] = ymax
+            comps[k, 3] = xmin
+            comps[k, 4] = xmax
+            comps[k, 5] = excess
+            k += 1
+    return comps[:k]
+
+
+@njit(cache=True)
+def _measure(img, labels, ids, boxes, bg_grid, iy, fy, ix, fx, saturation, ring):
+    """Centroid and moments of each component grown by one pixel, on the raw frame minus sky.
+
+    Returns (K, 14): flux, x, y, npix, peak, sharpness, mxx, myy, mxy, Σ(x-x̄)², Σ(y-ȳ)², nsat,
+    and the level and clipped RMS of the residual in a square ring ``ring`` pixels wide around
+    the grown bounding box.
+    """
+    h, w = img.shape
+    nx = bg_grid.shape[1]
+    out = np.zeros((ids.size, 14))
+    bg_row = np.empty(nx, np.float64)
+    rbuf = np.empty(4 * ring * (max(h, w) + 2 * ring + 2), np.float64)
+    for c in range(ids.size):
+        lab = ids[c]
+        # ring statistics: how quiet is the sky right around the component?
+        ry0, ry1 = max(boxes[c, 0] - 1 - ring, 0), min(boxes[c, 1] + 1 + ring, h - 1)
+        rx0, rx1 = max(boxes[c, 2] - 1 - ring, 0), min(boxes[c, 3] + 1 + ring, w - 1)
+        nr = 0
+        for y in range(ry0, ry1 + 1):
+            inner_y = boxes[c, 0] - 1 <= y <= boxes[c, 1] + 1
+            _grid_row(bg_grid, iy[y], fy[y], bg_row)
+            for x in range(rx0, rx1 + 1):
+                if inner_y and boxes[c, 2] - 1 <= x <= boxes[c, 3] + 1:
+                    continue
+                if nr < rbuf.size:
+                    a = ix[x]
+                    b = min(a + 1, nx - 1)
+                    rbuf[nr] = img[y, x] - ((1.0 - fx[x]) * bg_row[a] + fx[x] * bg_row[b])
+                    nr += 1
+        if nr >= 8:
+            out[c, 12], out[c, 13] = _robust_level_noise(rbuf[:nr].copy())
+        y0, y1 = max(boxes[c, 0] - 1, 0), min(boxes[c, 1] + 1, h - 1)
+        x0, x1 = max(boxes[c, 2] - 1, 0), min(boxes[c, 3] + 1, w - 1)
+        sw = swx = swy = swxx = swyy = swxy = 0.0
+        sx = sy = sxx = syy = 0.0
+        npix = 0
+        nsat = 0
+        peak = -np.inf
+        py = px = 0
+        for y in range(y0, y1 + 1):
+            _grid_row(bg_grid, iy[y], fy[y], bg_row)
+            for x in range(x0, x1 + 1):
+                lv = labels[y, x]
+                if lv != lab:
+                    if lv != 0:
+                        continue
+                    near = False
+                    for qy in range(max(y - 1, 0), min(y + 2, h)):
+                        for qx in range(max(x - 1, 0), min(x + 2, w)):
+                            if labels[qy, qx] == lab:
+                                near = True
+                    if not near:
+                        continue
+                a = ix[x]
+                b = min(a + 1, nx - 1)
+                r = img[y, x] - ((1.0 - fx[x]) * bg_row[a] + fx[x] * bg_row[b])
+                npix += 1
+                sx += x
+                sy += y
+                sxx += x * x
+                syy += y * y
+                if img[y, x] >= saturation:
+                    nsat += 1
+                if r > peak:
+                    peak, py, px = r, y, x
+                if r > 0.0:
+                    sw += r
+                    swx += r * x
+                    swy += r * y
+                    swxx += r * x * x
+                    swyy += r * y * y
+                    swxy += r * x * y
+        if sw <= 0.0:
+            continue
+        xc, yc = swx / sw, swy / sw
+        # sharpness: mean of the peak's 8 neighbours over the peak, both above the local sky
+        _grid_row(bg_grid, iy[py], fy[py], bg_row)
+        nb = 0.0
+        cnt = 0
+        for qy in range(max(py - 1, 0), min(py + 2, h)):
+            _grid_row(bg_grid, iy[qy], fy[qy], bg_row)
+            for qx in range(max(px - 1, 0), min(px + 2, w)):
+                if qy == py and qx == px:
+                    continue
+                a = ix[qx]
+                b = min(a + 1, nx - 1)
+                nb += img[qy, qx] - ((1.0 - fx[qx]) * bg_row[a] + fx[qx] * bg_row[b])
+                cnt += 1
+        out[c, 0] = sw
+        out[c, 1] = xc
+        out[c, 2] = yc
+        out[c, 3] = npix
+        out[c, 4] = peak
+        out[c, 5] = (nb / max(cnt, 1)) / peak if peak > 0 else 0.0
+        out[c, 6] = max(swxx / sw - xc * xc, 0.0)
+        out[c, 7] = max(swyy / sw - yc * yc, 0.0)
+        out[c, 8] = swxy / sw - xc * yc
+        out[c, 9] = max(sxx - 2.0 * xc * sx + npix * xc * xc, 0.0)
+        out[c, 10] = max(syy - 2.0 * yc * sy + npix * yc * yc, 0.0)
+        out[c, 11] = nsat
+    return out
