@@ -242,17 +242,25 @@ PRESETS: dict[str, dict] = {
     "mt9v022": dict(name="MT9V022 + 8.5 mm f/1.3", width=752, height=480,
                     focal_length_mm=8.5, pixel_pitch_um=6.0),
     # Thesis 002: Cypress HAS2 1024×1024, 18 µm pixels (ExoplanetSat star camera).
-    "has2": dict(name="Cypress HAS2", width=1024, height=1024,
+    "has2": dict(name="Cypress HAS2 + 85 mm", width=1024, height=1024,
                  focal_length_mm=85.0, pixel_pitch_um=18.0),
-    # Thesis 003: Aptina MT9P031 2592×1944, 2.2 µm pixels.
-    "mt9p031": dict(name="Aptina MT9P031", width=2592, height=1944,
-                    focal_length_mm=16.0, pixel_pitch_um=2.2),
-    # Thesis 003: Droid X2 phone camera, 3264×2448, 1.4 µm pixels, ~4.4 mm lens.
-    "droid_x2": dict(name="Droid X2", width=3264, height=2448,
-                     focal_length_mm=4.44, pixel_pitch_um=1.4),
-    # Thesis 004: Sunsat Sony CCD 752×582 (8.6×8.3 µm), 25 mm f/1.4 — 11.17° × 8.32° as quoted.
-    "sunsat": dict(name="Sunsat Sony CCD + 25 mm f/1.4", width=752, height=582,
-                   focal_length_mm=25.0, pixel_pitch_um=6.5),
+    # Thesis 002: the OV5642 air-bearing testbed imager, 2560×1920 window, 1.4 µm, 85 mm lens.
+    "ov5642": dict(name="OV5642 + 85 mm", width=2560, height=1920,
+                   focal_length_mm=85.0, pixel_pitch_um=1.4),
+    # Thesis 003: Aptina MT9P031 2592×1944, 2.2 µm, 6 mm f/2.5 — the thesis's 12.5 mm-grid
+    # calibration (Table 4.4; Bouguet kc = k1, k2, p1, p2 as OpenCV's).
+    "mt9p031": dict(name="Aptina MT9P031 + 6 mm f/2.5", width=2592, height=1944,
+                    fx=2745.88, fy=2747.75, cx=1351.9, cy=975.691, k1=-0.1755, k2=0.1983,
+                    p1=0.0002264, focal_length_mm=6.0, pixel_pitch_um=2.2),
+    # Thesis 003: Droid X2 phone camera (OV8812) 3264×2448, 1.4 µm, 5 mm f/2.6 — the thesis's
+    # 6 mm-grid calibration (Table 4.3).
+    "droid_x2": dict(name="Droid X2 (OV8812) + 5 mm f/2.6", width=3264, height=2448,
+                     fx=3520.75, fy=3521.15, cx=1620.66, cy=1214.52, k1=0.1043, k2=-0.4592,
+                     focal_length_mm=5.0, pixel_pitch_um=1.4),
+    # Thesis 004: Sunsat Sony ICX059AL 752×582, 6.5 µm (h) × 6.25 µm (v), 25 mm f/1.4:
+    # 11.17° × 8.32° as quoted.
+    "sunsat": dict(name="Sunsat Sony ICX059AL + 25 mm f/1.4", width=752, height=582,
+                   fx=25000.0 / 6.5, fy=25000.0 / 6.25, focal_length_mm=25.0, pixel_pitch_um=6.5),
     # A generic modern CMOS star camera (1280×960, 3.75 µm, 16 mm: ~17° wide).
     "generic": dict(name="generic CMOS 1280x960", width=1280, height=960,
                     focal_length_mm=16.0, pixel_pitch_um=3.75),
