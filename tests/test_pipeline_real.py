@@ -6,16 +6,14 @@ import pytest
 from skyfix.geometry import angle_between, radec_to_vector
 from skyfix.pipeline import solve
 
+_ESA = "esa-tetra3/2019-07-29T204726_{}_Try1.tiff"
 IMAGES = [
-    "cedar-solve/crappy.jpg", "cedar-solve/hale_bopp.jpg", "cedar-solve/jan1_g90_e100ms.jpg",
-    "cedar-solve/jan1_g90_e50ms.jpg", "cedar-solve/orion2.jpg", "cedar-solve/orion_belt.jpg",
-    "cedar-solve/orion_trees.jpg", "cedar-solve/pleiades.jpg", "cedar-solve/roof.jpg",
-    "cedar-solve/test2_g100_e50ms.jpg", "cedar-solve/test_5mp_g100_e50ms.jpg", "cedar-solve/tree.jpg",
-    "cedar-solve/virgo.jpg",
-    "esa-tetra3/2019-07-29T204726_Alt40_Azi-135_Try1.tiff", "esa-tetra3/2019-07-29T204726_Alt40_Azi-45_Try1.tiff",
-    "esa-tetra3/2019-07-29T204726_Alt40_Azi135_Try1.tiff", "esa-tetra3/2019-07-29T204726_Alt40_Azi45_Try1.tiff",
-    "esa-tetra3/2019-07-29T204726_Alt60_Azi-135_Try1.tiff", "esa-tetra3/2019-07-29T204726_Alt60_Azi-45_Try1.tiff",
-    "esa-tetra3/2019-07-29T204726_Alt60_Azi135_Try1.tiff", "esa-tetra3/2019-07-29T204726_Alt60_Azi45_Try1.tiff",
+    *(f"cedar-solve/{n}.jpg" for n in (
+        "crappy", "hale_bopp", "jan1_g90_e100ms", "jan1_g90_e50ms", "orion2", "orion_belt", "orion_trees",
+        "pleiades", "roof", "test2_g100_e50ms", "test_5mp_g100_e50ms", "tree", "virgo")),
+    *(_ESA.format(n) for n in (
+        "Alt40_Azi-135", "Alt40_Azi-45", "Alt40_Azi135", "Alt40_Azi45",
+        "Alt60_Azi-135", "Alt60_Azi-45", "Alt60_Azi135", "Alt60_Azi45")),
 ]
 
 
