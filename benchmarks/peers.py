@@ -45,8 +45,15 @@ class Tetra3rs:
 
     name = "tetra3rs"
 
-    def __init__(self, min_fov_deg: float = 10.0, max_fov_deg: float = 30.0, epoch: float = 2026.0):
+    def __init__(self, min_fov_deg: float = 10.0, max_fov_deg: float = 30.0, epoch: float = 2026.0,
+                 match_max_error: float | None = None):
         import tetra3rs
+
+        # None = the database's pattern_max_error (0.001, tetra3rs' default); 0.002 is cedar-solve's
+        # default and makes tetra3rs solve σ = 1 px centroids far more often (see README).
+        self.match_max_error = match_max_error
+        if match_max_error is not None:
+            self.name = f"tetra3rs (mme {match_max_error:g})"
 
         self.t3 = tetra3rs
         self.version = tetra3rs.__version__
@@ -84,7 +91,7 @@ class Tetra3rs:
         t0 = now_ms()
         r = self.db.solve_from_centroids(c, fov_estimate_deg=fov_deg, image_width=width,
                                          image_height=height, fov_max_error_deg=fov_max_error_deg,
-                                         solve_timeout_ms=timeout_ms)
+                                         solve_timeout_ms=timeout_ms, match_max_error=self.match_max_error)
         dt = now_ms() - t0
         if not r:
             return Attempt(False, None, dt, r.status)
@@ -112,7 +119,8 @@ class Tetra3rs:
         res = self.t3.extract_centroids(image)
         h, w = image.shape[:2]
         r = self.db.solve_from_centroids(res.centroids, fov_estimate_deg=fov_deg, image_width=w,
-                                         image_height=h, fov_max_error_deg=fov_max_error_deg)
+                                         image_height=h, fov_max_error_deg=fov_max_error_deg,
+                                         match_max_error=self.match_max_error)
         dt = now_ms() - t0
         if not r:
             return Attempt(False, None, dt, r.status, extra={"n_detected": len(res.centroids)})

@@ -8,7 +8,7 @@ try:
     from rich.console import Console
     from rich.table import Table
 
-    _console = Console(width=160)
+    _console = Console(width=220)
 except ImportError:  # pragma: no cover - rich is in both venvs
     _console = None
 

@@ -40,6 +40,11 @@ def make_tools(which: list[str], min_fov: float = 10.0) -> tuple[dict, dict]:
                 from peers import Tetra3rs
 
                 tools[name] = Tetra3rs(min_fov_deg=min_fov)
+            elif name == "tetra3rs-mme":
+                from peers import Tetra3rs
+
+                t = Tetra3rs(min_fov_deg=min_fov, match_max_error=0.002)
+                tools[t.name] = t
             elif name == "cedar-solve":
                 from peers import Cedar
 
@@ -101,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=None, help="timing repeats (default 3; quick 1)")
     ap.add_argument("--peer-fov", choices=["hint", "mid"], default="hint",
                     help="real images: give peers the reference FOV (hint) or none/mid-range (mid)")
-    ap.add_argument("--tools", default="skyfix,tetra3rs,cedar-solve",
+    ap.add_argument("--tools", default="skyfix,tetra3rs,tetra3rs-mme,cedar-solve",
                     help="comma-separated subset of tools")
     args = ap.parse_args(argv)
     n = args.n or (100 if args.quick else 1000)
@@ -139,8 +144,8 @@ def main(argv: list[str] | None = None) -> int:
 
                 # tetra3rs gets a database reaching down to 8°; skyfix keeps its default one.
                 acc_tools = dict(tools)
-                if "tetra3rs" in tools:
-                    acc_tools["tetra3rs"] = make_tools(["tetra3rs"], min_fov=8.0)[0]["tetra3rs"]
+                wide = [t for t in wanted if t.startswith("tetra3rs")]
+                acc_tools.update(make_tools(wide, min_fov=8.0)[0])
                 results["accuracy_render"] = suite_accuracy.run(acc_tools, n_images=images)
                 write_json("accuracy_render", results["accuracy_render"])
             elif key == "d":

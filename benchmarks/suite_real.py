@@ -33,7 +33,7 @@ def _fov_hint(tool_name: str, ref: dict, mode: str) -> float | None:
         return None
     if mode == "hint":
         return float(ref["fov_w_deg"])
-    return 20.0 if tool_name == "tetra3rs" else None
+    return 20.0 if tool_name.startswith("tetra3rs") else None
 
 
 def _errors(A: np.ndarray, ref: dict) -> tuple[float, float]:

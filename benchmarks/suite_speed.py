@@ -46,6 +46,8 @@ def extraction(tools: dict, frames, repeats: int) -> dict:
         mp = arr.shape[0] * arr.shape[1] / 1e6
         row = {"megapixels": mp}
         for tname, tool in tools.items():
+            if tname.startswith("tetra3rs ("):
+                continue  # a solver-option variant: same extractor
             # skyfix extracts from its own reader's array (its normal path); peers from load_gray's.
             data = tool.read(path) if (tname == "skyfix" and path is not None) else arr
             try:

@@ -1,6 +1,7 @@
 """Synthetic centroid sets for the solve-from-centroids benchmark (suite b).
 
-A stand-in until ``skyfix.analysis.synthetic_centroids`` exists (``centroid_sets`` prefers it).
+``centroid_sets`` prefers skyfix's shared generator (``skyfix.analysis.synthetic_centroids``);
+``generate`` here is the fallback, with the same model.
 Each set is what a perfect detector would hand to a solver: the Hipparcos stars in view of a
 pinhole camera at a random attitude, with Gaussian centroid noise, dropouts and false stars,
 sorted brightest first. Positions follow DESIGN.md: (x, y) = (column, row), (0, 0) the centre
@@ -81,10 +82,12 @@ def generate(spec: SyntheticSpec) -> list[CentroidSet]:
         m = mags[idx][keep] + rng.normal(0.0, spec.mag_jitter, keep.sum())
         xs, ys = x[keep], y[keep]
         n_true = len(xs)
-        # False stars: anywhere in the frame, brightness spread over the range of real stars.
+        # False stars: anywhere in the frame, magnitudes uniform between the brightest and the
+        # faintest true star, so they mix into the brightness order.
         fx = rng.uniform(-0.5, spec.width - 0.5, spec.n_false)
         fy = rng.uniform(-0.5, spec.height - 0.5, spec.n_false)
-        fm = rng.uniform(3.0, spec.mag_limit, spec.n_false)
+        lo, hi = (m.min(), m.max()) if len(m) else (0.0, spec.mag_limit)
+        fm = rng.uniform(lo, hi, spec.n_false)
         xy = np.column_stack([np.r_[xs, fx], np.r_[ys, fy]])
         mm = np.r_[m, fm]
         order = np.argsort(mm, kind="stable")
@@ -93,29 +96,45 @@ def generate(spec: SyntheticSpec) -> list[CentroidSet]:
 
 
 def centroid_sets(spec: SyntheticSpec) -> tuple[list[CentroidSet], str]:
-    """The sets for ``spec`` and the generator used; cached in benchmarks/.cache as npz."""
-    shared = _shared_generator(spec)
-    if shared is not None:
-        return shared, "skyfix.analysis.synthetic_centroids"
-    path = CACHE_DIR / f"centroids_{spec.key()}.npz"
-    if path.exists():
-        z = np.load(path)
-        sets = [CentroidSet(z[f"xy{i}"], z[f"flux{i}"], z["A"][i], int(z["n_true"][i]))
-                for i in range(spec.n)]
-        return sets, "benchmarks/synthetic.py"
-    sets = generate(spec)
-    CACHE_DIR.mkdir(parents=True, exist_ok=True)
-    arrays = {f"xy{i}": s.xy for i, s in enumerate(sets)}
-    arrays.update({f"flux{i}": s.flux for i, s in enumerate(sets)})
-    np.savez(path, A=np.array([s.A_true for s in sets]), n_true=np.array([s.n_true for s in sets]),
-             **arrays)
-    return sets, "benchmarks/synthetic.py"
+    """The sets for ``spec`` and the name of the generator used; cached in benchmarks/.cache as npz.
+
+    skyfix's shared generator (``skyfix.analysis.synthetic_centroids``) is preferred; this
+    module's own ``generate`` is the fallback when it is missing or its signature changed.
+    """
+    for name, make in (("skyfix.analysis.synthetic_centroids", _shared_generate),
+                       ("benchmarks/synthetic.py", generate)):
+        path = CACHE_DIR / f"centroids_{name.split('.')[-1].split('/')[-1]}_{spec.key()}.npz"
+        if path.exists():
+            z = np.load(path)
+            return [CentroidSet(z[f"xy{i}"], z[f"flux{i}"], z["A"][i], int(z["n_true"][i]))
+                    for i in range(spec.n)], name
+        try:
+            sets = make(spec)
+        except (ImportError, TypeError, AttributeError):
+            continue
+        CACHE_DIR.mkdir(parents=True, exist_ok=True)
+        arrays = {f"xy{i}": s.xy for i, s in enumerate(sets)}
+        arrays.update({f"flux{i}": s.flux for i, s in enumerate(sets)})
+        np.savez(path, A=np.array([s.A_true for s in sets]), n_true=np.array([s.n_true for s in sets]),
+                 **arrays)
+        return sets, name
+    raise RuntimeError("no synthetic centroid generator worked")
 
 
-def _shared_generator(spec: SyntheticSpec) -> list[CentroidSet] | None:
-    """Use skyfix's shared generator when it exists (hook; adapted once its API is known)."""
-    try:
-        from skyfix.analysis import synthetic_centroids  # noqa: F401
-    except ImportError:
-        return None
-    return None
+def _shared_generate(spec: SyntheticSpec) -> list[CentroidSet]:
+    """The sets made by skyfix's shared generator, with this spec's parameters."""
+    from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+    from skyfix.camera import Camera
+    from skyfix.catalog import load_hipparcos
+
+    camera = Camera.from_fov(spec.width, spec.height, spec.fov_deg)
+    catalog = load_hipparcos(mag_limit=spec.mag_limit)
+    rng = np.random.default_rng(spec.seed)
+    out = []
+    for A in random_attitudes(spec.n, rng):
+        f = synthetic_centroids(camera, A, catalog, mag_limit=spec.mag_limit, sigma_px=spec.sigma_px,
+                                n_false=spec.n_false, dropout=spec.dropout, mag_sigma=spec.mag_jitter,
+                                rng=rng)
+        out.append(CentroidSet(np.asarray(f.xy, float), 10.0 ** (-0.4 * np.asarray(f.mag)) * 1e4,
+                               np.asarray(f.A_icrs_to_cam, float), int(np.sum(f.star_id != 0))))
+    return out
