@@ -6,8 +6,8 @@ Order of the chain (physical; each step names the thesis 002 equation it correct
    ``1 + prnu·R`` (Eq. 3-10; applied to the *expected* signal so that shot noise follows the
    pixel's real response).
 2. Shot noise: Poisson draw of the photo-electrons (Eq. 3-8 used a Gaussian; Poisson here).
-3. Dark current: mean ``dark_current_e_s · t`` (plus hot pixels) with its own Poisson shot
-   noise (Eq. 3-9).
+3. Dark current: mean ``dark_current_e_s · t`` (plus hot pixels) with its own Poisson noise
+   from its own stream (Eq. 3-9); switching ``dark`` off removes both.
 4. Full-well clipping of the collected charge (absent in the thesis).
 5. DSNU / fixed-pattern offset: fixed map ``dsnu_e·R`` (Eq. 3-11).
 6. Read noise and 7. kTC reset noise: Gaussian (Eqs. 3-12, 3-13).
@@ -420,10 +420,9 @@ def apply_detector(photo_e: np.ndarray, sensor: Sensor, exposure_s: float,
     charge = poisson_image(mean_e, streams["shot"]) if on["shot"] else np.array(mean_e, dtype=np.float32)
     if on["dark"] and sensor.dark_current_e_s > 0:
         dark_mean = sensor.dark_current_e_s * exposure_s
-        charge += poisson_constant(dark_mean, shape, streams["dark"]) if on["shot"] else np.float32(dark_mean)
+        charge += poisson_constant(dark_mean, shape, streams["dark"])
     if on["hot_pixels"] and pattern is not None and pattern.hot_index.size:
-        hot_mean = pattern.hot_dark_e_s * exposure_s
-        hot = streams["dark"].poisson(hot_mean) if on["shot"] else hot_mean
+        hot = streams["dark"].poisson(pattern.hot_dark_e_s * exposure_s)
         charge.ravel()[pattern.hot_index] += hot.astype(np.float32)
     if extra_e is not None:
         charge += np.asarray(extra_e, dtype=np.float32)
