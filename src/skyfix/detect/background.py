@@ -1,15 +1,17 @@
 """Sky background and noise: a tiled robust estimate on a coarse grid, interpolated bilinearly.
 
 The frame is cut into tiles (about 1/16 of the short side, 16–64 px). In each tile a regular
-subsample of pixels (~256) gives the median (the sky level) and a clipped RMS about it (the
-noise σ; a plain MAD collapses to zero on 8-bit frames whose noise is below one level). A 3×3
+lattice of ~144 pixels of the 3×3-smoothed frame gives the median (the sky level) and a clipped
+RMS about it (the noise σ; a plain MAD collapses to zero on 8-bit frames whose noise is below
+one level). The raw-pixel noise is one pooled robust estimate over all tiles, scaled tile by
+tile like the smoothed noise. A 3×3
 median filter over the tile grid removes tiles dominated by a bright star or the Moon, and the
 grid is interpolated bilinearly between tile centres (held constant beyond the outer centres).
 Vignetting, sky glow and gradients that vary over more than a couple of tiles are followed.
 
-The same statistics are computed for the frame smoothed by a 3×3 binomial kernel, which is the
-image the extractor thresholds: measuring its noise directly keeps the threshold right for
-spatially correlated noise (JPEG, Bayer interpolation), where σ/√(Σw²) would be wrong.
+The statistics are those of the smoothed frame because that is the image the extractor
+thresholds: measuring its noise directly keeps the threshold right for spatially correlated
+noise (JPEG, Bayer interpolation), where σ_raw·√(Σw²) would be wrong.
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ __all__ = ["Background", "estimate_background", "smooth3", "default_tile_size"]
 
 # A clipped RMS at ±3σ of a Gaussian underestimates σ by this factor.
 _CLIP = 3.0
+# The sampling lattice in a tile has about this many points per side.
+_SAMPLES_PER_SIDE = 12
 _CLIP_CORRECTION = 1.0 / math.sqrt(1.0 - 2.0 * _CLIP * math.exp(-0.5 * _CLIP**2) / math.sqrt(2 * math.pi)
                                    / math.erf(_CLIP / math.sqrt(2.0)))
 
@@ -36,7 +40,8 @@ class Background:
     Attributes
     ----------
     level, noise : sky level and per-pixel σ of the raw frame, ADU.
-    level_smooth, noise_smooth : the same for the 3×3-binomial-smoothed frame.
+    level_smooth, noise_smooth : the same for the 3×3-binomial-smoothed frame (the sky level
+        of both is the smoothed frame's median).
     centers_y, centers_x : (ny,), (nx,) tile-centre rows and columns, pixels.
     tile : tile size, pixels.
     """
@@ -76,7 +81,8 @@ def default_tile_size(shape: tuple[int, int]) -> int:
     return int(max(1, min(short, max(16, min(64, short // 16)))))
 
 
-def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter: int = 3) -> Background:
+def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter: int = 3,
+                        smoothed: np.ndarray | None = None) -> Background:
     """Tiled median background and clipped-RMS noise of a frame.
 
     Parameters
@@ -87,6 +93,8 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
         Tile size in pixels (default :func:`default_tile_size`).
     grid_filter : int
         Size of the median filter applied over the tile grid (1 = none).
+    smoothed : (H, W) float32 array, optional
+        ``smooth3(image)`` if the caller already has it.
 
     Returns
     -------
@@ -98,19 +106,32 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     ny, nx = max(1, round(h / t)), max(1, round(w / t))
     edges_y = np.linspace(0, h, ny + 1).round().astype(np.int64)
     edges_x = np.linspace(0, w, nx + 1).round().astype(np.int64)
-    stride = max(1, t // 16)
-    stats = _tile_stats(img, edges_y, edges_x, stride)
+    stride = max(1, round(t / _SAMPLES_PER_SIDE))
+    sm = smooth3(img) if smoothed is None else np.ascontiguousarray(smoothed, dtype=np.float32)
+    stats, raw_dev = _tile_stats(img, sm, edges_y, edges_x, stride)
     if grid_filter > 1 and min(ny, nx) > 1:
         stats = ndimage.median_filter(stats, size=(grid_filter, grid_filter, 1), mode="nearest")
+    level, noise_s = stats[..., 0], stats[..., 1]
+    # raw-pixel noise: one pooled robust estimate, spread over the tiles like the smoothed noise
+    _, raw_sigma = _robust_level_noise(raw_dev[:: max(1, raw_dev.size // 8192)].copy())
+    ref_s = float(np.median(noise_s))
+    kappa = raw_sigma / ref_s if ref_s > 0 else 1.0
     cy = 0.5 * (edges_y[:-1] + edges_y[1:]) - 0.5
     cx = 0.5 * (edges_x[:-1] + edges_x[1:]) - 0.5
-    return Background(level=stats[..., 0], noise=stats[..., 1], level_smooth=stats[..., 2],
-                      noise_smooth=stats[..., 3], centers_y=cy, centers_x=cx, tile=t)
+    return Background(level=level, noise=kappa * noise_s, level_smooth=level, noise_smooth=noise_s,
+                      centers_y=cy, centers_x=cx, tile=t)
 
 
-def smooth3(image: np.ndarray) -> np.ndarray:
-    """3×3 binomial smoothing ([1 2 1]ᵀ[1 2 1]/16), edges replicated; float32 (H, W)."""
-    return _smooth3(np.ascontiguousarray(image, dtype=np.float32))
+def smooth3(image: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """3×3 binomial smoothing ([1 2 1]ᵀ[1 2 1]/16), edges replicated; float32 (H, W).
+
+    ``out``, if given, is a float32 array of the same shape that receives the result.
+    """
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    if out is None:
+        out = np.empty(img.shape, np.float32)
+    _smooth3(img, out)
+    return out
 
 
 def interpolate_grid(grid: np.ndarray, centers_y: np.ndarray, centers_x: np.ndarray,
@@ -135,21 +156,8 @@ def interp_weights(centers: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]
 
 
 @njit(cache=True)
-def _sm_at(img, y, x):
-    """3×3 binomial smoothed value at (y, x), edges replicated."""
+def _smooth3(img, out):
     h, w = img.shape
-    y0, y2 = max(y - 1, 0), min(y + 1, h - 1)
-    x0, x2 = max(x - 1, 0), min(x + 1, w - 1)
-    r0 = img[y0, x0] + 2.0 * img[y0, x] + img[y0, x2]
-    r1 = img[y, x0] + 2.0 * img[y, x] + img[y, x2]
-    r2 = img[y2, x0] + 2.0 * img[y2, x] + img[y2, x2]
-    return (r0 + 2.0 * r1 + r2) * 0.0625
-
-
-@njit(cache=True)
-def _smooth3(img):
-    h, w = img.shape
-    out = np.empty((h, w), np.float32)
     tmp = np.empty(w, np.float32)
     for y in range(h):
         ya, yb = max(y - 1, 0), min(y + 1, h - 1)
@@ -162,7 +170,6 @@ def _smooth3(img):
         for x in range(1, w - 1):
             out[y, x] = (tmp[x - 1] + 2.0 * tmp[x] + tmp[x + 1]) * 0.0625
         out[y, w - 1] = (tmp[w - 2] + 3.0 * tmp[w - 1]) * 0.0625
-    return out
 
 
 @njit(cache=True)
@@ -198,13 +205,19 @@ def _robust_level_noise(v):
 
 
 @njit(cache=True)
-def _tile_stats(img, edges_y, edges_x, stride):
+def _tile_stats(img, sm_img, edges_y, edges_x, stride):
+    """Per tile: median and clipped RMS of the smoothed frame on a sampling lattice.
+
+    Also returns the raw samples minus their tile's smoothed median, pooled over all tiles.
+    """
     ny, nx = edges_y.size - 1, edges_x.size - 1
-    out = np.empty((ny, nx, 4))
+    out = np.empty((ny, nx, 2))
     cap_y = (edges_y[1:] - edges_y[:-1]).max() // stride + 1
     cap = cap_y * ((edges_x[1:] - edges_x[:-1]).max() // stride + 1)
     raw = np.empty(cap, np.float64)
     sm = np.empty(cap, np.float64)
+    pooled = np.empty(ny * nx * cap, np.float64)
+    npool = 0
     for ty in range(ny):
         for tx in range(nx):
             # centre the sampling lattice in the tile
@@ -214,11 +227,15 @@ def _tile_stats(img, edges_y, edges_x, stride):
             for y in range(y0, edges_y[ty + 1], stride):
                 for x in range(x0, edges_x[tx + 1], stride):
                     raw[k] = img[y, x]
-                    sm[k] = _sm_at(img, y, x)
+                    sm[k] = sm_img[y, x]
                     k += 1
-            out[ty, tx, 0], out[ty, tx, 1] = _robust_level_noise(raw[:k])
-            out[ty, tx, 2], out[ty, tx, 3] = _robust_level_noise(sm[:k])
-    return out
+            med, sig = _robust_level_noise(sm[:k])
+            out[ty, tx, 0] = med
+            out[ty, tx, 1] = sig
+            for i in range(k):
+                pooled[npool] = raw[i] - med
+                npool += 1
+    return out, pooled[:npool]
 
 
 @njit(cache=True)

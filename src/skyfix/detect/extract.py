@@ -22,6 +22,7 @@ Bad frames (constant, black, saturated, 1×1, too many non-finite pixels) give a
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 from numba import njit
@@ -115,7 +116,9 @@ def extract_centroids(
     h, w = img.shape
     if h < 3 or w < 3:
         return Centroids.empty((h, w), reason="too small")
-    bg = estimate_background(img, tile=tile) if background is None else background
+    ws = _workspace(h, w)
+    sm = smooth3(img, out=ws.smooth)
+    bg = estimate_background(img, tile=tile, smoothed=sm) if background is None else background
     level, noise = bg.global_level, bg.global_noise
     if not np.any(bg.noise_smooth > 0):
         return Centroids.empty((h, w), level, noise, reason="flat frame")
@@ -126,14 +129,14 @@ def extract_centroids(
     if saturation is None:
         saturation = saturation_level(img)
 
-    sm = smooth3(img)
     iy, fy = interp_weights(bg.centers_y, h)
     ix, fx = interp_weights(bg.centers_x, w)
     # The threshold never falls below a tiny fraction of the frame's range, so an exactly
     # flat (noise-free) sky is not detected everywhere.
     floor = 1e-6 * max(1.0, float(np.abs(bg.level_smooth).max()))
     thr_grid = bg.level_smooth + np.maximum(sigma * bg.noise_smooth, floor)
-    labels = np.zeros((h, w), np.int32)
+    labels = ws.labels
+    labels.fill(0)
     comps = _label(sm, labels, thr_grid, bg.level_smooth, iy, fy, ix, fx, _MAX_COMPONENTS)
     n_comp = comps.shape[0]
     if n_comp == 0:
@@ -180,6 +183,29 @@ def extract_centroids(
         saturated=nsat[sel] > 0, image_shape=(h, w), background_level=level, noise=noise,
         meta={"n_components": int(n_comp), "saturation": float(saturation), "tile": bg.tile},
     )
+
+
+class _Workspace(threading.local):
+    """Per-thread full-frame buffers reused between calls of the same frame size.
+
+    Fresh multi-megabyte arrays cost page faults on every call (about as much as the
+    smoothing itself); reusing them keeps a video-rate loop at its compute cost.
+    """
+
+    shape: tuple[int, int] = (0, 0)
+    smooth: np.ndarray
+    labels: np.ndarray
+
+
+_WS = _Workspace()
+
+
+def _workspace(h: int, w: int) -> _Workspace:
+    if _WS.shape != (h, w):
+        _WS.smooth = np.empty((h, w), np.float32)
+        _WS.labels = np.empty((h, w), np.int32)
+        _WS.shape = (h, w)
+    return _WS
 
 
 def saturation_level(image: np.ndarray) -> float:
@@ -230,6 +256,18 @@ def _grid_row(grid, i, f, out):
 
 
 @njit(cache=True)
+def _grid_at(grid, iy, fy, ix, fx, y, x):
+    """Bilinear value of a tile grid at pixel (y, x)."""
+    ny, nx = grid.shape
+    i, j = iy[y], ix[x]
+    i1, j1 = min(i + 1, ny - 1), min(j + 1, nx - 1)
+    f, g = fy[y], fx[x]
+    top = (1.0 - g) * grid[i, j] + g * grid[i, j1]
+    bot = (1.0 - g) * grid[i1, j] + g * grid[i1, j1]
+    return (1.0 - f) * top + f * bot
+
+
+@njit(cache=True)
 def _label(sm, labels, thr_grid, bg_grid, iy, fy, ix, fx, max_components):
     """8-connected flood fill of pixels with ``sm > threshold``; labels are 1-based.
 
@@ -239,60 +277,70 @@ def _label(sm, labels, thr_grid, bg_grid, iy, fy, ix, fx, max_components):
     nx = thr_grid.shape[1]
     comps = np.zeros((max_components, 6))
     stack = np.empty(h * w, np.int64)
-    thr_row = np.empty(nx, np.float64)
-    # the threshold map is needed at arbitrary rows during the fill: precompute it once
-    thr = np.empty((h, w), np.float32)
-    for y in range(h):
-        _grid_row(thr_grid, iy[y], fy[y], thr_row)
+    above = np.zeros((w + 7) // 8 * 8, np.uint8)
+    words = above.view(np.uint64)
+    # threshold rows at the tile-centre rows, interpolated along x once: a pixel row is then
+    # r0 + f·(r1 − r0), one fused multiply-add per pixel
+    ny = thr_grid.shape[0]
+    r0 = np.empty((ny, w), np.float32)
+    dr = np.empty((ny, w), np.float32)
+    for i in range(ny):
         for x in range(w):
             a = ix[x]
-            b = min(a + 1, nx - 1)
-            thr[y, x] = (1.0 - fx[x]) * thr_row[a] + fx[x] * thr_row[b]
-    bg_row = np.empty(nx, np.float64)
+            r0[i, x] = (1.0 - fx[x]) * thr_grid[i, a] + fx[x] * thr_grid[i, min(a + 1, nx - 1)]
+    for i in range(ny):
+        for x in range(w):
+            dr[i, x] = r0[min(i + 1, ny - 1), x] - r0[i, x]
     k = 0
     for y in range(h):
+        i = iy[y]
+        f = np.float32(fy[y])
+        # mark the row's pixels above threshold (SIMD), then visit only non-zero 8-byte words
+        row = sm[y]
         for x in range(w):
-            if sm[y, x] <= thr[y, x] or labels[y, x] != 0:
+            above[x] = row[x] > r0[i, x] + f * dr[i, x]
+        for i in range(words.size):
+            if words[i] == 0:
                 continue
-            if k >= max_components:
-                return comps[:k]
-            lab = k + 1
-            labels[y, x] = lab
-            stack[0] = y * w + x
-            top = 1
-            n = 0
-            ymin, ymax, xmin, xmax = y, y, x, x
-            excess = 0.0
-            while top > 0:
-                top -= 1
-                p = stack[top]
-                py, px = p // w, p % w
-                n += 1
-                ymin, ymax = min(ymin, py), max(ymax, py)
-                xmin, xmax = min(xmin, px), max(xmax, px)
-                _grid_row(bg_grid, iy[py], fy[py], bg_row)
-                a = ix[px]
-                b = min(a + 1, nx - 1)
-                excess += sm[py, px] - ((1.0 - fx[px]) * bg_row[a] + fx[px] * bg_row[b])
-                for dy in range(-1, 2):
-                    qy = py + dy
-                    if qy < 0 or qy >= h:
-                        continue
-                    for dx in range(-1, 2):
-                        qx = px + dx
-                        if qx < 0 or qx >= w or labels[qy, qx] != 0:
+            for x in range(8 * i, 8 * i + 8):
+                if above[x] == 0 or labels[y, x] != 0:
+                    continue
+                if k >= max_components:
+                    return comps[:k]
+                lab = k + 1
+                labels[y, x] = lab
+                stack[0] = y * w + x
+                top = 1
+                n = 0
+                ymin, ymax, xmin, xmax = y, y, x, x
+                excess = 0.0
+                while top > 0:
+                    top -= 1
+                    p = stack[top]
+                    py, px = p // w, p % w
+                    n += 1
+                    ymin, ymax = min(ymin, py), max(ymax, py)
+                    xmin, xmax = min(xmin, px), max(xmax, px)
+                    excess += sm[py, px] - _grid_at(bg_grid, iy, fy, ix, fx, py, px)
+                    for dy in range(-1, 2):
+                        qy = py + dy
+                        if qy < 0 or qy >= h:
                             continue
-                        if sm[qy, qx] > thr[qy, qx]:
-                            labels[qy, qx] = lab
-                            stack[top] = qy * w + qx
-                            top += 1
-            comps[k, 0] = n
-            comps[k, 1] = ymin
-            comps[k, 2] = ymax
-            comps[k, 3] = xmin
-            comps[k, 4] = xmax
-            comps[k, 5] = excess
-            k += 1
+                        for dx in range(-1, 2):
+                            qx = px + dx
+                            if qx < 0 or qx >= w or labels[qy, qx] != 0:
+                                continue
+                            if sm[qy, qx] > _grid_at(thr_grid, iy, fy, ix, fx, qy, qx):
+                                labels[qy, qx] = lab
+                                stack[top] = qy * w + qx
+                                top += 1
+                comps[k, 0] = n
+                comps[k, 1] = ymin
+                comps[k, 2] = ymax
+                comps[k, 3] = xmin
+                comps[k, 4] = xmax
+                comps[k, 5] = excess
+                k += 1
     return comps[:k]
 
 
