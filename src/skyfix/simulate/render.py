@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -69,14 +70,20 @@ def _camera_table(camera: Camera) -> dict:
     return tomllib.loads(camera.to_toml())["camera"]
 
 
-def resolve_setup(camera: Camera | str, sensor: Sensor | str | None, optics: Optics | str | None,
+def resolve_setup(camera: Camera | str | Path, sensor: Sensor | str | None, optics: Optics | str | None,
                   exposure_s: float | None) -> tuple[Camera, Sensor, Optics, float]:
     """Camera, sensor, optics and exposure from objects or preset names.
 
     A preset name for the camera also supplies the sensor, optics and exposure left as None;
-    otherwise the ``generic`` preset does.
+    so does a camera TOML file (``.toml`` path) holding ``[sensor]``, ``[optics]`` or
+    ``[defaults]`` tables beside ``[camera]``; otherwise the ``generic`` preset does.
     """
     preset = None
+    file_tables: dict = {}
+    if isinstance(camera, Path) or (isinstance(camera, str) and (camera.endswith(".toml")
+                                                                 or Path(camera).is_file())):
+        file_tables = _read_setup_file(Path(camera))
+        camera = Camera.from_dict(file_tables["camera"])
     if isinstance(camera, str):
         preset = camera.lower()
         try:
@@ -91,6 +98,9 @@ def resolve_setup(camera: Camera | str, sensor: Sensor | str | None, optics: Opt
     elif not isinstance(camera, Camera):
         raise SimulationError(f"camera must be a Camera or a preset name, got {type(camera).__name__}")
     base = load_preset(preset or "generic")
+    for key in ("sensor", "optics", "defaults"):  # a camera file's own tables win over the preset's
+        if key in file_tables:
+            base[key] = file_tables[key]
     if sensor is None:
         sensor = Sensor.from_dict(base["sensor"])
     elif isinstance(sensor, str):
@@ -112,6 +122,20 @@ def resolve_setup(camera: Camera | str, sensor: Sensor | str | None, optics: Opt
     if not (math.isfinite(exposure_s) and exposure_s > 0):
         raise SimulationError(f"exposure must be a positive number of seconds, got {exposure_s}")
     return camera, sensor, optics, exposure_s
+
+
+def _read_setup_file(path: Path) -> dict:
+    """Tables of a camera TOML file: ``[camera]`` and optionally ``[sensor]``, ``[optics]``,
+    ``[defaults]``."""
+    import tomllib
+
+    try:
+        tables = tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise SimulationError(f"cannot read camera file {path}: {exc}") from None
+    if "camera" not in tables:
+        raise SimulationError(f"{path} has no [camera] table")
+    return tables
 
 
 def _check_attitude(A: np.ndarray) -> np.ndarray:
@@ -136,8 +160,9 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
     ----------
     A_icrs_to_cam : (3, 3) array
         Attitude at mid-exposure (of the centre row), ``b = A r``.
-    camera : Camera or str
-        Camera model, or a preset name (which also supplies sensor, optics and exposure).
+    camera : Camera, str or Path
+        Camera model, a preset name, or a TOML file; a preset or a file with ``[sensor]`` /
+        ``[optics]`` / ``[defaults]`` tables also supplies those.
     sensor, optics : Sensor / Optics / preset name, optional
     exposure_s : float, optional
         Integration time, seconds (> 0).
@@ -209,7 +234,7 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
     electrons = star_electrons(catalog.mag[idx], optics, sensor, exposure_s, optics.transmission(beta))
 
     # --- expected photo-electrons ------------------------------------------------------
-    expected = np.zeros((h, w), dtype=np.float64)
+    expected = np.zeros((h, w), dtype=np.float32)
     background = 0.0
     if sky_mag_arcsec2 is not None:
         background = sky_electrons_per_pixel(sky_mag_arcsec2, optics, sensor, exposure_s,
@@ -255,7 +280,7 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
                                           electrons[inside], strict=True)],
         false_stars=fs_records, cosmic_rays=cr_records, hot_pixels=hot_records,
     )
-    return SimulatedFrame(image=image, truth=truth, expected_e=expected.astype(np.float32))
+    return SimulatedFrame(image=image, truth=truth, expected_e=expected)
 
 
 def _add_sources(image: np.ndarray, tracks: np.ndarray, electrons: np.ndarray, optics: Optics,

@@ -296,6 +296,8 @@ def _draw_table(u, cdf, lo, guide):
 def _poisson_small(rng, lam):
     # Inversion by sequential search: about lam + 1 steps, one uniform.
     u = rng.random()
+    if u <= 1.0 - lam:  # exp(-lam) >= 1 - lam: certainly 0 (skips exp for the faint majority)
+        return 0
     p = math.exp(-lam)
     s = p
     k = 0
@@ -380,7 +382,7 @@ def _readout(charge, dsnu, read_sigma, ktc_sigma, rng_read, rng_ktc, inv_gain, b
             a = max_adu
         if do_round:
             a = math.floor(a + 0.5)
-        o[i] = a
+        o[i] = a  # exact in uint16 after rounding
 
 
 def apply_detector(photo_e: np.ndarray, sensor: Sensor, exposure_s: float,
@@ -428,11 +430,11 @@ def apply_detector(photo_e: np.ndarray, sensor: Sensor, exposure_s: float,
         charge += np.asarray(extra_e, dtype=np.float32)
 
     do_round = on["quantization"]
-    out = np.empty(shape, dtype=np.float32)
+    out = np.empty(shape, dtype=np.uint16 if do_round else np.float32)
     dsnu_map = pattern.dsnu_e if (pattern is not None and on["dsnu"]) else np.zeros((1, 1), np.float32)
     _readout(charge, dsnu_map, float(sensor.read_noise_e), float(sensor.ktc_noise_e),
              streams["read"], streams["ktc"], 1.0 / sensor.gain_e_per_adu, float(sensor.bias_adu),
              float(sensor.max_adu), float(sensor.full_well_e),
              bool(on["dsnu"] and sensor.dsnu_e > 0), bool(on["read"] and sensor.read_noise_e > 0),
              bool(on["ktc"] and sensor.ktc_noise_e > 0), do_round, out)
-    return out.astype(np.uint16) if do_round else out
+    return out
