@@ -1,0 +1,226 @@
+"""Lost-in-space identification by 4-star geometric hashing, with statistical verification.
+
+1. Image stars (brightest first) form 4-star combinations in breadth-first order.
+2. Each combination's edge-ratio key is looked up in the pattern database (compiled kernel,
+   :mod:`skyfix.identify.search`); candidates agree in all five ratios and imply an allowed
+   focal length.
+3. For each candidate: the vertex correspondence (the permutation that best matches the six
+   edges), the attitude from the four stars (SVD, proper rotations only, so a mirror image
+   fits badly and is rejected), then verification against all catalogue stars in the field.
+4. The first candidate whose chance of being a false match is below ``prob_threshold`` wins;
+   attitude, focal length and (without a camera) radial distortion are refitted on all
+   matched stars, and the match is repeated once with the refined model.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from itertools import permutations
+
+import numpy as np
+
+from skyfix.camera import Camera
+from skyfix.identify.database import PatternDatabase, default_database
+from skyfix.identify.search import breadth_first_combinations, refine, search
+
+__all__ = ["Identification", "identify"]
+
+METHOD = "quad-hash"
+_PERMS = np.array(list(permutations(range(4))), dtype=np.int64)  # (24, 4)
+
+
+@dataclass(frozen=True)
+class Identification:
+    """Result of :func:`identify`.
+
+    Attributes
+    ----------
+    success : bool
+    reason : str — why it failed ("" on success).
+    star_index : (M,) int — indices into the input centroids of the identified stars.
+    catalog_ids : (M,) int — their Hipparcos numbers.
+    catalog_vectors : (M, 3) — their ICRS unit vectors at ``epoch``.
+    catalog_mag : (M,) — their magnitudes.
+    A_icrs_to_cam : (3, 3) or None — attitude (``b = A r``).
+    camera : Camera or None — the camera used, focal length (and k1) refitted when the
+        camera was not given.
+    prob_false : float — probability that the match is chance (look-elsewhere included).
+    n_patterns_tried : int — image 4-star combinations looked up.
+    n_candidates : int — catalogue patterns verified.
+    method : str
+    time_s : float — wall time of the identification (attitude fit included).
+    """
+
+    success: bool
+    reason: str = ""
+    star_index: np.ndarray = None
+    catalog_ids: np.ndarray = None
+    catalog_vectors: np.ndarray = None
+    catalog_mag: np.ndarray = None
+    A_icrs_to_cam: np.ndarray | None = None
+    camera: Camera | None = None
+    prob_false: float = 1.0
+    n_patterns_tried: int = 0
+    n_candidates: int = 0
+    method: str = METHOD
+    time_s: float = 0.0
+
+    @property
+    def n_matched(self) -> int:
+        return 0 if self.star_index is None else len(self.star_index)
+
+
+def _failure(reason: str, t0: float, n_tried: int = 0, n_cand: int = 0) -> Identification:
+    empty = np.zeros(0, np.int64)
+    return Identification(False, reason, empty, empty, np.zeros((0, 3)), np.zeros(0, np.float32),
+                          n_patterns_tried=n_tried, n_candidates=n_cand, time_s=time.perf_counter() - t0)
+
+
+def _focal_from_fov(width: int, fov_deg: float) -> float:
+    return (width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
+
+
+def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
+             fov_tolerance_deg: float | None = None, camera: Camera | None = None,
+             database: PatternDatabase | None = None, max_patterns: int = 4000,
+             time_limit_s: float = 2.0, epoch: float | None = None, pattern_stars: int = 24,
+             verify_stars: int = 60, refine_stars: int = 120, match_radius: float = 0.01,
+             prob_threshold: float = 1e-9,
+             centroid_sigma_px: float = 1.0, ratio_tolerance: float | None = None,
+             key_tolerance: float | None = None) -> Identification:
+    """Identify the stars of one frame, lost in space, and fit the attitude.
+
+    Parameters
+    ----------
+    xy : (N, 2) float
+        Centroids, pixels (DESIGN.md convention), brightest first.
+    width, height : int
+        Frame size, pixels.
+    fov_deg : float, optional
+        Horizontal field of view, degrees. Without it (and without ``camera``) the FOV is
+        estimated from the matched pattern, within the database's range.
+    fov_tolerance_deg : float, optional
+        Allowed error of ``fov_deg`` (default 10 % of it).
+    camera : Camera, optional
+        Calibrated camera (intrinsics and distortion used as given; overrides ``fov_deg``).
+    database : PatternDatabase, optional
+        Default: :func:`~skyfix.identify.database.default_database`.
+    max_patterns : int
+        Work bound: image 4-star combinations looked up.
+    time_limit_s : float
+        Work bound: wall time, seconds.
+    epoch : float, optional
+        Julian year for the catalogue positions of the result (default: the database's).
+    pattern_stars : int
+        Brightest centroids used to form patterns.
+    verify_stars : int
+        Brightest centroids (and as many catalogue stars) used in verification.
+    refine_stars : int
+        Brightest centroids matched for the final fit.
+    match_radius : float
+        Verification match radius as a fraction of the frame's larger side.
+    prob_threshold : float
+        Largest accepted probability that the match is chance.
+    centroid_sigma_px : float
+        Expected centroid noise, pixels (sets the pattern tolerance).
+    ratio_tolerance : float, optional
+        Edge-ratio error allowed for the unmodelled camera (distortion), on top of the
+        noise term (default 0.006 without a camera, 0.003 with one).
+    key_tolerance : float, optional
+        Edge-ratio tolerance of the key lookup (default 0.012 with the FOV free, else 0.008).
+
+    Returns
+    -------
+    Identification
+    """
+    t0 = time.perf_counter()
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    n = len(xy)
+    if n < 4:
+        return _failure(f"too few stars ({n} detected, need 4)", t0)
+    db = default_database() if database is None else database
+
+    # Camera model and allowed focal-length range.
+    if camera is not None:
+        cam0 = camera
+        f0 = float(camera.fx)
+        f_lo, f_hi = f0 / 1.03, f0 * 1.03
+    else:
+        cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
+        if fov_deg is not None:
+            tol = 0.1 * fov_deg if fov_tolerance_deg is None else fov_tolerance_deg
+            f0 = _focal_from_fov(width, fov_deg)
+            f_lo = _focal_from_fov(width, min(fov_deg + tol, 179.0))
+            f_hi = _focal_from_fov(width, max(fov_deg - tol, 1e-3))
+        else:
+            fmin, fmax = db.fov_min_deg / 1.15, db.fov_max_deg * 1.15
+            f0 = _focal_from_fov(width, math.sqrt(fmin * fmax))
+            f_lo, f_hi = _focal_from_fov(width, fmax), _focal_from_fov(width, fmin)
+        cam0 = Camera(width=int(width), height=int(height), fx=f0, fy=f0, cx=cx, cy=cy)
+    free_fov = camera is None and fov_deg is None
+    # Image stars as undistorted offsets from the principal point, scaled by f0.
+    n_pat = min(n, pattern_stars)
+    p = cam0.pixel_to_normalized(xy[:max(n_pat, min(n, max(verify_stars, refine_stars)))]) * f0
+    combos = breadth_first_combinations(n_pat)
+    n_verify = min(n, verify_stars)
+    radius = match_radius * max(width, height)
+
+    eps_key = key_tolerance if key_tolerance is not None else (0.012 if free_fov else 0.008)
+    model_err = ratio_tolerance if ratio_tolerance is not None else (0.006 if camera is None else 0.003)
+    x_lo, y_lo = cam0.pixel_to_normalized(np.array([[-0.5, -0.5]]))[0] * f0
+    x_hi, y_hi = cam0.pixel_to_normalized(np.array([[width - 0.5, height - 0.5]]))[0] * f0
+    frame = np.array([x_lo, x_hi, y_lo, y_hi])
+    arrays = db.search_arrays()
+    result_A = np.empty((3, 3))
+    stats = np.empty(6)
+
+    n_tried = 0
+    n_cand = 0
+    total = min(len(combos), max_patterns)
+    chunk = 16
+    while n_tried < total:
+        if time.perf_counter() - t0 > time_limit_s:
+            return _failure(f"time limit {time_limit_s:g} s reached after {n_tried} patterns", t0,
+                            n_tried, n_cand)
+        stop = min(total, n_tried + chunk)
+        hit, n_done, n_c = search(p, combos, n_tried, stop, f0, f_lo, f_hi, camera is not None,
+                                  eps_key, centroid_sigma_px, model_err, db.n_bins, *arrays,
+                                  db.cell_radius, frame, n_verify, radius, math.log(prob_threshold),
+                                  n_tried, n_cand, _PERMS, result_A, stats)
+        n_tried += n_done
+        n_cand += n_c
+        chunk = min(chunk * 2, 512)
+        if hit:
+            res = _finish(xy, p, result_A, float(stats[0]), math.exp(stats[1]), cam0, camera is None,
+                          frame, min(n, refine_stars), radius, centroid_sigma_px, db, arrays, epoch,
+                          n_tried, n_cand, t0)
+            if res is not None and f_lo * 0.97 <= res.camera.fx <= f_hi * 1.03:
+                return res
+            # A refit that fails or leaves the allowed range: search on after this combination.
+            n_tried = int(stats[2]) + 1
+    return _failure(f"no match after {n_tried} patterns ({n_cand} candidates verified)", t0,
+                    n_tried, n_cand)
+
+
+def _finish(xy, p, A, f, prob, cam0, fit_focal, frame, n_img, radius, sigma_px, db, arrays, epoch,
+            n_tried, n_cand, t0):
+    """Refit on all matched stars (compiled :func:`refine`) and package the result."""
+    A = A.copy()
+    out_img = np.empty(16384, np.int64)
+    out_star = np.empty(16384, np.int64)
+    fk = np.empty(3)
+    n_pairs = refine(p, A, f, fit_focal, 12, frame, n_img, radius, sigma_px, *arrays[5:],
+                     db.cell_radius, 3, out_img, out_star, fk)
+    if n_pairs < 4:
+        return None
+    star_index, cat_index = out_img[:n_pairs], out_star[:n_pairs]
+    order = np.argsort(star_index)
+    star_index, cat_index = star_index[order], cat_index[order]
+    cam = cam0.replace(fx=float(fk[0]), fy=float(fk[0]), k1=float(fk[1])) if fit_focal else cam0
+    return Identification(
+        True, "", star_index, np.asarray(db.star_ids[cat_index]), db.vectors_at(cat_index, epoch),
+        np.asarray(db.star_mag[cat_index]), A, cam, float(min(prob, 1.0)), n_tried, n_cand, METHOD,
+        time.perf_counter() - t0)

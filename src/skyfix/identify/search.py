@@ -1,0 +1,438 @@
+"""The compiled inner loop of the 4-star search: image patterns -> candidate catalogue patterns.
+
+For each image 4-star combination (in the breadth-first order the caller gives), the kernel
+computes the edge ratios from camera rays at an assumed focal length, probes every key bin
+within the tolerance, walks the hash table, keeps catalogue patterns whose ratios agree, then
+estimates the focal length from the ratio of largest edges, recomputes the image ratios at that
+focal length and keeps the pattern only if they agree tightly and the focal length is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from skyfix.identify.hashing import lookup_code
+
+__all__ = ["breadth_first_combinations", "search"]
+
+_COMBOS: dict[int, np.ndarray] = {}
+
+
+def breadth_first_combinations(n: int) -> np.ndarray:
+    """All 4-subsets of ``range(n)`` ordered so that those of the brightest stars come first.
+
+    Subsets are sorted by their largest member, then lexicographically: every subset of the
+    first ``m`` stars precedes any subset that uses star ``m``.
+    """
+    if n not in _COMBOS:
+        i, j, k, m = np.meshgrid(*[np.arange(n)] * 4, indexing="ij")
+        sel = (i < j) & (j < k) & (k < m)
+        c = np.stack([i[sel], j[sel], k[sel], m[sel]], axis=1)
+        order = np.lexsort((c[:, 2], c[:, 1], c[:, 0], c[:, 3]))
+        _COMBOS[n] = np.ascontiguousarray(c[order], dtype=np.int64)
+    return _COMBOS[n]
+
+
+@numba.njit(cache=True, inline="always")
+def _pattern_edges(p: np.ndarray, combo: np.ndarray, f: float, out: np.ndarray) -> None:
+    """Sorted six edge angles (radians) of image stars ``combo`` at focal length ``f`` (pixels)."""
+    rays = np.empty((4, 3))
+    for a in range(4):
+        x = p[combo[a], 0] / f
+        y = p[combo[a], 1] / f
+        n = np.sqrt(x * x + y * y + 1.0)
+        rays[a, 0] = x / n
+        rays[a, 1] = y / n
+        rays[a, 2] = 1.0 / n
+    e = 0
+    for a in range(4):
+        for b in range(a + 1, 4):
+            dx = rays[a, 0] - rays[b, 0]
+            dy = rays[a, 1] - rays[b, 1]
+            dz = rays[a, 2] - rays[b, 2]
+            out[e] = 2.0 * np.arcsin(min(np.sqrt(dx * dx + dy * dy + dz * dz) / 2.0, 1.0))
+            e += 1
+    out.sort()
+
+
+@numba.njit(cache=True)
+def _log_binom_sf(k: int, n: int, p: float) -> float:
+    """log P(X >= k) for X ~ Binomial(n, p)."""
+    if k <= 0:
+        return 0.0
+    if k > n:
+        return -np.inf
+    p = min(max(p, 1e-300), 1.0 - 1e-16)
+    lp, lq = np.log(p), np.log1p(-p)
+    base = math.lgamma(n + 1.0)
+    best = -np.inf
+    terms = np.empty(n - k + 1)
+    for j in range(k, n + 1):
+        t = base - math.lgamma(j + 1.0) - math.lgamma(n - j + 1.0) + j * lp + (n - j) * lq
+        terms[j - k] = t
+        best = max(best, t)
+    acc = 0.0
+    for t in terms:
+        acc += np.exp(t - best)
+    return best + np.log(acc)
+
+
+@numba.njit(cache=True)
+def _kabsch(b: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Proper rotation A minimising Σ|b − A r|² (SVD; det A = +1, so mirror images fit badly)."""
+    B = b.T @ r
+    U, _, Vt = np.linalg.svd(B)
+    d = np.linalg.det(U) * np.linalg.det(Vt)
+    D = np.eye(3)
+    D[2, 2] = d
+    return U @ D @ Vt
+
+
+@numba.njit(cache=True)
+def _angle_matrix(v: np.ndarray, out: np.ndarray) -> None:
+    for a in range(4):
+        out[a, a] = 0.0
+        for b in range(a + 1, 4):
+            d = np.sqrt(np.sum((v[a] - v[b]) ** 2))
+            out[a, b] = out[b, a] = 2.0 * np.arcsin(min(d / 2.0, 1.0))
+
+
+@numba.njit(cache=True)
+def _stars_in_view(A, f, k1, frame, star_limit, star_vectors, cell_centres, cell_start, cell_stars,
+                   cell_radius, out_idx, out_x, out_y):
+    """Catalogue stars (index < ``star_limit``) that project into the frame, brightest first.
+
+    Projection in the undistorted offset space of ``p``: ``x = f·x_n·(1 + k1·r²)``.
+    Returns the count written to ``out_*``.
+    """
+    x_lo, x_hi, y_lo, y_hi = frame[0], frame[1], frame[2], frame[3]
+    ext = np.sqrt(max(x_lo * x_lo, x_hi * x_hi) + max(y_lo * y_lo, y_hi * y_hi))
+    half_diag = np.arctan(ext / f) * (1.0 + 2.0 * abs(k1)) + 0.01
+    cos_cell = np.cos(min(half_diag + cell_radius, np.pi))
+    n = 0
+    for cell in range(len(cell_centres)):
+        cc = cell_centres[cell]
+        if cc[0] * A[2, 0] + cc[1] * A[2, 1] + cc[2] * A[2, 2] < cos_cell:
+            continue
+        for t in range(cell_start[cell], cell_start[cell + 1]):
+            s = cell_stars[t]
+            if s >= star_limit:
+                break  # cells list their stars brightest first
+            v = star_vectors[s]
+            bz = A[2, 0] * v[0] + A[2, 1] * v[1] + A[2, 2] * v[2]
+            if bz <= 1e-6:
+                continue
+            xn = (A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2]) / bz
+            yn = (A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2]) / bz
+            radial = f * (1.0 + k1 * (xn * xn + yn * yn))
+            x = xn * radial
+            y = yn * radial
+            if x < x_lo or x > x_hi or y < y_lo or y > y_hi or n >= len(out_idx):
+                continue
+            out_idx[n] = s
+            out_x[n] = x
+            out_y[n] = y
+            n += 1
+    order = np.argsort(out_idx[:n])
+    out_idx[:n] = out_idx[:n][order]
+    out_x[:n] = out_x[:n][order]
+    out_y[:n] = out_y[:n][order]
+    return n
+
+
+@numba.njit(cache=True)
+def _match(view_x, view_y, n_cat, p, n_img, radius_px, used, match_img):
+    """Greedy one-to-one matching, brightest catalogue star first, nearest free centroid within
+    the radius. ``match_img[j]`` = centroid of catalogue star ``j`` or -1; returns the count."""
+    used[:n_img] = False
+    r2 = radius_px * radius_px
+    n_match = 0
+    for j in range(n_cat):
+        best_d = r2
+        best_i = -1
+        for i in range(n_img):
+            if used[i]:
+                continue
+            d = (p[i, 0] - view_x[j]) ** 2 + (p[i, 1] - view_y[j]) ** 2
+            if d <= best_d:
+                best_d = d
+                best_i = i
+        match_img[j] = best_i
+        if best_i >= 0:
+            used[best_i] = True
+            n_match += 1
+    return n_match
+
+
+def _star_limit(n_stars, n_img, frame, f, depth):
+    """Catalogue depth (a brightness rank) with ~``depth``·``n_img`` stars in the frame on average."""
+    frame_sr = (frame[1] - frame[0]) * (frame[3] - frame[2]) / (f * f)
+    return min(n_stars, int(depth * n_img * 4.0 * np.pi / frame_sr) + 1)
+
+
+_star_limit_jit = numba.njit(cache=True)(_star_limit)
+
+
+@numba.njit(cache=True)
+def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px, model_err, n_bins,
+           table, pattern_codes, pattern_ratios, pattern_largest, pattern_stars, star_vectors,
+           cell_centres, cell_start, cell_stars, cell_radius, frame, n_verify, radius_px,
+           log_threshold, trials_before, cand_before, perms, result_A, result_stats):
+    """Search image combinations ``start:stop`` for a verified catalogue pattern.
+
+    Parameters
+    ----------
+    p : (N, 2) float64 — image stars as undistorted pixel offsets from the principal point
+        (``x_n · f0``), brightest first.
+    combos : (C, 4) int64 — image-star index quadruples, in search order.
+    f0 : float — assumed focal length (pixels); ``f_lo``–``f_hi`` the allowed range;
+        ``fix_focal`` — use ``f0`` itself (calibrated camera).
+    eps_key : float — ratio tolerance of the key probe (covers the unknown focal length).
+    sigma_px, model_err : float — centroid noise (pixels) and the ratio error of the unmodelled
+        camera; the tight ratio tolerance is ``4·√2·σ / L_px + model_err``.
+    cell_* : the database's sky-cell index of all stars (verification).
+    frame : (4,) float — x_lo, x_hi, y_lo, y_hi of the frame in ``p`` coordinates.
+    n_verify : int — image stars (and at most as many catalogue stars) used in verification.
+    radius_px : float — verification match radius.
+    log_threshold : float — log of the largest accepted false-match probability.
+    trials_before, cand_before : int — look-elsewhere counts of earlier calls.
+    perms : (24, 4) int64 — all vertex permutations.
+    result_A : (3, 3) out — accepted attitude; result_stats : (6,) out — f, log P(false),
+        combination index, pattern index, n matched, n catalogue.
+
+    Returns
+    -------
+    (found, n_done, n_candidates) — whether a pattern was accepted, combinations processed,
+    candidates verified.
+    """
+    edges = np.empty(6)
+    edges1 = np.empty(6)
+    found = np.empty(16384, dtype=np.int64)
+    lo = np.empty(5, dtype=np.int64)
+    hi = np.empty(5, dtype=np.int64)
+    cur = np.empty(5, dtype=np.int64)
+    weights = np.empty(5, dtype=np.int64)
+    w = 1
+    for i in range(5):
+        weights[i] = w
+        w *= n_bins
+    b = np.empty((4, 3))
+    r = np.empty((4, 3))
+    rp = np.empty((4, 3))
+    ai = np.empty((4, 4))
+    ac = np.empty((4, 4))
+    view_idx = np.empty(8192, dtype=np.int64)
+    view_x = np.empty(8192)
+    view_y = np.empty(8192)
+    n_img = min(n_verify, len(p))
+    used = np.zeros(n_img, dtype=np.bool_)
+    match_img = np.empty(8192, dtype=np.int64)
+    p_single = min(1.0, n_img * np.pi * radius_px**2 / ((frame[1] - frame[0]) * (frame[3] - frame[2])))
+    n_cand = 0
+    for c in range(start, stop):
+        combo = combos[c]
+        _pattern_edges(p, combo, f0, edges)
+        largest = edges[5]
+        if largest <= 0.0:
+            continue
+        for i in range(5):
+            rr = edges[i] / largest
+            lo[i] = max(0, min(n_bins - 1, np.int64((rr - eps_key) * n_bins)))
+            hi[i] = max(0, min(n_bins - 1, np.int64((rr + eps_key) * n_bins)))
+            cur[i] = lo[i]
+        # Every key code in the box lo..hi (an odometer over the five bins).
+        n_found = 0
+        while True:
+            code = np.int64(0)
+            ok = True
+            for i in range(5):
+                if i > 0 and cur[i] < cur[i - 1]:
+                    ok = False  # sorted ratios have non-decreasing bins
+                code += cur[i] * weights[i]
+            if ok:
+                n_found = lookup_code(code, table, pattern_codes, found, n_found)
+            i = 0
+            while i < 5:
+                cur[i] += 1
+                if cur[i] <= hi[i]:
+                    break
+                cur[i] = lo[i]
+                i += 1
+            if i == 5:
+                break
+        for k in range(n_found):
+            q = found[k]
+            bad = False
+            for i in range(5):
+                if abs(edges[i] / largest - pattern_ratios[q, i]) > eps_key:
+                    bad = True
+                    break
+            if bad:
+                continue
+            # Focal length from the largest edges (angles scale ~ 1/f), refined once.
+            if fix_focal:
+                f1 = f0
+            else:
+                f1 = f0 * largest / pattern_largest[q]
+                _pattern_edges(p, combo, f1, edges1)
+                f1 = f1 * edges1[5] / pattern_largest[q]
+            if f1 < f_lo or f1 > f_hi:
+                continue
+            _pattern_edges(p, combo, f1, edges1)
+            tol = 4.0 * 1.4142 * sigma_px / (edges1[5] * f1) + model_err
+            bad = False
+            for i in range(5):
+                if abs(edges1[i] / edges1[5] - pattern_ratios[q, i]) > tol:
+                    bad = True
+                    break
+            if bad:
+                continue
+            n_cand += 1
+            # Vertex correspondence: the permutation whose six edges agree best.
+            for a in range(4):
+                x = p[combo[a], 0] / f1
+                y = p[combo[a], 1] / f1
+                nn = np.sqrt(x * x + y * y + 1.0)
+                b[a, 0], b[a, 1], b[a, 2] = x / nn, y / nn, 1.0 / nn
+                r[a] = star_vectors[pattern_stars[q, a]]
+            _angle_matrix(b, ai)
+            _angle_matrix(r, ac)
+            best_err = np.inf
+            best = 0
+            for m in range(len(perms)):
+                err = 0.0
+                for a in range(4):
+                    for a2 in range(a + 1, 4):
+                        err = max(err, abs(ai[a, a2] - ac[perms[m, a], perms[m, a2]]))
+                if err < best_err:
+                    best_err = err
+                    best = m
+            for a in range(4):
+                rp[a] = r[perms[best, a]]
+            A = _kabsch(b, rp)
+            resid = 0.0
+            for a in range(4):
+                resid = max(resid, np.sqrt(np.sum((b[a] - A @ rp[a]) ** 2)))
+            if resid * f1 > radius_px:
+                continue  # a mirror image or an inconsistent correspondence
+            # Verification: the brightest catalogue stars in the frame, matched to centroids.
+            limit = _star_limit_jit(len(star_vectors), n_img, frame, f1, 2.0)
+            n_view = _stars_in_view(A, f1, 0.0, frame, limit, star_vectors, cell_centres, cell_start,
+                                    cell_stars, cell_radius, view_idx, view_x, view_y)
+            n_cat = min(n_view, n_img)
+            n_match = _match(view_x, view_y, n_cat, p, n_img, radius_px, used, match_img)
+            n_trials = max(trials_before + c - start + 1, cand_before + n_cand)
+            logp = _log_binom_sf(n_match - 4, n_cat - 4, p_single) + np.log(n_trials)
+            if logp <= log_threshold:
+                result_A[:, :] = A
+                result_stats[0] = f1
+                result_stats[1] = logp
+                result_stats[2] = c
+                result_stats[3] = q
+                result_stats[4] = n_match
+                result_stats[5] = n_cat
+                return True, c - start + 1, n_cand
+    return False, stop - start, n_cand
+
+
+@numba.njit(cache=True)
+def refine(p, A, f, fit_focal, fit_k1_min, frame, n_img, radius_px, sigma_px, star_vectors,
+           cell_centres, cell_start, cell_stars, cell_radius, iterations, out_img, out_star, out_fk):
+    """Match all stars with the accepted attitude, refit, re-match (``iterations`` times).
+
+    Each pass matches the ``n_img`` brightest centroids to the catalogue stars in view (about
+    twice as deep), fits the attitude (SVD) and, when ``fit_focal``, the focal length and —
+    with at least ``fit_k1_min`` matches — radial distortion k1 (linear least squares in
+    ``p = f·x_n·(1 + k1·r²)``); the radius shrinks to 4× the fit's rms (not below 3σ).
+
+    Returns the number of matched pairs written to ``out_img`` (centroid) and ``out_star``
+    (catalogue index); ``A`` is updated in place; ``out_fk`` = (f, k1, rms px).
+    """
+    view_idx = np.empty(16384, dtype=np.int64)
+    view_x = np.empty(16384)
+    view_y = np.empty(16384)
+    used = np.zeros(n_img, dtype=np.bool_)
+    match_img = np.empty(16384, dtype=np.int64)
+    k1 = 0.0
+    radius = radius_px
+    n_pairs = 0
+    rms = 0.0
+    out_fk[0] = f
+    out_fk[1] = k1
+    out_fk[2] = radius_px
+    for it in range(iterations + 1):
+        limit = _star_limit_jit(len(star_vectors), n_img, frame, f, 3.0)
+        n_view = _stars_in_view(A, f, k1, frame, limit, star_vectors, cell_centres, cell_start,
+                                cell_stars, cell_radius, view_idx, view_x, view_y)
+        n_cat = min(n_view, 2 * n_img)
+        n_match = _match(view_x, view_y, n_cat, p, n_img, radius, used, match_img)
+        if n_match < 3:
+            return n_pairs
+        n_pairs = 0
+        for j in range(n_cat):
+            if match_img[j] >= 0:
+                out_img[n_pairs] = match_img[j]
+                out_star[n_pairs] = view_idx[j]
+                n_pairs += 1
+        if it == iterations:
+            break
+        # Rays of the centroids with the current camera (undo k1 by fixed-point iteration).
+        b = np.empty((n_pairs, 3))
+        rv = np.empty((n_pairs, 3))
+        for t in range(n_pairs):
+            xd = p[out_img[t], 0] / f
+            yd = p[out_img[t], 1] / f
+            xn, yn = xd, yd
+            for _ in range(8):
+                radial = 1.0 + k1 * (xn * xn + yn * yn)
+                xn, yn = xd / radial, yd / radial
+            nn = np.sqrt(xn * xn + yn * yn + 1.0)
+            b[t, 0], b[t, 1], b[t, 2] = xn / nn, yn / nn, 1.0 / nn
+            rv[t] = star_vectors[out_star[t]]
+        A[:, :] = _kabsch(b, rv)
+        if fit_focal:
+            # Normal equations of p = f·xn + (f·k1)·xn·r² (and y), at fixed attitude.
+            s11 = s12 = s22 = t1 = t2 = 0.0
+            for t in range(n_pairs):
+                v = rv[t]
+                bz = A[2, 0] * v[0] + A[2, 1] * v[1] + A[2, 2] * v[2]
+                xn = (A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2]) / bz
+                yn = (A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2]) / bz
+                r2 = xn * xn + yn * yn
+                px = p[out_img[t], 0]
+                py = p[out_img[t], 1]
+                q2 = xn * xn + yn * yn
+                s11 += q2
+                s12 += q2 * r2
+                s22 += q2 * r2 * r2
+                t1 += xn * px + yn * py
+                t2 += (xn * px + yn * py) * r2
+            if n_pairs >= fit_k1_min and it > 0:
+                det = s11 * s22 - s12 * s12
+                if det > 0:
+                    f_new = (t1 * s22 - t2 * s12) / det
+                    g = (s11 * t2 - s12 * t1) / det
+                    if f_new > 0:
+                        f = f_new
+                        k1 = max(-1.0, min(1.0, g / f_new))
+            elif s11 > 0:
+                f = t1 / s11
+                k1 = 0.0
+        # Residual rms in pixels, then a tighter radius for the next pass.
+        acc = 0.0
+        for t in range(n_pairs):
+            v = rv[t]
+            bz = A[2, 0] * v[0] + A[2, 1] * v[1] + A[2, 2] * v[2]
+            xn = (A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2]) / bz
+            yn = (A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2]) / bz
+            radial = f * (1.0 + k1 * (xn * xn + yn * yn))
+            acc += (xn * radial - p[out_img[t], 0]) ** 2 + (yn * radial - p[out_img[t], 1]) ** 2
+        rms = np.sqrt(acc / max(n_pairs, 1))
+        radius = min(radius_px, max(4.0 * rms, 3.0 * sigma_px))
+    out_fk[0] = f
+    out_fk[1] = k1
+    out_fk[2] = rms
+    return n_pairs
