@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     say(f"[bold]skyfix benchmarks[/bold]  {info['time_utc']}  cpus={info['cpus']} "
         f"load={tuple(round(x, 1) for x in info['loadavg_start'])}")
     print_table("tools", ["tool", "version", "database load ms", "note"],
-                [[k, getattr(v, "version", "?"), getattr(v, "load_ms", float("nan")), ""]
+                [[k, getattr(v, "version", "?"), getattr(v, "load_ms", float("nan")), getattr(v, "note", "")]
                  for k, v in tools.items()]
                 + [[k, "—", "—", f"unavailable: {why}"] for k, why in missing.items()])
     warm_up(tools)

@@ -25,22 +25,33 @@ class Skyfix:
         self.version = skyfix.__version__
         self.pipeline = skyfix.pipeline
         self.build_ms = None
+        self.note = ""
         self.db, self.load_ms = self._database(min_fov_deg, max_fov_deg)
 
     # --- database --------------------------------------------------------------------------------
     def _database(self, min_fov: float | None, max_fov: float | None):
-        """The default cached database, or one for a custom FOV range cached in benchmarks/.cache."""
+        """The default cached database (or, if it cannot be loaded, one built into benchmarks/.cache),
+        or one for a custom FOV range cached in benchmarks/.cache."""
         from skyfix import identify
+        from skyfix.errors import DatabaseError
 
         if min_fov is None:
-            t0 = now_ms()
-            db = identify.default_database()
-            return db, now_ms() - t0
+            try:
+                t0 = now_ms()
+                db = identify.default_database()
+                return db, now_ms() - t0
+            except DatabaseError as exc:
+                self.note = f"default database unusable ({exc}); built one in benchmarks/.cache"
+                min_fov, max_fov = 10.0, 30.0
         path = CACHE_DIR / f"skyfix_{min_fov:g}-{max_fov:g}.npz"
-        if not path.exists():
-            self.build_ms, db = self.build(min_fov, max_fov)
-            CACHE_DIR.mkdir(parents=True, exist_ok=True)
-            db.save(path)
+        if path.exists():
+            try:
+                return self.load(path)
+            except DatabaseError:
+                pass  # stale format: rebuild
+        self.build_ms, db = self.build(min_fov, max_fov)
+        CACHE_DIR.mkdir(parents=True, exist_ok=True)
+        db.save(path)
         return self.load(path)
 
     @staticmethod
