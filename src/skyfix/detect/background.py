@@ -1,12 +1,14 @@
 """Sky background and noise: a tiled robust estimate on a coarse grid, interpolated bilinearly.
 
-The frame is cut into tiles (about 1/16 of the short side, 16–64 px). In each tile a regular
+The frame is cut into tiles (about 1/16 of the short side, 32–64 px). In each tile a regular
 lattice of ~144 pixels of the 3×3-smoothed frame gives the median (the sky level) and a clipped
 RMS about it (the noise σ; a plain MAD collapses to zero on 8-bit frames whose noise is below
-one level). The raw-pixel noise is one pooled robust estimate over all tiles, scaled tile by
-tile like the smoothed noise. A 3×3
-median filter over the tile grid removes tiles dominated by a bright star or the Moon, and the
-grid is interpolated bilinearly between tile centres (held constant beyond the outer centres).
+one level). The raw-pixel noise is one pooled robust estimate over about 64 tiles, scaled tile
+by tile like the smoothed noise. The grid is interpolated bilinearly between tile centres (and
+extrapolated linearly over the half tile beyond the outer centres). An optional median filter
+over the grid (``grid_filter``) removes tiles dominated by a bright object, but it also bends
+strong vignetting at the corners, so it is off by default: the tile median already ignores
+stars, and large bright objects are rejected by the extractor.
 Vignetting, sky glow and gradients that vary over more than a couple of tiles are followed.
 
 The statistics are those of the smoothed frame because that is the image the extractor
@@ -76,12 +78,12 @@ class Background:
 
 
 def default_tile_size(shape: tuple[int, int]) -> int:
-    """About 1/16 of the short side, clipped to 16–64 px (and to the frame)."""
+    """About 1/16 of the short side, clipped to 32–64 px (and to the frame)."""
     short = min(shape)
-    return int(max(1, min(short, max(16, min(64, short // 16)))))
+    return int(max(1, min(short, max(32, min(64, short // 16)))))
 
 
-def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter: int = 3,
+def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter: int = 1,
                         smoothed: np.ndarray | None = None) -> Background:
     """Tiled median background and clipped-RMS noise of a frame.
 
@@ -108,16 +110,24 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     edges_x = np.linspace(0, w, nx + 1).round().astype(np.int64)
     stride = max(1, round(t / _SAMPLES_PER_SIDE))
     sm = smooth3(img) if smoothed is None else np.ascontiguousarray(smoothed, dtype=np.float32)
-    stats, raw_dev = _tile_stats(img, sm, edges_y, edges_x, stride)
+    level = _tile_medians(sm, edges_y, edges_x, stride)
     if grid_filter > 1 and min(ny, nx) > 1:
-        stats = ndimage.median_filter(stats, size=(grid_filter, grid_filter, 1), mode="nearest")
-    level, noise_s = stats[..., 0], stats[..., 1]
-    # raw-pixel noise: one pooled robust estimate, spread over the tiles like the smoothed noise
-    _, raw_sigma = _robust_level_noise(raw_dev[:: max(1, raw_dev.size // 8192)].copy())
-    ref_s = float(np.median(noise_s))
-    kappa = raw_sigma / ref_s if ref_s > 0 else 1.0
+        level = ndimage.median_filter(level, size=grid_filter, mode="nearest")
     cy = 0.5 * (edges_y[:-1] + edges_y[1:]) - 0.5
     cx = 0.5 * (edges_x[:-1] + edges_x[1:]) - 0.5
+    iy, fy = interp_weights(cy, h)
+    ix, fx = interp_weights(cx, w)
+    # noise about the interpolated sky, not the tile median, so a gradient across a tile is
+    # not taken for noise
+    stats, raw_res, is_int = _tile_noise(img, sm, level, edges_y, edges_x, stride, iy, fy, ix, fx)
+    level = level + stats[..., 0]
+    noise_s = stats[..., 1]
+    if grid_filter > 1 and min(ny, nx) > 1:
+        noise_s = ndimage.median_filter(noise_s, size=grid_filter, mode="nearest")
+    # raw-pixel noise: one pooled robust estimate, spread over the tiles like the smoothed noise
+    _, raw_sigma = _robust_level_noise(raw_res, 1.0 if is_int else 0.0)
+    ref_s = float(np.median(noise_s))
+    kappa = raw_sigma / ref_s if ref_s > 0 else 1.0
     return Background(level=level, noise=kappa * noise_s, level_smooth=level, noise_smooth=noise_s,
                       centers_y=cy, centers_x=cx, tile=t)
 
@@ -136,7 +146,7 @@ def smooth3(image: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
 
 def interpolate_grid(grid: np.ndarray, centers_y: np.ndarray, centers_x: np.ndarray,
                      shape: tuple[int, int]) -> np.ndarray:
-    """Bilinear interpolation of a tile grid to every pixel (constant beyond the outer centres)."""
+    """Bilinear interpolation of a tile grid to every pixel (linear beyond the outer centres)."""
     iy, fy = interp_weights(centers_y, shape[0])
     ix, fx = interp_weights(centers_x, shape[1])
     return _interp_full(np.ascontiguousarray(grid, dtype=np.float64), iy, fy, ix, fx)
@@ -148,7 +158,8 @@ def interp_weights(centers: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]
     if centers.size == 1:
         return np.zeros(n, np.int64), np.zeros(n, np.float32)
     i = np.clip(np.searchsorted(centers, pos, side="right") - 1, 0, centers.size - 2)
-    f = np.clip((pos - centers[i]) / (centers[i + 1] - centers[i]), 0.0, 1.0)
+    # linear beyond the outer centres too (half a tile): a gradient continues to the edge
+    f = (pos - centers[i]) / (centers[i + 1] - centers[i])
     return i.astype(np.int64), f.astype(np.float32)
 
 
@@ -173,26 +184,44 @@ def _smooth3(img, out):
 
 
 @njit(cache=True)
-def _robust_level_noise(v):
-    """Median and clipped RMS (about the median, ±3σ, corrected) of a 1-D sample."""
+def _robust_level_noise(v, quantum=0.0, lower=False):
+    """Median and clipped RMS (about the median, ±3σ, corrected) of a 1-D sample.
+
+    ``quantum`` is the data's quantisation step (0 for continuous data): the clip starts no
+    narrower than ±3 steps, since a MAD below one step only says the noise is unresolved.
+    With ``lower`` only values below the median count: stars add light, so the lower half of
+    a tile's distribution is noise alone even when a bright star covers much of the tile.
+    """
     n = v.size
+    if n == 0:
+        return 0.0, 0.0
     med = np.median(v)
-    dev = np.abs(v - med)
-    s0 = 1.4826 * np.median(dev)
-    if s0 <= 0.0:
-        # more than half the sample equals the median (quantised, quiet sky): one quantum
-        step = np.inf
+    if lower:
+        m = 0
+        dev = np.empty(n)
         for i in range(n):
+            if v[i] <= med:
+                dev[m] = med - v[i]
+                m += 1
+        dev = dev[:m]
+    else:
+        dev = np.abs(v - med)
+    s0 = max(1.4826 * np.median(dev), quantum)
+    if s0 <= 0.0:
+        # more than half the sample equals the median: start from the smallest step seen
+        step = np.inf
+        for i in range(dev.size):
             if 0.0 < dev[i] < step:
                 step = dev[i]
         s0 = step if step < np.inf else 0.0
     if s0 <= 0.0:
         return med, 0.0
     cut = _CLIP * s0
-    for _ in range(3):
+    s = s0
+    for _ in range(4):
         acc = 0.0
         m = 0
-        for i in range(n):
+        for i in range(dev.size):
             if dev[i] <= cut:
                 acc += dev[i] * dev[i]
                 m += 1
@@ -205,37 +234,76 @@ def _robust_level_noise(v):
 
 
 @njit(cache=True)
-def _tile_stats(img, sm_img, edges_y, edges_x, stride):
-    """Per tile: median and clipped RMS of the smoothed frame on a sampling lattice.
+def _lattice_start(e0, e1, stride):
+    """First sample of a lattice with ``stride`` centred in [e0, e1)."""
+    return e0 + ((e1 - e0 - 1) % stride) // 2
 
-    Also returns the raw samples minus their tile's smoothed median, pooled over all tiles.
+
+@njit(cache=True)
+def _tile_medians(sm, edges_y, edges_x, stride):
+    """Median of the smoothed frame on a sampling lattice in each tile, (ny, nx)."""
+    ny, nx = edges_y.size - 1, edges_x.size - 1
+    out = np.empty((ny, nx))
+    cap_y = (edges_y[1:] - edges_y[:-1]).max() // stride + 1
+    buf = np.empty(cap_y * ((edges_x[1:] - edges_x[:-1]).max() // stride + 1), np.float64)
+    for ty in range(ny):
+        for tx in range(nx):
+            k = 0
+            for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], stride), edges_y[ty + 1], stride):
+                for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], stride), edges_x[tx + 1], stride):
+                    buf[k] = sm[y, x]
+                    k += 1
+            out[ty, tx] = np.median(buf[:k])
+    return out
+
+
+@njit(cache=True)
+def _tile_noise(img, sm, level, edges_y, edges_x, stride, iy, fy, ix, fx):
+    """Per tile, the median and lower-side clipped RMS of the smoothed frame minus the sky model.
+
+    The median is a correction to the tile's level: a plain tile median of a sky with a
+    gradient is as uncertain as the gradient is steep, the median about the model is not.
+    Returns them as (ny, nx, 2), then the raw samples minus the sky pooled over about 64
+    tiles, and whether the raw samples are all integers (quantised data).
     """
     ny, nx = edges_y.size - 1, edges_x.size - 1
     out = np.empty((ny, nx, 2))
     cap_y = (edges_y[1:] - edges_y[:-1]).max() // stride + 1
     cap = cap_y * ((edges_x[1:] - edges_x[:-1]).max() // stride + 1)
+    res = np.empty(cap, np.float64)
     raw = np.empty(cap, np.float64)
-    sm = np.empty(cap, np.float64)
-    pooled = np.empty(ny * nx * cap, np.float64)
+    pool_every = max(1, (ny * nx) // 64)
+    pooled = np.empty(((ny * nx) // pool_every + 1) * cap, np.float64)
     npool = 0
+    is_int = True
     for ty in range(ny):
         for tx in range(nx):
-            # centre the sampling lattice in the tile
-            y0 = edges_y[ty] + ((edges_y[ty + 1] - edges_y[ty] - 1) % stride) // 2
-            x0 = edges_x[tx] + ((edges_x[tx + 1] - edges_x[tx] - 1) % stride) // 2
             k = 0
-            for y in range(y0, edges_y[ty + 1], stride):
-                for x in range(x0, edges_x[tx + 1], stride):
-                    raw[k] = img[y, x]
-                    sm[k] = sm_img[y, x]
+            for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], stride), edges_y[ty + 1], stride):
+                i = iy[y]
+                i1 = min(i + 1, ny - 1)
+                f = fy[y]
+                for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], stride), edges_x[tx + 1], stride):
+                    j = ix[x]
+                    j1 = min(j + 1, nx - 1)
+                    g = fx[x]
+                    top = (1.0 - g) * level[i, j] + g * level[i, j1]
+                    bot = (1.0 - g) * level[i1, j] + g * level[i1, j1]
+                    model = (1.0 - f) * top + f * bot
+                    res[k] = sm[y, x] - model
+                    raw[k] = img[y, x] - model
+                    if is_int and img[y, x] != math.floor(img[y, x]):
+                        is_int = False
                     k += 1
-            med, sig = _robust_level_noise(sm[:k])
+            # a 3×3 binomial mean of integers moves in steps of 1/16
+            med, sig = _robust_level_noise(res[:k], 0.0625 if is_int else 0.0, True)
             out[ty, tx, 0] = med
             out[ty, tx, 1] = sig
-            for i in range(k):
-                pooled[npool] = raw[i] - med
-                npool += 1
-    return out, pooled[:npool]
+            if (ty * nx + tx) % pool_every == 0:
+                for m in range(k):
+                    pooled[npool] = raw[m]
+                    npool += 1
+    return out, pooled[:npool], is_int
 
 
 @njit(cache=True)

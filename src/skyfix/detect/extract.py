@@ -26,14 +26,9 @@ import threading
 
 import numpy as np
 from numba import njit
+from scipy import ndimage
 
-from skyfix.detect.background import (
-    Background,
-    _robust_level_noise,
-    estimate_background,
-    interp_weights,
-    smooth3,
-)
+from skyfix.detect.background import Background, estimate_background, interp_weights, smooth3
 from skyfix.detect.centroids import Centroids
 from skyfix.errors import ImageReadError
 from skyfix.io import as_image
@@ -43,7 +38,6 @@ __all__ = ["extract_centroids", "saturation_level"]
 # Full-scale values of common integer sensors and of normalised float images.
 _FULL_SCALES = np.array([1.0, 255.0, 1023.0, 4095.0, 16383.0, 65535.0])
 _MAX_COMPONENTS = 1 << 16
-_DEBUG: dict = {}
 # A diffuse object must have a faint peak, below this many σ, to be dropped at the lower ratio.
 _DIFFUSE_MAX_PEAK_SNR = 15.0
 
@@ -80,14 +74,14 @@ def extract_centroids(
         Largest footprint kept; larger blobs are foreground, the Moon or a planet's glare.
         Default ``max(400, 0.002·H·W)`` pixels.
     max_extent : int, optional
-        Largest bounding-box side kept, pixels. Default ``max(15, 0.06·min(H, W))``.
+        Largest bounding-box side kept, pixels. Default ``max(32, 0.06·min(H, W))``.
     min_sharpness : float
         Smallest ratio of the mean of the 8 neighbours of the peak to the peak (both above
         sky). A hot pixel is near 0; a star with PSF σ = 0.5 px is about 0.15.
     max_noise_ratio : float, optional
-        Drop stars where the local sky noise exceeds this multiple of the frame's median
-        noise: such tiles hold lit foreground (trees, roofs), a comet or glare, whose texture
-        makes false stars. ``None`` keeps them.
+        Drop stars in or next to a background tile whose noise exceeds this multiple of the
+        frame's median noise: such tiles hold lit foreground (trees, roofs), a comet or glare,
+        whose texture makes false stars. ``None`` keeps them.
     max_diffuseness : float, optional
         Drop diffuse blobs (foliage, cloud, nebulae, galaxies): a faint object (peak below
         15σ) whose effective area ``flux/peak`` exceeds this multiple of the frame's typical
@@ -100,7 +94,7 @@ def extract_centroids(
         Pixel level at or above which a star is flagged saturated. Default: the frame maximum
         when it is a full-scale value (1, 255, 1023, 4095, 16383, 65535 within 0.5%).
     tile : int, optional
-        Background tile size, pixels (default: about 1/16 of the short side, 16–64).
+        Background tile size, pixels (default: about 1/16 of the short side, 32–64).
     background : Background, optional
         A precomputed background (e.g. shared with another extraction of the same frame).
 
@@ -125,7 +119,7 @@ def extract_centroids(
     if max_area is None:
         max_area = int(max(400, 0.002 * h * w))
     if max_extent is None:
-        max_extent = int(max(15, 0.06 * min(h, w)))
+        max_extent = int(max(32, 0.06 * min(h, w)))
     if saturation is None:
         saturation = saturation_level(img)
 
@@ -149,34 +143,28 @@ def extract_centroids(
     order = np.argsort(-comps[idx, 5], kind="stable")
     idx = idx[order[: max(2 * max_stars + 20, 50)]]
     m = _measure(img, labels, (idx + 1).astype(np.int32), comps[idx, 1:5].astype(np.int64),
-                 bg.level, iy, fy, ix, fx, float(saturation), 3)
-    flux, x, y, npix, peak, sharp, mxx, myy, mxy, sxx, syy, nsat, ring_level, ring_noise = m.T
+                 bg.level, iy, fy, ix, fx, float(saturation), float(min_sharpness))
+    flux, x, y, npix, peak, sharp, mxx, myy, mxy, sxx, syy, nsat, nhot = m.T
     noise_px = _noise_at(bg.noise, iy, fy, ix, fx, x, y)
     tr = mxx + myy
     det = np.sqrt(np.maximum((mxx - myy) ** 2 + 4.0 * mxy**2, 0.0))
-    # second moments of the pixel-integrated light: add the 1/12 px² of a uniform pixel
+    # the 1/12 px² of a uniform pixel keeps a one-pixel object's minor axis above zero
     lam1, lam2 = 0.5 * (tr + det) + 1.0 / 12.0, np.maximum(0.5 * (tr - det), 0.0) + 1.0 / 12.0
     elong = np.sqrt(lam1 / lam2)
-    good = (flux > 0) & (sharp >= min_sharpness)
+    snr = flux / (noise_px * np.sqrt(np.maximum(npix, 1.0)))
+    # hot pixels: too sharp even after leaving out up to 3 of them, or nothing left but noise
+    good = (flux > 0) & (sharp >= min_sharpness) & ((nhot == 0) | (snr >= sigma))
     if max_elongation is not None:
         good &= elong <= max_elongation
     if max_diffuseness is not None:
-        good &= ~_diffuse(flux, peak, flux / (noise_px * np.sqrt(np.maximum(npix, 1.0))),
-                          peak / noise_px, nsat > 0, good, max_diffuseness)
+        good &= ~_diffuse(flux, peak, snr, peak / noise_px, nsat > 0, good, max_diffuseness)
     if max_noise_ratio is not None:
-        local = _noise_at(bg.noise_smooth, iy, fy, ix, fx, x, y)
-        good &= local <= max_noise_ratio * float(np.median(bg.noise_smooth))
+        good &= ~_cluttered(bg, x, y, max_noise_ratio)
     sel = np.flatnonzero(good)
     sel = sel[np.argsort(-flux[sel], kind="stable")][:max_stars]
-    npx = np.maximum(npix[sel], 1.0)
-    if _DEBUG:
-        _DEBUG["ring_level"] = ring_level[sel] / noise_px[sel]
-        _DEBUG["ring_noise"] = ring_noise[sel] / noise_px[sel]
-        _DEBUG["sharp"] = sharp[sel]
-        _DEBUG["r2"] = (mxx + myy)[sel]
     return Centroids(
         x=x[sel], y=y[sel], flux=flux[sel], area=npix[sel],
-        snr=flux[sel] / (noise_px[sel] * np.sqrt(npx)),
+        snr=snr[sel],
         elongation=elong[sel], peak=peak[sel],
         sigma_x=noise_px[sel] * np.sqrt(sxx[sel]) / flux[sel],
         sigma_y=noise_px[sel] * np.sqrt(syy[sel]) / flux[sel],
@@ -229,6 +217,23 @@ def _diffuse(flux, peak, snr, peak_snr, saturated, candidate, ratio):
     return ((rel > ratio) & (peak_snr < _DIFFUSE_MAX_PEAK_SNR)) | ((rel > ratio * 10.0 / 3.0) & ~saturated)
 
 
+def _cluttered(bg: Background, x: np.ndarray, y: np.ndarray, ratio: float) -> np.ndarray:
+    """Positions in or next to a tile whose noise exceeds ``ratio`` × the frame's median noise.
+
+    The neighbouring tiles count too because lit foreground thins out at its edge (the last
+    leaves of a tree) while its tile noise is already back to normal.
+    """
+    noisy = bg.noise_smooth > ratio * float(np.median(bg.noise_smooth))
+    if min(noisy.shape) > 1:
+        noisy = ndimage.binary_dilation(noisy, structure=np.ones((3, 3), bool))
+    return noisy[_nearest_index(bg.centers_y, y), _nearest_index(bg.centers_x, x)]
+
+
+def _nearest_index(centers: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Index of the nearest tile centre for each value."""
+    return np.abs(v[:, None] - centers[None, :]).argmin(axis=1)
+
+
 def _noise_at(grid, iy, fy, ix, fx, x, y):
     """Bilinearly interpolated noise σ at (rounded) positions."""
     if x.size == 0:
@@ -248,14 +253,6 @@ def _noise_at(grid, iy, fy, ix, fx, x, y):
 
 
 @njit(cache=True)
-def _grid_row(grid, i, f, out):
-    ny = grid.shape[0]
-    j = min(i + 1, ny - 1)
-    for c in range(grid.shape[1]):
-        out[c] = (1.0 - f) * grid[i, c] + f * grid[j, c]
-
-
-@njit(cache=True)
 def _grid_at(grid, iy, fy, ix, fx, y, x):
     """Bilinear value of a tile grid at pixel (y, x)."""
     ny, nx = grid.shape
@@ -265,6 +262,26 @@ def _grid_at(grid, iy, fy, ix, fx, y, x):
     top = (1.0 - g) * grid[i, j] + g * grid[i, j1]
     bot = (1.0 - g) * grid[i1, j] + g * grid[i1, j1]
     return (1.0 - f) * top + f * bot
+
+
+# Noise σ of the 3×3 binomial mean with replicated edges, relative to the interior:
+# [3 1]/4 along a border axis has Σw² = 10/16 against 6/16.
+_EDGE_NOISE = math.sqrt(10.0 / 6.0)
+
+
+@njit(cache=True)
+def _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, x, h, w):
+    """Detection threshold at (y, x), raised on the frame border where smoothing averages less."""
+    t = _grid_at(thr_grid, iy, fy, ix, fx, y, x)
+    fac = 1.0
+    if y == 0 or y == h - 1:
+        fac *= _EDGE_NOISE
+    if x == 0 or x == w - 1:
+        fac *= _EDGE_NOISE
+    if fac == 1.0:
+        return t
+    b = _grid_at(bg_grid, iy, fy, ix, fx, y, x)
+    return b + (t - b) * fac
 
 
 @njit(cache=True)
@@ -299,10 +316,17 @@ def _label(sm, labels, thr_grid, bg_grid, iy, fy, ix, fx, max_components):
         row = sm[y]
         for x in range(w):
             above[x] = row[x] > r0[i, x] + f * dr[i, x]
-        for i in range(words.size):
-            if words[i] == 0:
+        # border pixels: the replicated edge makes their smoothed noise larger
+        if y == 0 or y == h - 1:
+            for x in range(w):
+                above[x] = row[x] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, x, h, w)
+        else:
+            above[0] = row[0] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, 0, h, w)
+            above[w - 1] = row[w - 1] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, w - 1, h, w)
+        for wi in range(words.size):
+            if words[wi] == 0:
                 continue
-            for x in range(8 * i, 8 * i + 8):
+            for x in range(8 * wi, 8 * wi + 8):
                 if above[x] == 0 or labels[y, x] != 0:
                     continue
                 if k >= max_components:
@@ -330,7 +354,7 @@ def _label(sm, labels, thr_grid, bg_grid, iy, fy, ix, fx, max_components):
                             qx = px + dx
                             if qx < 0 or qx >= w or labels[qy, qx] != 0:
                                 continue
-                            if sm[qy, qx] > _grid_at(thr_grid, iy, fy, ix, fx, qy, qx):
+                            if sm[qy, qx] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, qy, qx, h, w):
                                 labels[qy, qx] = lab
                                 stack[top] = qy * w + qx
                                 top += 1
@@ -345,104 +369,108 @@ def _label(sm, labels, thr_grid, bg_grid, iy, fy, ix, fx, max_components):
 
 
 @njit(cache=True)
-def _measure(img, labels, ids, boxes, bg_grid, iy, fy, ix, fx, saturation, ring):
+def _residual(img, bg_grid, iy, fy, ix, fx, y, x):
+    return img[y, x] - _grid_at(bg_grid, iy, fy, ix, fx, y, x)
+
+
+@njit(cache=True)
+def _sharpness(img, bg_grid, iy, fy, ix, fx, py, px, peak):
+    """Mean of the 8 neighbours of (py, px) over the peak, both above the local sky."""
+    h, w = img.shape
+    nb = 0.0
+    cnt = 0
+    for qy in range(max(py - 1, 0), min(py + 2, h)):
+        for qx in range(max(px - 1, 0), min(px + 2, w)):
+            if qy != py or qx != px:
+                nb += _residual(img, bg_grid, iy, fy, ix, fx, qy, qx)
+                cnt += 1
+    return (nb / max(cnt, 1)) / peak if peak > 0 else 0.0
+
+
+@njit(cache=True)
+def _measure(img, labels, ids, boxes, bg_grid, iy, fy, ix, fx, saturation, min_sharpness):
     """Centroid and moments of each component grown by one pixel, on the raw frame minus sky.
 
-    Returns (K, 14): flux, x, y, npix, peak, sharpness, mxx, myy, mxy, Σ(x-x̄)², Σ(y-ȳ)², nsat,
-    and the level and clipped RMS of the residual in a square ring ``ring`` pixels wide around
-    the grown bounding box.
+    A peak sharper than ``min_sharpness`` is a hot pixel: it is left out and the component
+    measured again (up to 3 times), so a hot pixel on a star does not take the star with it.
+
+    Returns (K, 13): flux, x, y, npix, peak, sharpness, mxx, myy, mxy, Σ(x-x̄)², Σ(y-ȳ)², nsat,
+    number of hot pixels left out.
     """
     h, w = img.shape
-    nx = bg_grid.shape[1]
-    out = np.zeros((ids.size, 14))
-    bg_row = np.empty(nx, np.float64)
-    rbuf = np.empty(4 * ring * (max(h, w) + 2 * ring + 2), np.float64)
+    out = np.zeros((ids.size, 13))
+    skip_y = np.empty(4, np.int64)
+    skip_x = np.empty(4, np.int64)
     for c in range(ids.size):
         lab = ids[c]
-        # ring statistics: how quiet is the sky right around the component?
-        ry0, ry1 = max(boxes[c, 0] - 1 - ring, 0), min(boxes[c, 1] + 1 + ring, h - 1)
-        rx0, rx1 = max(boxes[c, 2] - 1 - ring, 0), min(boxes[c, 3] + 1 + ring, w - 1)
-        nr = 0
-        for y in range(ry0, ry1 + 1):
-            inner_y = boxes[c, 0] - 1 <= y <= boxes[c, 1] + 1
-            _grid_row(bg_grid, iy[y], fy[y], bg_row)
-            for x in range(rx0, rx1 + 1):
-                if inner_y and boxes[c, 2] - 1 <= x <= boxes[c, 3] + 1:
-                    continue
-                if nr < rbuf.size:
-                    a = ix[x]
-                    b = min(a + 1, nx - 1)
-                    rbuf[nr] = img[y, x] - ((1.0 - fx[x]) * bg_row[a] + fx[x] * bg_row[b])
-                    nr += 1
-        if nr >= 8:
-            out[c, 12], out[c, 13] = _robust_level_noise(rbuf[:nr].copy())
         y0, y1 = max(boxes[c, 0] - 1, 0), min(boxes[c, 1] + 1, h - 1)
         x0, x1 = max(boxes[c, 2] - 1, 0), min(boxes[c, 3] + 1, w - 1)
-        sw = swx = swy = swxx = swyy = swxy = 0.0
-        sx = sy = sxx = syy = 0.0
-        npix = 0
-        nsat = 0
-        peak = -np.inf
-        py = px = 0
-        for y in range(y0, y1 + 1):
-            _grid_row(bg_grid, iy[y], fy[y], bg_row)
-            for x in range(x0, x1 + 1):
-                lv = labels[y, x]
-                if lv != lab:
-                    if lv != 0:
+        nskip = 0
+        for _attempt in range(4):
+            sw = swx = swy = swxx = swyy = swxy = 0.0
+            sx = sy = sxx = syy = 0.0
+            npix = 0
+            nsat = 0
+            peak = -np.inf
+            py = px = 0
+            for y in range(y0, y1 + 1):
+                for x in range(x0, x1 + 1):
+                    lv = labels[y, x]
+                    if lv != lab:
+                        if lv != 0:
+                            continue
+                        near = False
+                        for qy in range(max(y - 1, 0), min(y + 2, h)):
+                            for qx in range(max(x - 1, 0), min(x + 2, w)):
+                                if labels[qy, qx] == lab:
+                                    near = True
+                        if not near:
+                            continue
+                    skipped = False
+                    for i in range(nskip):
+                        if skip_y[i] == y and skip_x[i] == x:
+                            skipped = True
+                    if skipped:
                         continue
-                    near = False
-                    for qy in range(max(y - 1, 0), min(y + 2, h)):
-                        for qx in range(max(x - 1, 0), min(x + 2, w)):
-                            if labels[qy, qx] == lab:
-                                near = True
-                    if not near:
-                        continue
-                a = ix[x]
-                b = min(a + 1, nx - 1)
-                r = img[y, x] - ((1.0 - fx[x]) * bg_row[a] + fx[x] * bg_row[b])
-                npix += 1
-                sx += x
-                sy += y
-                sxx += x * x
-                syy += y * y
-                if img[y, x] >= saturation:
-                    nsat += 1
-                if r > peak:
-                    peak, py, px = r, y, x
-                if r > 0.0:
-                    sw += r
-                    swx += r * x
-                    swy += r * y
-                    swxx += r * x * x
-                    swyy += r * y * y
-                    swxy += r * x * y
+                    r = _residual(img, bg_grid, iy, fy, ix, fx, y, x)
+                    npix += 1
+                    sx += x
+                    sy += y
+                    sxx += x * x
+                    syy += y * y
+                    if img[y, x] >= saturation:
+                        nsat += 1
+                    if r > peak:
+                        peak, py, px = r, y, x
+                    if r > 0.0:
+                        sw += r
+                        swx += r * x
+                        swy += r * y
+                        swxx += r * x * x
+                        swyy += r * y * y
+                        swxy += r * x * y
+            if sw <= 0.0:
+                break
+            sharp = _sharpness(img, bg_grid, iy, fy, ix, fx, py, px, peak)
+            if sharp >= min_sharpness or nskip == skip_y.size:
+                break
+            skip_y[nskip] = py
+            skip_x[nskip] = px
+            nskip += 1
         if sw <= 0.0:
             continue
         xc, yc = swx / sw, swy / sw
-        # sharpness: mean of the peak's 8 neighbours over the peak, both above the local sky
-        _grid_row(bg_grid, iy[py], fy[py], bg_row)
-        nb = 0.0
-        cnt = 0
-        for qy in range(max(py - 1, 0), min(py + 2, h)):
-            _grid_row(bg_grid, iy[qy], fy[qy], bg_row)
-            for qx in range(max(px - 1, 0), min(px + 2, w)):
-                if qy == py and qx == px:
-                    continue
-                a = ix[qx]
-                b = min(a + 1, nx - 1)
-                nb += img[qy, qx] - ((1.0 - fx[qx]) * bg_row[a] + fx[qx] * bg_row[b])
-                cnt += 1
         out[c, 0] = sw
         out[c, 1] = xc
         out[c, 2] = yc
         out[c, 3] = npix
         out[c, 4] = peak
-        out[c, 5] = (nb / max(cnt, 1)) / peak if peak > 0 else 0.0
+        out[c, 5] = sharp
         out[c, 6] = max(swxx / sw - xc * xc, 0.0)
         out[c, 7] = max(swyy / sw - yc * yc, 0.0)
         out[c, 8] = swxy / sw - xc * yc
         out[c, 9] = max(sxx - 2.0 * xc * sx + npix * xc * xc, 0.0)
         out[c, 10] = max(syy - 2.0 * yc * sy + npix * yc * yc, 0.0)
         out[c, 11] = nsat
+        out[c, 12] = nskip
     return out
