@@ -195,7 +195,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         chunk = min(chunk * 2, 512)
         if hit:
             res = _finish(xy, p, result_A, float(stats[0]), math.exp(stats[1]), cam0, camera is None,
-                          frame, min(n, refine_stars), radius, centroid_sigma_px, db, arrays, epoch,
+                          frame, n_verify, min(n, refine_stars), radius, centroid_sigma_px, db, arrays, epoch,
                           n_tried, n_cand, t0)
             if res is not None and f_lo * 0.97 <= res.camera.fx <= f_hi * 1.03:
                 return res
@@ -205,15 +205,15 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                     n_tried, n_cand)
 
 
-def _finish(xy, p, A, f, prob, cam0, fit_focal, frame, n_img, radius, sigma_px, db, arrays, epoch,
+def _finish(xy, p, A, f, prob, cam0, fit_focal, frame, n_first, n_img, radius, sigma_px, db, arrays, epoch,
             n_tried, n_cand, t0):
     """Refit on all matched stars (compiled :func:`refine`) and package the result."""
     A = A.copy()
     out_img = np.empty(16384, np.int64)
     out_star = np.empty(16384, np.int64)
     fk = np.empty(3)
-    n_pairs = refine(p, A, f, fit_focal, 12, frame, n_img, radius, sigma_px, *arrays[5:],
-                     db.cell_radius, 3, out_img, out_star, fk)
+    n_pairs = refine(p, A, f, fit_focal, 12, frame, n_first, n_img, radius, sigma_px, *arrays[5:],
+                     db.cell_radius, 4, out_img, out_star, fk)
     if n_pairs < 4:
         return None
     star_index, cat_index = out_img[:n_pairs], out_star[:n_pairs]

@@ -339,14 +339,81 @@ def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px,
 
 
 @numba.njit(cache=True)
-def refine(p, A, f, fit_focal, fit_k1_min, frame, n_img, radius_px, sigma_px, star_vectors,
+def _rotation(d):
+    """Rotation matrix of the rotation vector ``d`` (Rodrigues)."""
+    th = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    K = np.zeros((3, 3))
+    K[0, 1], K[0, 2], K[1, 0], K[1, 2], K[2, 0], K[2, 1] = -d[2], d[1], d[2], -d[0], -d[1], d[0]
+    if th < 1e-12:
+        return np.eye(3) + K
+    return np.eye(3) + np.sin(th) / th * K + (1.0 - np.cos(th)) / (th * th) * (K @ K)
+
+
+@numba.njit(cache=True)
+def _residuals(A, f, k1, v, q, out):
+    """Pixel residuals (2M,) of projected catalogue vectors ``v`` against offsets ``q``."""
+    for t in range(len(v)):
+        bz = A[2, 0] * v[t, 0] + A[2, 1] * v[t, 1] + A[2, 2] * v[t, 2]
+        xn = (A[0, 0] * v[t, 0] + A[0, 1] * v[t, 1] + A[0, 2] * v[t, 2]) / bz
+        yn = (A[1, 0] * v[t, 0] + A[1, 1] * v[t, 1] + A[1, 2] * v[t, 2]) / bz
+        radial = f * (1.0 + k1 * (xn * xn + yn * yn))
+        out[2 * t] = xn * radial - q[t, 0]
+        out[2 * t + 1] = yn * radial - q[t, 1]
+
+
+@numba.njit(cache=True)
+def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
+    """Robust least-squares fit of attitude (3), focal length and k1 (``n_params`` = 3, 4 or 5)
+    to pixel offsets ``q`` of catalogue vectors ``v``: Gauss–Newton with a numerical Jacobian
+    and Cauchy weights ``1 / (1 + (d / cauchy_px)²)`` (so a few wrong pairs pull little).
+    Returns (A, f, k1)."""
+    m = len(v)
+    r0 = np.empty(2 * m)
+    r1 = np.empty(2 * m)
+    sw = np.empty(2 * m)
+    J = np.empty((2 * m, n_params))
+    h = np.array([1e-7, 1e-7, 1e-7, 1e-6 * f, 1e-4])
+    for _ in range(iterations):
+        _residuals(A, f, k1, v, q, r0)
+        for t in range(m):
+            d2 = (r0[2 * t] ** 2 + r0[2 * t + 1] ** 2) / (cauchy_px * cauchy_px)
+            sw[2 * t] = sw[2 * t + 1] = 1.0 / np.sqrt(1.0 + d2)
+        for j in range(n_params):
+            d = np.zeros(3)
+            Aj, fj, kj = A, f, k1
+            if j < 3:
+                d[j] = h[j]
+                Aj = _rotation(d) @ A
+            elif j == 3:
+                fj = f + h[3]
+            else:
+                kj = k1 + h[4]
+            _residuals(Aj, fj, kj, v, q, r1)
+            J[:, j] = (r1 - r0) / h[j] * sw
+        step = np.linalg.lstsq(J, -r0 * sw)[0]
+        A = _rotation(step[:3]) @ A
+        if n_params > 3:
+            f += step[3]
+        if n_params > 4:
+            k1 += step[4]
+        if abs(step[0]) + abs(step[1]) + abs(step[2]) < 1e-9 and (n_params < 4 or abs(step[3]) < 1e-4 * f):
+            break
+    # Re-orthonormalise (the updates are exact rotations, this only removes round-off).
+    U, _, Vt = np.linalg.svd(A)
+    return U @ Vt, f, k1
+
+
+@numba.njit(cache=True)
+def refine(p, A, f, fit_focal, fit_k1_min, frame, n_first, n_img, radius_px, sigma_px, star_vectors,
            cell_centres, cell_start, cell_stars, cell_radius, iterations, out_img, out_star, out_fk):
     """Match all stars with the accepted attitude, refit, re-match (``iterations`` times).
 
-    Each pass matches the ``n_img`` brightest centroids to the catalogue stars in view (about
-    twice as deep), fits the attitude (SVD) and, when ``fit_focal``, the focal length and —
-    with at least ``fit_k1_min`` matches — radial distortion k1 (linear least squares in
-    ``p = f·x_n·(1 + k1·r²)``); the radius shrinks to 4× the fit's rms (not below 3σ).
+    Each pass matches the ``n_img`` brightest centroids (the first pass only ``n_first``) to
+    the catalogue stars in view (about twice as deep) and fits, by robust Gauss–Newton on the
+    pixel residuals, the attitude and, when ``fit_focal``, the focal length and — from the
+    second pass on, with at least ``fit_k1_min`` matches, and only if it reduces χ²
+    significantly — radial distortion k1 (``p = f·x_n·(1 + k1·r²)``). The match radius then
+    shrinks to 3.5 robust σ of the residuals (not below 1.5σ of the centroid noise).
 
     Returns the number of matched pairs written to ``out_img`` (centroid) and ``out_star``
     (catalogue index); ``A`` is updated in place; ``out_fk`` = (f, k1, rms px).
@@ -359,16 +426,18 @@ def refine(p, A, f, fit_focal, fit_k1_min, frame, n_img, radius_px, sigma_px, st
     k1 = 0.0
     radius = radius_px
     n_pairs = 0
-    rms = 0.0
     out_fk[0] = f
     out_fk[1] = k1
     out_fk[2] = radius_px
+    A_cur = A.copy()
     for it in range(iterations + 1):
-        limit = _star_limit_jit(len(star_vectors), n_img, frame, f, 3.0)
-        n_view = _stars_in_view(A, f, k1, frame, limit, star_vectors, cell_centres, cell_start,
+        # The first pass matches only the brightest stars, where chance neighbours are rare.
+        n_use = min(n_img, n_first) if it == 0 else n_img
+        limit = _star_limit_jit(len(star_vectors), n_use, frame, f, 3.0)
+        n_view = _stars_in_view(A_cur, f, k1, frame, limit, star_vectors, cell_centres, cell_start,
                                 cell_stars, cell_radius, view_idx, view_x, view_y)
-        n_cat = min(n_view, 2 * n_img)
-        n_match = _match(view_x, view_y, n_cat, p, n_img, radius, used, match_img)
+        n_cat = min(n_view, 2 * n_use)
+        n_match = _match(view_x, view_y, n_cat, p, n_use, radius, used, match_img)
         if n_match < 3:
             return n_pairs
         n_pairs = 0
@@ -379,60 +448,34 @@ def refine(p, A, f, fit_focal, fit_k1_min, frame, n_img, radius_px, sigma_px, st
                 n_pairs += 1
         if it == iterations:
             break
-        # Rays of the centroids with the current camera (undo k1 by fixed-point iteration).
-        b = np.empty((n_pairs, 3))
-        rv = np.empty((n_pairs, 3))
+        v = np.empty((n_pairs, 3))
+        q = np.empty((n_pairs, 2))
         for t in range(n_pairs):
-            xd = p[out_img[t], 0] / f
-            yd = p[out_img[t], 1] / f
-            xn, yn = xd, yd
-            for _ in range(8):
-                radial = 1.0 + k1 * (xn * xn + yn * yn)
-                xn, yn = xd / radial, yd / radial
-            nn = np.sqrt(xn * xn + yn * yn + 1.0)
-            b[t, 0], b[t, 1], b[t, 2] = xn / nn, yn / nn, 1.0 / nn
-            rv[t] = star_vectors[out_star[t]]
-        A[:, :] = _kabsch(b, rv)
-        if fit_focal:
-            # Normal equations of p = f·xn + (f·k1)·xn·r² (and y), at fixed attitude.
-            s11 = s12 = s22 = t1 = t2 = 0.0
-            for t in range(n_pairs):
-                v = rv[t]
-                bz = A[2, 0] * v[0] + A[2, 1] * v[1] + A[2, 2] * v[2]
-                xn = (A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2]) / bz
-                yn = (A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2]) / bz
-                r2 = xn * xn + yn * yn
-                px = p[out_img[t], 0]
-                py = p[out_img[t], 1]
-                q2 = xn * xn + yn * yn
-                s11 += q2
-                s12 += q2 * r2
-                s22 += q2 * r2 * r2
-                t1 += xn * px + yn * py
-                t2 += (xn * px + yn * py) * r2
-            if n_pairs >= fit_k1_min and it > 0:
-                det = s11 * s22 - s12 * s12
-                if det > 0:
-                    f_new = (t1 * s22 - t2 * s12) / det
-                    g = (s11 * t2 - s12 * t1) / det
-                    if f_new > 0:
-                        f = f_new
-                        k1 = max(-1.0, min(1.0, g / f_new))
-            elif s11 > 0:
-                f = t1 / s11
-                k1 = 0.0
-        # Residual rms in pixels, then a tighter radius for the next pass.
-        acc = 0.0
-        for t in range(n_pairs):
-            v = rv[t]
-            bz = A[2, 0] * v[0] + A[2, 1] * v[1] + A[2, 2] * v[2]
-            xn = (A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2]) / bz
-            yn = (A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2]) / bz
-            radial = f * (1.0 + k1 * (xn * xn + yn * yn))
-            acc += (xn * radial - p[out_img[t], 0]) ** 2 + (yn * radial - p[out_img[t], 1]) ** 2
-        rms = np.sqrt(acc / max(n_pairs, 1))
-        radius = min(radius_px, max(4.0 * rms, 3.0 * sigma_px))
+            v[t] = star_vectors[out_star[t]]
+            q[t] = p[out_img[t]]
+        res = np.empty(2 * n_pairs)
+        cauchy = radius / 3.0
+        if not fit_focal:
+            A_cur, f, k1 = _gauss_newton(A_cur, f, k1, v, q, 3, 8, cauchy)
+        else:
+            A4, f4, _ = _gauss_newton(A_cur, f, 0.0, v, q, 4, 8, cauchy)
+            A_cur, f, k1 = A4, f4, 0.0
+            if it > 0 and n_pairs >= fit_k1_min:
+                # Free k1 only when it explains the residuals significantly (Δχ² > 25 σ²):
+                # with stars in one part of the frame it trades off against pointing and scale.
+                A5, f5, k5 = _gauss_newton(A4, f4, 0.0, v, q, 5, 8, cauchy)
+                _residuals(A4, f4, 0.0, v, q, res)
+                chi4 = np.sum(res**2 / (1.0 + res**2 / cauchy**2))
+                _residuals(A5, f5, k5, v, q, res)
+                chi5 = np.sum(res**2 / (1.0 + res**2 / cauchy**2))
+                if chi4 - chi5 > 25.0 * chi5 / max(2 * n_pairs - 5, 1):
+                    A_cur, f, k1 = A5, f5, k5
+        _residuals(A_cur, f, k1, v, q, res)
+        dist = np.sqrt(res[0::2] ** 2 + res[1::2] ** 2)
+        sigma_est = np.median(dist) / 1.1774  # median of a 2-D Gaussian distance is 1.1774 σ
+        radius = min(radius_px, max(3.5 * sigma_est, 1.5 * sigma_px))
+        out_fk[2] = np.sqrt(np.mean(dist**2))
+    A[:, :] = A_cur
     out_fk[0] = f
     out_fk[1] = k1
-    out_fk[2] = rms
     return n_pairs
