@@ -175,7 +175,8 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
     seed : int
         Seed of the temporal noise streams.
     catalog : Catalog, optional
-        Stars to render (default: Hipparcos at ``epoch``); moved to ``epoch`` if needed.
+        Stars to render (default: Hipparcos); the stars near the field are moved by proper
+        motion to ``epoch``.
     mag_limit : float, optional
         Render only stars brighter than this.
     false_stars : int
@@ -213,19 +214,21 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
 
     # --- stars in view ---------------------------------------------------------------
     if catalog is None:
-        catalog = catalog_at(epoch_jy, mag_limit)
-    else:
-        if mag_limit is not None:
-            catalog = catalog.brighter_than(mag_limit)
-        if abs(catalog.epoch - epoch_jy) > 1e-6:
-            catalog = catalog.at_epoch(epoch_jy)
+        catalog = catalog_at(epoch_jy, mag_limit)  # cached near the epoch; exact epoch below
+    elif mag_limit is not None:
+        catalog = catalog.brighter_than(mag_limit)
     h, w = camera.height, camera.width
     span_s = exposure_s / 2 + abs(sensor.line_time_s) * h
     sigma_max = optics.psf_sigma_px * (1 + optics.ellipticity_edge) + optics.defocus_px
     extra = ((np.linalg.norm(rate) * span_s if rate is not None else 0.0)
              + (8 * sigma_max + 2) * camera.plate_scale_rad)
-    idx = candidate_stars(A, camera, catalog, extra)
-    vectors = aberrate(catalog.vectors[idx], observer_velocity_km_s)
+    pm_margin = 1e-4 * (1.0 + abs(catalog.epoch - epoch_jy))  # > 20″/yr: no star moves farther
+    idx = candidate_stars(A, camera, catalog, extra + pm_margin)
+    catalog = catalog.subset(idx)  # only the stars near the field are moved to the exact epoch
+    if catalog.epoch != epoch_jy:
+        catalog = catalog.at_epoch(epoch_jy)
+    idx = np.arange(len(catalog))
+    vectors = aberrate(catalog.vectors, observer_velocity_km_s)
     xy_mid, front, tracks, b_mid = star_tracks(A, rate, vectors, camera, exposure_s, sensor.line_time_s)
     margin = -(6 * sigma_max + 1)  # stars just outside still spill light in
     near = front & camera.in_frame(xy_mid, margin=margin) & np.all(np.isfinite(tracks), axis=(0, 2))
