@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n-cedar", type=int, default=None,
                     help="cap cedar-solve's share of each synthetic config (it is slow); default: all")
     ap.add_argument("--images", type=int, default=None,
-                    help="rendered frames per FOV in suite c (default 20)")
+                    help="rendered frames per FOV in suite c (default 50)")
     ap.add_argument("--repeats", type=int, default=None, help="timing repeats (default 3; quick 1)")
     ap.add_argument("--peer-fov", choices=["hint", "mid"], default="hint",
                     help="real images: give peers the reference FOV (hint) or none/mid-range (mid)")
@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="comma-separated subset of tools")
     args = ap.parse_args(argv)
     n = args.n or (100 if args.quick else 1000)
-    images = args.images or (6 if args.quick else 20)
+    images = args.images or (6 if args.quick else 50)
     repeats = args.repeats or (1 if args.quick else 3)
     wanted = [t.strip() for t in args.tools.split(",") if t.strip()]
 
@@ -161,6 +161,11 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
             results[f"suite_{key}_error"] = traceback.format_exc()
         say(f"suite {key}: {time.time() - t0:.0f} s")
+    import targets
+
+    results["targets"] = targets.check(results)
+    targets.print_targets(results["targets"])
+    write_json("targets", {"targets": results["targets"], "machine": info})
     info["loadavg_end"] = os.getloadavg()
     info["wall_s"] = time.time() - t_start
     write_json("machine", info)

@@ -101,19 +101,19 @@ def _summarise(per_image: list[dict], names: list[str]) -> dict:
 
 
 def _print(per_image: list[dict], summary: dict, names: list[str]) -> None:
-    cols = ["image"] + [f"{n} {k}" for n in names for k in ("″", "roll°", "ms")]
+    cols = ["image"] + [f"{n} {k}" for n in names for k in ("″ / roll°", "ms")]
     rows = []
     for r in per_image:
-        row = [r["image"].split("/")[-1][:34]]
+        row = [r["image"].split("/")[-1][:30]]
         for n in names:
             x = r["tools"][n]
             if x.get("solved"):
                 mark = "" if x.get("ok") else " ✗"
-                row += [f"{x['bore_arcsec']:.1f}{mark}", f"{x['roll_deg']:.3f}", x["time_ms"]]
+                row += [f"{x['bore_arcsec']:.1f} / {x['roll_deg']:.3f}{mark}", x["time_ms"]]
             else:
-                row += ["FAIL", str(x.get("status", ""))[:10], x["time_ms"]]
+                row += [f"FAIL {str(x.get('status', ''))[:12]}", x["time_ms"]]
         rows.append(row)
-    print_table("(a) real images: boresight error vs reference (″), roll error (°), end-to-end time (ms)",
+    print_table("(a) real images: boresight error vs reference (″) / roll error (°), end-to-end time (ms)",
                 cols, rows)
     cols = ["tool", "solved", "within limits", "median ″", "median roll ″", "median ms", "ms 1280×960",
             "ratio skyfix/tool (ms)"]

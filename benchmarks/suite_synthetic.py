@@ -52,7 +52,9 @@ def run(tools: dict, n: int = 1000, n_cedar: int | None = None, nofov: bool = Tr
                                "mean_stars": float(np.mean([len(s.xy) for s in sets])),
                                "summary": summary,
                                "failures": {k: [i for i, r in enumerate(v) if not r["solved"]][:50]
-                                            for k, v in runs.items()}}
+                                            for k, v in runs.items()},
+                               "wrong": {k: [(i, r["bore_arcsec"], r["roll_deg"]) for i, r in enumerate(v)
+                                             if r.get("wrong")] for k, v in runs.items()}}
         _print(spec, summary, generator, results[spec.label]["mean_stars"])
     return results
 
