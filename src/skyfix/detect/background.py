@@ -30,7 +30,7 @@ __all__ = ["Background", "estimate_background", "smooth3", "default_tile_size"]
 # A clipped RMS at ±3σ of a Gaussian underestimates σ by this factor.
 _CLIP = 3.0
 # The sampling lattice in a tile has about this many points per side.
-_SAMPLES_PER_SIDE = 12
+_SAMPLES_PER_SIDE = 10
 _CLIP_CORRECTION = 1.0 / math.sqrt(1.0 - 2.0 * _CLIP * math.exp(-0.5 * _CLIP**2) / math.sqrt(2 * math.pi)
                                    / math.erf(_CLIP / math.sqrt(2.0)))
 
