@@ -26,6 +26,7 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numba
@@ -267,6 +268,7 @@ def fixed_pattern(sensor: Sensor, shape: tuple[int, int], hot_pixels: int = 0) -
 
 
 # --- Poisson sampling --------------------------------------------------------------------
+@lru_cache(maxsize=64)
 def _poisson_table(lam0: float) -> tuple[np.ndarray, int, np.ndarray]:
     """CDF table of Poisson(lam0) over ``lo .. lo+len-1`` (±12σ: the tails beyond hold < 1e-30),
     and a guide table for O(1) inversion."""
