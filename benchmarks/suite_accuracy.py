@@ -34,7 +34,7 @@ def run(tools: dict, n_images: int = 20, fovs=(8.0, 15.0, 30.0), seed: int = 7) 
                 except Exception as exc:  # noqa: BLE001 - a crash counts as a failure
                     runs[name].append({"solved": False, "status": f"{type(exc).__name__}: {exc}"[:120]})
                     continue
-                r = {"solved": a.solved, "status": a.status, "time_ms": a.time_ms}
+                r = {"solved": a.solved, "status": a.status, "time_ms": a.time_ms, "n_matched": a.n_matched}
                 if a.solved:
                     r.update(bore_arcsec=boresight_error_arcsec(a.A, A),
                              roll_arcsec=roll_error_deg(a.A, A) * 3600.0)
@@ -53,15 +53,17 @@ def _summary(rs: list[dict]) -> dict:
             "max_bore_arcsec": pct([r["bore_arcsec"] for r in ok], 100.0),
             "median_roll_arcsec": median([r["roll_arcsec"] for r in ok]),
             "p90_roll_arcsec": pct([r["roll_arcsec"] for r in ok], 90.0),
-            "median_ms": median([r.get("time_ms", float("nan")) for r in rs])}
+            "median_ms": median([r.get("time_ms", float("nan")) for r in rs]),
+            "median_matched": median([r["n_matched"] for r in ok])}
 
 
 def _print(fov: float, spec: RenderSpec, summary: dict) -> None:
     sk = summary.get("skyfix", {})
     cols = ["tool", "solved", "median ″", "p90 ″", "max ″", "median roll ″", "p90 roll ″", "median ms",
-            "skyfix/tool ″", "skyfix/tool roll"]
+            "stars matched", "skyfix/tool ″", "skyfix/tool roll"]
     rows = [[name, f"{s['solved']}/{s['n']}", s["median_bore_arcsec"], s["p90_bore_arcsec"],
              s["max_bore_arcsec"], s["median_roll_arcsec"], s["p90_roll_arcsec"], s["median_ms"],
+             s["median_matched"],
              ratio(sk.get("median_bore_arcsec", np.nan), s["median_bore_arcsec"]),
              ratio(sk.get("median_roll_arcsec", np.nan), s["median_roll_arcsec"])]
             for name, s in summary.items()]
