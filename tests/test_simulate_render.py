@@ -186,6 +186,19 @@ def test_false_stars_hot_pixels_cosmic_rays_and_stray_light():
     assert f.image[hp["y"], hp["x"]] > np.median(f.image) + 500
 
 
+def test_hot_pixels_grow_with_exposure_like_thesis_000_table_5():
+    cam = camera_from_preset("mt9v022")
+    empty = catalog_at_pixels(np.zeros((0, 2)), 0.0, camera=cam)
+    counts = []
+    for t in (0.0243, 0.0486, 0.0729):  # 1, 2, 3 frames of rows
+        f = render(A0, "mt9v022", exposure_s=t, catalog=empty, hot_pixels=450, sky_mag_arcsec2=None,
+                   epoch=EPOCH, seed=1)
+        img = f.image.astype(float)
+        counts.append(int(np.sum(np.abs(img - img.mean()) > 5 * img.std())))
+    # thesis: 24 / 149 / 318 hot pixels (> 5σ) with AEC and AGC off
+    assert 15 < counts[0] < 40 and 120 < counts[1] < 190 and 250 < counts[2] < 350
+
+
 # --- motion --------------------------------------------------------------------------------
 def test_smear_length_and_mid_exposure_truth():
     rate = np.array([0.0, math.radians(0.5), 0.0])  # about camera y: stars move along x

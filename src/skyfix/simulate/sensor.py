@@ -89,6 +89,8 @@ class Sensor:
         Rolling-shutter row delay, seconds per row (0: global shutter).
     hot_pixel_dark_e_s : float
         Median extra dark current of a hot pixel, electrons per second.
+    hot_pixel_log_sigma : float
+        Spread of the hot pixels' (log-normal) dark currents, σ of the natural log.
     pattern_seed : int
         Seed of this sensor's fixed-pattern maps (PRNU, DSNU, hot pixel positions).
     pixel_pitch_um : float or None
@@ -109,6 +111,7 @@ class Sensor:
     ktc_noise_e: float = 0.0
     line_time_s: float = 0.0
     hot_pixel_dark_e_s: float = 2000.0
+    hot_pixel_log_sigma: float = 1.0
     pattern_seed: int = 0
     pixel_pitch_um: float | None = None
     name: str = ""
@@ -119,7 +122,7 @@ class Sensor:
             if not (math.isfinite(v) and v > 0):
                 raise SimulationError(f"sensor {key} must be a positive number, got {v}")
         for key in ("read_noise_e", "dark_current_e_s", "prnu", "dsnu_e", "ktc_noise_e", "line_time_s",
-                    "hot_pixel_dark_e_s"):
+                    "hot_pixel_dark_e_s", "hot_pixel_log_sigma"):
             v = float(getattr(self, key))
             if not (math.isfinite(v) and v >= 0):
                 raise SimulationError(f"sensor {key} must be a non-negative number, got {v}")
@@ -243,7 +246,7 @@ def fixed_pattern(sensor: Sensor, shape: tuple[int, int], hot_pixels: int = 0) -
     """The fixed-pattern maps of ``sensor`` for a ``shape`` frame (cached; drawn from
     ``sensor.pattern_seed`` with one stream per map, so they never change between frames)."""
     key = (sensor.pattern_seed, float(sensor.prnu), float(sensor.dsnu_e), float(sensor.hot_pixel_dark_e_s),
-           tuple(shape), int(hot_pixels))
+           float(sensor.hot_pixel_log_sigma), tuple(shape), int(hot_pixels))
     hit = _PATTERN_CACHE.get(key)
     if hit is not None:
         return hit
@@ -258,8 +261,7 @@ def fixed_pattern(sensor: Sensor, shape: tuple[int, int], hot_pixels: int = 0) -
     rng_hot = np.random.default_rng(s_hot)
     n_hot = min(int(hot_pixels), h * w)
     hot_index = np.sort(rng_hot.choice(h * w, size=n_hot, replace=False)) if n_hot else np.zeros(0, np.int64)
-    # Hot-pixel dark currents are log-normal around the median (a few decades of spread).
-    hot_dark = sensor.hot_pixel_dark_e_s * np.exp(rng_hot.normal(0.0, 1.0, n_hot))
+    hot_dark = sensor.hot_pixel_dark_e_s * np.exp(rng_hot.normal(0.0, sensor.hot_pixel_log_sigma, n_hot))
     pattern = FixedPattern(prnu, dsnu, hot_index.astype(np.int64), hot_dark)
     if len(_PATTERN_CACHE) > 8:
         _PATTERN_CACHE.clear()
