@@ -1,0 +1,73 @@
+"""The `skyfix` command on the bundled example: solve against its truth, WCS and plot outputs."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from skyfix.cli import app
+from skyfix.geometry import attitude_from_quaternion, rotation_angle_between
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "sky.png"
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def truth():
+    return json.loads(EXAMPLE.with_name("sky.truth.json").read_text())
+
+
+def test_example_solves_to_truth(tmp_path, truth, database):
+    wcs_path, plot_path = tmp_path / "sky.wcs", tmp_path / "sky-solved.png"
+    args = ["solve", "--json", str(EXAMPLE), "--wcs", str(wcs_path), "--plot", str(plot_path)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    sol = json.loads(result.stdout)
+    err = rotation_angle_between(attitude_from_quaternion(truth["quaternion_xyzw"]),
+                                 attitude_from_quaternion(sol["quaternion_xyzw"]))
+    assert np.degrees(err) * 3600 < 10.0  # whole-attitude error, arcsec (roll dominates)
+    assert abs(sol["ra_deg"] - truth["ra_deg"]) * 3600 * np.cos(np.radians(truth["dec_deg"])) < 2.0
+    assert abs(sol["dec_deg"] - truth["dec_deg"]) * 3600 < 2.0
+    assert sol["n_matched"] >= 20
+
+    # The WCS maps every matched catalogue star onto its centroid within a pixel.
+    from astropy.io import fits
+    from astropy.wcs import WCS
+
+    w = WCS(fits.getheader(wcs_path))
+    sky = np.array([[m["ra_deg"], m["dec_deg"]] for m in sol["matches"]])
+    xy = np.array([[m["x"], m["y"]] for m in sol["matches"]])
+    px = w.all_world2pix(sky, 0, maxiter=100)
+    assert np.median(np.hypot(*(px - xy).T)) < 0.5
+
+    from PIL import Image
+
+    with Image.open(plot_path) as im:
+        assert im.size == (1280, 960)
+
+
+def test_cli_camera_file_and_failed_exit_code(tmp_path, database):
+    black = tmp_path / "black.png"
+    from PIL import Image
+
+    Image.fromarray(np.zeros((480, 640), np.uint8)).save(black)
+    result = runner.invoke(app, ["solve", str(black)])
+    assert result.exit_code == 1
+    assert "failed:" in result.output
+    camera = EXAMPLE.with_name("sky.camera.toml")
+    result = runner.invoke(app, ["solve", str(EXAMPLE), "--camera", str(camera)])
+    assert result.exit_code == 0 and "solved" in result.output
+
+
+def test_cli_simulate_writes_image_and_truth(tmp_path):
+    out = tmp_path / "sim.fits"
+    result = runner.invoke(app, ["simulate", "--ra", "10", "--dec", "20", "--roll", "30", "--camera", "has2",
+                                 "--seed", "3", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    truth = json.loads(out.with_name("sim.truth.json").read_text())
+    assert truth["ra_deg"] == pytest.approx(10.0) and truth["roll_deg"] == pytest.approx(30.0)
+    assert len(truth["stars"]) > 0
+    bad = runner.invoke(app, ["simulate", "--ra", "10", "--dec", "20", "--camera", "nope", "-o", str(out)])
+    assert bad.exit_code == 2 and "unknown camera preset" in bad.output
