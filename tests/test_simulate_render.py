@@ -219,6 +219,18 @@ def test_smear_length_and_mid_exposure_truth():
         == pytest.approx(160.0, abs=1e-6)
 
 
+def test_rate_sign_convention():
+    # ω about camera +y: ḃ = −ω × b, so a star at the centre moves toward −x by ω·Δt·fx
+    cat = catalog_at_pixels([[160.0, 120.0]], 3.0)
+    w = math.radians(1.0)
+    f0, f1 = render_sequence(A0, CAM, n_frames=2, fps=5.0, rate_rad_s=[0, w, 0], exposure_s=0.01,
+                             catalog=cat, **CLEAN)
+    (s0,), (s1,) = f0.truth["stars"], f1.truth["stars"]
+    x0 = (s0["x"] - CAM.cx) / CAM.fx
+    assert s1["x"] == pytest.approx(CAM.cx + CAM.fx * math.tan(math.atan(x0) - w * 0.2), abs=1e-6)
+    assert s1["y"] == pytest.approx(s0["y"], abs=1e-4)
+
+
 def test_rolling_shutter_skews_with_row():
     rate = np.array([0.0, math.radians(1.0), 0.0])
     line = 1e-4
