@@ -23,6 +23,7 @@ change the others' draws. Fixed-pattern maps (PRNU, DSNU, hot pixels) come from
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -203,9 +204,19 @@ class Sensor:
                 if getattr(self, f.name) is not None}
 
     def to_toml(self) -> str:
-        import tomli_w
+        """The ``[sensor]`` table as TOML text."""
+        lines = ["[sensor]"]
+        for key, value in self.to_dict().items():
+            if isinstance(value, str):
+                lines.append(f"{key} = {json.dumps(value)}")
+            elif isinstance(value, int):
+                lines.append(f"{key} = {value}")
+            else:
+                lines.append(f"{key} = {float(value)!r}")
+        return "\n".join(lines) + "\n"
 
-        return tomli_w.dumps({"sensor": self.to_dict()})
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(self.to_toml())
 
 
 def noise_switches(noise: bool | Mapping[str, bool]) -> dict[str, bool]:
