@@ -1,7 +1,19 @@
 """Star detection: frame calibration, background, extraction and centroiding."""
 
 from skyfix.detect.background import Background, estimate_background
+from skyfix.detect.centroid import CENTROIDERS, centroid_windows, cramer_rao_centroid, refine_centroids
 from skyfix.detect.centroids import Centroids
-from skyfix.detect.extract import extract_centroids, saturation_level
+from skyfix.detect.extract import METHODS, extract_centroids, saturation_level
 
-__all__ = ["Background", "Centroids", "estimate_background", "extract_centroids", "saturation_level"]
+__all__ = [
+    "CENTROIDERS",
+    "METHODS",
+    "Background",
+    "Centroids",
+    "centroid_windows",
+    "cramer_rao_centroid",
+    "estimate_background",
+    "extract_centroids",
+    "refine_centroids",
+    "saturation_level",
+]

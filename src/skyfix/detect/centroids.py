@@ -30,6 +30,7 @@ class Centroids:
     peak : (N,) float64 — highest background-subtracted pixel, ADU.
     sigma_x, sigma_y : (N,) float64 — 1-σ centroid uncertainty from background noise, pixels.
     saturated : (N,) bool — the star has pixels at the saturation level.
+    cov_xy : (N,) float64 — x–y covariance of the centroid, px² (zero unless a fit gives it).
     image_shape : (height, width) of the frame.
     background_level : median sky level of the frame, ADU.
     noise : robust per-pixel noise (σ) of the sky, ADU.
@@ -49,6 +50,7 @@ class Centroids:
     background_level: float = 0.0
     noise: float = 0.0
     meta: dict = field(default_factory=dict, compare=False, repr=False)
+    cov_xy: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = None
@@ -63,6 +65,11 @@ class Centroids:
         if sat.size != n:
             raise ValueError(f"Centroids.saturated has {sat.size} entries, expected {n}")
         object.__setattr__(self, "saturated", sat)
+        cov = np.zeros(n) if self.cov_xy is None else np.ascontiguousarray(self.cov_xy, np.float64)
+        cov = cov.reshape(-1)
+        if cov.size != n:
+            raise ValueError(f"Centroids.cov_xy has {cov.size} entries, expected {n}")
+        object.__setattr__(self, "cov_xy", cov)
         object.__setattr__(self, "image_shape", (int(self.image_shape[0]), int(self.image_shape[1])))
         object.__setattr__(self, "background_level", float(self.background_level))
         object.__setattr__(self, "noise", float(self.noise))
@@ -74,6 +81,15 @@ class Centroids:
     def xy(self) -> np.ndarray:
         """(N, 2) float64 array of ``(x, y)`` pixel positions."""
         return np.column_stack([self.x, self.y])
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """(N, 2, 2) centroid covariance matrices, px²."""
+        cov = np.zeros((len(self), 2, 2))
+        cov[:, 0, 0] = self.sigma_x**2
+        cov[:, 1, 1] = self.sigma_y**2
+        cov[:, 0, 1] = cov[:, 1, 0] = self.cov_xy
+        return cov
 
     @property
     def flags(self) -> np.ndarray:
@@ -92,7 +108,8 @@ class Centroids:
         """The stars selected by an index array, boolean mask or slice (order as given)."""
         kw = {name: getattr(self, name)[index] for name in _ARRAYS}
         return Centroids(**kw, saturated=self.saturated[index], image_shape=self.image_shape,
-                         background_level=self.background_level, noise=self.noise, meta=self.meta)
+                         background_level=self.background_level, noise=self.noise, meta=self.meta,
+                         cov_xy=self.cov_xy[index])
 
     def brightest(self, n: int) -> Centroids:
         """The ``n`` brightest stars."""
@@ -100,6 +117,6 @@ class Centroids:
 
     def to_records(self) -> list[dict]:
         """One dict per star, brightest first (for JSON output)."""
-        cols = {name: getattr(self, name).tolist() for name in _ARRAYS}
+        cols = {name: getattr(self, name).tolist() for name in (*_ARRAYS, "cov_xy")}
         sat = self.saturated.tolist()
         return [{**{k: v[i] for k, v in cols.items()}, "saturated": sat[i]} for i in range(len(self))]

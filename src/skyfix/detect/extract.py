@@ -29,11 +29,14 @@ from numba import njit
 from scipy import ndimage
 
 from skyfix.detect.background import Background, estimate_background, interp_weights, smooth3
+from skyfix.detect.centroid import CENTROIDERS, refine_centroids
 from skyfix.detect.centroids import Centroids
 from skyfix.errors import ImageReadError
 from skyfix.io import as_image
 
-__all__ = ["extract_centroids", "saturation_level"]
+__all__ = ["METHODS", "extract_centroids", "saturation_level"]
+
+METHODS = ("components", "threshold_hillclimb", "region_grow")
 
 # Full-scale values of common integer sensors and of normalised float images.
 _FULL_SCALES = np.array([1.0, 255.0, 1023.0, 4095.0, 16383.0, 65535.0])
@@ -57,6 +60,9 @@ def extract_centroids(
     saturation: float | None = None,
     tile: int | None = None,
     background: Background | None = None,
+    method: str = "components",
+    centroid: str = "com",
+    gain: float | None = None,
 ) -> Centroids:
     """Find stars in a frame and measure their centroids, brightest first.
 
@@ -97,12 +103,29 @@ def extract_centroids(
         Background tile size, pixels (default: about 1/16 of the short side, 32–64).
     background : Background, optional
         A precomputed background (e.g. shared with another extraction of the same frame).
+    method : {"components", "threshold_hillclimb", "region_grow"}
+        Detection method: this module's connected components (default); thesis 000's global
+        k·σ threshold with a 3×3 hill climb (:mod:`skyfix.detect.hillclimb`); thesis 004's
+        every-third-pixel scan with 4-connected region growing (:mod:`skyfix.detect.region_grow`).
+        The rejection options above apply to ``"components"`` only.
+    centroid : {"com", "iwcog", "gaussian"}
+        Centroider. ``"com"`` keeps each method's own centre of mass (for ``"components"``: the
+        intensity-weighted CoM over the grown component); ``"iwcog"`` and ``"gaussian"`` refine
+        it in a window (:mod:`skyfix.detect.centroid`); the Gaussian fit also gives the flux and
+        the per-star covariance.
+    gain : float, optional
+        Electrons per ADU, for the refined centroids' weights and errors (see
+        :func:`skyfix.detect.centroid.centroid_windows`).
 
     Returns
     -------
     Centroids
         Empty for blank, constant, saturated or unreadable frames.
     """
+    if method not in METHODS:
+        raise ValueError(f"unknown detection method {method!r}; choose one of {', '.join(METHODS)}")
+    if centroid not in CENTROIDERS:
+        raise ValueError(f"unknown centroider {centroid!r}; choose one of {', '.join(CENTROIDERS)}")
     try:
         img = as_image(image, name="image")
     except ImageReadError:
@@ -110,6 +133,26 @@ def extract_centroids(
     h, w = img.shape
     if h < 3 or w < 3:
         return Centroids.empty((h, w), reason="too small")
+    if method == "components":
+        c = _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharpness,
+                        max_noise_ratio, max_diffuseness, max_elongation, saturation, tile, background)
+    elif method == "threshold_hillclimb":
+        from skyfix.detect.hillclimb import extract_hillclimb
+
+        c = extract_hillclimb(img, sigma=sigma, max_stars=max_stars, saturation=saturation)
+    else:
+        from skyfix.detect.region_grow import extract_region_grow
+
+        c = extract_region_grow(img, sigma=sigma, max_stars=max_stars, saturation=saturation)
+    if centroid != "com" and len(c):
+        c = _refine(img, c, centroid, gain, background, tile)
+    return c
+
+
+def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharpness, max_noise_ratio,
+                max_diffuseness, max_elongation, saturation, tile, background) -> Centroids:
+    """The default detector (module docstring, steps 1–5)."""
+    h, w = img.shape
     ws = _workspace(h, w)
     sm = smooth3(img, out=ws.smooth)
     bg = estimate_background(img, tile=tile, smoothed=sm) if background is None else background
@@ -194,6 +237,36 @@ def _workspace(h: int, w: int) -> _Workspace:
         _WS.labels = np.empty((h, w), np.int32)
         _WS.shape = (h, w)
     return _WS
+
+
+def _refine(img: np.ndarray, c: Centroids, centroid: str, gain: float | None,
+            background: Background | None, tile: int | None) -> Centroids:
+    """Re-centroid each star in a window with ``centroid``; keep the CoM where it fails."""
+    bg = background
+    if bg is None or bg.level.shape == ():
+        bg = estimate_background(img, tile=tile)
+    h, w = img.shape
+    iy, fy = interp_weights(bg.centers_y, h)
+    ix, fx = interp_weights(bg.centers_x, w)
+    sky = _noise_at(bg.level, iy, fy, ix, fx, c.x, c.y)
+    nz = _noise_at(bg.noise, iy, fy, ix, fx, c.x, c.y)
+    # window: the footprint's equivalent radius plus 2 px of wings, 3–10 px
+    half = np.clip(np.ceil(np.sqrt(np.maximum(c.area, 1.0) / np.pi)) + 2, 3, 10).astype(np.int64)
+    r = refine_centroids(img, c.xy, sky, nz, half, method=centroid, gain=gain)
+    x, y, flux, _peak, sx, sy, cxy, _npix, psx, psy, ok = r[:, :11].T
+    ok = (ok > 0) & np.isfinite(x) & (np.hypot(x - c.x, y - c.y) < 1.5)
+    new_flux = np.where(ok, flux, c.flux) if centroid == "gaussian" else c.flux
+    order = np.argsort(-new_flux, kind="stable")
+    big, small = np.maximum(psx, psy), np.maximum(np.minimum(psx, psy), 1e-6)
+    out = Centroids(
+        x=np.where(ok, x, c.x), y=np.where(ok, y, c.y), flux=new_flux, area=c.area,
+        snr=np.where(ok, new_flux, c.flux) / np.maximum(nz * np.sqrt(np.maximum(c.area, 1.0)), 1e-30),
+        elongation=np.where(ok & (centroid == "gaussian"), big / small, c.elongation), peak=c.peak,
+        sigma_x=np.where(ok, sx, c.sigma_x), sigma_y=np.where(ok, sy, c.sigma_y),
+        saturated=c.saturated, image_shape=c.image_shape, background_level=c.background_level,
+        noise=c.noise, meta={**c.meta, "centroid": centroid, "refined": int(ok.sum())},
+        cov_xy=np.where(ok, cxy, 0.0))
+    return out.subset(order)
 
 
 def saturation_level(image: np.ndarray) -> float:
