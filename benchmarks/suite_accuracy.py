@@ -2,7 +2,8 @@
 
 8°, 15° and 30° fields, 1280×960, 12-bit, Gaussian PSF (σ 1 px) integrated over pixels,
 Poisson + read noise, hot pixels, 3 false stars; truth from the rendering attitude. Each tool
-solves the same in-memory frames (extraction + identification + attitude) and is told the FOV.
+solves the same in-memory frames (extraction + identification + attitude) and is told the FOV;
+skyfix runs a second time without it (``skyfix (no FOV)``).
 Reports median / p90 boresight error (″) and median roll error (″), and the skyfix/peer ratio.
 """
 
@@ -12,7 +13,7 @@ import numpy as np
 
 from common import boresight_error_arcsec, median, now_ms, pct, ratio, roll_error_deg
 from render import RenderSpec, StarSky, random_attitudes, render
-from report import print_table
+from report import print_table, say
 
 
 def run(tools: dict, n_images: int = 20, fovs=(8.0, 15.0, 30.0), seed: int = 7) -> dict:
@@ -22,15 +23,19 @@ def run(tools: dict, n_images: int = 20, fovs=(8.0, 15.0, 30.0), seed: int = 7) 
         spec = RenderSpec(fov_deg=fov)
         rng = np.random.default_rng(seed + int(fov * 10))
         attitudes = random_attitudes(n_images, rng)
-        runs = {name: [] for name in tools}
+        # skyfix also runs without the FOV (its default use), as "skyfix (no FOV)".
+        jobs = [(name, tool, fov) for name, tool in tools.items()]
+        if "skyfix" in tools:
+            jobs.append(("skyfix (no FOV)", tools["skyfix"], None))
+        runs = {name: [] for name, _, _ in jobs}
         t0 = now_ms()
         for A in attitudes:
             img = render(A, sky, spec, rng)
-            for name, tool in tools.items():
+            for name, tool, hint in jobs:
                 if name == "cedar-solve" and not (tool.min_fov <= fov <= tool.max_fov):
                     continue
                 try:
-                    a = tool.solve_image(img, fov_deg=fov)
+                    a = tool.solve_image(img, fov_deg=hint)
                 except Exception as exc:  # noqa: BLE001 - a crash counts as a failure
                     runs[name].append({"solved": False, "status": f"{type(exc).__name__}: {exc}"[:120]})
                     continue
@@ -54,7 +59,9 @@ def _summary(rs: list[dict]) -> dict:
             "median_roll_arcsec": median([r["roll_arcsec"] for r in ok]),
             "p90_roll_arcsec": pct([r["roll_arcsec"] for r in ok], 90.0),
             "median_ms": median([r.get("time_ms", float("nan")) for r in rs]),
-            "median_matched": median([r["n_matched"] for r in ok])}
+            "median_matched": median([r["n_matched"] for r in ok]),
+            "statuses": {st: sum(r["status"] == st for r in rs if not r["solved"])
+                         for st in {r["status"] for r in rs if not r["solved"]}}}
 
 
 def _print(fov: float, spec: RenderSpec, summary: dict) -> None:
@@ -70,3 +77,6 @@ def _print(fov: float, spec: RenderSpec, summary: dict) -> None:
     scale = fov * 3600 / spec.width
     print_table(f"(c) rendered frames, {fov:g}° field ({scale:.1f}″/px), {spec.width}×{spec.height} 12-bit",
                 cols, rows)
+    for name, s in summary.items():
+        if s["statuses"]:
+            say(f"  {name} failures: {s['statuses']}")
