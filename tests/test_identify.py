@@ -9,6 +9,7 @@ from skyfix.catalog import load_hipparcos
 from skyfix.errors import DatabaseError
 from skyfix.geometry import angle_between, radec_roll_from_attitude
 from skyfix.identify import Identification, PatternDatabase, identify
+from skyfix.identify.hashing import key_codes, lookup_run
 
 W, H, FOV = 1280, 960, 15.0
 ARCSEC = np.pi / 180 / 3600
@@ -144,8 +145,12 @@ def test_database_round_trip_is_memory_mapped(small_db):
     assert np.array_equal(loaded.table, db.table)
     assert np.array_equal(loaded.pattern_stars, db.pattern_stars)
     assert loaded.meta == db.meta
-    # Every pattern is found at its own key.
-    assert len(db) > 10000 and (db.table >= 0).sum() == len(db)
+    # Every distinct key code has one table entry; its run holds exactly the patterns with that code.
+    assert len(db) > 10000 and (db.table >= 0).sum() == len(db.key_codes)
+    codes = key_codes(db.pattern_ratios[:200].astype(np.float64), db.n_bins)
+    for i, code in enumerate(codes):
+        start, stop = lookup_run(code, db.table, db.key_codes, db.key_start)
+        assert start <= i < stop
 
 
 def test_small_database_solves_in_its_range(small_db, catalog):

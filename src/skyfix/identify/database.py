@@ -30,9 +30,10 @@ from skyfix.identify.hashing import build_table, edge_ratios, key_codes
 
 __all__ = ["PatternDatabase", "default_database", "DATABASE_VERSION"]
 
-DATABASE_VERSION = 2
+DATABASE_VERSION = 3
 _ARRAYS = ("star_ids", "star_vectors", "star_mag", "star_pm", "pattern_stars", "pattern_ratios",
-           "pattern_largest", "pattern_codes", "table", "cell_centres", "cell_start", "cell_stars")
+           "pattern_largest", "key_codes", "key_start", "table", "cell_centres", "cell_start",
+           "cell_stars")
 _N_CELLS = 3072  # sky cells of the star index used in verification (~3.7° apart)
 
 
@@ -49,8 +50,10 @@ class PatternDatabase:
     pattern_stars : (P, 4) int32 — star indices of each pattern.
     pattern_ratios : (P, 5) float32 — sorted edge ratios (edges / largest edge).
     pattern_largest : (P,) float32 — largest edge, radians.
-    pattern_codes : (P,) int64 — quantised key codes.
-    table : (T,) int32 — open-addressed hash table of pattern indices (-1 empty).
+    key_codes : (K,) int64 — the distinct quantised key codes, ascending (patterns are sorted
+        by code, so each code's patterns form one run).
+    key_start : (K + 1,) int64 — patterns ``key_start[k]:key_start[k + 1]`` have code ``key_codes[k]``.
+    table : (T,) int32 — open-addressed hash table: slot -> index into ``key_codes`` (-1 empty).
     cell_centres : (M, 3) float64 — centres of the sky cells of the star index.
     cell_start : (M + 1,) int64 — ``cell_stars[cell_start[i]:cell_start[i + 1]]`` are cell i's stars.
     cell_stars : (S,) int32 — star indices grouped by cell, brightest first within a cell.
@@ -64,7 +67,8 @@ class PatternDatabase:
     pattern_stars: np.ndarray
     pattern_ratios: np.ndarray
     pattern_largest: np.ndarray
-    pattern_codes: np.ndarray
+    key_codes: np.ndarray
+    key_start: np.ndarray
     table: np.ndarray
     cell_centres: np.ndarray
     cell_start: np.ndarray
@@ -98,7 +102,7 @@ class PatternDatabase:
 
     def search_arrays(self) -> tuple[np.ndarray, ...]:
         """Plain-ndarray views (no copies) of the arrays the compiled search reads, in its order."""
-        names = ("table", "pattern_codes", "pattern_ratios", "pattern_largest", "pattern_stars",
+        names = ("table", "key_codes", "key_start", "pattern_ratios", "pattern_largest", "pattern_stars",
                  "star_vectors", "cell_centres", "cell_start", "cell_stars")
         return tuple(np.asarray(getattr(self, k)) for k in names)
 
@@ -172,7 +176,8 @@ class PatternDatabase:
         bands.close()
         quads = np.unique(np.concatenate(quads), axis=0)
         ratios, largest = edge_ratios(cat.vectors[quads])
-        codes = key_codes(ratios, n_bins)
+        order, unique, start, table = build_table(key_codes(ratios, n_bins))
+        quads, ratios, largest = quads[order], ratios[order], largest[order]
         cell_centres, cell_start, cell_stars, cell_radius = _cell_index(cat.vectors, _N_CELLS)
         meta = dict(version=DATABASE_VERSION, cell_radius=cell_radius, fov_min_deg=float(fov_min_deg),
                     fov_max_deg=float(fov_max_deg), band_fovs_deg=[float(f) for f in fovs],
@@ -184,8 +189,8 @@ class PatternDatabase:
                    star_mag=np.asarray(cat.mag, np.float32),
                    star_pm=np.stack([cat.pm_ra, cat.pm_dec], axis=-1).astype(np.float64),
                    pattern_stars=quads.astype(np.int32), pattern_ratios=ratios.astype(np.float32),
-                   pattern_largest=largest.astype(np.float32), pattern_codes=codes,
-                   table=build_table(codes), cell_centres=cell_centres, cell_start=cell_start,
+                   pattern_largest=largest.astype(np.float32), key_codes=unique, key_start=start,
+                   table=table, cell_centres=cell_centres, cell_start=cell_start,
                    cell_stars=cell_stars, meta=meta)
 
     # --- I/O ------------------------------------------------------------------------------
@@ -224,7 +229,7 @@ class PatternDatabase:
         db = cls(**{k: arrays[k] for k in _ARRAYS}, meta=meta)
         p, s = len(db.pattern_stars), len(db.star_ids)
         if (db.pattern_stars.shape != (p, 4) or db.pattern_ratios.shape != (p, 5)
-                or len(db.pattern_largest) != p or len(db.pattern_codes) != p
+                or len(db.pattern_largest) != p or len(db.key_start) != len(db.key_codes) + 1
                 or db.star_vectors.shape != (s, 3) or len(db.table) & (len(db.table) - 1)):
             raise DatabaseError(f"pattern database {path} is inconsistent (array shapes)")
         return db

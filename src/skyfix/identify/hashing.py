@@ -3,9 +3,13 @@
 A pattern of four stars has six pairwise angular distances. Sorted and divided by the largest,
 the five smaller ones (the *edge ratios*, each in (0, 1]) are invariant to rotation and to
 scale, so the key can be computed from an image whose focal length is unknown. Each ratio is
-quantised into ``n_bins`` bins; the five bin numbers form an integer *key code*; a
-multiplicative hash of the code gives the home slot in a power-of-two table, and collisions
-are resolved by linear probing. The table stores pattern indices (``-1`` = empty).
+quantised into ``n_bins`` bins; the five bin numbers form an integer *key code*.
+
+Patterns are stored sorted by key code, so the patterns sharing a code form one contiguous
+run (sequential memory for the candidate checks). Each distinct code has an entry in a
+power-of-two open-addressed table: a multiplicative hash of the code gives the home slot,
+collisions are resolved by linear probing, and the slot holds the code's index into
+``key_codes`` / ``key_start`` (``-1`` = empty).
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ __all__ = [
     "edge_ratios",
     "key_codes",
     "build_table",
+    "lookup_run",
 ]
 
 # The six (i, j) vertex pairs of a 4-star pattern.
@@ -75,15 +80,16 @@ def _home_slot(code: np.int64, mask: np.int64) -> np.int64:
 @numba.njit(cache=True)
 def _insert_all(codes: np.ndarray, table: np.ndarray) -> None:
     mask = np.int64(len(table) - 1)
-    for p in range(len(codes)):
-        slot = _home_slot(codes[p], mask)
+    for k in range(len(codes)):
+        slot = _home_slot(codes[k], mask)
         while table[slot] >= 0:
             slot = (slot + 1) & mask
-        table[slot] = p
+        table[slot] = k
 
 
-def build_table(codes: np.ndarray, load_factor: float = 0.5) -> np.ndarray:
-    """Open-addressed (linear probing) table of pattern indices for key ``codes``.
+def build_table(codes: np.ndarray, load_factor: float = 0.5
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Sort patterns by key code and index the distinct codes in an open-addressed table.
 
     Parameters
     ----------
@@ -93,25 +99,29 @@ def build_table(codes: np.ndarray, load_factor: float = 0.5) -> np.ndarray:
 
     Returns
     -------
-    (T,) int32 table, ``-1`` for empty slots.
+    order : (P,) int64 — the permutation that sorts the patterns by code.
+    unique : (K,) int64 — the distinct codes, ascending.
+    start : (K + 1,) int64 — run ``k`` is ``sorted_patterns[start[k]:start[k + 1]]``.
+    table : (T,) int32 — slot -> index into ``unique`` (``-1`` empty).
     """
-    size = 1 << int(np.ceil(np.log2(max(len(codes) / load_factor, 16))))
+    order = np.argsort(codes, kind="stable")
+    unique, first = np.unique(np.asarray(codes)[order], return_index=True)
+    start = np.append(first, len(codes)).astype(np.int64)
+    size = 1 << int(np.ceil(np.log2(max(len(unique) / load_factor, 16))))
     table = np.full(size, -1, dtype=np.int32)
-    _insert_all(np.ascontiguousarray(codes, dtype=np.int64), table)
-    return table
+    _insert_all(np.ascontiguousarray(unique, dtype=np.int64), table)
+    return order, unique.astype(np.int64), start, table
 
 
 @numba.njit(cache=True)
-def lookup_code(code: np.int64, table: np.ndarray, pattern_codes: np.ndarray,
-                out: np.ndarray, n_out: int) -> int:
-    """Append to ``out[n_out:]`` the patterns whose key code equals ``code``; return the new count."""
+def lookup_run(code: np.int64, table: np.ndarray, key_codes: np.ndarray, key_start: np.ndarray):
+    """The run ``(start, stop)`` of sorted patterns whose key code is ``code`` (empty if none)."""
     mask = np.int64(len(table) - 1)
     slot = _home_slot(code, mask)
     while True:
-        p = table[slot]
-        if p < 0:
-            return n_out
-        if pattern_codes[p] == code and n_out < len(out):
-            out[n_out] = p
-            n_out += 1
+        k = table[slot]
+        if k < 0:
+            return 0, 0
+        if key_codes[k] == code:
+            return key_start[k], key_start[k + 1]
         slot = (slot + 1) & mask

@@ -86,7 +86,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, max_patterns: int = 4000,
              time_limit_s: float = 2.0, epoch: float | None = None, pattern_stars: int = 24,
-             verify_stars: int = 60, refine_stars: int = 120, match_radius: float = 0.01,
+             verify_stars: int = 60, refine_stars: int = 200, match_radius: float = 0.01,
              prob_threshold: float = 1e-9,
              centroid_sigma_px: float = 1.0, ratio_tolerance: float | None = None,
              key_tolerance: float | None = None) -> Identification:
@@ -168,39 +168,54 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     n_verify = min(n, verify_stars)
     radius = match_radius * max(width, height)
 
-    eps_key = key_tolerance if key_tolerance is not None else (0.012 if free_fov else 0.008)
-    model_err = ratio_tolerance if ratio_tolerance is not None else (0.006 if camera is None else 0.003)
+    # Tolerance tiers: tight first (few false candidates), then loose (unmodelled distortion,
+    # far-off focal-length guess) lagging behind by a factor of 4 in patterns.
+    if ratio_tolerance is not None or key_tolerance is not None:
+        tiers = [(key_tolerance if key_tolerance is not None else (0.012 if free_fov else 0.008),
+                  ratio_tolerance if ratio_tolerance is not None else 0.006)]
+    else:
+        tiers = [(0.008, 0.002), (0.015 if free_fov else 0.010, 0.008 if camera is None else 0.004)]
     x_lo, y_lo = cam0.pixel_to_normalized(np.array([[-0.5, -0.5]]))[0] * f0
     x_hi, y_hi = cam0.pixel_to_normalized(np.array([[width - 0.5, height - 0.5]]))[0] * f0
     frame = np.array([x_lo, x_hi, y_lo, y_hi])
     arrays = db.search_arrays()
     result_A = np.empty((3, 3))
     stats = np.empty(6)
-
-    n_tried = 0
-    n_cand = 0
+    log_threshold = math.log(prob_threshold)
     total = min(len(combos), max_patterns)
+    pos = [0] * len(tiers)
+    n_lookups = n_cand = 0
     chunk = 16
-    while n_tried < total:
-        if time.perf_counter() - t0 > time_limit_s:
-            return _failure(f"time limit {time_limit_s:g} s reached after {n_tried} patterns", t0,
-                            n_tried, n_cand)
-        stop = min(total, n_tried + chunk)
-        hit, n_done, n_c = search(p, combos, n_tried, stop, f0, f_lo, f_hi, camera is not None,
-                                  eps_key, centroid_sigma_px, model_err, db.n_bins, *arrays,
-                                  db.cell_radius, frame, n_verify, radius, math.log(prob_threshold),
-                                  n_tried, n_cand, _PERMS, result_A, stats)
-        n_tried += n_done
-        n_cand += n_c
-        chunk = min(chunk * 2, 512)
-        if hit:
-            res = _finish(xy, p, result_A, float(stats[0]), math.exp(stats[1]), cam0, camera is None,
-                          frame, n_verify, min(n, refine_stars), radius, centroid_sigma_px, db, arrays, epoch,
-                          n_tried, n_cand, t0)
-            if res is not None and f_lo * 0.97 <= res.camera.fx <= f_hi * 1.03:
-                return res
-            # A refit that fails or leaves the allowed range: search on after this combination.
-            n_tried = int(stats[2]) + 1
+    while True:
+        for tier, (eps_key, model_err) in enumerate(tiers):
+            if tier == 0:
+                target = min(total, pos[0] + chunk)
+                chunk = min(chunk * 2, 512)
+            else:
+                target = total if pos[0] >= total else pos[0] // 4
+            while pos[tier] < target:
+                if n_lookups and time.perf_counter() - t0 > time_limit_s:
+                    return _failure(f"time limit {time_limit_s:g} s reached after {max(pos)} patterns",
+                                    t0, max(pos), n_cand)
+                start = pos[tier]
+                stop = min(target, start + 512)
+                hit, n_done, n_c = search(p, combos, start, stop, f0, f_lo, f_hi, camera is not None,
+                                          eps_key, centroid_sigma_px, model_err, db.n_bins, *arrays,
+                                          db.cell_radius, frame, n_verify, radius, log_threshold,
+                                          n_lookups, n_cand, _PERMS, result_A, stats)
+                pos[tier] = start + n_done
+                n_lookups += n_done
+                n_cand += n_c
+                if hit:
+                    res = _finish(xy, p, result_A, float(stats[0]), math.exp(stats[1]), cam0,
+                                  camera is None, frame, n_verify, min(n, refine_stars), radius,
+                                  centroid_sigma_px, db, arrays, epoch, max(pos), n_cand, t0)
+                    if res is not None and f_lo * 0.97 <= res.camera.fx <= f_hi * 1.03:
+                        return res
+                    # A refit that fails or leaves the allowed range: search on.
+        if all(q >= total for q in pos):
+            break
+    n_tried = max(pos)
     return _failure(f"no match after {n_tried} patterns ({n_cand} candidates verified)", t0,
                     n_tried, n_cand)
 
@@ -212,8 +227,8 @@ def _finish(xy, p, A, f, prob, cam0, fit_focal, frame, n_first, n_img, radius, s
     out_img = np.empty(16384, np.int64)
     out_star = np.empty(16384, np.int64)
     fk = np.empty(3)
-    n_pairs = refine(p, A, f, fit_focal, 12, frame, n_first, n_img, radius, sigma_px, *arrays[5:],
-                     db.cell_radius, 4, out_img, out_star, fk)
+    n_pairs = refine(p, A, f, fit_focal, 12, frame, n_first, n_img, radius, sigma_px, *arrays[-4:],
+                     db.cell_radius, 3, out_img, out_star, fk)
     if n_pairs < 4:
         return None
     star_index, cat_index = out_img[:n_pairs], out_star[:n_pairs]
