@@ -91,6 +91,8 @@ def check(results: dict) -> list[dict]:
 
 
 def print_targets(rows: list[dict]) -> None:
+    if not rows:
+        return  # skyfix was not part of this run
     print_table("issue 2 targets (this run; timings on a shared machine are noisy)",
                 ["target", "measured", "goal", "status"],
                 [[r["target"], r["measured"], r["goal"], r["status"]] for r in rows])
