@@ -226,3 +226,24 @@ def test_centroids_container():
     rec = c.to_records()
     assert rec[0]["x"] == pytest.approx(20.0, abs=0.05) and rec[0]["saturated"] is False
     assert len(c.brightest(1)) == 1 and c.flags is c.saturated
+
+
+def test_background_methods_rows_and_global():
+    """Per-row offsets (an AC-coupled readout's droop, thesis 004): the row model follows them."""
+    h, w = 240, 320
+    rng = np.random.default_rng(4)
+    rows = 100 + 40 * np.sin(np.arange(h) / 3.0) + rng.normal(0, 5, h)  # varies row to row
+    xy, flux = random_field(n=15, shape=(h, w), seed=8)
+    img = render_stars((h, w), xy, flux, background=rows[:, None] + np.zeros((1, w)), noise=2.0)
+    by_rows = estimate_background(img, method="rows")
+    assert by_rows.level.shape == (h, 1)
+    assert np.median(np.abs(by_rows.level_map(img.shape)[:, 0] - rows)) < 1.5  # smoothing mixes 3 rows
+    flat = render_stars((h, w), xy, flux, background=100.0, noise=2.0)
+    glob = estimate_background(flat, method="global")
+    assert glob.level.shape == (1, 1) and glob.global_level == pytest.approx(100.0, abs=0.3)
+    assert glob.global_noise == pytest.approx(2.0, rel=0.1)
+    c = extract_centroids(flat, background=glob)
+    d, _ = nearest(c, xy)
+    assert len(c) == len(xy) and d.max() < 0.15
+    with pytest.raises(ValueError):
+        estimate_background(flat, method="nope")

@@ -84,15 +84,20 @@ def default_tile_size(shape: tuple[int, int]) -> int:
 
 
 def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter: int = 1,
-                        smoothed: np.ndarray | None = None) -> Background:
-    """Tiled median background and clipped-RMS noise of a frame.
+                        smoothed: np.ndarray | None = None, method: str = "tiled") -> Background:
+    """Sky level and noise of a frame: tiled (default), one global value, or one per row.
 
     Parameters
     ----------
     image : (H, W) float32 array
         The frame, ADU.
     tile : int, optional
-        Tile size in pixels (default :func:`default_tile_size`).
+        Tile size in pixels (default :func:`default_tile_size`), for ``method="tiled"``.
+    method : {"tiled", "global", "rows"}
+        ``"tiled"``: the interpolated tile grid (module docstring). ``"global"``: one offset for
+        the whole frame (thesis 000, which found its background uniform). ``"rows"``: one level per
+        row (thesis 004's per-row dark reference, which follows the slow offset droop of an
+        AC-coupled readout; here from the row's own pixels, as frames have no shielded columns).
     grid_filter : int
         Size of the median filter applied over the tile grid (1 = none).
     smoothed : (H, W) float32 array, optional
@@ -104,23 +109,42 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     """
     img = np.ascontiguousarray(image, dtype=np.float32)
     h, w = img.shape
-    t = default_tile_size(img.shape) if tile is None else int(max(1, min(tile, h, w)))
-    ny, nx = max(1, round(h / t)), max(1, round(w / t))
+    if method == "tiled":
+        t = default_tile_size(img.shape) if tile is None else int(max(1, min(tile, h, w)))
+        ny, nx = max(1, round(h / t)), max(1, round(w / t))
+        sy = sx = max(1, round(t / _SAMPLES_PER_SIDE))
+    elif method == "global":
+        t, ny, nx = max(h, w), 1, 1
+        sy = sx = max(1, int(np.sqrt(h * w / 16384)))
+    elif method == "rows":
+        t, ny, nx = 1, h, 1
+        sy, sx = 1, max(1, w // 128)
+    else:
+        raise ValueError(f"unknown background method {method!r}; choose tiled, global or rows")
     edges_y = np.linspace(0, h, ny + 1).round().astype(np.int64)
     edges_x = np.linspace(0, w, nx + 1).round().astype(np.int64)
-    stride = max(1, round(t / _SAMPLES_PER_SIDE))
     sm = smooth3(img) if smoothed is None else np.ascontiguousarray(smoothed, dtype=np.float32)
-    level = _tile_medians(sm, edges_y, edges_x, stride)
+    if method == "rows":
+        # levels of the raw rows; the smoothed frame sees each row mixed [1 2 1]/4 with its neighbours
+        level_raw = _tile_medians(img, edges_y, edges_x, sy, sx)
+        padded = np.concatenate([level_raw[:1], level_raw, level_raw[-1:]])
+        level = 0.25 * padded[:-2] + 0.5 * padded[1:-1] + 0.25 * padded[2:]
+    else:
+        level = _tile_medians(sm, edges_y, edges_x, sy, sx)
     if grid_filter > 1 and min(ny, nx) > 1:
         level = ndimage.median_filter(level, size=grid_filter, mode="nearest")
     cy = 0.5 * (edges_y[:-1] + edges_y[1:]) - 0.5
     cx = 0.5 * (edges_x[:-1] + edges_x[1:]) - 0.5
     iy, fy = interp_weights(cy, h)
     ix, fx = interp_weights(cx, w)
+    if method != "rows":
+        level_raw = level
     # noise about the interpolated sky, not the tile median, so a gradient across a tile is
     # not taken for noise
-    stats, raw_res, is_int = _tile_noise(img, sm, level, edges_y, edges_x, stride, iy, fy, ix, fx)
-    level = level + stats[..., 0]
+    stats, raw_res, is_int = _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix, fx)
+    if method != "rows":  # rows are one pixel tall: no gradient inside them to correct for
+        level = level + stats[..., 0]
+        level_raw = level
     noise_s = stats[..., 1]
     if grid_filter > 1 and min(ny, nx) > 1:
         noise_s = ndimage.median_filter(noise_s, size=grid_filter, mode="nearest")
@@ -128,7 +152,7 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     _, raw_sigma = _robust_level_noise(raw_res, 1.0 if is_int else 0.0)
     ref_s = float(np.median(noise_s))
     kappa = raw_sigma / ref_s if ref_s > 0 else 1.0
-    return Background(level=level, noise=kappa * noise_s, level_smooth=level, noise_smooth=noise_s,
+    return Background(level=level_raw, noise=kappa * noise_s, level_smooth=level, noise_smooth=noise_s,
                       centers_y=cy, centers_x=cx, tile=t)
 
 
@@ -240,17 +264,17 @@ def _lattice_start(e0, e1, stride):
 
 
 @njit(cache=True)
-def _tile_medians(sm, edges_y, edges_x, stride):
+def _tile_medians(sm, edges_y, edges_x, sy, sx):
     """Median of the smoothed frame on a sampling lattice in each tile, (ny, nx)."""
     ny, nx = edges_y.size - 1, edges_x.size - 1
     out = np.empty((ny, nx))
-    cap_y = (edges_y[1:] - edges_y[:-1]).max() // stride + 1
-    buf = np.empty(cap_y * ((edges_x[1:] - edges_x[:-1]).max() // stride + 1), np.float64)
+    cap_y = (edges_y[1:] - edges_y[:-1]).max() // sy + 1
+    buf = np.empty(cap_y * ((edges_x[1:] - edges_x[:-1]).max() // sx + 1), np.float64)
     for ty in range(ny):
         for tx in range(nx):
             k = 0
-            for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], stride), edges_y[ty + 1], stride):
-                for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], stride), edges_x[tx + 1], stride):
+            for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], sy), edges_y[ty + 1], sy):
+                for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], sx), edges_x[tx + 1], sx):
                     buf[k] = sm[y, x]
                     k += 1
             out[ty, tx] = np.median(buf[:k])
@@ -258,7 +282,7 @@ def _tile_medians(sm, edges_y, edges_x, stride):
 
 
 @njit(cache=True)
-def _tile_noise(img, sm, level, edges_y, edges_x, stride, iy, fy, ix, fx):
+def _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix, fx):
     """Per tile, the median and lower-side clipped RMS of the smoothed frame minus the sky model.
 
     The median is a correction to the tile's level: a plain tile median of a sky with a
@@ -268,8 +292,8 @@ def _tile_noise(img, sm, level, edges_y, edges_x, stride, iy, fy, ix, fx):
     """
     ny, nx = edges_y.size - 1, edges_x.size - 1
     out = np.empty((ny, nx, 2))
-    cap_y = (edges_y[1:] - edges_y[:-1]).max() // stride + 1
-    cap = cap_y * ((edges_x[1:] - edges_x[:-1]).max() // stride + 1)
+    cap_y = (edges_y[1:] - edges_y[:-1]).max() // sy + 1
+    cap = cap_y * ((edges_x[1:] - edges_x[:-1]).max() // sx + 1)
     res = np.empty(cap, np.float64)
     raw = np.empty(cap, np.float64)
     pool_every = max(1, (ny * nx) // 64)
@@ -279,19 +303,20 @@ def _tile_noise(img, sm, level, edges_y, edges_x, stride, iy, fy, ix, fx):
     for ty in range(ny):
         for tx in range(nx):
             k = 0
-            for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], stride), edges_y[ty + 1], stride):
+            for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], sy), edges_y[ty + 1], sy):
                 i = iy[y]
                 i1 = min(i + 1, ny - 1)
                 f = fy[y]
-                for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], stride), edges_x[tx + 1], stride):
+                for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], sx), edges_x[tx + 1], sx):
                     j = ix[x]
                     j1 = min(j + 1, nx - 1)
                     g = fx[x]
                     top = (1.0 - g) * level[i, j] + g * level[i, j1]
                     bot = (1.0 - g) * level[i1, j] + g * level[i1, j1]
-                    model = (1.0 - f) * top + f * bot
-                    res[k] = sm[y, x] - model
-                    raw[k] = img[y, x] - model
+                    res[k] = sm[y, x] - ((1.0 - f) * top + f * bot)
+                    top = (1.0 - g) * level_raw[i, j] + g * level_raw[i, j1]
+                    bot = (1.0 - g) * level_raw[i1, j] + g * level_raw[i1, j1]
+                    raw[k] = img[y, x] - ((1.0 - f) * top + f * bot)
                     if is_int and img[y, x] != math.floor(img[y, x]):
                         is_int = False
                     k += 1
