@@ -247,3 +247,17 @@ def test_background_methods_rows_and_global():
     assert len(c) == len(xy) and d.max() < 0.15
     with pytest.raises(ValueError):
         estimate_background(flat, method="nope")
+
+
+@pytest.mark.parametrize("sep", [5.0, 7.0])
+def test_deblend_touching_stars(sep):
+    xy = np.array([[50.0, 50.0], [50.0 + sep, 50.7]])
+    img = render_stars((100, 100), xy, [20000, 8000], sigma=1.2, noise=3.0)
+    merged = extract_centroids(img, deblend=None)
+    assert len(merged) == 1  # one blob whose centroid lies between the two
+    c = extract_centroids(img)
+    d, _ = nearest(c, xy)
+    assert len(c) == 2 and d.max() < 0.3 and c.meta["n_deblended"] == 1
+    # a single bright star (any noise) is never split
+    single = render_stars((100, 100), [(50.3, 49.6)], [2e5], sigma=1.5, noise=3.0)
+    assert len(extract_centroids(single)) == 1

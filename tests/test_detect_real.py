@@ -36,7 +36,7 @@ MIN_MATCHED_TOP20 = {
     "cedar-solve/roof.jpg": 16,  # 19
     "cedar-solve/test2_g100_e50ms.jpg": 18,  # 20
     "cedar-solve/test_5mp_g100_e50ms.jpg": 18,  # 20
-    "cedar-solve/tree.jpg": 6,  # 9
+    "cedar-solve/tree.jpg": 5,  # 7 (9 without deblending: split foliage)
     "cedar-solve/virgo.jpg": 13,  # 16
 }
 ESA_MIN_MATCHED_TOP30 = 28  # measured 30 on 7 frames, 29 on one (≥ 95%: issue 4)

@@ -43,6 +43,7 @@ _FULL_SCALES = np.array([1.0, 255.0, 1023.0, 4095.0, 16383.0, 65535.0])
 _MAX_COMPONENTS = 1 << 16
 # A diffuse object must have a faint peak, below this many σ, to be dropped at the lower ratio.
 _DIFFUSE_MAX_PEAK_SNR = 15.0
+_DIFFUSE_PERCENTILE = 30
 
 
 def extract_centroids(
@@ -63,6 +64,7 @@ def extract_centroids(
     method: str = "components",
     centroid: str = "com",
     gain: float | None = None,
+    deblend: float | None = 0.3,
 ) -> Centroids:
     """Find stars in a frame and measure their centroids, brightest first.
 
@@ -116,6 +118,13 @@ def extract_centroids(
     gain : float, optional
         Electrons per ADU, for the refined centroids' weights and errors (see
         :func:`skyfix.detect.centroid.centroid_windows`).
+    deblend : float, optional
+        Split touching stars (``"components"`` only): a second maximum of the smoothed frame in
+        the same component becomes its own star when it rises above the saddle toward a
+        brighter maximum by this fraction of its height above the sky (and by 3σ), at least
+        2 px away. Pixels go to the maximum their steepest ascent reaches. A component with more
+        than 3 such maxima is texture and stays whole. ``None`` turns it off (e.g. for
+        defocused, ring-shaped PSFs).
 
     Returns
     -------
@@ -135,7 +144,8 @@ def extract_centroids(
         return Centroids.empty((h, w), reason="too small")
     if method == "components":
         c = _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharpness,
-                        max_noise_ratio, max_diffuseness, max_elongation, saturation, tile, background)
+                        max_noise_ratio, max_diffuseness, max_elongation, saturation, tile, background,
+                        deblend)
     elif method == "threshold_hillclimb":
         from skyfix.detect.hillclimb import extract_hillclimb
 
@@ -150,7 +160,7 @@ def extract_centroids(
 
 
 def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharpness, max_noise_ratio,
-                max_diffuseness, max_elongation, saturation, tile, background) -> Centroids:
+                max_diffuseness, max_elongation, saturation, tile, background, deblend) -> Centroids:
     """The default detector (module docstring, steps 1–5)."""
     h, w = img.shape
     ws = _workspace(h, w)
@@ -185,8 +195,14 @@ def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharp
     # Measure only the brightest candidates (hot pixels removed below need some spare).
     order = np.argsort(-comps[idx, 5], kind="stable")
     idx = idx[order[: max(2 * max_stars + 20, 50)]]
-    m = _measure(img, labels, (idx + 1).astype(np.int32), comps[idx, 1:5].astype(np.int64),
-                 bg.level, iy, fy, ix, fx, float(saturation), float(min_sharpness))
+    ids, boxes = (idx + 1).astype(np.int32), comps[idx, 1:5].astype(np.int64)
+    n_split = 0
+    is_part = np.zeros(ids.size, bool)
+    if deblend is not None and ids.size:
+        ids, boxes, is_part = _deblend(sm, labels, ids, boxes, bg.level_smooth, bg.noise_smooth,
+                                       iy, fy, ix, fx, n_comp + 1, float(deblend), 2.0, 3)
+        n_split = ids.size - idx.size
+    m = _measure(img, labels, ids, boxes, bg.level, iy, fy, ix, fx, float(saturation), float(min_sharpness))
     flux, x, y, npix, peak, sharp, mxx, myy, mxy, sxx, syy, nsat, nhot = m.T
     noise_px = _noise_at(bg.noise, iy, fy, ix, fx, x, y)
     tr = mxx + myy
@@ -195,8 +211,9 @@ def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharp
     lam1, lam2 = 0.5 * (tr + det) + 1.0 / 12.0, np.maximum(0.5 * (tr - det), 0.0) + 1.0 / 12.0
     elong = np.sqrt(lam1 / lam2)
     snr = flux / (noise_px * np.sqrt(np.maximum(npix, 1.0)))
-    # hot pixels: too sharp even after leaving out up to 3 of them, or nothing left but noise
-    good = (flux > 0) & (sharp >= min_sharpness) & ((nhot == 0) | (snr >= sigma))
+    # hot pixels: too sharp even after leaving out up to 3 of them, or nothing left but noise;
+    # a deblended part around a hot pixel is only a neighbouring star's wing
+    good = (flux > 0) & (sharp >= min_sharpness) & ((nhot == 0) | ((snr >= sigma) & ~is_part))
     if max_elongation is not None:
         good &= elong <= max_elongation
     if max_diffuseness is not None:
@@ -212,7 +229,8 @@ def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharp
         sigma_x=noise_px[sel] * np.sqrt(sxx[sel]) / flux[sel],
         sigma_y=noise_px[sel] * np.sqrt(syy[sel]) / flux[sel],
         saturated=nsat[sel] > 0, image_shape=(h, w), background_level=level, noise=noise,
-        meta={"n_components": int(n_comp), "saturation": float(saturation), "tile": bg.tile},
+        meta={"n_components": int(n_comp), "n_deblended": int(n_split), "saturation": float(saturation),
+              "tile": bg.tile},
     )
 
 
@@ -286,7 +304,7 @@ def _diffuse(flux, peak, snr, peak_snr, saturated, candidate, ratio):
     typical = candidate & ~saturated & (snr > 10.0)
     if not typical.any():
         return np.zeros(flux.size, bool)
-    rel = aeff / np.percentile(aeff[typical], 30)
+    rel = aeff / np.percentile(aeff[typical], _DIFFUSE_PERCENTILE)
     return ((rel > ratio) & (peak_snr < _DIFFUSE_MAX_PEAK_SNR)) | ((rel > ratio * 10.0 / 3.0) & ~saturated)
 
 
@@ -439,6 +457,141 @@ def _label(sm, labels, thr_grid, bg_grid, iy, fy, ix, fx, max_components):
                 comps[k, 5] = excess
                 k += 1
     return comps[:k]
+
+
+@njit(cache=True)
+def _ascend(sm, labels, lab, first_new, y, x):
+    """Steepest ascent on ``sm`` inside one component (original or split labels) to a maximum."""
+    h, w = sm.shape
+    while True:
+        by, bx = y, x
+        for qy in range(max(y - 1, 0), min(y + 2, h)):
+            for qx in range(max(x - 1, 0), min(x + 2, w)):
+                lv = labels[qy, qx]
+                if (lv == lab or lv >= first_new) and sm[qy, qx] > sm[by, bx]:
+                    by, bx = qy, qx
+        if by == y and bx == x:
+            return y, x
+        y, x = by, bx
+
+
+@njit(cache=True)
+def _saddle(sm, y0, x0, y1, x1):
+    """Lowest value of ``sm`` on the straight segment between two pixels."""
+    n = max(abs(y1 - y0), abs(x1 - x0))
+    lo = min(sm[y0, x0], sm[y1, x1])
+    for k in range(1, n):
+        t = k / n
+        lo = min(lo, sm[int(round(y0 + t * (y1 - y0))), int(round(x0 + t * (x1 - x0)))])
+    return lo
+
+
+@njit(cache=True)
+def _deblend(sm, labels, ids, boxes, bg_grid, noise_grid, iy, fy, ix, fx, next_label, contrast, min_sep,
+             max_parts):
+    """Split components with several prominent maxima; returns the new (ids, boxes, is_part).
+
+    New labels are allocated from ``next_label`` upward; the component keeps its label for the
+    part around its highest maximum.
+    """
+    h, w = sm.shape
+    out_ids = []
+    out_boxes = []
+    out_split = []
+    nxt = next_label
+    for c in range(ids.size):
+        lab = ids[c]
+        y0, y1, x0, x1 = boxes[c, 0], boxes[c, 1], boxes[c, 2], boxes[c, 3]
+        my = []
+        mx = []
+        mv = []
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
+                if labels[y, x] != lab:
+                    continue
+                v = sm[y, x]
+                is_max = True
+                for qy in range(max(y - 1, 0), min(y + 2, h)):
+                    for qx in range(max(x - 1, 0), min(x + 2, w)):
+                        if (qy != y or qx != x) and labels[qy, qx] == lab:
+                            u = sm[qy, qx]
+                            # ties: the first in scan order wins
+                            if u > v or (u == v and (qy < y or (qy == y and qx < x))):
+                                is_max = False
+                if is_max:
+                    my.append(y)
+                    mx.append(x)
+                    mv.append(v)
+        kept = [0]
+        if len(mv) > 1:
+            order = np.argsort(-np.array(mv))
+            ky = [my[order[0]]]
+            kx = [mx[order[0]]]
+            for r in range(1, order.size):
+                i = order[r]
+                yy, xx = my[i], mx[i]
+                near = False
+                col = -np.inf
+                for j in range(len(ky)):
+                    if (ky[j] - yy) ** 2 + (kx[j] - xx) ** 2 < min_sep**2:
+                        near = True
+                    col = max(col, _saddle(sm, yy, xx, ky[j], kx[j]))
+                if near:
+                    continue
+                height = mv[i] - _grid_at(bg_grid, iy, fy, ix, fx, yy, xx)
+                prom = mv[i] - col
+                if prom >= contrast * height and prom >= 3.0 * _grid_at(noise_grid, iy, fy, ix, fx, yy, xx):
+                    ky.append(yy)
+                    kx.append(xx)
+                    kept.append(i)
+        # more than a few prominent maxima is texture (foliage, nebula), not a star group: the
+        # whole component is left for the diffuseness test
+        if len(kept) < 2 or len(kept) > max_parts:
+            out_ids.append(lab)
+            out_boxes.append((y0, y1, x0, x1))
+            out_split.append(False)
+            continue
+        nk = len(kept)
+        first_new = nxt
+        part_label = np.empty(nk, np.int32)
+        part_label[0] = lab
+        for k in range(1, nk):
+            part_label[k] = nxt
+            nxt += 1
+        # assign every pixel to the kept maximum its ascent reaches (else the nearest one)
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
+                lv = labels[y, x]
+                if lv != lab and lv < first_new:
+                    continue
+                ty, tx = _ascend(sm, labels, lab, first_new, y, x)
+                best = -1
+                bd = np.inf
+                for k in range(nk):
+                    d = (ky[k] - ty) ** 2 + (kx[k] - tx) ** 2
+                    if d < bd:
+                        bd, best = d, k
+                labels[y, x] = part_label[best]
+        for k in range(nk):
+            by0, by1, bx0, bx1 = h, -1, w, -1
+            for y in range(y0, y1 + 1):
+                for x in range(x0, x1 + 1):
+                    if labels[y, x] == part_label[k]:
+                        by0, by1 = min(by0, y), max(by1, y)
+                        bx0, bx1 = min(bx0, x), max(bx1, x)
+            if by1 >= 0:
+                out_ids.append(part_label[k])
+                out_boxes.append((by0, by1, bx0, bx1))
+                out_split.append(True)
+    n = len(out_ids)
+    ids_out = np.empty(n, np.int32)
+    boxes_out = np.empty((n, 4), np.int64)
+    split_out = np.empty(n, np.bool_)
+    for i in range(n):
+        ids_out[i] = out_ids[i]
+        split_out[i] = out_split[i]
+        boxes_out[i, 0], boxes_out[i, 1], boxes_out[i, 2], boxes_out[i, 3] = out_boxes[i]
+    return ids_out, boxes_out, split_out
 
 
 @njit(cache=True)
