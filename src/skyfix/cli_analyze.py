@@ -98,26 +98,44 @@ def photometry(
     images: list[Path] = typer.Argument(..., help="Sky images to solve and calibrate."),
     epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: now)."),
     fov: float = typer.Option(None, "--fov", help="Horizontal field of view, degrees (optional)."),
+    flux: str = typer.Option("psf", "--flux", help="Flux estimator: psf, aperture, extractor."),
     json_out: bool = typer.Option(False, "--json", help="One JSON line per image, then one for the set."),
 ) -> None:
-    """Instrumental magnitudes of identified stars vs. catalogue Hp: zero point and RMS per frame."""
-    from skyfix.analysis.photometry import frame_photometry, summarize
+    """Instrumental magnitudes of identified stars vs. catalogue Hp: zero point and RMS per frame,
+    then a shared colour term (B−V) and vignetting (ρ²) fitted over all frames."""
+    from skyfix.analysis.photometry import fit_field_calibration, frame_photometry, summarize
 
+    if flux not in ("psf", "aperture", "extractor"):
+        _fail(f"unknown flux estimator {flux!r}; choose psf, aperture or extractor")
     results = []
-    for path in images:
-        try:
-            res = frame_photometry(path, epoch=epoch, fov_deg=fov)
-        except SkyfixError as exc:
-            _fail(f"{path}: {exc}")
-        results.append(res)
-        if json_out:
-            typer.echo(json.dumps(res.summary()))
-        else:
-            typer.echo(res.format_line())
+    with _progress(len(images), json_out) as bar:
+        task = bar.add_task("photometry", total=len(images))
+        for path in images:
+            try:
+                res = frame_photometry(path, epoch=epoch, fov_deg=fov, flux=flux)
+            except SkyfixError as exc:
+                _fail(f"{path}: {exc}")
+            results.append(res)
+            bar.update(task, advance=1)
+            bar.console.print(json.dumps(res.summary()) if json_out else res.format_line(), soft_wrap=True,
+                              markup=False, highlight=False)
     total = summarize(results)
-    typer.echo(json.dumps(total) if json_out else
-               f"all: {total['n_frames_solved']}/{total['n_frames']} frames, {total['n_stars']} stars, "
-               f"RMS {total['rms_mag']:.3f} mag (clipped {total['rms_clipped_mag']:.3f}, "
-               f"median per frame {total['median_frame_rms_mag']:.3f})")
+    cal = fit_field_calibration(results)
+    total["field_calibration"] = {"colour_slope_mag_per_bv": cal.colour_slope,
+                                  "vignetting_mag": cal.vignetting, "rms_mag": cal.rms_mag,
+                                  "rms_clipped_mag": cal.rms_clipped_mag,
+                                  "n_stars": cal.n_stars, "n_clipped": cal.n_clipped,
+                                  "rms_hp_lt_6_mag": cal.rms_brighter_than(6.0)}
+    if json_out:
+        typer.echo(json.dumps(total))
+    else:
+        typer.echo(f"all: {total['n_frames_solved']}/{total['n_frames']} frames, {total['n_stars']} stars; "
+                   f"per-frame zero point only: RMS {total['rms_mag']:.3f} mag "
+                   f"(clipped {total['rms_clipped_mag']:.3f}, "
+                   f"median per frame {total['median_frame_rms_mag']:.3f})")
+        typer.echo(f"with colour term {cal.colour_slope:+.3f} mag/(B−V) and vignetting "
+                   f"{cal.vignetting:+.3f} mag at the corner: RMS {cal.rms_mag:.3f} mag "
+                   f"(clipped {cal.rms_clipped_mag:.3f}, "
+                   f"{cal.n_clipped} out; Hp < 6: {cal.rms_brighter_than(6.0):.3f})")
     if total["n_frames_solved"] < total["n_frames"]:
         raise typer.Exit(1)
