@@ -101,10 +101,11 @@ class PatternDatabase:
         return len(self.pattern_stars)
 
     def search_arrays(self) -> tuple[np.ndarray, ...]:
-        """Plain-ndarray views (no copies) of the arrays the compiled search reads, in its order."""
+        """Read-only plain-ndarray views (no copies) of the arrays the compiled search reads, in
+        its order (read-only whether memory-mapped or built in memory: one compiled signature)."""
         names = ("table", "key_codes", "key_start", "pattern_ratios", "pattern_largest", "pattern_stars",
                  "star_vectors", "cell_centres", "cell_start", "cell_stars")
-        return tuple(np.asarray(getattr(self, k)) for k in names)
+        return tuple(_readonly(getattr(self, k)) for k in names)
 
     def vectors_at(self, index: np.ndarray, epoch: float | None) -> np.ndarray:
         """ICRS unit vectors of stars ``index`` moved by proper motion to ``epoch`` (default: as built)."""
@@ -233,6 +234,12 @@ class PatternDatabase:
                 or db.star_vectors.shape != (s, 3) or len(db.table) & (len(db.table) - 1)):
             raise DatabaseError(f"pattern database {path} is inconsistent (array shapes)")
         return db
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    view = np.asarray(a).view()
+    view.flags.writeable = False
+    return view
 
 
 def _cell_index(vectors: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:

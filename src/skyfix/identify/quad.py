@@ -22,7 +22,7 @@ from itertools import permutations
 import numpy as np
 
 from skyfix.camera import Camera
-from skyfix.identify.database import PatternDatabase, default_database
+from skyfix.identify.database import PatternDatabase, _readonly, default_database
 from skyfix.identify.search import breadth_first_combinations, refine, search
 
 __all__ = ["Identification", "identify"]
@@ -76,6 +76,30 @@ def _failure(reason: str, t0: float, n_tried: int = 0, n_cand: int = 0) -> Ident
     empty = np.zeros(0, np.int64)
     return Identification(False, reason, empty, empty, np.zeros((0, 3)), np.zeros(0, np.float32),
                           n_patterns_tried=n_tried, n_candidates=n_cand, time_s=time.perf_counter() - t0)
+
+
+_COMPILED = False
+
+
+def _compile_kernels() -> None:
+    """Load (or compile) the numba kernels by running them once on a tiny dummy input."""
+    global _COMPILED
+    if _COMPILED:
+        return
+    ro = _readonly
+    p = np.array([[0.0, 0.0], [100.0, 0.0], [0.0, 100.0], [70.0, 60.0]])
+    combos = breadth_first_combinations(4)
+    vec = ro(np.array([[0.0, 0.0, 1.0]]))
+    frame = np.array([-100.0, 100.0, -100.0, 100.0])
+    cells = (vec, ro(np.array([0, 1], np.int64)), ro(np.zeros(1, np.int32)))
+    search(p, combos, 0, 1, 1000.0, 900.0, 1100.0, False, 0.01, 1.0, 0.01, 25,
+           ro(np.full(16, -1, np.int32)), ro(np.zeros(1, np.int64)), ro(np.zeros(2, np.int64)),
+           ro(np.zeros((0, 5), np.float32)), ro(np.zeros(0, np.float32)), ro(np.zeros((0, 4), np.int32)),
+           vec, *cells, 0.1, frame, 4, 5.0, -20.0, 0, 0, _PERMS, np.empty((3, 3)), np.empty(6))
+    out = np.empty(16, np.int64)
+    refine(p, np.eye(3), 1000.0, True, 12, frame, 4, 4, 5.0, 1.0, vec, *cells, 0.1, 1, out, out.copy(),
+           np.empty(3))
+    _COMPILED = True
 
 
 def _focal_from_fov(width: int, fov_deg: float) -> float:
@@ -135,6 +159,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     -------
     Identification
     """
+    _compile_kernels()  # once per process; not counted against the time limit
     t0 = time.perf_counter()
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     xy = xy[np.isfinite(xy).all(axis=1)]

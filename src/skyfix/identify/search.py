@@ -234,15 +234,23 @@ _star_limit_jit = numba.njit(cache=True)(_star_limit)
 @numba.njit(cache=True)
 def _verify(A, f, frame, n_cat_max, n_img, p, radius_px, pattern, combo, star_vectors, cell_centres,
             cell_start, cell_stars, cell_radius, view_idx, view_x, view_y, used, match_img):
-    """Match the ``n_cat_max`` brightest catalogue stars in view to the ``n_img`` brightest
-    centroids; returns (matches, catalogue stars), both without the pattern's own stars."""
+    """log P(a wrong attitude matches as well) and the counts, for the ``n_cat_max`` brightest
+    catalogue stars in view matched to the ``n_img`` brightest centroids.
+
+    The pattern's own stars are not counted. Each catalogue star lands by chance within ``r`` of
+    some centroid with ``p = n_img·π·r² / frame area``; the matches are counted within the full
+    radius and within a half and a quarter of it (a clean frame earns the tighter, more telling
+    test; a distorted one still passes with the full radius), and the best of the three binomial
+    tails, times 3 for the choice, is returned with (matches within the radius, catalogue stars).
+    """
     limit = _star_limit_jit(len(star_vectors), n_cat_max, frame, f, 2.0)
     n_view = _stars_in_view(A, f, 0.0, frame, limit, star_vectors, cell_centres, cell_start,
                             cell_stars, cell_radius, view_idx, view_x, view_y)
     n_cat = min(n_view, n_cat_max)
     _match(view_x, view_y, n_cat, p, n_img, radius_px, used, match_img)
-    k = 0
+    k_full = k_half = k_quarter = 0
     n = 0
+    r2 = radius_px * radius_px
     for j in range(n_cat):
         own = False
         for a in range(4):
@@ -253,8 +261,16 @@ def _verify(A, f, frame, n_cat_max, n_img, p, radius_px, pattern, combo, star_ve
         n += 1
         i = match_img[j]
         if i >= 0 and i != combo[0] and i != combo[1] and i != combo[2] and i != combo[3]:
-            k += 1
-    return k, n
+            k_full += 1
+            d2 = (p[i, 0] - view_x[j]) ** 2 + (p[i, 1] - view_y[j]) ** 2
+            if d2 <= r2 / 4.0:
+                k_half += 1
+            if d2 <= r2 / 16.0:
+                k_quarter += 1
+    p_full = min(1.0, n_img * np.pi * r2 / ((frame[1] - frame[0]) * (frame[3] - frame[2])))
+    logp = min(_log_binom_sf(k_full, n, p_full), _log_binom_sf(k_half, n, p_full / 4.0),
+               _log_binom_sf(k_quarter, n, p_full / 16.0)) + np.log(3.0)
+    return logp, k_full, n
 
 
 @numba.njit(cache=True)
@@ -311,7 +327,6 @@ def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px,
     n_img = min(n_verify, len(p))
     used = np.zeros(n_img, dtype=np.bool_)
     match_img = np.empty(8192, dtype=np.int64)
-    p_single = min(1.0, n_img * np.pi * radius_px**2 / ((frame[1] - frame[0]) * (frame[3] - frame[2])))
     n_cand = 0
     for c in range(start, stop):
         combo = combos[c]
@@ -408,17 +423,16 @@ def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px,
                 # A quick first stage (the 15 brightest against 30 centroids) rejects most false
                 # candidates at a third of the cost; the pattern's own stars are not counted.
                 n_img1 = min(n_img, 30)
-                k1_, n1_ = _verify(A, f1, frame, 15, n_img1, p, radius_px, pattern_stars[q], combo,
-                                   star_vectors, cell_centres, cell_start, cell_stars, cell_radius,
-                                   view_idx, view_x, view_y, used, match_img)
-                p1 = min(1.0, n_img1 * np.pi * radius_px**2 / ((frame[1] - frame[0]) * (frame[3] - frame[2])))
-                if n1_ >= 3 and _log_binom_sf(k1_, n1_, p1) > -3.0:
+                logp1, _, n1_ = _verify(A, f1, frame, 15, n_img1, p, radius_px, pattern_stars[q], combo,
+                                        star_vectors, cell_centres, cell_start, cell_stars, cell_radius,
+                                        view_idx, view_x, view_y, used, match_img)
+                if n1_ >= 3 and logp1 > -3.0:
                     continue
-                n_match, n_cat = _verify(A, f1, frame, n_img, n_img, p, radius_px, pattern_stars[q], combo,
-                                         star_vectors, cell_centres, cell_start, cell_stars, cell_radius,
-                                         view_idx, view_x, view_y, used, match_img)
-                n_trials = max(trials_before + c - start + 1, cand_before + n_cand)
-                logp = _log_binom_sf(n_match, n_cat, p_single) + np.log(n_trials)
+                logp, n_match, n_cat = _verify(A, f1, frame, n_img, n_img, p, radius_px, pattern_stars[q],
+                                               combo, star_vectors, cell_centres, cell_start, cell_stars,
+                                               cell_radius, view_idx, view_x, view_y, used, match_img)
+                n_trials = cand_before + n_cand  # look-elsewhere: candidates examined so far
+                logp += np.log(n_trials)
                 if logp <= log_threshold:
                     result_A[:, :] = A
                     result_stats[0] = f1
