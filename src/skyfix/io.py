@@ -75,7 +75,7 @@ def read_image(path: str | os.PathLike | np.ndarray) -> np.ndarray:
     return as_image(data, name=str(p))
 
 
-def as_image(data: np.ndarray, *, name: str = "image") -> np.ndarray:
+def as_image(data: np.ndarray, *, name: str = "image", replace_nonfinite: bool = True) -> np.ndarray:
     """Validate an array as one frame and return it as 2-D float32 luminance.
 
     Parameters
@@ -85,6 +85,9 @@ def as_image(data: np.ndarray, *, name: str = "image") -> np.ndarray:
         floating dtype. Singleton leading axes (e.g. a (1, H, W) FITS cube) are squeezed.
     name : str
         What to call the input in error messages.
+    replace_nonfinite : bool
+        Check for and replace non-finite pixels (a full pass over the frame). A caller that
+        finds them more cheaply itself (the extractor, while smoothing) passes False.
 
     Returns
     -------
@@ -109,7 +112,7 @@ def as_image(data: np.ndarray, *, name: str = "image") -> np.ndarray:
     if a.size == 0:
         raise ImageReadError(f"{name}: image has no pixels (shape {a.shape})")
     img = np.ascontiguousarray(a, dtype=np.float32)
-    if a.dtype.kind == "f" and not np.isfinite(img.sum(dtype=np.float64)):
+    if replace_nonfinite and a.dtype.kind == "f" and not np.isfinite(img.sum(dtype=np.float64)):
         if np.may_share_memory(img, a):  # never write into the caller's array
             img = img.copy()
         img = _replace_nonfinite(img, name)

@@ -141,7 +141,8 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
         level_raw = level
     # noise about the interpolated sky, not the tile median, so a gradient across a tile is
     # not taken for noise
-    stats, raw_res, is_int = _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix, fx)
+    is_int = is_integer_valued(img)
+    stats, raw_res = _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix, fx, is_int)
     if method != "rows":  # rows are one pixel tall: no gradient inside them to correct for
         level = level + stats[..., 0]
         level_raw = level
@@ -156,16 +157,27 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
                       centers_y=cy, centers_x=cx, tile=t)
 
 
+def is_integer_valued(image: np.ndarray) -> bool:
+    """Whether a frame holds whole numbers (8/16-bit data), judged on a sparse subsample."""
+    sub = np.asarray(image)[::7, ::5]
+    return bool(np.array_equal(sub, np.floor(sub)))
+
+
 def smooth3(image: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """3×3 binomial smoothing ([1 2 1]ᵀ[1 2 1]/16), edges replicated; float32 (H, W).
 
     ``out``, if given, is a float32 array of the same shape that receives the result.
     """
+    return smooth3_stats(image, out)[0]
+
+
+def smooth3_stats(image: np.ndarray, out: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """:func:`smooth3`, plus the sum of the frame (non-finite if any pixel is)."""
     img = np.ascontiguousarray(image, dtype=np.float32)
     if out is None:
         out = np.empty(img.shape, np.float32)
-    _smooth3(img, out)
-    return out
+    total = _smooth3(img, out)
+    return out, float(total)
 
 
 def interpolate_grid(grid: np.ndarray, centers_y: np.ndarray, centers_x: np.ndarray,
@@ -190,14 +202,20 @@ def interp_weights(centers: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]
 # --- numba kernels ------------------------------------------------------------------------
 
 
-@njit(cache=True)
+# reassociation lets the row sum vectorise; NaN and Inf still propagate (no "nnan"/"ninf")
+@njit(cache=True, fastmath={"reassoc", "contract"})
 def _smooth3(img, out):
+    """Smooth into ``out``; returns the sum of the raw frame (non-finite if any pixel is)."""
     h, w = img.shape
     tmp = np.empty(w, np.float32)
+    total = 0.0
     for y in range(h):
         ya, yb = max(y - 1, 0), min(y + 1, h - 1)
+        acc = np.float32(0.0)
         for x in range(w):
             tmp[x] = img[ya, x] + 2.0 * img[y, x] + img[yb, x]
+            acc += img[y, x]
+        total += acc
         if w == 1:
             out[y, 0] = tmp[0] * 0.25
             continue
@@ -205,6 +223,7 @@ def _smooth3(img, out):
         for x in range(1, w - 1):
             out[y, x] = (tmp[x - 1] + 2.0 * tmp[x] + tmp[x + 1]) * 0.0625
         out[y, w - 1] = (tmp[w - 2] + 3.0 * tmp[w - 1]) * 0.0625
+    return total
 
 
 @njit(cache=True)
@@ -282,13 +301,13 @@ def _tile_medians(sm, edges_y, edges_x, sy, sx):
 
 
 @njit(cache=True)
-def _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix, fx):
+def _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix, fx, is_int):
     """Per tile, the median and lower-side clipped RMS of the smoothed frame minus the sky model.
 
     The median is a correction to the tile's level: a plain tile median of a sky with a
     gradient is as uncertain as the gradient is steep, the median about the model is not.
     Returns them as (ny, nx, 2), then the raw samples minus the sky pooled over about 64
-    tiles, and whether the raw samples are all integers (quantised data).
+    tiles. ``is_int``: the frame holds integers (quantised data).
     """
     ny, nx = edges_y.size - 1, edges_x.size - 1
     out = np.empty((ny, nx, 2))
@@ -299,7 +318,6 @@ def _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix,
     pool_every = max(1, (ny * nx) // 64)
     pooled = np.empty(((ny * nx) // pool_every + 1) * cap, np.float64)
     npool = 0
-    is_int = True
     for ty in range(ny):
         for tx in range(nx):
             k = 0
@@ -317,8 +335,6 @@ def _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix,
                     top = (1.0 - g) * level_raw[i, j] + g * level_raw[i, j1]
                     bot = (1.0 - g) * level_raw[i1, j] + g * level_raw[i1, j1]
                     raw[k] = img[y, x] - ((1.0 - f) * top + f * bot)
-                    if is_int and img[y, x] != math.floor(img[y, x]):
-                        is_int = False
                     k += 1
             # a 3×3 binomial mean of integers moves in steps of 1/16
             med, sig = _robust_level_noise(res[:k], 0.0625 if is_int else 0.0, True)
@@ -328,7 +344,7 @@ def _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix,
                 for m in range(k):
                     pooled[npool] = raw[m]
                     npool += 1
-    return out, pooled[:npool], is_int
+    return out, pooled[:npool]
 
 
 @njit(cache=True)

@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit
 from scipy import ndimage
 
-from skyfix.detect.background import Background, estimate_background, interp_weights, smooth3
+from skyfix.detect.background import Background, estimate_background, interp_weights, smooth3_stats
 from skyfix.detect.centroid import CENTROIDERS, refine_centroids
 from skyfix.detect.centroids import Centroids
 from skyfix.errors import ImageReadError
@@ -136,7 +136,8 @@ def extract_centroids(
     if centroid not in CENTROIDERS:
         raise ValueError(f"unknown centroider {centroid!r}; choose one of {', '.join(CENTROIDERS)}")
     try:
-        img = as_image(image, name="image")
+        # the default method finds non-finite pixels itself while smoothing (one pass less)
+        img = as_image(image, name="image", replace_nonfinite=method != "components")
     except ImageReadError:
         return Centroids.empty((0, 0) if np.ndim(image) != 2 else np.shape(image), reason="unusable")
     h, w = img.shape
@@ -164,7 +165,13 @@ def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharp
     """The default detector (module docstring, steps 1–5)."""
     h, w = img.shape
     ws = _workspace(h, w)
-    sm = smooth3(img, out=ws.smooth)
+    sm, total = smooth3_stats(img, out=ws.smooth)
+    if not math.isfinite(total):  # NaN/Inf pixels (or an overflowing sum): replace, smooth again
+        try:
+            img = as_image(img, name="image")
+        except ImageReadError:
+            return Centroids.empty((h, w), reason="mostly non-finite")
+        sm, total = smooth3_stats(img, out=ws.smooth)
     bg = estimate_background(img, tile=tile, smoothed=sm) if background is None else background
     level, noise = bg.global_level, bg.global_noise
     if not np.any(bg.noise_smooth > 0):
@@ -183,8 +190,13 @@ def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharp
     floor = 1e-6 * max(1.0, float(np.abs(bg.level_smooth).max()))
     thr_grid = bg.level_smooth + np.maximum(sigma * bg.noise_smooth, floor)
     labels = ws.labels
-    labels.fill(0)
+    if ws.dirty is None:
+        labels.fill(0)
+    else:  # clear only what the last call labelled
+        _clear_boxes(labels, ws.dirty)
+    ws.dirty = None
     comps = _label(sm, labels, thr_grid, bg.level_smooth, iy, fy, ix, fx, _MAX_COMPONENTS)
+    ws.dirty = comps[:, 1:5].astype(np.int64)
     n_comp = comps.shape[0]
     if n_comp == 0:
         return Centroids.empty((h, w), level, noise, n_components=0)
@@ -244,6 +256,7 @@ class _Workspace(threading.local):
     shape: tuple[int, int] = (0, 0)
     smooth: np.ndarray
     labels: np.ndarray
+    dirty: np.ndarray | None = None  # bounding boxes of the labels left by the last call
 
 
 _WS = _Workspace()
@@ -253,6 +266,7 @@ def _workspace(h: int, w: int) -> _Workspace:
     if _WS.shape != (h, w):
         _WS.smooth = np.empty((h, w), np.float32)
         _WS.labels = np.empty((h, w), np.int32)
+        _WS.dirty = None
         _WS.shape = (h, w)
     return _WS
 
@@ -293,7 +307,10 @@ def saturation_level(image: np.ndarray) -> float:
     Full scale means 1, 255, 1023, 4095, 16383 or 65535 within 0.5% (8- to 16-bit sensors and
     normalised floats). A frame whose brightest pixel is below full scale has no saturated star.
     """
-    vmax = float(np.max(image))
+    return _full_scale(float(np.max(image)))
+
+
+def _full_scale(vmax: float) -> float:
     near = np.abs(_FULL_SCALES - vmax) <= 0.005 * _FULL_SCALES
     return vmax if near.any() else math.inf
 
@@ -341,6 +358,14 @@ def _noise_at(grid, iy, fy, ix, fx, x, y):
 
 
 # --- numba kernels ------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _clear_boxes(labels, boxes):
+    for k in range(boxes.shape[0]):
+        for y in range(boxes[k, 0], boxes[k, 1] + 1):
+            for x in range(boxes[k, 2], boxes[k, 3] + 1):
+                labels[y, x] = 0
 
 
 @njit(cache=True)
