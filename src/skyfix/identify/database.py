@@ -105,7 +105,12 @@ class PatternDatabase:
         its order (read-only whether memory-mapped or built in memory: one compiled signature)."""
         names = ("table", "key_codes", "key_start", "pattern_ratios", "pattern_largest", "pattern_stars",
                  "star_vectors", "cell_centres", "cell_start", "cell_stars")
-        return tuple(_readonly(getattr(self, k)) for k in names)
+        key = tuple(id(getattr(self, k)) for k in names)
+        cached = self.__dict__.get("_search_arrays")
+        if cached is None or cached[0] != key:
+            cached = (key, tuple(_readonly(getattr(self, k)) for k in names))
+            self.__dict__["_search_arrays"] = cached
+        return cached[1]
 
     def vectors_at(self, index: np.ndarray, epoch: float | None) -> np.ndarray:
         """ICRS unit vectors of stars ``index`` moved by proper motion to ``epoch`` (default: as built)."""

@@ -188,7 +188,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     free_fov = camera is None and fov_deg is None
     # Image stars as undistorted offsets from the principal point, scaled by f0.
     n_pat = min(n, pattern_stars)
-    p = cam0.pixel_to_normalized(xy[:max(n_pat, min(n, max(verify_stars, refine_stars)))]) * f0
+    n_p = max(n_pat, min(n, max(verify_stars, refine_stars)))
+    p = cam0.pixel_to_normalized(xy[:n_p]) * f0 if camera is not None else xy[:n_p] - [cam0.cx, cam0.cy]
     combos = breadth_first_combinations(n_pat)
     n_verify = min(n, verify_stars)
     radius = match_radius * max(width, height)
@@ -200,9 +201,11 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                   ratio_tolerance if ratio_tolerance is not None else 0.006)]
     else:
         tiers = [(0.008, 0.002), (0.015 if free_fov else 0.010, 0.008 if camera is None else 0.004)]
-    x_lo, y_lo = cam0.pixel_to_normalized(np.array([[-0.5, -0.5]]))[0] * f0
-    x_hi, y_hi = cam0.pixel_to_normalized(np.array([[width - 0.5, height - 0.5]]))[0] * f0
-    frame = np.array([x_lo, x_hi, y_lo, y_hi])
+    # The frame's extent in p (undistorted at its corners: a bounding box, good enough for
+    # deciding which catalogue stars to expect).
+    corners = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [-0.5, height - 0.5], [width - 0.5, height - 0.5]])
+    c_p = cam0.pixel_to_normalized(corners) * f0 if camera is not None else corners - [cam0.cx, cam0.cy]
+    frame = np.array([c_p[:, 0].min(), c_p[:, 0].max(), c_p[:, 1].min(), c_p[:, 1].max()])
     arrays = db.search_arrays()
     result_A = np.empty((3, 3))
     stats = np.empty(6)
