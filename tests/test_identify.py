@@ -181,3 +181,14 @@ def test_corrupt_database_raises_one_line(small_db, tmp_path, damage):
         PatternDatabase.load(bad)
     assert "\n" not in str(info.value)
     assert str(bad) in str(info.value)
+
+
+def test_loaded_database_pickles_as_its_path(small_db):
+    import pickle
+
+    db, path = small_db
+    loaded = PatternDatabase.load(path)
+    blob = pickle.dumps(loaded)
+    assert len(blob) < 1000  # the path, not 10+ MB of arrays (dask / multiprocessing)
+    again = pickle.loads(blob)
+    assert np.array_equal(again.pattern_stars, db.pattern_stars)

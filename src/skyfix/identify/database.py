@@ -100,6 +100,13 @@ class PatternDatabase:
     def __len__(self) -> int:
         return len(self.pattern_stars)
 
+    def __reduce__(self):
+        # A loaded database travels between processes (dask, multiprocessing) as its path.
+        path = self.__dict__.get("_path")
+        if path is not None:
+            return (PatternDatabase.load, (path,))
+        return super().__reduce__()
+
     def search_arrays(self) -> tuple[np.ndarray, ...]:
         """Read-only plain-ndarray views (no copies) of the arrays the compiled search reads, in
         its order (read-only whether memory-mapped or built in memory: one compiled signature)."""
@@ -203,7 +210,7 @@ class PatternDatabase:
     def save(self, path: str | Path) -> None:
         """Write an uncompressed ``.npz`` (atomically: a temporary file, then rename)."""
         path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # concurrent builders don't collide
         with open(tmp, "wb") as fh:
             np.savez(fh, meta=np.array(json.dumps(self.meta)),
                      **{k: np.ascontiguousarray(getattr(self, k)) for k in _ARRAYS})
@@ -233,6 +240,7 @@ class PatternDatabase:
         if missing:
             raise DatabaseError(f"pattern database {path} lacks {', '.join(missing)}")
         db = cls(**{k: arrays[k] for k in _ARRAYS}, meta=meta)
+        db.__dict__["_path"] = path.resolve()
         p, s = len(db.pattern_stars), len(db.star_ids)
         if (db.pattern_stars.shape != (p, 4) or db.pattern_ratios.shape != (p, 5)
                 or len(db.pattern_largest) != p or len(db.key_start) != len(db.key_codes) + 1
