@@ -94,3 +94,18 @@ def test_extractor_centroid_choice():
     assert rms["gaussian"] < 0.6 * rms["com"] and rms["iwcog"] < 0.6 * rms["com"]
     with pytest.raises(ValueError):
         extract_centroids(img, centroid="nope")
+
+
+def test_measure_psf_width_and_ellipticity():
+    from skyfix.detect import measure_psf
+
+    xy = np.array([[30.2, 30.7], [80.6, 60.1]])
+    img = render_stars((100, 120), xy[:1], [30000], sigma=1.5, noise=2.0)
+    img += render_stars((100, 120), xy[1:], [30000], sigma=2.0, sigma_y=1.0, noise=0.0, background=0.0)
+    psf = measure_psf(img, xy + 0.4)
+    assert psf["ok"].all()
+    assert psf["fwhm"][0] == pytest.approx(2.3548 * 1.5, rel=0.03)
+    assert psf["ellipticity"][0] < 0.03
+    assert psf["sigma_x"][1] == pytest.approx(2.0, rel=0.03)
+    assert psf["sigma_y"][1] == pytest.approx(1.0, rel=0.05)
+    assert psf["ellipticity"][1] == pytest.approx(0.5, abs=0.03)

@@ -11,7 +11,13 @@ from skyfix.detect.calibrate_frames import (
     master_flat,
     save_calibration,
 )
-from skyfix.detect.centroid import CENTROIDERS, centroid_windows, cramer_rao_centroid, refine_centroids
+from skyfix.detect.centroid import (
+    CENTROIDERS,
+    centroid_windows,
+    cramer_rao_centroid,
+    measure_psf,
+    refine_centroids,
+)
 from skyfix.detect.centroids import Centroids
 from skyfix.detect.extract import METHODS, extract_centroids, saturation_level
 
@@ -25,6 +31,7 @@ __all__ = [
     "dead_pixel_map",
     "hot_pixel_map",
     "load_calibration",
+    "measure_psf",
     "master_dark",
     "master_flat",
     "save_calibration",

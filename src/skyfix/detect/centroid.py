@@ -33,7 +33,7 @@ from numba import njit
 from skyfix.detect.background import _robust_level_noise
 from skyfix.detect.centroids import Centroids
 
-__all__ = ["CENTROIDERS", "centroid_windows", "refine_centroids", "cramer_rao_centroid"]
+__all__ = ["CENTROIDERS", "centroid_windows", "refine_centroids", "cramer_rao_centroid", "measure_psf"]
 
 CENTROIDERS = ("com", "iwcog", "gaussian")
 _CODES = {name: i for i, name in enumerate(CENTROIDERS)}
@@ -117,6 +117,37 @@ def refine_centroids(
                    np.broadcast_to(noise, n).astype(np.float64),
                    np.broadcast_to(half_size, n).astype(np.int64), _method_code(method), float(sigma),
                    -1.0 if psf_sigma is None else float(psf_sigma), _inv_gain(gain))
+
+
+def measure_psf(image: np.ndarray, xy: np.ndarray, half_size: int = 8) -> dict[str, np.ndarray]:
+    """PSF width and shape at given star positions from 2-D Gaussian fits.
+
+    Parameters
+    ----------
+    image : (H, W) array
+    xy : (N, 2) array
+        Star positions (e.g. ``extract_centroids(image).xy``), pixels.
+    half_size : int
+        Fit window half size, pixels.
+
+    Returns
+    -------
+    dict of (N,) arrays
+        ``x``, ``y`` (fitted centre), ``sigma_x``, ``sigma_y`` (Gaussian σ along the pixel axes,
+        pixels), ``fwhm`` (``2.3548·√(σx·σy)``, pixels), ``ellipticity`` (``1 − σmin/σmax``) and
+        ``ok``. Thesis 000 §5.5 and thesis 003 measure the same across the field; the fit's axes
+        are the pixel axes, so a PSF elongated at 45° shows as round but wide.
+    """
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    xyv = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    out = _windows(img, xyv[:, 0].copy(), xyv[:, 1].copy(), int(max(2, half_size)), _CODES["gaussian"], 3.0,
+                   -1.0, 0.0)
+    sx, sy, ok = out[:, 8], out[:, 9], out[:, 10] > 0
+    big, small = np.maximum(sx, sy), np.maximum(np.minimum(sx, sy), 1e-12)
+    x, y = np.where(ok, out[:, 0], np.nan), np.where(ok, out[:, 1], np.nan)
+    return {"x": x, "y": y, "sigma_x": np.where(ok, sx, np.nan), "sigma_y": np.where(ok, sy, np.nan),
+            "fwhm": np.where(ok, 2.0 * math.sqrt(2.0 * math.log(2.0)) * np.sqrt(sx * sy), np.nan),
+            "ellipticity": np.where(ok, 1.0 - small / big, np.nan), "ok": ok}
 
 
 def cramer_rao_centroid(sigma_psf_px: float, flux_e: float, background_e: float = 0.0,
