@@ -5,8 +5,9 @@ Pixel values keep the file's own units (ADU): an 8-bit file gives 0–255, a 16-
 ITU-R BT.601 weights (0.299 R + 0.587 G + 0.114 B), which sum to one, so a saturated
 colour pixel stays at full scale.
 
-Non-finite pixels (NaN, ±Inf: masked or dead pixels in FITS) are replaced by the median of
-the finite pixels, which the background estimate then treats as plain sky; a frame in which
+Pixels are returned as stored: no EXIF rotation is applied (a star camera's rows are its
+readout rows). Non-finite pixels (NaN, ±Inf: masked or dead pixels in FITS) are replaced by
+the median of the finite pixels, which the background estimate then treats as plain sky; a frame in which
 more than half of the pixels are non-finite is rejected (it carries no usable sky). Every
 problem with the input raises :class:`skyfix.errors.ImageReadError` with a one-line message.
 """
@@ -61,11 +62,14 @@ def read_image(path: str | os.PathLike | np.ndarray) -> np.ndarray:
         raise ImageReadError(f"{p}: no such file")
     if p.is_dir():
         raise ImageReadError(f"{p}: is a directory, not an image")
-    if p.stat().st_size == 0:
-        raise ImageReadError(f"{p}: empty file")
+    try:
+        if p.stat().st_size == 0:
+            raise ImageReadError(f"{p}: empty file")
+        with open(p, "rb") as fh:
+            magic = fh.read(8)
+    except OSError as exc:
+        raise ImageReadError(f"{p}: cannot read ({exc.strerror or type(exc).__name__})") from None
     name = p.name.lower()
-    with open(p, "rb") as fh:
-        magic = fh.read(8)
     if name.endswith(_FITS_SUFFIXES) or magic.startswith(b"SIMPLE  "):
         data = _read_fits(p)
     elif name.endswith(_TIFF_SUFFIXES) or magic[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
