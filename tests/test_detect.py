@@ -261,3 +261,13 @@ def test_deblend_touching_stars(sep):
     # a single bright star (any noise) is never split
     single = render_stars((100, 100), [(50.3, 49.6)], [2e5], sigma=1.5, noise=3.0)
     assert len(extract_centroids(single)) == 1
+
+
+@pytest.mark.parametrize("psf_sigma", [0.35, 0.5])
+def test_sharp_optics_stars_are_not_hot_pixels(psf_sigma):
+    """Undersampled stars (most light in one pixel) survive the hot-pixel test, even centred."""
+    xy = np.array([[30.0, 30.0], [45.5, 20.2]])
+    img = render_stars((64, 64), xy, [5000, 5000], sigma=psf_sigma, noise=2.0)
+    c = extract_centroids(img)
+    d, _ = nearest(c, xy)
+    assert len(c) == 2 and d.max() < 0.25
