@@ -131,7 +131,9 @@ def numeric_crb(sigma_px: float, flux_e: float, sky_e: float = 0.0, read_e: floa
     minus = expected_stamps(np.array([x0 - step]), np.array([y0]), flux_e, sigma_px, size)[0]
     mu = expected_stamps(np.array([x0]), np.array([y0]), flux_e, sigma_px, size)[0]
     d = (plus - minus) / (2 * step)
-    fisher = float(np.sum(d * d / (mu + sky_e + read_e**2)))
+    var = mu + sky_e + read_e**2
+    use = var > 0  # photon-limited: far pixels hold nothing and tell nothing
+    fisher = float(np.sum(d[use] ** 2 / var[use]))
     return 1.0 / math.sqrt(fisher)
 
 

@@ -155,30 +155,37 @@ def fit_elliptical_gaussians(stamps: np.ndarray, x0: np.ndarray, y0: np.ndarray,
     p[:, 3] = p[:, 5] = sigma0**2
     lam = np.full(n, 1e-2)
 
-    def chi2(pp: np.ndarray) -> np.ndarray:
-        return np.sum((data - _elliptical_model(pp, k, sub).reshape(n, -1)) ** 2, axis=1)
+    def chi2(pp: np.ndarray, d: np.ndarray) -> np.ndarray:
+        return np.sum((d - _elliptical_model(pp, k, sub).reshape(len(pp), -1)) ** 2, axis=1)
 
-    cur = chi2(p)
-    jac = np.empty((n, k * k, 7))
+    cur = chi2(p, data)
+    active = np.ones(n, bool)  # stars still improving; converged ones are not recomputed
     for _ in range(n_iter):
-        m0 = _elliptical_model(p, k, sub).reshape(n, -1)
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        pa, da, m = p[idx], data[idx], idx.size
+        m0 = _elliptical_model(pa, k, sub).reshape(m, -1)
+        jac = np.empty((m, k * k, 7))
         for j in range(7):
-            h = 1e-4 * np.maximum(np.abs(p[:, 0]), 1.0) if j == 0 else np.full(n, 1e-3 if j == 6 else 1e-4)
-            q = p.copy()
+            h = 1e-4 * np.maximum(np.abs(pa[:, 0]), 1.0) if j == 0 else np.full(m, 1e-3 if j == 6 else 1e-4)
+            q = pa.copy()
             q[:, j] += h
-            jac[:, :, j] = (_elliptical_model(q, k, sub).reshape(n, -1) - m0) / h[:, None]
+            jac[:, :, j] = (_elliptical_model(q, k, sub).reshape(m, -1) - m0) / h[:, None]
         jtj = np.einsum("nki,nkj->nij", jac, jac)
-        jtr = np.einsum("nki,nk->ni", jac, data - m0)
+        jtr = np.einsum("nki,nk->ni", jac, da - m0)
         diag = np.diagonal(jtj, axis1=1, axis2=2)
-        aug = jtj + lam[:, None, None] * np.eye(7)[None] * np.maximum(diag, 1e-12)[:, None, :]
-        q = p + np.linalg.solve(aug, jtr[..., None])[..., 0]
+        aug = jtj + lam[idx, None, None] * np.eye(7)[None] * np.maximum(diag, 1e-12)[:, None, :]
+        q = pa + np.linalg.solve(aug, jtr[..., None])[..., 0]
         valid = ((q[:, 0] > 0) & (q[:, 3] > 0.01) & (q[:, 5] > 0.01)
                  & (q[:, 3] * q[:, 5] - q[:, 4] ** 2 > 1e-4))
-        new = np.where(valid, chi2(np.where(valid[:, None], q, p)), np.inf)
-        better = new < cur
-        p = np.where(better[:, None], q, p)
-        cur = np.where(better, new, cur)
-        lam = np.clip(np.where(better, lam * 0.3, lam * 10.0), 1e-7, 1e7)
+        new = np.where(valid, chi2(np.where(valid[:, None], q, pa), da), np.inf)
+        better = new < cur[idx]
+        gain = np.where(better, (cur[idx] - new) / np.maximum(cur[idx], 1e-300), 0.0)
+        p[idx] = np.where(better[:, None], q, pa)
+        cur[idx] = np.where(better, new, cur[idx])
+        lam[idx] = np.clip(np.where(better, lam[idx] * 0.3, lam[idx] * 10.0), 1e-7, 1e7)
+        active[idx] = ~((better & (gain < 1e-9)) | (lam[idx] >= 1e7))
     box = 1.0 / (12.0 * sub * sub)
     cov = np.stack([np.stack([p[:, 3] - box, p[:, 4]], -1), np.stack([p[:, 4], p[:, 5] - box], -1)], -2)
     bad = ~np.all(np.isfinite(p), axis=1)
