@@ -192,3 +192,13 @@ def test_loaded_database_pickles_as_its_path(small_db):
     assert len(blob) < 1000  # the path, not 10+ MB of arrays (dask / multiprocessing)
     again = pickle.loads(blob)
     assert np.array_equal(again.pattern_stars, db.pattern_stars)
+
+
+def test_false_match_probability_is_the_binomial_tail():
+    from scipy.stats import binom
+
+    from skyfix.identify.verify import log_binom_sf
+
+    for k, n, p in [(3, 10, 0.01), (0, 5, 0.2), (12, 40, 0.03), (40, 40, 0.5), (7, 60, 1e-4)]:
+        assert np.exp(log_binom_sf(k, n, p)) == pytest.approx(binom.sf(k - 1, n, p), rel=1e-9)
+    assert log_binom_sf(5, 4, 0.1) == -np.inf

@@ -23,7 +23,8 @@ import numpy as np
 
 from skyfix.camera import Camera
 from skyfix.identify.database import PatternDatabase, _readonly, default_database
-from skyfix.identify.search import breadth_first_combinations, refine, search
+from skyfix.identify.refine import refine
+from skyfix.identify.search import breadth_first_combinations, search
 
 __all__ = ["Identification", "identify"]
 

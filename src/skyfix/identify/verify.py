@@ -1,137 +1,262 @@
-"""Verification of a candidate attitude, and the refit of attitude and camera on all matches.
+"""Compiled verification: which catalogue stars a candidate attitude puts in the frame, how
+many of them land on centroids, and how likely that is by chance.
 
 A candidate from a 4-star pattern is checked by projecting the brightest catalogue stars in
-the field into the frame and matching them to the centroids within a radius. The chance that a
-*wrong* attitude matches ``k`` of ``n`` catalogue stars is binomial: each lands within the
-radius of some centroid with probability ``p`` = (area of the match circles) / (frame area).
-The four pattern stars are matched by construction, so they are left out of both counts.
+the field into the frame and matching them to the brightest centroids within a radius. A
+*wrong* attitude matches each catalogue star by chance with probability ``p`` = (area of the
+match circles) / (frame area), so the number of chance matches is binomial; the pattern's own
+four stars, matched by construction, are left out of both counts.
+
+All positions are in the undistorted pixel-offset space ``p = x_n · f`` of the search (see
+:mod:`skyfix.identify.search`), so a calibrated camera's distortion never enters the kernels.
 """
 
 from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
-from scipy.spatial import cKDTree
-from scipy.special import bdtrc
 
-from skyfix.attitude import svd_attitude
-from skyfix.camera import Camera
-
-__all__ = ["stars_in_view", "match_to_centroids", "prob_false_match", "refit_camera_attitude"]
+__all__ = ["log_binom_sf", "star_limit", "stars_in_view", "gather_stars", "project_stars", "match_greedy",
+           "grid_index", "match_grid", "verify_attitude"]
 
 
-def stars_in_view(star_vectors: np.ndarray, A_icrs_to_cam: np.ndarray, camera: Camera,
-                  n_max: int, margin_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """The ``n_max`` brightest catalogue stars whose projection falls inside the frame.
+@numba.njit(cache=True)
+def log_binom_sf(k: int, n: int, p: float) -> float:
+    """log P(X >= k) for X ~ Binomial(n, p)."""
+    if k <= 0:
+        return 0.0
+    if k > n:
+        return -np.inf
+    p = min(max(p, 1e-300), 1.0 - 1e-16)
+    lp, lq = np.log(p), np.log1p(-p)
+    base = math.lgamma(n + 1.0)
+    best = -np.inf
+    terms = np.empty(n - k + 1)
+    for j in range(k, n + 1):
+        t = base - math.lgamma(j + 1.0) - math.lgamma(n - j + 1.0) + j * lp + (n - j) * lq
+        terms[j - k] = t
+        best = max(best, t)
+    acc = 0.0
+    for t in terms:
+        acc += np.exp(t - best)
+    return best + np.log(acc)
 
-    Parameters
-    ----------
-    star_vectors : (S, 3) ICRS unit vectors, brightest first.
-    A_icrs_to_cam : (3, 3) attitude.
-    camera : Camera
-    n_max : int
-    margin_px : float
-        Keep only stars at least this far inside the frame edge.
 
-    Returns
-    -------
-    index : (n,) indices into ``star_vectors``, brightest first.
-    xy : (n, 2) their pixel positions.
+@numba.njit(cache=True)
+def star_limit(n_stars, n_img, frame, f, depth):
+    """Catalogue depth (a brightness rank) with ~``depth``·``n_img`` stars in the frame on average."""
+    frame_sr = (frame[1] - frame[0]) * (frame[3] - frame[2]) / (f * f)
+    return min(n_stars, int(depth * n_img * 4.0 * np.pi / frame_sr) + 1)
+
+
+@numba.njit(cache=True)
+def stars_in_view(A, f, k1, frame, limit, star_vectors, cell_centres, cell_start, cell_stars,
+                   cell_radius, out_idx, out_x, out_y):
+    """Catalogue stars (index < ``limit``) that project into the frame, brightest first.
+
+    Projection in the undistorted offset space of ``p``: ``x = f·x_n·(1 + k1·r²)``.
+    Returns the count written to ``out_*``.
     """
-    half_diag = math.atan(math.hypot(camera.width, camera.height) / 2.0 / min(camera.fx, camera.fy))
-    cos_cone = math.cos(min(half_diag * 1.1 + 0.01, math.pi / 2))
-    near = np.flatnonzero(star_vectors @ A_icrs_to_cam[2] > cos_cone)
-    xy, front = camera.ray_to_pixel(star_vectors[near] @ A_icrs_to_cam.T)
-    inside = np.flatnonzero(front & camera.in_frame(xy, margin=margin_px))[:n_max]
-    return near[inside], xy[inside]
+    x_lo, x_hi, y_lo, y_hi = frame[0], frame[1], frame[2], frame[3]
+    ext = np.sqrt(max(x_lo * x_lo, x_hi * x_hi) + max(y_lo * y_lo, y_hi * y_hi))
+    half_diag = np.arctan(ext / f) * (1.0 + 2.0 * abs(k1)) + 0.01
+    cos_cell = np.cos(min(half_diag + cell_radius, np.pi))
+    n = 0
+    for cell in range(len(cell_centres)):
+        cc = cell_centres[cell]
+        if cc[0] * A[2, 0] + cc[1] * A[2, 1] + cc[2] * A[2, 2] < cos_cell:
+            continue
+        for t in range(cell_start[cell], cell_start[cell + 1]):
+            s = cell_stars[t]
+            if s >= limit:
+                break  # cells list their stars brightest first
+            v = star_vectors[s]
+            bz = A[2, 0] * v[0] + A[2, 1] * v[1] + A[2, 2] * v[2]
+            if bz <= 1e-6:
+                continue
+            xn = (A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2]) / bz
+            yn = (A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2]) / bz
+            radial = f * (1.0 + k1 * (xn * xn + yn * yn))
+            x = xn * radial
+            y = yn * radial
+            if x < x_lo or x > x_hi or y < y_lo or y > y_hi or n >= len(out_idx):
+                continue
+            out_idx[n] = s
+            out_x[n] = x
+            out_y[n] = y
+            n += 1
+    order = np.argsort(out_idx[:n])
+    out_idx[:n] = out_idx[:n][order]
+    out_x[:n] = out_x[:n][order]
+    out_y[:n] = out_y[:n][order]
+    return n
 
 
-def match_to_centroids(xy_catalog: np.ndarray, image_tree: cKDTree,
-                       radius_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One-to-one nearest matches of projected catalogue stars to centroids within a radius.
-
-    Returns
-    -------
-    cat_index, image_index : (k,) matched pairs (indices into ``xy_catalog`` and the tree's data).
-    distance : (k,) pixels.
-    """
-    if len(xy_catalog) == 0:
-        empty = np.zeros(0, np.int64)
-        return empty, empty, np.zeros(0)
-    dist, img = image_tree.query(xy_catalog, k=1, distance_upper_bound=radius_px)
-    ok = np.flatnonzero(np.isfinite(dist))
-    # Where several catalogue stars claim one centroid, the nearest keeps it.
-    order = ok[np.lexsort((dist[ok], img[ok]))]
-    first = np.ones(len(order), bool)
-    first[1:] = img[order][1:] != img[order][:-1]
-    cat = np.sort(order[first])
-    return cat, img[cat].astype(np.int64), dist[cat]
-
-
-def prob_false_match(n_matched: int, n_catalog: int, n_image: int, radius_px: float,
-                     width: int, height: int, n_forced: int = 4) -> float:
-    """Probability that a wrong attitude matches at least ``n_matched`` of ``n_catalog`` stars.
-
-    Parameters
-    ----------
-    n_matched, n_catalog : int
-        Matched and projected catalogue stars.
-    n_image : int
-        Centroids they were matched against.
-    radius_px : float
-        Match radius, pixels.
-    width, height : int
-        Frame size, pixels.
-    n_forced : int
-        Stars matched by construction (the pattern), left out of both counts.
-    """
-    p = min(1.0, n_image * math.pi * radius_px**2 / (width * height))
-    k = n_matched - n_forced
-    n = n_catalog - n_forced
-    if k <= 0 or n <= 0:
-        return 1.0
-    return float(bdtrc(k - 1, n, p))  # P(X >= k), X ~ Binomial(n, p)
+@numba.njit(cache=True)
+def gather_stars(z, cone, limit, star_vectors, cell_centres, cell_start, cell_stars, cell_radius):
+    """Indices (sorted: brightest first) of stars ``< limit`` within ``cone`` radians of ``z``."""
+    cos_cell = np.cos(min(cone + cell_radius, np.pi))
+    cos_cone = np.cos(min(cone, np.pi))
+    out = np.empty(min(limit, len(star_vectors)), dtype=np.int64)
+    n = 0
+    for cell in range(len(cell_centres)):
+        cc = cell_centres[cell]
+        if cc[0] * z[0] + cc[1] * z[1] + cc[2] * z[2] < cos_cell:
+            continue
+        for t in range(cell_start[cell], cell_start[cell + 1]):
+            s = cell_stars[t]
+            if s >= limit:
+                break
+            v = star_vectors[s]
+            if v[0] * z[0] + v[1] * z[1] + v[2] * z[2] >= cos_cone:
+                out[n] = s
+                n += 1
+    return np.sort(out[:n])
 
 
-def refit_camera_attitude(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, *,
-                          fit_focal: bool, fit_k1: bool, iterations: int = 4,
-                          ) -> tuple[np.ndarray, Camera]:
-    """Attitude (SVD) and, optionally, focal length and radial distortion k1 on matched stars.
-
-    Alternates a Wahba fit at fixed camera with a linear least-squares fit of ``f`` and
-    ``f·k1`` at fixed attitude (``u − cx = f·x_n·(1 + k1·r²)``, same for ``v``; principal
-    point and the other coefficients kept).
-
-    Parameters
-    ----------
-    xy : (M, 2) centroids, pixels.
-    r_icrs : (M, 3) matched catalogue unit vectors.
-    camera : Camera — starting camera.
-    fit_focal, fit_k1 : bool — which parameters to free.
-
-    Returns
-    -------
-    A_icrs_to_cam : (3, 3), camera : Camera (refitted).
-    """
-    xy = np.asarray(xy, np.float64)
-    A = svd_attitude(camera.pixel_to_ray(xy), r_icrs)
-    if not fit_focal:
-        return A, camera
-    du, dv = xy[:, 0] - camera.cx, xy[:, 1] - camera.cy
-    rhs = np.concatenate([du, dv])
-    for _ in range(iterations):
-        b = r_icrs @ A.T
-        xn, yn = b[:, 0] / b[:, 2], b[:, 1] / b[:, 2]
-        r2 = xn * xn + yn * yn
-        cols = [np.concatenate([xn, yn])]
-        if fit_k1:
-            cols.append(np.concatenate([xn * r2, yn * r2]))
-        sol, *_ = np.linalg.lstsq(np.stack(cols, axis=1), rhs, rcond=None)
-        f = float(sol[0])
-        k1 = float(np.clip(sol[1] / f, -1.0, 1.0)) if fit_k1 else camera.k1
-        if not (f > 0 and math.isfinite(f)):
+@numba.njit(cache=True)
+def project_stars(near, A, f, k1, frame, n_max, star_vectors, out_idx, out_x, out_y):
+    """Project stars ``near`` (brightest first); keep the first ``n_max`` in the frame."""
+    n = 0
+    for s in near:
+        v = star_vectors[s]
+        bz = A[2, 0] * v[0] + A[2, 1] * v[1] + A[2, 2] * v[2]
+        if bz <= 1e-6:
+            continue
+        xn = (A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2]) / bz
+        yn = (A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2]) / bz
+        radial = f * (1.0 + k1 * (xn * xn + yn * yn))
+        x = xn * radial
+        y = yn * radial
+        if x < frame[0] or x > frame[1] or y < frame[2] or y > frame[3]:
+            continue
+        out_idx[n] = s
+        out_x[n] = x
+        out_y[n] = y
+        n += 1
+        if n >= n_max or n >= len(out_idx):
             break
-        camera = camera.replace(fx=f, fy=f, k1=k1)
-        A = svd_attitude(camera.pixel_to_ray(xy), r_icrs)
-    return A, camera
+    return n
+
+
+@numba.njit(cache=True)
+def match_greedy(view_x, view_y, n_cat, p, n_img, radius_px, used, match_img):
+    """Greedy one-to-one matching, brightest catalogue star first, nearest free centroid within
+    the radius. ``match_img[j]`` = centroid of catalogue star ``j`` or -1; returns the count."""
+    used[:n_img] = False
+    r2 = radius_px * radius_px
+    n_match = 0
+    for j in range(n_cat):
+        best_d = r2
+        best_i = -1
+        for i in range(n_img):
+            if used[i]:
+                continue
+            d = (p[i, 0] - view_x[j]) ** 2 + (p[i, 1] - view_y[j]) ** 2
+            if d <= best_d:
+                best_d = d
+                best_i = i
+        match_img[j] = best_i
+        if best_i >= 0:
+            used[best_i] = True
+            n_match += 1
+    return n_match
+
+
+@numba.njit(cache=True)
+def grid_index(p, n_img, frame, cell):
+    """Bucket the first ``n_img`` points of ``p`` into square cells of side ``cell`` over the
+    frame: returns (nx, ny, start (nx·ny + 1,), items) for :func:`match_grid`."""
+    nx = max(1, int((frame[1] - frame[0]) / cell) + 1)
+    ny = max(1, int((frame[3] - frame[2]) / cell) + 1)
+    ids = np.empty(n_img, dtype=np.int64)
+    count = np.zeros(nx * ny + 1, dtype=np.int64)
+    for i in range(n_img):
+        gx = min(nx - 1, max(0, int((p[i, 0] - frame[0]) / cell)))
+        gy = min(ny - 1, max(0, int((p[i, 1] - frame[2]) / cell)))
+        ids[i] = gy * nx + gx
+        count[ids[i] + 1] += 1
+    start = np.cumsum(count)
+    fill = start[:-1].copy()
+    items = np.empty(n_img, dtype=np.int64)
+    for i in range(n_img):  # in index order, so each cell lists the brightest first
+        items[fill[ids[i]]] = i
+        fill[ids[i]] += 1
+    return nx, ny, start, items
+
+
+@numba.njit(cache=True)
+def match_grid(view_x, view_y, n_cat, p, n_use, frame, cell, nx, ny, start, items, radius_px, used,
+                match_img):
+    """:func:`match_greedy` against centroids ``< n_use`` bucketed by :func:`grid_index`
+    (``radius_px <= cell``)."""
+    used[:] = False
+    r2 = radius_px * radius_px
+    n_match = 0
+    for j in range(n_cat):
+        gx = int((view_x[j] - frame[0]) / cell)
+        gy = int((view_y[j] - frame[2]) / cell)
+        best_d = r2
+        best_i = -1
+        for yy in range(max(0, gy - 1), min(ny, gy + 2)):
+            for xx in range(max(0, gx - 1), min(nx, gx + 2)):
+                cid = yy * nx + xx
+                for t in range(start[cid], start[cid + 1]):
+                    i = items[t]
+                    if i >= n_use:
+                        break  # cells list their centroids brightest first
+                    if used[i]:
+                        continue
+                    d = (p[i, 0] - view_x[j]) ** 2 + (p[i, 1] - view_y[j]) ** 2
+                    if d <= best_d:
+                        best_d = d
+                        best_i = i
+        match_img[j] = best_i
+        if best_i >= 0:
+            used[best_i] = True
+            n_match += 1
+    return n_match
+
+
+@numba.njit(cache=True)
+def verify_attitude(A, f, frame, n_cat_max, n_img, p, radius_px, pattern, combo, star_vectors, cell_centres,
+            cell_start, cell_stars, cell_radius, view_idx, view_x, view_y, used, match_img):
+    """log P(a wrong attitude matches as well) and the counts, for the ``n_cat_max`` brightest
+    catalogue stars in view matched to the ``n_img`` brightest centroids.
+
+    The pattern's own stars are not counted. Each catalogue star lands by chance within ``r`` of
+    some centroid with ``p = n_img·π·r² / frame area``; the matches are counted within the full
+    radius and within a half and a quarter of it (a clean frame earns the tighter, more telling
+    test; a distorted one still passes with the full radius), and the best of the three binomial
+    tails, times 3 for the choice, is returned with (matches within the radius, catalogue stars).
+    """
+    limit = star_limit(len(star_vectors), n_cat_max, frame, f, 2.0)
+    n_view = stars_in_view(A, f, 0.0, frame, limit, star_vectors, cell_centres, cell_start,
+                            cell_stars, cell_radius, view_idx, view_x, view_y)
+    n_cat = min(n_view, n_cat_max)
+    match_greedy(view_x, view_y, n_cat, p, n_img, radius_px, used, match_img)
+    k_full = k_half = k_quarter = 0
+    n = 0
+    r2 = radius_px * radius_px
+    for j in range(n_cat):
+        own = False
+        for a in range(4):
+            if view_idx[j] == pattern[a]:
+                own = True
+        if own:
+            continue
+        n += 1
+        i = match_img[j]
+        if i >= 0 and i != combo[0] and i != combo[1] and i != combo[2] and i != combo[3]:
+            k_full += 1
+            d2 = (p[i, 0] - view_x[j]) ** 2 + (p[i, 1] - view_y[j]) ** 2
+            if d2 <= r2 / 4.0:
+                k_half += 1
+            if d2 <= r2 / 16.0:
+                k_quarter += 1
+    p_full = min(1.0, n_img * np.pi * r2 / ((frame[1] - frame[0]) * (frame[3] - frame[2])))
+    logp = min(log_binom_sf(k_full, n, p_full), log_binom_sf(k_half, n, p_full / 4.0),
+               log_binom_sf(k_quarter, n, p_full / 16.0)) + np.log(3.0)
+    return logp, k_full, n

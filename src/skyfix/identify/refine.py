@@ -1,0 +1,225 @@
+"""Compiled refit of attitude, focal length and radial distortion on all matched stars.
+
+After a pattern is verified, :func:`refine` matches the brightest centroids to the catalogue
+stars in view, fits the attitude (and, without a calibrated camera, the focal length and
+radial distortion k1) by robust Gauss–Newton on the pixel residuals, and repeats with a
+match radius that shrinks to the fit's own scatter.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from skyfix.identify.verify import gather_stars, grid_index, match_grid, project_stars, star_limit
+
+__all__ = ["refine"]
+
+
+@numba.njit(cache=True)
+def _rotation(d):
+    """Rotation matrix of the rotation vector ``d`` (Rodrigues)."""
+    th2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+    if th2 < 1e-24:
+        a, b = 1.0, 0.5
+    else:
+        th = np.sqrt(th2)
+        a, b = np.sin(th) / th, (1.0 - np.cos(th)) / th2
+    x, y, z = d[0], d[1], d[2]
+    R = np.empty((3, 3))
+    R[0, 0] = 1.0 - b * (y * y + z * z)
+    R[1, 1] = 1.0 - b * (x * x + z * z)
+    R[2, 2] = 1.0 - b * (x * x + y * y)
+    R[0, 1], R[1, 0] = -a * z + b * x * y, a * z + b * x * y
+    R[0, 2], R[2, 0] = a * y + b * x * z, -a * y + b * x * z
+    R[1, 2], R[2, 1] = -a * x + b * y * z, a * x + b * y * z
+    return R
+
+
+@numba.njit(cache=True)
+def _solve_spd(N, g):
+    """Solve ``N x = g`` for a small symmetric positive-definite ``N`` (Cholesky, no LAPACK)."""
+    n = len(g)
+    L = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1):
+            acc = N[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            if i == j:
+                if acc <= 0.0:
+                    return np.zeros(n), False
+                L[i, i] = np.sqrt(acc)
+            else:
+                L[i, j] = acc / L[j, j]
+    y = np.empty(n)
+    for i in range(n):
+        acc = g[i]
+        for k in range(i):
+            acc -= L[i, k] * y[k]
+        y[i] = acc / L[i, i]
+    x = np.empty(n)
+    for i in range(n - 1, -1, -1):
+        acc = y[i]
+        for k in range(i + 1, n):
+            acc -= L[k, i] * x[k]
+        x[i] = acc / L[i, i]
+    return x, True
+
+
+@numba.njit(cache=True)
+def _residuals(A, f, k1, v, q, out):
+    """Pixel residuals (2M,) of projected catalogue vectors ``v`` against offsets ``q``."""
+    for t in range(len(v)):
+        bz = A[2, 0] * v[t, 0] + A[2, 1] * v[t, 1] + A[2, 2] * v[t, 2]
+        xn = (A[0, 0] * v[t, 0] + A[0, 1] * v[t, 1] + A[0, 2] * v[t, 2]) / bz
+        yn = (A[1, 0] * v[t, 0] + A[1, 1] * v[t, 1] + A[1, 2] * v[t, 2]) / bz
+        radial = f * (1.0 + k1 * (xn * xn + yn * yn))
+        out[2 * t] = xn * radial - q[t, 0]
+        out[2 * t + 1] = yn * radial - q[t, 1]
+
+
+@numba.njit(cache=True)
+def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
+    """Robust least-squares fit of attitude (3), focal length and k1 (``n_params`` = 3, 4 or 5)
+    to pixel offsets ``q`` of catalogue vectors ``v``.
+
+    Gauss–Newton on ``u = f·x_n·(1 + k1·r²)`` (and ``v``) with the analytic Jacobian of a small
+    rotation ``δ`` (``A ← R(δ) A``, ``∂b/∂δ = −[b×]``), and Cauchy weights
+    ``1 / (1 + (d / cauchy_px)²)`` so that a few wrong pairs pull little. Returns (A, f, k1).
+    """
+    m = len(v)
+    N = np.empty((n_params, n_params))
+    g = np.empty(n_params)
+    ju = np.empty(5)
+    jv = np.empty(5)
+    c2 = cauchy_px * cauchy_px
+    for _ in range(iterations):
+        N[:, :] = 0.0
+        g[:] = 0.0
+        for t in range(m):
+            bx = A[0, 0] * v[t, 0] + A[0, 1] * v[t, 1] + A[0, 2] * v[t, 2]
+            by = A[1, 0] * v[t, 0] + A[1, 1] * v[t, 1] + A[1, 2] * v[t, 2]
+            bz = A[2, 0] * v[t, 0] + A[2, 1] * v[t, 1] + A[2, 2] * v[t, 2]
+            xn, yn = bx / bz, by / bz
+            r2 = xn * xn + yn * yn
+            gr = 1.0 + k1 * r2
+            ru = f * xn * gr - q[t, 0]
+            rv = f * yn * gr - q[t, 1]
+            w = 1.0 / (1.0 + (ru * ru + rv * rv) / c2)
+            dudx, dudy = f * (gr + 2.0 * k1 * xn * xn), f * 2.0 * k1 * xn * yn
+            dvdx, dvdy = dudy, f * (gr + 2.0 * k1 * yn * yn)
+            # d(xn)/dδ and d(yn)/dδ from db/dδ = -[b×].
+            dx0, dx1, dx2 = (0.0 - xn * by) / bz, (bz + xn * bx) / bz, (-by) / bz
+            dy0, dy1, dy2 = (-bz - yn * by) / bz, (0.0 + yn * bx) / bz, bx / bz
+            ju[0], ju[1], ju[2] = dudx * dx0 + dudy * dy0, dudx * dx1 + dudy * dy1, dudx * dx2 + dudy * dy2
+            jv[0], jv[1], jv[2] = dvdx * dx0 + dvdy * dy0, dvdx * dx1 + dvdy * dy1, dvdx * dx2 + dvdy * dy2
+            ju[3], jv[3] = xn * gr, yn * gr
+            ju[4], jv[4] = f * xn * r2, f * yn * r2
+            for i in range(n_params):
+                g[i] += w * (ju[i] * ru + jv[i] * rv)
+                for j in range(i, n_params):
+                    N[i, j] += w * (ju[i] * ju[j] + jv[i] * jv[j])
+        for i in range(n_params):
+            for j in range(i):
+                N[i, j] = N[j, i]
+        step, ok = _solve_spd(N, -g)
+        if not ok:
+            break
+        A = _rotation(step[:3]) @ A
+        if n_params > 3:
+            f += step[3]
+        if n_params > 4:
+            k1 += step[4]
+        if abs(step[0]) + abs(step[1]) + abs(step[2]) < 1e-7 and (n_params < 4 or abs(step[3]) < 1e-6 * f):
+            break
+    return A, f, k1
+
+
+@numba.njit(cache=True)
+def refine(p, A, f, fit_focal, fit_k1_min, frame, n_first, n_img, radius_px, sigma_px, star_vectors,
+           cell_centres, cell_start, cell_stars, cell_radius, iterations, out_img, out_star, out_fk):
+    """Match all stars with the accepted attitude, refit, re-match (``iterations`` times).
+
+    Each pass matches the ``n_img`` brightest centroids (the first pass only ``n_first``) to
+    the catalogue stars in view (about twice as deep) and fits, by robust Gauss–Newton on the
+    pixel residuals, the attitude and, when ``fit_focal``, the focal length and — from the
+    second pass on, with at least ``fit_k1_min`` matches, and only if it reduces χ²
+    significantly — radial distortion k1 (``p = f·x_n·(1 + k1·r²)``). The match radius then
+    shrinks to 3.5 robust σ of the residuals (not below 1.5σ of the centroid noise).
+
+    Returns the number of matched pairs written to ``out_img`` (centroid) and ``out_star``
+    (catalogue index); ``A`` is updated in place; ``out_fk`` = (f, k1, rms px).
+    """
+    view_idx = np.empty(16384, dtype=np.int64)
+    view_x = np.empty(16384)
+    view_y = np.empty(16384)
+    used = np.zeros(n_img, dtype=np.bool_)
+    match_img = np.empty(16384, dtype=np.int64)
+    k1 = 0.0
+    radius = radius_px
+    n_pairs = 0
+    out_fk[0] = f
+    out_fk[1] = k1
+    out_fk[2] = radius_px
+    A_cur = A.copy()
+    use_k1 = -1  # undecided; decided once, on the first pass with all stars
+    nx, ny, gstart, gitems = grid_index(p, n_img, frame, radius_px)
+    # The catalogue stars that can come into view while the fit moves (once, brightest first).
+    ext = np.sqrt(max(frame[0] ** 2, frame[1] ** 2) + max(frame[2] ** 2, frame[3] ** 2))
+    limit = star_limit(len(star_vectors), n_img, frame, f, 3.0)
+    near = gather_stars(A[2], np.arctan(ext / f) * 1.1 + 0.02, limit, star_vectors, cell_centres,
+                   cell_start, cell_stars, cell_radius)
+    for it in range(iterations + 1):
+        # The first pass matches only the brightest stars, where chance neighbours are rare.
+        n_use = min(n_img, n_first) if it == 0 else n_img
+        n_cat = project_stars(near, A_cur, f, k1, frame, 2 * n_use, star_vectors, view_idx, view_x, view_y)
+        n_match = match_grid(view_x, view_y, n_cat, p, n_use, frame, radius_px, nx, ny, gstart,
+                              gitems, radius, used, match_img)
+        if n_match < 3:
+            return n_pairs
+        n_pairs = 0
+        for j in range(n_cat):
+            if match_img[j] >= 0:
+                out_img[n_pairs] = match_img[j]
+                out_star[n_pairs] = view_idx[j]
+                n_pairs += 1
+        if it == iterations:
+            break
+        v = np.empty((n_pairs, 3))
+        q = np.empty((n_pairs, 2))
+        for t in range(n_pairs):
+            v[t] = star_vectors[out_star[t]]
+            q[t] = p[out_img[t]]
+        res = np.empty(2 * n_pairs)
+        cauchy = radius / 1.5
+        if not fit_focal:
+            A_cur, f, k1 = _gauss_newton(A_cur, f, k1, v, q, 3, 8, cauchy)
+        else:
+            if use_k1 == 1:
+                A_cur, f, k1 = _gauss_newton(A_cur, f, k1, v, q, 5, 8, cauchy)
+                A4, f4 = A_cur, f
+            else:
+                A4, f4, _ = _gauss_newton(A_cur, f, 0.0, v, q, 4, 8, cauchy)
+                A_cur, f, k1 = A4, f4, 0.0
+            if use_k1 < 0 and it > 0 and n_pairs >= fit_k1_min:
+                use_k1 = 0
+                # Free k1 only when it explains the residuals significantly (Δχ² > 25 σ²):
+                # with stars in one part of the frame it trades off against pointing and scale.
+                A5, f5, k5 = _gauss_newton(A4, f4, 0.0, v, q, 5, 8, cauchy)
+                _residuals(A4, f4, 0.0, v, q, res)
+                chi4 = np.sum(res**2 / (1.0 + res**2 / cauchy**2))
+                _residuals(A5, f5, k5, v, q, res)
+                chi5 = np.sum(res**2 / (1.0 + res**2 / cauchy**2))
+                if chi4 - chi5 > 25.0 * chi5 / max(2 * n_pairs - 5, 1):
+                    A_cur, f, k1 = A5, f5, k5
+                    use_k1 = 1
+        _residuals(A_cur, f, k1, v, q, res)
+        dist = np.sqrt(res[0::2] ** 2 + res[1::2] ** 2)
+        sigma_est = np.median(dist) / 1.1774  # median of a 2-D Gaussian distance is 1.1774 σ
+        radius = min(radius_px, max(3.5 * sigma_est, 1.5 * sigma_px))
+        out_fk[2] = np.sqrt(np.mean(dist**2))
+    A[:, :] = A_cur
+    out_fk[0] = f
+    out_fk[1] = k1
+    return n_pairs
