@@ -35,18 +35,19 @@ def centroids(
     trials: int = typer.Option(2000, "--trials", min=10, help="Simulated stars per centroider, σ and SNR."),
     quick: bool = typer.Option(False, "--quick", help="Small grid and 200 trials (a smoke run, ~10 s)."),
     seed: int = typer.Option(0, "--seed", help="Random seed."),
-    methods: str = typer.Option(",".join(("com", "components", "iwcog", "gaussian")), "--methods",
-                                help="Comma-separated centroiders."),
+    methods: str = typer.Option("", "--methods", help="Comma-separated centroiders and extraction methods "
+                                "(default: com, iwcog, gaussian, components, threshold_hillclimb, "
+                                "region_grow)."),
 ) -> None:
     """Run each centroider on simulated stars over SNR × PSF σ × sub-pixel phase; error vs. bound."""
     from skyfix.analysis import centroid_study as cs
     from skyfix.detect import CENTROIDERS
 
-    names = tuple(m.strip() for m in methods.split(",") if m.strip())
-    bad = [m for m in names if m not in (*CENTROIDERS, cs.COMPONENTS)]
+    names = tuple(m.strip() for m in methods.split(",") if m.strip()) or cs.DEFAULT_CENTROIDERS
+    bad = [m for m in names if m not in (*CENTROIDERS, *cs.EXTRACTORS)]
     if bad or not names:
         _fail(f"unknown centroider {', '.join(bad) or '(none)'}; choose from "
-              f"{', '.join((*CENTROIDERS, cs.COMPONENTS))}")
+              f"{', '.join((*CENTROIDERS, *cs.EXTRACTORS))}")
     sigmas, snrs = cs.DEFAULT_SIGMA, cs.DEFAULT_SNR
     if quick:
         sigmas, snrs, trials = (0.5, 1.0, 2.0), (10.0, 50.0, 500.0), min(trials, 200)

@@ -29,13 +29,14 @@ from pathlib import Path
 import numpy as np
 from scipy.special import erf
 
-from skyfix.detect import centroid_windows, cramer_rao_centroid, refine_centroids
+from skyfix.detect import METHODS, centroid_windows, cramer_rao_centroid, refine_centroids
 
 __all__ = [
     "CellResult",
     "CentroidStudy",
     "COMPONENTS",
     "DEFAULT_CENTROIDERS",
+    "EXTRACTORS",
     "flux_for_snr",
     "numeric_crb",
     "expected_stamps",
@@ -50,7 +51,10 @@ __all__ = [
 
 #: The extractor's own centroid (connected components, CoM over the grown component).
 COMPONENTS = "components"
-DEFAULT_CENTROIDERS = ("com", COMPONENTS, "iwcog", "gaussian")
+#: Full-frame detection methods of :func:`skyfix.detect.extract_centroids`, each with its own CoM:
+#: ``components`` (default), ``threshold_hillclimb`` (thesis 000, 3×3 ROI), ``region_grow`` (thesis 004).
+EXTRACTORS = tuple(METHODS)
+DEFAULT_CENTROIDERS = ("com", "iwcog", "gaussian", *EXTRACTORS)
 DEFAULT_SNR = (10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0)
 DEFAULT_SIGMA = (0.5, 0.8, 1.0, 1.5, 2.0, 3.0)
 #: Sky electrons per pixel and read noise (electrons) of the study: a modest dark-sky frame.
@@ -160,10 +164,11 @@ def centroid_stamps(stamps: np.ndarray, method: str, sigma_px: float | None = No
     stamps : (N, k, k) array
         One star per stamp, ADU; k even.
     method : str
-        Centroider name (``"com"``, ``"iwcog"``, ``"gaussian"``), or ``"components"``: the
-        default extractor (:func:`skyfix.detect.extract_centroids`, 5σ detection, intensity-
-        weighted CoM over the grown component) run on a square mosaic of the stamps; a stamp
-        where it finds nothing gives NaN.
+        Centroider name (``"com"``, ``"iwcog"``, ``"gaussian"``), or a full-frame detection
+        method of :func:`skyfix.detect.extract_centroids` (:data:`EXTRACTORS`; ``"components"``
+        is the default extractor, 5σ, intensity-weighted CoM over the grown component) run on a
+        square mosaic of the stamps with its own centre of mass; a stamp where it finds nothing
+        gives NaN.
     sigma_px : float, optional
         PSF σ given to the centroider (IWCoG's weight width, the fit's first guess).
     gain : float, optional
@@ -181,8 +186,8 @@ def centroid_stamps(stamps: np.ndarray, method: str, sigma_px: float | None = No
     n, k, k2 = stamps.shape
     if k != k2 or k % 2:
         raise ValueError(f"stamps must be (N, k, k) with k even, got {stamps.shape}")
-    if method == COMPONENTS:
-        return _extract_stamps(stamps)
+    if method in EXTRACTORS:
+        return _extract_stamps(stamps, method)
     hs = k // 2
     mosaic = np.ascontiguousarray(stamps.reshape(n * k, k), dtype=np.float32)
     pred = np.column_stack([np.full(n, float(hs)), hs + k * np.arange(n, dtype=np.float64)])
@@ -198,8 +203,8 @@ def centroid_stamps(stamps: np.ndarray, method: str, sigma_px: float | None = No
     return x, y - k * np.arange(n)
 
 
-def _extract_stamps(stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Run the full-frame extractor on a square mosaic of the stamps; centroids per stamp."""
+def _extract_stamps(stamps: np.ndarray, method: str = "components") -> tuple[np.ndarray, np.ndarray]:
+    """Run a full-frame extraction method on a square mosaic of the stamps; centroids per stamp."""
     from skyfix.detect import extract_centroids
 
     n, k, _ = stamps.shape
@@ -209,7 +214,7 @@ def _extract_stamps(stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     tiles = np.concatenate([stamps, np.broadcast_to(filler, (side * side - n, k, k))])
     mosaic = tiles.reshape(side, side, k, k).transpose(0, 2, 1, 3).reshape(side * k, side * k)
     c = extract_centroids(mosaic.astype(np.float32), max_stars=4 * n, max_noise_ratio=None,
-                          max_diffuseness=None)
+                          max_diffuseness=None, method=method)
     x = np.full(n, np.nan)
     y = np.full(n, np.nan)
     ix, iy = np.floor(c.x / k).astype(np.int64), np.floor(c.y / k).astype(np.int64)
@@ -291,13 +296,15 @@ def s_curve(method: str, sigma_px: float, phases: np.ndarray | None = None, *, s
     flux = flux_for_snr(snr, sigma_px, sky_e, read_e)
     xt = hs + ph
     yt = np.full_like(xt, float(hs))
-    if method == COMPONENTS:
+    if method in EXTRACTORS:
         # the extractor measures its own noise: give it noisy stamps and average the repeats
         rng = np.random.default_rng(12345)
         xr, yr = np.tile(xt, repeats), np.tile(yt, repeats)
         stamps = render_stamps(xr, yr, flux, sigma_px, size, sky_e, read_e, rng)
         x, _ = centroid_stamps(stamps, method, sigma_px)
-        return ph, np.nanmean((x - xr).reshape(repeats, -1), axis=0)
+        err = (x - xr).reshape(repeats, -1)
+        n_ok = np.isfinite(err).sum(axis=0)
+        return ph, np.where(n_ok > 0, np.nansum(err, axis=0) / np.maximum(n_ok, 1), np.nan)
     stamps = expected_stamps(xt, yt, flux, sigma_px, size, sky_e)
     x, _ = centroid_stamps(stamps, method, sigma_px, sky=sky_e, noise=math.sqrt(sky_e + read_e**2))
     return ph, x - xt
@@ -322,8 +329,19 @@ class CentroidStudy:
         return out
 
     def to_json(self) -> dict:
-        return {"settings": self.settings, "cells": [asdict(c) for c in self.cells],
-                "s_curves": self.s_curves}
+        """Plain data for ``json.dumps`` (NaN → None, so the file is strict JSON)."""
+
+        def clean(v):
+            if isinstance(v, float) and not math.isfinite(v):
+                return None
+            if isinstance(v, dict):
+                return {k: clean(x) for k, x in v.items()}
+            if isinstance(v, list):
+                return [clean(x) for x in v]
+            return v
+
+        return clean({"settings": self.settings, "cells": [asdict(c) for c in self.cells],
+                      "s_curves": self.s_curves})
 
 
 def run_study(methods: Sequence[str] = DEFAULT_CENTROIDERS, sigmas: Sequence[float] = DEFAULT_SIGMA,
@@ -362,6 +380,12 @@ def run_study(methods: Sequence[str] = DEFAULT_CENTROIDERS, sigmas: Sequence[flo
     return CentroidStudy(cells=cells, s_curves=curves, settings=settings)
 
 
+def _peak(values: list) -> float:
+    """Largest |bias| of a curve, ignoring phases where the method found nothing (None/NaN)."""
+    a = np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+    return float(np.nanmax(np.abs(a))) if np.isfinite(a).any() else math.nan
+
+
 def _curve_key(snr: float, sigma: float) -> str:
     return f"snr{snr:g}_sigma{sigma:g}"
 
@@ -394,8 +418,9 @@ def _markdown(study: CentroidStudy, command: str) -> str:
               "|---|---|" + "---|" * len(sc)]
     for m in st["methods"]:
         for r in st["s_curve_snrs"]:
-            vals = [max(abs(v) for v in study.s_curves[m][_curve_key(r, s)]) for s in sc]
-            lines.append(f"| {m} | {r:g} | " + " | ".join(f"{v:.3f}" for v in vals) + " |")
+            vals = [_peak(study.s_curves[m][_curve_key(r, s)]) for s in sc]
+            lines.append(f"| {m} | {r:g} | " + " | ".join(f"{v:.3f}" if np.isfinite(v) else "—" for v in vals)
+                         + " |")
     lines.append("")
     return "\n".join(lines)
 
