@@ -16,7 +16,7 @@ import numpy as np
 from skyfix.attitude import attitude_covariance, solve_attitude
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
-from skyfix.geometry import angle_between, quaternion_from_attitude, radec_roll_from_attitude, vector_to_radec
+from skyfix.geometry import quaternion_from_attitude, radec_roll_from_attitude, vector_to_radec
 from skyfix.solution import Match, Solution
 
 __all__ = ["solve", "solve_centroids"]
@@ -35,7 +35,7 @@ def solve(
     database=None,
     epoch: float | None = None,
     attitude_method: str = "svd",
-    max_stars: int = 50,
+    max_stars: int = 200,
     name: str | None = None,
     **identify_options,
 ) -> Solution:
@@ -58,7 +58,8 @@ def solve(
     attitude_method : str
         Wahba solver for the final fit: ``svd``, ``quest``, ``esoq2``, ``q-method``, ``triad``.
     max_stars : int
-        Brightest centroids passed to identification.
+        Brightest centroids kept: identification tries patterns among the brightest and
+        verifies against all of them, and every verified star enters the attitude fit.
 
     Returns
     -------
@@ -139,36 +140,35 @@ def solve_centroids(
     return sol
 
 
-def _robust_fit(b: np.ndarray, r: np.ndarray, method: str, floor_rad: float) -> tuple[np.ndarray, np.ndarray]:
-    """Wahba fit that leaves out outliers (blends, mismatched faint stars).
+def _angles(b: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """Angles (rad) between observed rays ``b`` and catalogue vectors ``r`` rotated by ``A``."""
+    chord = np.sqrt(np.sum((b - r @ A.T) ** 2, axis=1))
+    return 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0))
 
-    Residual lengths of 2-D Gaussian errors are Rayleigh distributed (median 1.177 σ); stars
-    beyond 4 σ (P = 3e-4 by chance), σ floored at ``floor_rad``, are left out and the fit
-    repeated. At least half of the stars (and three) are always kept.
-    """
-    keep = np.ones(len(b), dtype=bool)
-    for _ in range(4):
-        A = solve_attitude(b[keep], r[keep], method=method)
-        resid = angle_between(b, r @ A.T)
-        sigma = max(float(np.median(resid[keep])) / 1.177, floor_rad)
-        new_keep = resid <= 4.0 * sigma
-        if new_keep.sum() < max(3, len(b) // 2):
-            new_keep = resid <= np.sort(resid)[max(3, len(b) // 2) - 1]
-        if np.array_equal(new_keep, keep):
-            break
-        keep = new_keep
-    return solve_attitude(b[keep], r[keep], method=method), keep
+
+def _inliers(resid: np.ndarray, floor_rad: float) -> np.ndarray:
+    """Stars to fit: residual lengths of 2-D Gaussian errors are Rayleigh distributed (median
+    1.177 σ); those beyond 4 σ (P = 3e-4 by chance; σ floored at ``floor_rad``) are blends or
+    mismatched faint stars. At least half of the stars, and three, are always kept."""
+    sigma = max(float(np.median(resid)) / 1.177, floor_rad)
+    keep = resid <= 4.0 * sigma
+    n_min = min(len(resid), max(3, len(resid) // 2))
+    if keep.sum() < n_min:
+        keep = resid <= np.sort(resid)[n_min - 1]
+    return keep
 
 
 def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str) -> None:
     camera: Camera = ident.camera
-    b_all = camera.pixel_to_ray(xy[np.asarray(ident.star_index)])
-    A, keep = _robust_fit(b_all, np.asarray(ident.catalog_vectors), attitude_method,
-                          floor_rad=0.1 * camera.plate_scale_rad)
-    idx = np.asarray(ident.star_index)[keep]
-    b = b_all[keep]
-    r = np.asarray(ident.catalog_vectors)[keep]
-    resid = angle_between(b, r @ A.T)
+    idx_all = np.asarray(ident.star_index)
+    b_all = camera.pixel_to_ray(xy[idx_all])
+    r_all = np.asarray(ident.catalog_vectors)
+    # Identification already fitted robustly; its attitude tells which matches are outliers,
+    # then the chosen Wahba solver fits the rest once.
+    keep = _inliers(_angles(b_all, r_all, np.asarray(ident.A_icrs_to_cam)), 0.1 * camera.plate_scale_rad)
+    idx, b, r = idx_all[keep], b_all[keep], r_all[keep]
+    A = solve_attitude(b, r, method=attitude_method)
+    resid = _angles(b, r, A)
     n = len(idx)
     rmse = float(np.sqrt(np.mean(resid**2)))
     # Per-axis centroid σ from the fit's own residuals (3 attitude dof used), floored at
@@ -189,10 +189,6 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str) -
     sol.rmse_arcsec = rmse / _ARCSEC
     sol.A_icrs_to_cam = A
     sol.camera = camera
-    mags = np.asarray(ident.catalog_mag, dtype=float)[keep]
-    ids = np.asarray(ident.catalog_ids)[keep]
-    sol.matches = [
-        Match(x=float(xy[i, 0]), y=float(xy[i, 1]), id=int(hid), ra_deg=math.degrees(a),
-              dec_deg=math.degrees(d), mag=float(m), residual_arcsec=float(e / _ARCSEC))
-        for i, hid, a, d, m, e in zip(idx, ids, cat_ra, cat_dec, mags, resid, strict=True)
-    ]
+    columns = (xy[idx, 0], xy[idx, 1], np.asarray(ident.catalog_ids)[keep], np.degrees(cat_ra),
+               np.degrees(cat_dec), np.asarray(ident.catalog_mag, dtype=float)[keep], resid / _ARCSEC)
+    sol.matches = [Match(*row) for row in zip(*(c.tolist() for c in columns), strict=True)]
