@@ -116,3 +116,16 @@ def test_real_esa_frame_plausible(tmp_path):
     assert 1.1 < s["median_fwhm_px"] < 1.8
     assert 0.05 < s["median_ellipticity"] < 0.35
     assert out.read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.skipif(not ESA, reason="ESA frames not available")
+def test_fwhm_agrees_with_detect_measure_psf():
+    """Independent fits agree: this module's rotated fit and detect's axis-aligned windowed fit
+    (same stars) give the same median FWHM to 1 % on a simulated and a real frame (measured 0.2 %)."""
+    from skyfix.detect import measure_psf
+    from skyfix.io import read_image
+
+    for img in (_frame(1.4, 0.0, mag=5.0), read_image(ESA[2])):
+        f = measure_psf_field(img)
+        d = measure_psf(img, np.column_stack([f.x, f.y]))
+        assert np.nanmedian(d["fwhm"]) == pytest.approx(np.median(f.fwhm_px), rel=0.01)
