@@ -271,3 +271,18 @@ def test_sharp_optics_stars_are_not_hot_pixels(psf_sigma):
     c = extract_centroids(img)
     d, _ = nearest(c, xy)
     assert len(c) == 2 and d.max() < 0.25
+
+
+def test_many_hot_pixels_do_not_crowd_out_stars():
+    """An uncalibrated long exposure: 1000 hot pixels (0.3%), brighter than most stars."""
+    xy, flux = random_field(n=25, seed=6)
+    img = render_stars((480, 640), xy, flux, noise=3.0)
+    rng = np.random.default_rng(12)
+    hy, hx = rng.integers(0, 480, 1000), rng.integers(0, 640, 1000)
+    img[hy, hx] += rng.uniform(2000, 20000, 1000).astype(np.float32)
+    c = extract_centroids(img, max_stars=30)
+    d, _ = nearest(c, xy)
+    near_hot = np.hypot(xy[:, 0, None] - hx, xy[:, 1, None] - hy).min(axis=1) < 4
+    assert np.all(d[~near_hot] < 0.2)  # every star clear of a hot pixel is found
+    dd = np.hypot(c.x[:, None] - xy[:, 0], c.y[:, None] - xy[:, 1]).min(axis=1)
+    assert np.sum(dd > 1.5) <= 2  # and almost nothing else (clusters of 4+ hot pixels may pass)
