@@ -202,3 +202,26 @@ def test_false_match_probability_is_the_binomial_tail():
     for k, n, p in [(3, 10, 0.01), (0, 5, 0.2), (12, 40, 0.03), (40, 40, 0.5), (7, 60, 1e-4)]:
         assert np.exp(log_binom_sf(k, n, p)) == pytest.approx(binom.sf(k - 1, n, p), rel=1e-9)
     assert log_binom_sf(5, 4, 0.1) == -np.inf
+
+
+def test_non_finite_centroids_are_skipped_and_indices_kept(database, fields):
+    f = fields[0]
+    xy = np.insert(f.xy, [0, 5], np.nan, axis=0)  # two NaN rows before the 1st and 6th star
+    res = identify(xy, W, H, database=database)
+    assert res.success
+    assert np.isfinite(xy[res.star_index]).all()
+    truth = np.insert(f.star_id, [0, 5], -1)[res.star_index]
+    assert np.sum(truth != res.catalog_ids) <= max(1, 0.05 * len(truth))
+
+
+def test_fov_hint_outside_database_range_fails_with_reason(database, fields):
+    res = identify(fields[0].xy, W, H, fov_deg=60.0, database=database)
+    assert not res.success
+    assert "outside the pattern database's range 10–30°" in res.reason
+
+
+def test_impossible_fov_hint_raises_one_line(database, fields):
+    from skyfix.errors import CameraError
+
+    with pytest.raises(CameraError, match="impossible field of view"):
+        identify(fields[0].xy, W, H, fov_deg=-3.0, database=database)

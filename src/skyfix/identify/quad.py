@@ -22,6 +22,7 @@ from itertools import permutations
 import numpy as np
 
 from skyfix.camera import Camera
+from skyfix.errors import CameraError
 from skyfix.identify.database import PatternDatabase, _readonly, default_database
 from skyfix.identify.refine import refine
 from skyfix.identify.search import breadth_first_combinations, search
@@ -163,13 +164,20 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     _compile_kernels()  # once per process; not counted against the time limit
     t0 = time.perf_counter()
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    xy = xy[np.isfinite(xy).all(axis=1)]
+    finite = np.isfinite(xy).all(axis=1)
+    kept = None if finite.all() else np.flatnonzero(finite)  # maps back to the caller's indices
+    if kept is not None:
+        xy = xy[kept]
     n = len(xy)
     if n < 4:
         return _failure(f"too few stars ({n} detected, need 4)", t0)
+    if fov_deg is not None and not 0.01 < fov_deg < 170.0:
+        raise CameraError(f"impossible field of view {fov_deg}° (must be 0.01°–170°)")
     db = default_database() if database is None else database
 
-    # Camera model and allowed focal-length range.
+    # Camera model and allowed focal-length range (the database covers its FOV range ±15 %).
+    f_db_lo = _focal_from_fov(width, db.fov_max_deg * 1.15)
+    f_db_hi = _focal_from_fov(width, db.fov_min_deg / 1.15)
     if camera is not None:
         cam0 = camera
         f0 = float(camera.fx)
@@ -182,10 +190,13 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
             f_lo = _focal_from_fov(width, min(fov_deg + tol, 179.0))
             f_hi = _focal_from_fov(width, max(fov_deg - tol, 1e-3))
         else:
-            fmin, fmax = db.fov_min_deg / 1.15, db.fov_max_deg * 1.15
-            f0 = _focal_from_fov(width, math.sqrt(fmin * fmax))
-            f_lo, f_hi = _focal_from_fov(width, fmax), _focal_from_fov(width, fmin)
+            f0 = math.sqrt(f_db_lo * f_db_hi)
+            f_lo, f_hi = f_db_lo, f_db_hi
         cam0 = Camera(width=int(width), height=int(height), fx=f0, fy=f0, cx=cx, cy=cy)
+    if f_hi < f_db_lo or f_lo > f_db_hi:
+        fov = 2 * math.degrees(math.atan(width / 2 / f0))
+        return _failure(f"field of view {fov:.3g}° is outside the pattern database's range "
+                        f"{db.fov_min_deg:g}–{db.fov_max_deg:g}°", t0)
     free_fov = camera is None and fov_deg is None
     # Image stars as undistorted offsets from the principal point, scaled by f0.
     n_pat = min(n, pattern_stars)
@@ -238,7 +249,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 if hit:
                     res = _finish(xy, p, result_A, float(stats[0]), math.exp(stats[1]), cam0,
                                   camera is None, frame, n_verify, min(n, refine_stars), radius,
-                                  centroid_sigma_px, db, arrays, epoch, max(pos), n_cand, t0)
+                                  centroid_sigma_px, db, arrays, epoch, max(pos), n_cand, t0, kept)
                     if res is not None and f_lo * 0.97 <= res.camera.fx <= f_hi * 1.03:
                         return res
                     # A refit that fails or leaves the allowed range: search on.
@@ -250,7 +261,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
 
 
 def _finish(xy, p, A, f, prob, cam0, fit_focal, frame, n_first, n_img, radius, sigma_px, db, arrays, epoch,
-            n_tried, n_cand, t0):
+            n_tried, n_cand, t0, kept):
     """Refit on all matched stars (compiled :func:`refine`) and package the result."""
     A = A.copy()
     out_img = np.empty(16384, np.int64)
@@ -264,6 +275,8 @@ def _finish(xy, p, A, f, prob, cam0, fit_focal, frame, n_first, n_img, radius, s
     order = np.argsort(star_index)
     star_index, cat_index = star_index[order], cat_index[order]
     cam = cam0.replace(fx=float(fk[0]), fy=float(fk[0]), k1=float(fk[1])) if fit_focal else cam0
+    if kept is not None:
+        star_index = kept[star_index]
     return Identification(
         True, "", star_index, np.asarray(db.star_ids[cat_index]), db.vectors_at(cat_index, epoch),
         np.asarray(db.star_mag[cat_index]), A, cam, float(min(prob, 1.0)), n_tried, n_cand, METHOD,

@@ -35,7 +35,7 @@ def breadth_first_combinations(n: int) -> np.ndarray:
     return _COMBOS[n]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _pattern_edges(p: np.ndarray, combo: np.ndarray, f: float, out: np.ndarray) -> None:
     """Sorted six edge angles (radians) of image stars ``combo`` at focal length ``f`` (pixels)."""
     rays = np.empty((4, 3))
