@@ -286,3 +286,16 @@ def test_many_hot_pixels_do_not_crowd_out_stars():
     assert np.all(d[~near_hot] < 0.2)  # every star clear of a hot pixel is found
     dd = np.hypot(c.x[:, None] - xy[:, 0], c.y[:, None] - xy[:, 1]).min(axis=1)
     assert np.sum(dd > 1.5) <= 2  # and almost nothing else (clusters of 4+ hot pixels may pass)
+
+
+def test_streak_is_measured_not_dropped():
+    """Motion blur: a 20-px streak at 30° is kept, with its length axis and direction."""
+    t = np.linspace(-10, 10, 41)
+    ang = np.radians(30.0)
+    pts = np.column_stack([60 + t * np.cos(ang), 50 + t * np.sin(ang)])
+    img = render_stars((100, 120), pts, np.full(len(pts), 800.0), sigma=1.2, noise=2.0)
+    c = extract_centroids(img)
+    assert len(c) == 1
+    assert c.x[0] == pytest.approx(60.0, abs=0.1) and c.y[0] == pytest.approx(50.0, abs=0.1)
+    assert c.elongation[0] > 4
+    assert c.angle[0] == pytest.approx(ang, abs=0.02)

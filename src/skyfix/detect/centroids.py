@@ -31,6 +31,8 @@ class Centroids:
     sigma_x, sigma_y : (N,) float64 — 1-σ centroid uncertainty from background noise, pixels.
     saturated : (N,) bool — the star has pixels at the saturation level.
     cov_xy : (N,) float64 — x–y covariance of the centroid, px² (zero unless a fit gives it).
+    angle : (N,) float64 — direction of the long axis from +x toward +y, radians in (−π/2, π/2]
+        (a streak's direction; meaningless for round stars).
     image_shape : (height, width) of the frame.
     background_level : median sky level of the frame, ADU.
     noise : robust per-pixel noise (σ) of the sky, ADU.
@@ -51,6 +53,7 @@ class Centroids:
     noise: float = 0.0
     meta: dict = field(default_factory=dict, compare=False, repr=False)
     cov_xy: np.ndarray | None = None
+    angle: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = None
@@ -70,6 +73,10 @@ class Centroids:
         if cov.size != n:
             raise ValueError(f"Centroids.cov_xy has {cov.size} entries, expected {n}")
         object.__setattr__(self, "cov_xy", cov)
+        ang = np.zeros(n) if self.angle is None else np.ascontiguousarray(self.angle, np.float64).reshape(-1)
+        if ang.size != n:
+            raise ValueError(f"Centroids.angle has {ang.size} entries, expected {n}")
+        object.__setattr__(self, "angle", ang)
         object.__setattr__(self, "image_shape", (int(self.image_shape[0]), int(self.image_shape[1])))
         object.__setattr__(self, "background_level", float(self.background_level))
         object.__setattr__(self, "noise", float(self.noise))
@@ -109,7 +116,7 @@ class Centroids:
         kw = {name: getattr(self, name)[index] for name in _ARRAYS}
         return Centroids(**kw, saturated=self.saturated[index], image_shape=self.image_shape,
                          background_level=self.background_level, noise=self.noise, meta=self.meta,
-                         cov_xy=self.cov_xy[index])
+                         cov_xy=self.cov_xy[index], angle=self.angle[index])
 
     def brightest(self, n: int) -> Centroids:
         """The ``n`` brightest stars."""
@@ -117,6 +124,6 @@ class Centroids:
 
     def to_records(self) -> list[dict]:
         """One dict per star, brightest first (for JSON output)."""
-        cols = {name: getattr(self, name).tolist() for name in (*_ARRAYS, "cov_xy")}
+        cols = {name: getattr(self, name).tolist() for name in (*_ARRAYS, "cov_xy", "angle")}
         sat = self.saturated.tolist()
         return [{**{k: v[i] for k, v in cols.items()}, "saturated": sat[i]} for i in range(len(self))]

@@ -253,6 +253,7 @@ def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharp
         sigma_x=noise_px[sel] * np.sqrt(sxx[sel]) / flux[sel],
         sigma_y=noise_px[sel] * np.sqrt(syy[sel]) / flux[sel],
         saturated=nsat[sel] > 0, image_shape=(h, w), background_level=level, noise=noise,
+        angle=0.5 * np.arctan2(2.0 * mxy[sel], mxx[sel] - myy[sel]),
         meta={"n_components": int(n_comp), "n_deblended": int(n_split), "saturation": float(saturation),
               "tile": bg.tile},
     )
@@ -309,7 +310,7 @@ def _refine(img: np.ndarray, c: Centroids, centroid: str, gain: float | None,
         sigma_x=np.where(ok, sx, c.sigma_x), sigma_y=np.where(ok, sy, c.sigma_y),
         saturated=c.saturated, image_shape=c.image_shape, background_level=c.background_level,
         noise=c.noise, meta={**c.meta, "centroid": centroid, "refined": int(ok.sum())},
-        cov_xy=np.where(ok, cxy, 0.0))
+        cov_xy=np.where(ok, cxy, 0.0), angle=c.angle)
     return out.subset(order)
 
 
