@@ -435,9 +435,13 @@ def _plots(study: CentroidStudy, out: Path) -> list[Path]:
     methods = st["methods"]
     sig = sorted({c.sigma_px for c in study.cells})
     snr = sorted({c.snr for c in study.cells})
-    fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 3.8), sharey=True, squeeze=False)
+    ncol = min(3, len(methods))
+    nrow = math.ceil(len(methods) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.4 * ncol, 3.6 * nrow), sharey=True, squeeze=False)
     cmap = plt.get_cmap("viridis")
-    for ax, m in zip(axes[0], methods, strict=True):
+    for ax in axes.flat[len(methods):]:
+        ax.set_visible(False)
+    for ax, m in zip(axes.flat, methods, strict=False):
         tab = study.table(m)
         for i, s in enumerate(sig):
             ax.plot(snr, tab[i], "o-", color=cmap(i / max(len(sig) - 1, 1)), label=f"σ = {s:g} px", ms=3)
@@ -448,32 +452,33 @@ def _plots(study: CentroidStudy, out: Path) -> list[Path]:
         ax.set_xlabel("SNR")
         ax.set_title(m)
         ax.grid(True, which="both", alpha=0.3)
-    axes[0, 0].set_ylabel("RMS error / Cramér–Rao bound")
-    axes[0, -1].legend(fontsize=7)
+    for row in axes:
+        row[0].set_ylabel("RMS error / Cramér–Rao bound")
+    axes.flat[0].legend(fontsize=7)
     fig.tight_layout()
     p1 = out / "centroid_ratio_vs_snr.png"
-    fig.savefig(p1, dpi=120)
+    fig.savefig(p1, dpi=110)
     plt.close(fig)
 
     snrs_c = st["s_curve_snrs"]
-    fig, axes = plt.subplots(len(snrs_c), len(methods), figsize=(4.2 * len(methods), 3.2 * len(snrs_c)),
+    fig, axes = plt.subplots(len(methods), len(snrs_c), figsize=(4.4 * len(snrs_c), 2.7 * len(methods)),
                              sharex=True, squeeze=False)
     ph = np.asarray(study.s_curves["phase"]["x"])
-    for row, r in enumerate(snrs_c):
-        for ax, m in zip(axes[row], methods, strict=True):
+    for row, m in enumerate(methods):
+        for ax, r in zip(axes[row], snrs_c, strict=True):
             for j, s in enumerate(st["s_curve_sigmas"]):
                 ax.plot(ph, study.s_curves[m][_curve_key(r, s)], label=f"σ = {s:g} px",
                         color=cmap(j / max(len(st["s_curve_sigmas"]) - 1, 1)))
             ax.axhline(0.0, color="k", lw=0.6)
-            ax.set_title(f"{m}: S-curve, SNR {r:g}")
+            ax.set_title(f"{m}, SNR {r:g}", fontsize=9)
             ax.grid(True, alpha=0.3)
-        axes[row, 0].set_ylabel("bias (measured − true), px")
+        axes[row, 0].set_ylabel("bias, px")
     for ax in axes[-1]:
         ax.set_xlabel("true sub-pixel phase, px")
     axes[0, -1].legend(fontsize=7)
     fig.tight_layout()
     p2 = out / "centroid_s_curve.png"
-    fig.savefig(p2, dpi=120)
+    fig.savefig(p2, dpi=110)
     plt.close(fig)
     return [p1, p2]
 
