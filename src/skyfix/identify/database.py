@@ -370,7 +370,10 @@ def default_database(fov_min_deg: float = 10.0, fov_max_deg: float = 30.0, *,
     if path in _DEFAULT:
         return _DEFAULT[path]
     if path.exists():
-        db = PatternDatabase.load(path)
+        try:
+            db = PatternDatabase.load(path)
+        except DatabaseError as exc:
+            raise DatabaseError(f"{exc} (delete it, or rebuild with `skyfix database build`)") from None
     else:
         db = PatternDatabase.build(fov_min_deg, fov_max_deg, progress=progress)
         db.save(path)
