@@ -115,7 +115,7 @@ class PatternDatabase:
         key = tuple(id(getattr(self, k)) for k in names)
         cached = self.__dict__.get("_search_arrays")
         if cached is None or cached[0] != key:
-            cached = (key, tuple(_readonly(getattr(self, k)) for k in names))
+            cached = (key, tuple(readonly_view(getattr(self, k)) for k in names))
             self.__dict__["_search_arrays"] = cached
         return cached[1]
 
@@ -249,7 +249,8 @@ class PatternDatabase:
         return db
 
 
-def _readonly(a: np.ndarray) -> np.ndarray:
+def readonly_view(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a`` as a plain ndarray (no copy)."""
     view = np.asarray(a).view()
     view.flags.writeable = False
     return view

@@ -1,15 +1,21 @@
 """Lost-in-space identification by 4-star geometric hashing, with statistical verification.
 
-1. Image stars (brightest first) form 4-star combinations in breadth-first order.
-2. Each combination's edge-ratio key is looked up in the pattern database (compiled kernel,
-   :mod:`skyfix.identify.search`); candidates agree in all five ratios and imply an allowed
-   focal length.
-3. For each candidate: the vertex correspondence (the permutation that best matches the six
-   edges), the attitude from the four stars (SVD, proper rotations only, so a mirror image
-   fits badly and is rejected), then verification against all catalogue stars in the field.
-4. The first candidate whose chance of being a false match is below ``prob_threshold`` wins;
-   attitude, focal length and (without a camera) radial distortion are refitted on all
-   matched stars, and the match is repeated once with the refined model.
+1. The brightest centroids form 4-star combinations in breadth-first order (every pattern
+   of the first ``m`` stars before any that uses star ``m + 1``).
+2. Each combination's edge-ratio key is looked up in the pattern database; candidates agree
+   in all five ratios, imply a focal length in the allowed range, and (at that focal length)
+   agree within the centroid-noise tolerance. Two tolerance tiers run interleaved: a tight one
+   first, and a loose one (unmodelled distortion, a far-off focal-length guess) a factor of 4
+   behind it in patterns.
+3. Each candidate gets its vertex correspondence (the permutation whose six edges agree best)
+   and its attitude from the four stars (SVD, proper rotations only: a mirror image fits badly
+   and is rejected), then verification: the brightest catalogue stars in the frame are matched
+   to the brightest centroids and the binomial probability of so many chance matches, times
+   the number of candidates examined, must be below ``prob_threshold``
+   (:mod:`skyfix.identify.verify`). Steps 2–3 are one compiled kernel
+   (:mod:`skyfix.identify.search`).
+4. The accepted attitude is refitted on all matched stars — with the focal length and, where
+   significant, radial distortion k1 when no camera was given (:mod:`skyfix.identify.refine`).
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ import numpy as np
 
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
-from skyfix.identify.database import PatternDatabase, _readonly, default_database
+from skyfix.identify.database import PatternDatabase, default_database, readonly_view
 from skyfix.identify.refine import refine
 from skyfix.identify.search import breadth_first_combinations, search
 
@@ -88,7 +94,7 @@ def _compile_kernels() -> None:
     global _COMPILED
     if _COMPILED:
         return
-    ro = _readonly
+    ro = readonly_view
     p = np.array([[0.0, 0.0], [100.0, 0.0], [0.0, 100.0], [70.0, 60.0]])
     combos = breadth_first_combinations(4)
     vec = ro(np.array([[0.0, 0.0, 1.0]]))
