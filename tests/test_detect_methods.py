@@ -6,6 +6,7 @@ import pytest
 from skyfix.detect import METHODS, extract_centroids
 from skyfix.detect.hillclimb import extract_hillclimb
 from skyfix.detect.region_grow import extract_region_grow
+from skyfix.detect.regionprops import extract_regionprops, perona_malik
 from test_detect import nearest, random_field, render_stars
 
 
@@ -17,10 +18,10 @@ def field():
 
 def test_methods_by_name(field):
     xy, flux, img = field
-    assert METHODS == ("components", "threshold_hillclimb", "region_grow")
+    assert METHODS == ("components", "threshold_hillclimb", "region_grow", "regionprops")
     # a 3×3 ROI cuts a σ = 1.5 px star's wings: thesis 000's CoM is pulled toward the peak
     # pixel (the S-curve), by up to half a pixel
-    tol = {"components": 0.1, "threshold_hillclimb": 0.5, "region_grow": 0.2}
+    tol = {"components": 0.1, "threshold_hillclimb": 0.5, "region_grow": 0.2, "regionprops": 0.2}
     for m in METHODS:
         c = extract_centroids(img, method=m)
         d, j = nearest(c, xy)
@@ -65,3 +66,28 @@ def test_region_grow_size_border_and_shape_tests():
 def test_region_grow_bad_frames():
     for frame in (np.zeros((50, 50)), np.full((50, 50), 7.0)):
         assert len(extract_region_grow(frame)) == 0 and len(extract_hillclimb(frame)) == 0
+
+
+def test_regionprops_eccentricity_area_and_prefilters():
+    stars = [(100.0, 80.0), (200.0, 150.0)]
+    img = render_stars((240, 320), stars, [20000, 20000], sigma=1.5, noise=2.0)
+    img[120:122, 230:290] += 200.0  # a banding streak: eccentricity ≈ 1
+    img[40, 40] += 3000.0  # one pixel: below the minimum area
+    for prefilter in (None, "smooth", "diffusion"):
+        c = extract_regionprops(img, prefilter=prefilter)
+        d, _ = nearest(c, np.array(stars))
+        assert d.max() < 0.1, prefilter
+        # smoothing spreads the hot pixel over 3×3 (and lowers the threshold with the noise):
+        # the thesis's reason to threshold the raw frame
+        assert len(c) == 2 if prefilter != "smooth" else len(c) <= 4, prefilter
+    assert len(extract_regionprops(img, max_eccentricity=None)) == 3  # the streak is back
+    with pytest.raises(ValueError):
+        extract_regionprops(img, prefilter="nope")
+
+
+def test_perona_malik_smooths_noise_keeps_stars():
+    rng = np.random.default_rng(3)
+    img = render_stars((80, 80), [(40.0, 40.0)], [30000], sigma=1.2, noise=0.0) + rng.normal(0, 5, (80, 80))
+    out = perona_malik(img, iterations=10, kappa=15.0)
+    assert np.std(out[:20, :20]) < 0.6 * np.std(img[:20, :20])  # sky noise down
+    assert out[40, 40] > 0.8 * img[40, 40]  # the star's peak survives (an edge, not noise)

@@ -36,7 +36,7 @@ from skyfix.io import as_image
 
 __all__ = ["METHODS", "extract_centroids", "saturation_level"]
 
-METHODS = ("components", "threshold_hillclimb", "region_grow")
+METHODS = ("components", "threshold_hillclimb", "region_grow", "regionprops")
 
 # Full-scale values of common integer sensors and of normalised float images.
 _FULL_SCALES = np.array([1.0, 255.0, 1023.0, 4095.0, 16383.0, 65535.0])
@@ -111,10 +111,12 @@ def extract_centroids(
         Background tile size, pixels (default: about 1/16 of the short side, 32–64).
     background : Background, optional
         A precomputed background (e.g. shared with another extraction of the same frame).
-    method : {"components", "threshold_hillclimb", "region_grow"}
+    method : {"components", "threshold_hillclimb", "region_grow", "regionprops"}
         Detection method: this module's connected components (default); thesis 000's global
         k·σ threshold with a 3×3 hill climb (:mod:`skyfix.detect.hillclimb`); thesis 004's
-        every-third-pixel scan with 4-connected region growing (:mod:`skyfix.detect.region_grow`).
+        every-third-pixel scan with 4-connected region growing (:mod:`skyfix.detect.region_grow`);
+        thesis 003's threshold, 8-connected spots, area and eccentricity limits
+        (:mod:`skyfix.detect.regionprops`; its smoothing/diffusion options are keywords there).
         The rejection options above apply to ``"components"`` only.
     centroid : {"com", "iwcog", "gaussian"}
         Centroider. ``"com"`` keeps each method's own centre of mass (for ``"components"``: the
@@ -157,10 +159,14 @@ def extract_centroids(
         from skyfix.detect.hillclimb import extract_hillclimb
 
         c = extract_hillclimb(img, sigma=sigma, max_stars=max_stars, saturation=saturation)
-    else:
+    elif method == "region_grow":
         from skyfix.detect.region_grow import extract_region_grow
 
         c = extract_region_grow(img, sigma=sigma, max_stars=max_stars, saturation=saturation)
+    else:
+        from skyfix.detect.regionprops import extract_regionprops
+
+        c = extract_regionprops(img, sigma=sigma, max_stars=max_stars, saturation=saturation)
     if centroid != "com" and len(c):
         c = _refine(img, c, centroid, gain, background, tile)
     return c
