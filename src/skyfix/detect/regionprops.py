@@ -7,6 +7,7 @@ Steps (SEEDS 003 §3.II.B and Fig. 3.1):
    (edge-preserving), both described in the thesis though its results used neither.
 2. Threshold ``T = level + k·RMS``: the thesis's rule of thumb is 3 × the RMS noise floor; the
    frame's median is taken as the level the floor is measured from (the thesis does not say).
+   Level and floor are the raw frame's, also when the threshold is applied to a prefiltered one.
 3. 8-connected spot clusters of the pixels above ``T`` (``scipy.ndimage.label``).
 4. Spot size selection: ``min_area`` (camera-specific in the thesis) and an optional
    ``max_area`` (banding, compression blobs).
@@ -88,7 +89,8 @@ def extract_regionprops(image: np.ndarray, *, sigma: float = 3.0, max_stars: int
         work = perona_malik(img)
     else:
         raise ValueError(f"unknown prefilter {prefilter!r}; choose None, 'smooth' or 'diffusion'")
-    level, noise = global_background(work)
+    # the RMS noise floor is the sensor's (raw frame's); a prefilter only lowers the work image's
+    level, noise = global_background(img)
     if not noise > 0:
         return Centroids.empty((h, w), level, noise, reason="flat frame")
     labels, n = ndimage.label(work > level + sigma * noise, structure=np.ones((3, 3), bool))
