@@ -36,6 +36,7 @@ from skyfix.identify.search import breadth_first_combinations, search
 __all__ = ["Identification", "identify"]
 
 METHOD = "quad-hash"
+_FOV_MARGIN = 1.35  # FOVs served beyond the database range (ratio)
 _PERMS = np.array(list(permutations(range(4))), dtype=np.int64)  # (24, 4)
 
 
@@ -181,9 +182,10 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         raise CameraError(f"impossible field of view {fov_deg}° (must be 0.01°–170°)")
     db = default_database() if database is None else database
 
-    # Camera model and allowed focal-length range (the database covers its FOV range ±15 %).
-    f_db_lo = _focal_from_fov(width, db.fov_max_deg * 1.15)
-    f_db_hi = _focal_from_fov(width, db.fov_min_deg / 1.15)
+    # Camera model and allowed focal-length range: the lattice fields let the database serve
+    # fields up to ~1.35× beyond its nominal FOV range.
+    f_db_lo = _focal_from_fov(width, db.fov_max_deg * _FOV_MARGIN)
+    f_db_hi = _focal_from_fov(width, db.fov_min_deg / _FOV_MARGIN)
     if camera is not None:
         cam0 = camera
         f0 = float(camera.fx)
