@@ -1,4 +1,23 @@
-"""Star detection: frame calibration, background, extraction and centroiding."""
+"""Star detection: frame calibration, background, extraction and centroiding.
+
+Typical use::
+
+    from skyfix.io import read_image
+    from skyfix.detect import extract_centroids
+
+    stars = extract_centroids(read_image("frame.fits"))      # Centroids, brightest first
+    stars.xy, stars.flux, stars.snr, stars.covariance         # (N, 2), (N,), (N,), (N, 2, 2)
+
+- :func:`extract_centroids` — full-frame detection; ``method=`` "components" (default),
+  "threshold_hillclimb" (thesis 000), "region_grow" (thesis 004), "regionprops" (thesis 003);
+  ``centroid=`` "com" (default), "iwcog", "gaussian".
+- :func:`centroid_windows` — tracking: one star per predicted position, O(N·window²).
+- :func:`estimate_background` — tiled (default), global or per-row sky and noise.
+- :func:`cramer_rao_centroid`, :func:`measure_psf` — bounds and PSF shape.
+- Frame calibration: :func:`master_dark`, :func:`master_flat`, :func:`hot_pixel_map`,
+  :func:`dead_pixel_map`, :func:`calibrate_frame` (dark → flat → repair), :func:`dark_report`,
+  :func:`save_calibration` / :func:`load_calibration`.
+"""
 
 from skyfix.detect.background import Background, estimate_background
 from skyfix.detect.calibrate_frames import (
