@@ -277,6 +277,100 @@ def _robust_level_noise(v, quantum=0.0, lower=False):
 
 
 @njit(cache=True)
+def _select(a, lo, hi, k):
+    """Partially sort ``a[lo:hi]`` in place so that ``a[k]`` is its k-th smallest; returns it.
+
+    Quickselect with a median-of-three pivot; no allocation (the tiles call it thousands of
+    times per frame).
+    """
+    hi -= 1
+    while hi > lo:
+        mid = (lo + hi) // 2
+        # median of three to a[mid]
+        if a[mid] < a[lo]:
+            a[mid], a[lo] = a[lo], a[mid]
+        if a[hi] < a[lo]:
+            a[hi], a[lo] = a[lo], a[hi]
+        if a[hi] < a[mid]:
+            a[hi], a[mid] = a[mid], a[hi]
+        pivot = a[mid]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    return a[k]
+
+
+@njit(cache=True)
+def _median_inplace(a, n):
+    """Median of ``a[:n]`` (reordered in place); below index n//2 lie values ≤ it."""
+    k = n // 2
+    upper = _select(a, 0, n, k)
+    if n % 2 == 1:
+        return upper
+    lower = a[0]
+    for i in range(1, k):
+        lower = max(lower, a[i])
+    return 0.5 * (lower + upper)
+
+
+@njit(cache=True)
+def _tile_level_noise(a, n, quantum):
+    """Median and lower-side clipped RMS of ``a[:n]``, in place and without allocating.
+
+    The same estimate as ``_robust_level_noise(a[:n], quantum, lower=True)``.
+    """
+    if n == 0:
+        return 0.0, 0.0
+    med = _median_inplace(a, n)
+    # the values ≤ median: the first n//2 after the select, plus any ties above
+    m = 0
+    for i in range(n):
+        if a[i] <= med:
+            a[m], a[i] = a[i], a[m]
+            m += 1
+    # median of the deviations med − a[i] is med − (median of the lower values)
+    s0 = max(1.4826 * (med - _median_inplace(a, m)), quantum)
+    if s0 <= 0.0:
+        step = np.inf
+        for i in range(m):
+            d = med - a[i]
+            if 0.0 < d < step:
+                step = d
+        s0 = step if step < np.inf else 0.0
+    if s0 <= 0.0:
+        return med, 0.0
+    cut = _CLIP * s0
+    s = s0
+    for _ in range(4):
+        acc = 0.0
+        cnt = 0
+        for i in range(m):
+            d = med - a[i]
+            if d <= cut:
+                acc += d * d
+                cnt += 1
+        s = math.sqrt(acc / max(cnt, 1)) * _CLIP_CORRECTION
+        new_cut = _CLIP * max(s, 0.5 * s0)
+        if abs(new_cut - cut) < 1e-3 * cut:
+            break
+        cut = new_cut
+    return med, s
+
+
+@njit(cache=True)
 def _lattice_start(e0, e1, stride):
     """First sample of a lattice with ``stride`` centred in [e0, e1)."""
     return e0 + ((e1 - e0 - 1) % stride) // 2
@@ -296,7 +390,7 @@ def _tile_medians(sm, edges_y, edges_x, sy, sx):
                 for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], sx), edges_x[tx + 1], sx):
                     buf[k] = sm[y, x]
                     k += 1
-            out[ty, tx] = np.median(buf[:k])
+            out[ty, tx] = _median_inplace(buf, k)
     return out
 
 
@@ -337,7 +431,7 @@ def _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix,
                     raw[k] = img[y, x] - ((1.0 - f) * top + f * bot)
                     k += 1
             # a 3×3 binomial mean of integers moves in steps of 1/16
-            med, sig = _robust_level_noise(res[:k], 0.0625 if is_int else 0.0, True)
+            med, sig = _tile_level_noise(res, k, 0.0625 if is_int else 0.0)
             out[ty, tx, 0] = med
             out[ty, tx, 1] = sig
             if (ty * nx + tx) % pool_every == 0:
