@@ -40,7 +40,7 @@ def timeit(fn, repeat):
         t0 = time.perf_counter()
         fn()
         ts.append((time.perf_counter() - t0) * 1e3)
-    return float(np.median(ts)), float(np.percentile(ts, 90))
+    return float(np.median(ts)), float(np.percentile(ts, 90)), float(np.min(ts))
 
 
 def main() -> None:
@@ -67,16 +67,20 @@ def main() -> None:
             read_ms = timeit(lambda p=p: read_image(p), max(3, args.repeat // 5))[0]
             rows[-1] = (*rows[-1], read_ms)
 
-    print(f"{'frame':44s} {'MP':>5s} {'median ms':>10s} {'p90 ms':>8s} {'ms/MP':>7s} {'read ms':>8s}")
-    per_mp = []
+    print(f"{'frame':44s} {'MP':>5s} {'median ms':>10s} {'p90 ms':>8s} {'min ms':>7s} {'ms/MP':>7s} "
+          f"{'read ms':>8s}")
+    per_mp, per_mp_min = [], []
     for row in rows:
-        name, size, med, p90 = row[:4]
+        name, size, med, p90, fastest = row[:5]
         mp = size / 1e6
         per_mp.append(med / mp)
-        extra = f"{row[4]:8.2f}" if len(row) > 4 else ""
-        print(f"{name[:44]:44s} {mp:5.2f} {med:10.2f} {p90:8.2f} {med / mp:7.2f} {extra}")
-    print(f"\nextract_centroids: median over frames {np.median(per_mp):.2f} ms/MP "
-          f"(targets: issue 2 ≤ 10, issue 4 ≤ 5)")
+        per_mp_min.append(fastest / mp)
+        extra = f"{row[5]:8.2f}" if len(row) > 5 else ""
+        print(f"{name[:44]:44s} {mp:5.2f} {med:10.2f} {p90:8.2f} {fastest:7.2f} {med / mp:7.2f} {extra}")
+    big = [v for v, row in zip(per_mp, rows, strict=True) if row[1] >= 1e6]
+    print(f"\nextract_centroids: median ms/MP over frames {np.median(per_mp):.2f} (all), "
+          f"{np.median(big):.2f} (frames ≥ 1 MP); best-case {np.median(per_mp_min):.2f} "
+          f"(targets: issue 2 ≤ 10, issue 4 ≤ 5; the machine is shared, so medians carry others' load)")
     try:
         from skyfix.detect import centroid_windows
     except ImportError:
@@ -85,7 +89,7 @@ def main() -> None:
     for size in ((960, 1280), (3000, 4000)):
         big = np.zeros(size, np.float32)
         big[: img.shape[0], : img.shape[1]] = img
-        med, p90 = timeit(lambda big=big: centroid_windows(big, c.xy, half_size=8), args.repeat * 3)
+        med, p90, _ = timeit(lambda big=big: centroid_windows(big, c.xy, half_size=8), args.repeat * 3)
         print(f"centroid_windows: 10 stars, 16x16 windows, frame {size[1]}x{size[0]}: "
               f"median {med:.3f} ms, p90 {p90:.3f} ms (target ≤ 0.2 ms)")
     full = timeit(lambda: extract_centroids(img), args.repeat)[0]
