@@ -353,17 +353,20 @@ def run_study(methods: Sequence[str] = DEFAULT_CENTROIDERS, sigmas: Sequence[flo
     """Run every centroider over the (σ, SNR) grid and the S-curves.
 
     ``progress`` is called once per finished cell with a short description (for a progress
-    bar). Every cell uses its own generator spawned from ``seed``: repeatable, and a cell's
-    result does not depend on which other cells run.
+    bar). Each (σ, SNR) cell draws its stars from a generator keyed by ``seed``, σ and SNR, so
+    every method is measured on the same stars and a cell's result does not depend on which
+    other cells or methods run.
     """
     cells = []
-    seeds = np.random.SeedSequence(seed)
-    grid = [(m, s, r) for s in sigmas for r in snrs for m in methods]
-    children = seeds.spawn(len(grid))
-    for (m, s, r), child in zip(grid, children, strict=True):
-        cells.append(run_cell(m, s, r, n_trials, np.random.default_rng(child), sky_e=sky_e, read_e=read_e))
-        if progress is not None:
-            progress(f"{m} σ={s:g} SNR={r:g}")
+    for s in sigmas:
+        for r in snrs:
+            # one stream per (σ, SNR), the same for every method: all see the same stars
+            key = (int(round(1000 * s)), int(round(1000 * r)))
+            for m in methods:
+                rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
+                cells.append(run_cell(m, s, r, n_trials, rng, sky_e=sky_e, read_e=read_e))
+                if progress is not None:
+                    progress(f"{m} σ={s:g} SNR={r:g}")
     curves: dict[str, dict[str, list[float]]] = {}
     for m in methods:
         for r in s_curve_snrs:
