@@ -20,6 +20,15 @@ database_app = typer.Typer(no_args_is_help=True, help="Build or inspect the patt
 app.add_typer(database_app, name="database")
 
 
+def _register_analyze() -> None:
+    from skyfix.cli_analyze import analyze_app
+
+    app.add_typer(analyze_app, name="analyze")
+
+
+_register_analyze()
+
+
 def _fail(message: str, code: int = 2) -> None:
     typer.echo(f"skyfix: error: {message}", err=True)
     raise typer.Exit(code)
