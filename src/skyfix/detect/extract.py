@@ -207,7 +207,8 @@ def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharp
     else:  # clear only what the last call labelled
         _clear_boxes(labels, ws.dirty)
     ws.dirty = None
-    comps = _label(sm, img, labels, thr_grid, bg.level_smooth, bg.level, iy, fy, ix, fx, _MAX_COMPONENTS)
+    comps = _label(sm, img, labels, ws.mask, thr_grid, bg.level_smooth, bg.level, iy, fy, ix, fx,
+                   _MAX_COMPONENTS)
     ws.dirty = comps[:, 1:5].astype(np.int64)
     n_comp = comps.shape[0]
     if n_comp == 0:
@@ -275,6 +276,7 @@ class _Workspace(threading.local):
     shape: tuple[int, int] = (0, 0)
     smooth: np.ndarray
     labels: np.ndarray
+    mask: np.ndarray
     dirty: np.ndarray | None = None  # bounding boxes of the labels left by the last call
 
 
@@ -285,6 +287,7 @@ def _workspace(h: int, w: int) -> _Workspace:
     if _WS.shape != (h, w):
         _WS.smooth = np.empty((h, w), np.float32)
         _WS.labels = np.empty((h, w), np.int32)
+        _WS.mask = np.zeros((h, (w + 7) // 8 * 8), np.uint8)  # padding columns stay 0
         _WS.dirty = None
         _WS.shape = (h, w)
     return _WS
@@ -420,50 +423,60 @@ def _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, x, h, w):
 
 
 @njit(cache=True)
-def _label(sm, img, labels, thr_grid, bg_grid, raw_bg_grid, iy, fy, ix, fx, max_components):
-    """8-connected flood fill of pixels with ``sm > threshold``; labels are 1-based.
-
-    Returns (K, 8) float64: area, ymin, ymax, xmin, xmax, summed excess of ``sm`` over the sky,
-    and of the raw frame the highest pixel and the sum of positive pixels above the sky.
-    """
-    h, w = sm.shape
-    nx = thr_grid.shape[1]
-    comps = np.zeros((max_components, 8))
-    stack = np.empty(h * w, np.int64)
-    above = np.zeros((w + 7) // 8 * 8, np.uint8)
-    words = above.view(np.uint64)
-    # threshold rows at the tile-centre rows, interpolated along x once: a pixel row is then
-    # r0 + f·(r1 − r0), one fused multiply-add per pixel
-    ny = thr_grid.shape[0]
+def _grid_rows(grid, ix, fx, w):
+    """A tile grid interpolated along x at each tile-centre row, and the row-to-row step."""
+    ny, nx = grid.shape
     r0 = np.empty((ny, w), np.float32)
     dr = np.empty((ny, w), np.float32)
     for i in range(ny):
         for x in range(w):
             a = ix[x]
-            r0[i, x] = (1.0 - fx[x]) * thr_grid[i, a] + fx[x] * thr_grid[i, min(a + 1, nx - 1)]
+            r0[i, x] = (1.0 - fx[x]) * grid[i, a] + fx[x] * grid[i, min(a + 1, nx - 1)]
     for i in range(ny):
         for x in range(w):
             dr[i, x] = r0[min(i + 1, ny - 1), x] - r0[i, x]
-    k = 0
+    return r0, dr
+
+
+@njit(cache=True)
+def _label(sm, img, labels, mask, thr_grid, bg_grid, raw_bg_grid, iy, fy, ix, fx, max_components):
+    """8-connected flood fill of pixels with ``sm > threshold``; labels are 1-based.
+
+    ``mask`` is a (H, W rounded up to 8) uint8 scratch frame. Returns (K, 8) float64: area,
+    ymin, ymax, xmin, xmax, summed excess of ``sm`` over the sky, and of the raw frame the
+    highest pixel and the sum of positive pixels above the sky.
+    """
+    h, w = sm.shape
+    comps = np.zeros((max_components, 8))
+    stack = np.empty(h * w, np.int64)
+    # grids interpolated along x at the tile-centre rows: any pixel row is then r0 + f·dr, one
+    # fused multiply-add per pixel
+    t0, dt = _grid_rows(thr_grid, ix, fx, w)
+    b0, db = _grid_rows(bg_grid, ix, fx, w)
+    q0, dq = _grid_rows(raw_bg_grid, ix, fx, w)
+    # pass 1: the above-threshold mask, row by row (SIMD)
     for y in range(h):
         i = iy[y]
         f = np.float32(fy[y])
-        # mark the row's pixels above threshold (SIMD), then visit only non-zero 8-byte words
         row = sm[y]
         for x in range(w):
-            above[x] = row[x] > r0[i, x] + f * dr[i, x]
+            mask[y, x] = row[x] > t0[i, x] + f * dt[i, x]
         # border pixels: the replicated edge makes their smoothed noise larger
         if y == 0 or y == h - 1:
             for x in range(w):
-                above[x] = row[x] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, x, h, w)
+                mask[y, x] = row[x] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, x, h, w)
         else:
-            above[0] = row[0] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, 0, h, w)
-            above[w - 1] = row[w - 1] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, w - 1, h, w)
+            mask[y, 0] = row[0] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, 0, h, w)
+            mask[y, w - 1] = row[w - 1] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, w - 1, h, w)
+    # pass 2: visit only non-zero 8-byte words; flood-fill from each unlabelled pixel
+    k = 0
+    for y in range(h):
+        words = mask[y].view(np.uint64)
         for wi in range(words.size):
             if words[wi] == 0:
                 continue
-            for x in range(8 * wi, 8 * wi + 8):
-                if above[x] == 0 or labels[y, x] != 0:
+            for x in range(8 * wi, min(8 * wi + 8, w)):
+                if mask[y, x] == 0 or labels[y, x] != 0:
                     continue
                 if k >= max_components:
                     return comps[:k]
@@ -483,19 +496,15 @@ def _label(sm, img, labels, thr_grid, bg_grid, raw_bg_grid, iy, fy, ix, fx, max_
                     n += 1
                     ymin, ymax = min(ymin, py), max(ymax, py)
                     xmin, xmax = min(xmin, px), max(xmax, px)
-                    excess += sm[py, px] - _grid_at(bg_grid, iy, fy, ix, fx, py, px)
-                    r = img[py, px] - _grid_at(raw_bg_grid, iy, fy, ix, fx, py, px)
+                    i = iy[py]
+                    f = fy[py]
+                    excess += sm[py, px] - (b0[i, px] + f * db[i, px])
+                    r = img[py, px] - (q0[i, px] + f * dq[i, px])
                     raw_peak = max(raw_peak, r)
                     raw_sum += max(r, 0.0)
-                    for dy in range(-1, 2):
-                        qy = py + dy
-                        if qy < 0 or qy >= h:
-                            continue
-                        for dx in range(-1, 2):
-                            qx = px + dx
-                            if qx < 0 or qx >= w or labels[qy, qx] != 0:
-                                continue
-                            if sm[qy, qx] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, qy, qx, h, w):
+                    for qy in range(max(py - 1, 0), min(py + 2, h)):
+                        for qx in range(max(px - 1, 0), min(px + 2, w)):
+                            if mask[qy, qx] != 0 and labels[qy, qx] == 0:
                                 labels[qy, qx] = lab
                                 stack[top] = qy * w + qx
                                 top += 1
