@@ -224,7 +224,7 @@ def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharp
     # Measure only the brightest candidates, with room for the clusters of hot pixels, blobs and
     # noise that the tests below remove (measuring costs ~1 µs per small candidate).
     order = np.argsort(-comps[idx, 5], kind="stable")
-    idx = idx[order[: max(4 * max_stars + 50, 1000)]]
+    idx = idx[order[: max(4 * max_stars + 50, 200)]]
     ids, boxes = (idx + 1).astype(np.int32), comps[idx, 1:5].astype(np.int64)
     n_split = 0
     is_part = np.zeros(ids.size, bool)
