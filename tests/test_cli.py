@@ -71,3 +71,51 @@ def test_cli_simulate_writes_image_and_truth(tmp_path):
     assert len(truth["stars"]) > 0
     bad = runner.invoke(app, ["simulate", "--ra", "10", "--dec", "20", "--camera", "nope", "-o", str(out)])
     assert bad.exit_code == 2 and "unknown camera preset" in bad.output
+
+
+def test_cli_detect_json_matches_truth():
+    result = runner.invoke(app, ["detect", "--json", str(EXAMPLE)])
+    assert result.exit_code == 0, result.output
+    d = json.loads(result.stdout)
+    assert d["n"] == len(d["centroids"]) >= 50
+    truth = json.loads(EXAMPLE.with_name("sky.truth.json").read_text())
+    # Rendered sources: catalogue stars, false stars and the cosmic-ray track's middle.
+    stars = np.array([[s["x"], s["y"]] for s in truth["stars"] + truth["false_stars"]]
+                     + [[(c["x0"] + c["x1"]) / 2, (c["y0"] + c["y1"]) / 2] for c in truth["cosmic_rays"]])
+    fluxes = [c["flux"] for c in d["centroids"]]
+    assert fluxes == sorted(fluxes, reverse=True)  # brightest first
+    # The 20 brightest centroids each lie on a rendered source (a cosmic-ray streak's centroid
+    # is only near its track's middle).
+    for c in d["centroids"][:20]:
+        assert np.min(np.hypot(stars[:, 0] - c["x"], stars[:, 1] - c["y"])) < 1.0
+    bad = runner.invoke(app, ["detect", "--method", "nope", str(EXAMPLE)])
+    assert bad.exit_code == 2 and "unknown detection method" in bad.output
+
+
+def test_cli_calibrate_frames_then_solve(tmp_path):
+    from astropy.io import fits
+
+    rng = np.random.default_rng(5)
+    darks = []
+    for i in range(4):
+        d = rng.normal(30.0, 2.0, (960, 1280)).astype(np.float32)
+        d[100, 200] = d[700, 900] = 900.0  # two hot pixels
+        darks.append(tmp_path / f"dark{i}.fits")
+        fits.PrimaryHDU(d, header=fits.Header({"EXPTIME": 0.1})).writeto(darks[-1])
+    maps = tmp_path / "maps.fits"
+    args = ["calibrate", "frames", "-o", str(maps)]
+    for p in darks:
+        args += ["--darks", str(p)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    row = [ln.split() for ln in result.output.splitlines() if ln.strip().startswith("0.1")][0]
+    assert float(row[2]) == pytest.approx(30.0, abs=0.1)
+    # Both hot pixels, plus at most a few Gaussian-tail pixels of 1.2 Mpx at 5σ.
+    assert 2 <= int(row[5]) <= 5
+    from skyfix.detect import load_calibration
+
+    bad = load_calibration(maps)["bad_pixels"]
+    assert bad[100, 200] and bad[700, 900] and bad.sum() == int(row[5])
+    # The example's camera has a 64 ADU bias: a 30 ADU dark still leaves it solvable.
+    result = runner.invoke(app, ["solve", str(EXAMPLE), "--calibration", str(maps)])
+    assert result.exit_code == 0 and "solved" in result.output

@@ -56,12 +56,15 @@ def solve(
     images: list[Path] = typer.Argument(..., help="Image files (FITS, PNG, TIFF, JPEG)."),
     fov: float = typer.Option(None, "--fov", help="Horizontal field of view, degrees (optional)."),
     fov_tolerance: float = typer.Option(None, "--fov-tolerance", help="Tolerance on --fov, degrees."),
-    camera_file: Path = typer.Option(None, "--camera", help="Camera TOML file (intrinsics + distortion)."),
+    camera_file: str = typer.Option(None, "--camera", help="Camera TOML file or preset name."),
     epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: now)."),
     method: str = typer.Option("svd", "--attitude", help="Wahba solver: svd, quest, esoq2, q-method, triad."),
     json_out: bool = typer.Option(False, "--json", help="One JSON Solution per image per line."),
     wcs: Path = typer.Option(None, "--wcs", help="Write a FITS WCS header (use {stem} for many images)."),
     plot: Path = typer.Option(None, "--plot", help="Write a PNG with identified stars circled."),
+    calibration: Path = typer.Option(None, "--calibration", help="Maps from `skyfix calibrate frames`."),
+    dark: Path = typer.Option(None, "--dark", help="Master dark image to subtract."),
+    flat: Path = typer.Option(None, "--flat", help="Master flat image to divide by (normalised to 1)."),
     verbose: int = typer.Option(0, "--verbose", "-v", count=True, help="Log what each stage decided."),
 ) -> None:
     """Solve sky images lost in space: print RA, Dec, roll and the error bars."""
@@ -69,11 +72,10 @@ def solve(
     from skyfix.pipeline import solve as solve_image
 
     try:
+        maps = _calibration_maps(calibration, dark, flat)
         camera = None
         if camera_file is not None:
-            from skyfix.camera import Camera
-
-            camera = Camera.load(camera_file)
+            camera = _load_camera(camera_file)
         if fov is not None and not 0.1 <= fov <= 120:
             _fail(f"--fov {fov} is not a plausible field of view (0.1–120 degrees)")
         from skyfix.identify import default_database
@@ -87,7 +89,7 @@ def solve(
     for path in images:
         try:
             sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
-                              database=database, epoch=epoch, attitude_method=method)
+                              database=database, epoch=epoch, attitude_method=method, **maps)
         except SkyfixError as exc:
             _fail(f"{path}: {exc}")
         any_failed |= not sol.solved
@@ -112,6 +114,23 @@ def solve(
     if progress is not None:
         progress.stop()
     raise typer.Exit(1 if any_failed else 0)
+
+
+def _calibration_maps(calibration: Path | None, dark: Path | None, flat: Path | None) -> dict:
+    """``dark``, ``flat`` and ``bad_pixels`` for :func:`skyfix.pipeline.solve`; files given
+    one by one override those in the calibration file."""
+    from skyfix.io import read_image
+
+    maps: dict = {}
+    if calibration is not None:
+        from skyfix.detect import load_calibration
+
+        maps.update(load_calibration(calibration))
+    if dark is not None:
+        maps["dark"] = read_image(dark)
+    if flat is not None:
+        maps["flat"] = read_image(flat)
+    return maps
 
 
 def _progress(n: int, quiet: bool):
@@ -158,6 +177,123 @@ def database_build(
     except SkyfixError as exc:
         _fail(str(exc))
     typer.echo(f"wrote {path} ({db.summary()})")
+
+
+@app.command()
+def detect(
+    images: list[Path] = typer.Argument(..., help="Image files (FITS, PNG, TIFF, JPEG)."),
+    method: str = typer.Option("components", "--method", help="Detection method (skyfix.detect.METHODS)."),
+    centroid: str = typer.Option("com", "--centroid", help="Centroider: com, iwcog, gaussian."),
+    sigma: float = typer.Option(5.0, "--sigma", help="Detection threshold, noise σ above the background."),
+    max_stars: int = typer.Option(200, "--max-stars", help="Keep the brightest N."),
+    calibration: Path = typer.Option(None, "--calibration", help="Maps from `skyfix calibrate frames`."),
+    json_out: bool = typer.Option(False, "--json", help="One JSON line per image with its centroids."),
+) -> None:
+    """Find stars and print their centroids (DESIGN.md pixels), brightest first."""
+    import json
+
+    import numpy as np
+
+    from skyfix.detect import calibrate_frame, extract_centroids
+    from skyfix.io import read_image
+
+    try:
+        maps = _calibration_maps(calibration, None, None)
+        for path in images:
+            data = read_image(path)
+            if maps:
+                data = calibrate_frame(data, **maps)
+            c = extract_centroids(data, method=method, centroid=centroid, sigma=sigma, max_stars=max_stars)
+            if not json_out:
+                typer.echo(f"{path}: {len(c)} stars, background {c.background_level:.1f}, "
+                           f"noise {c.noise:.2f}")
+                for i in range(min(len(c), 10)):
+                    typer.echo(f"  x {c.x[i]:8.2f}  y {c.y[i]:8.2f}  flux {c.flux[i]:10.1f}  "
+                               f"snr {c.snr[i]:7.1f}")
+                continue
+            cols = {k: np.asarray(getattr(c, k), float).tolist()
+                    for k in ("x", "y", "flux", "snr", "area", "sigma_x", "sigma_y")}
+            rows = [dict(zip(cols, vals, strict=True)) for vals in zip(*cols.values(), strict=True)]
+            typer.echo(json.dumps({"image": str(path), "n": len(c), "background": float(c.background_level),
+                                   "noise": float(c.noise), "centroids": rows}))
+    except SkyfixError as exc:
+        _fail(str(exc))
+    except ValueError as exc:  # an unknown method or centroider name
+        _fail(str(exc))
+
+
+calibrate_app = typer.Typer(no_args_is_help=True, help="Calibrate the sensor (dark, flat, hot pixels).")
+app.add_typer(calibrate_app, name="calibrate")
+
+
+@calibrate_app.command("frames")
+def calibrate_frames(
+    darks: list[Path] = typer.Option(None, "--darks", help="Dark frames (shutter closed)."),
+    flats: list[Path] = typer.Option(None, "--flats", help="Flat-field frames (uniform illumination)."),
+    nsigma: float = typer.Option(5.0, "--nsigma", help="Hot pixel: this many σ above the dark level."),
+    output: Path = typer.Option(..., "--output", "-o", help="Maps file (.fits or .npz)."),
+) -> None:
+    """Master dark, master flat and hot/dead-pixel map from frame stacks, with a dark report."""
+    from skyfix.detect import (
+        dark_report,
+        dead_pixel_map,
+        hot_pixel_map,
+        master_dark,
+        master_flat,
+        save_calibration,
+    )
+
+    if not darks and not flats:
+        _fail("give --darks and/or --flats")
+    try:
+        dark = master_dark(darks) if darks else None
+        flat = master_flat(flats, dark=dark) if flats else None
+        bad = None
+        if dark is not None:
+            bad = hot_pixel_map(dark, nsigma)
+        if flat is not None:
+            bad = dead_pixel_map(flat) if bad is None else bad | dead_pixel_map(flat)
+        save_calibration(output, dark=dark, flat=flat, bad_pixels=bad)
+        if darks:
+            by_exposure: dict[float, list[Path]] = {}
+            for p in darks:
+                by_exposure.setdefault(_exposure_s(p), []).append(p)
+            typer.echo("exposure_s  frames  dark_level_adu  dark_noise_adu  dsnu_adu  hot_pixels")
+            for row in dark_report(by_exposure, nsigma):
+                typer.echo(f"{row['exposure_s']:10.4g}  {row['n_frames']:6d}  {row['dark_level_adu']:14.2f}  "
+                           f"{row['dark_noise_adu']:14.2f}  {row['dsnu_adu']:8.2f}  {row['hot_pixels']:10d}")
+    except SkyfixError as exc:
+        _fail(str(exc))
+    n_bad = 0 if bad is None else int(bad.sum())
+    typer.echo(f"wrote {output} (dark: {dark is not None}, flat: {flat is not None}, bad pixels: {n_bad})")
+
+
+def _exposure_s(path: Path) -> float:
+    """Exposure of a frame from its FITS header (EXPTIME/EXPOSURE), NaN when unknown."""
+    if path.suffix.lower() not in (".fits", ".fit", ".fts"):
+        return float("nan")
+    try:
+        from astropy.io import fits
+
+        header = fits.getheader(path)
+        return float(header.get("EXPTIME", header.get("EXPOSURE", float("nan"))))
+    except Exception:  # the frame itself is read (and its errors reported) by master_dark
+        return float("nan")
+
+
+def _load_camera(value: str):
+    """A Camera from a TOML file or a preset name (simulator presets included)."""
+    from skyfix.camera import Camera
+
+    if value.endswith(".toml") or Path(value).is_file():
+        return Camera.load(value)
+    from skyfix.simulate import load_preset, preset_names
+
+    if value.lower() in preset_names():
+        return Camera.from_dict(load_preset(value)["camera"])
+    from skyfix.camera import camera_from_preset
+
+    return camera_from_preset(value)
 
 
 def _camera_arg(value: str):

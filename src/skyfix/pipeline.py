@@ -37,6 +37,9 @@ def solve(
     attitude_method: str = "svd",
     max_stars: int = 200,
     name: str | None = None,
+    dark: np.ndarray | None = None,
+    flat: np.ndarray | None = None,
+    bad_pixels: np.ndarray | None = None,
     **identify_options,
 ) -> Solution:
     """Solve one sky image, lost in space.
@@ -57,6 +60,9 @@ def solve(
         Observation epoch, Julian year, for proper motion (default: now).
     attitude_method : str
         Wahba solver for the final fit: ``svd``, ``quest``, ``esoq2``, ``q-method``, ``triad``.
+    dark, flat, bad_pixels : (H, W) arrays, optional
+        Frame calibration applied before extraction, in this order (master dark in ADU,
+        normalised flat, hot/dead pixel mask): see :mod:`skyfix.detect.calibrate_frames`.
     max_stars : int
         Brightest centroids kept: identification tries patterns among the brightest and
         verifies against all of them, and every verified star enters the attitude fit.
@@ -77,6 +83,10 @@ def solve(
     t0 = time.perf_counter()
     label = name if name is not None else (str(image) if isinstance(image, (str, Path)) else "<array>")
     data = read_image(image)
+    if dark is not None or flat is not None or bad_pixels is not None:
+        from skyfix.detect import calibrate_frame
+
+        data = calibrate_frame(data, dark=dark, flat=flat, bad_pixels=bad_pixels)
     t_read = time.perf_counter()
     centroids = extract_centroids(data, max_stars=max_stars)
     t_extract = time.perf_counter()
