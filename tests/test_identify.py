@@ -225,3 +225,18 @@ def test_impossible_fov_hint_raises_one_line(database, fields):
 
     with pytest.raises(CameraError, match="impossible field of view"):
         identify(fields[0].xy, W, H, fov_deg=-3.0, database=database)
+
+
+@pytest.mark.parametrize("fov", [8.0, 11.0, 22.0, 38.0])
+def test_fov_estimated_across_and_beyond_the_database_range(database, catalog, fov):
+    """The default 10–30° database serves 7.4–40.5° without a hint; the FOV comes out right."""
+    cam = Camera.from_fov(W, H, fov)
+    solved = 0
+    for i, A in enumerate(random_attitudes(5, rng=int(fov * 10))):
+        f = synthetic_centroids(cam, A, catalog, mag_limit=7.5, sigma_px=0.5, n_false=3, rng=i)
+        res = identify(f.xy, W, H, database=database)
+        if res.success:
+            assert attitude_errors(res.A_icrs_to_cam, A)[0] < 30
+            assert res.camera.fov_deg == pytest.approx(fov, rel=2e-3)
+            solved += 1
+    assert solved >= 4
