@@ -81,3 +81,15 @@ def test_presets_load():
         assert 1.0 < cam.fov_deg < 90.0
     with pytest.raises(CameraError):
         camera_from_preset("no-such-camera")
+
+
+def test_thesis_000_pixel_to_unit_vector_corrected_form():
+    # SEEDS.md: thesis 000's pixel → unit vector is [x·P/F, y·P/F, 1] / sqrt(1 + (x²+y²)(P/F)²)
+    # with (x, y) from the principal point, P the pixel pitch and F the focal length.
+    cam = Camera.from_optics(752, 480, focal_length_mm=8.5, pixel_pitch_um=6.0)
+    rng = np.random.default_rng(4)
+    xy = rng.uniform([0, 0], [751, 479], size=(100, 2))
+    x, y = xy[:, 0] - cam.cx, xy[:, 1] - cam.cy
+    k = 6.0e-3 / 8.5
+    expected = np.stack([x * k, y * k, np.ones_like(x)], axis=1) / np.sqrt(1 + (x**2 + y**2) * k**2)[:, None]
+    np.testing.assert_allclose(cam.pixel_to_ray(xy), expected, atol=1e-15)
