@@ -110,18 +110,3 @@ def test_measure_psf_width_and_ellipticity():
     assert psf["sigma_y"][1] == pytest.approx(1.0, rel=0.05)
     assert psf["ellipticity"][1] == pytest.approx(0.5, abs=0.03)
 
-
-def test_centroid_study_grid_scurve_and_plot(tmp_path):
-    from skyfix.detect.study import centroid_error_grid, flux_for_snr, plot_centroid_study, s_curve
-
-    f = flux_for_snr(50.0, 1.2, 50.0, 3.0)
-    assert f / math.sqrt(f + 4 * math.pi * 1.44 * (50 + 9)) == pytest.approx(50.0)
-    rows = centroid_error_grid(psf_sigmas=(1.2,), snrs=(50,), n_trials=150)
-    by = {r["method"]: r for r in rows}
-    assert set(by) == {"com", "iwcog", "gaussian"} and all(r["failed"] == 0 for r in rows)
-    assert by["gaussian"]["ratio"] < 1.25 and by["com"]["ratio"] > by["gaussian"]["ratio"]
-    curve = s_curve(0.5, methods=("iwcog", "gaussian"), n_trials=30)
-    # undersampled PSF: IWCoG is pulled toward the pixel centre (S-curve), the fit is not
-    assert np.max(np.abs(curve["iwcog"])) > 0.02 > np.max(np.abs(curve["gaussian"]))
-    plot_centroid_study(rows, {0.5: curve}, tmp_path / "study.png")
-    assert (tmp_path / "study.png").stat().st_size > 10_000

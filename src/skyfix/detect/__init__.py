@@ -13,9 +13,8 @@ Typical use::
   ``centroid=`` "com" (default), "iwcog", "gaussian".
 - :func:`centroid_windows` — tracking: one star per predicted position, O(N·window²).
 - :func:`estimate_background` — tiled (default), global or per-row sky and noise.
-- :func:`cramer_rao_centroid`, :func:`measure_psf` — bounds and PSF shape;
-  :mod:`skyfix.detect.study` — centroider error vs the bound and S-curves on simulated stars
-  (``centroid_error_grid``, ``s_curve``, ``plot_centroid_study``) for ``analyze centroids``.
+- :func:`cramer_rao_centroid`, :func:`measure_psf` — bounds and PSF shape (the study of every
+  centroider against the bound is :mod:`skyfix.analysis.centroid_study`).
 - Frame calibration: :func:`master_dark`, :func:`master_flat`, :func:`hot_pixel_map`,
   :func:`dead_pixel_map`, :func:`calibrate_frame` (dark → flat → repair), :func:`dark_report`,
   :func:`save_calibration` / :func:`load_calibration`.

@@ -22,29 +22,12 @@ independent of the frame size):
 :func:`centroid_windows` runs one of them at predicted positions (tracking); the extractor
 uses the same kernels to refine its components; :func:`cramer_rao_centroid` gives the bound.
 
-Measured (16×16 windows, pixel-integrated Gaussian stars at random sub-pixel phase, Poisson
-star + 50 e⁻ sky + 3 e⁻ read noise, gain 1 given, 200 stars per row; RMS x error / CRB):
-
-============  ====  ========  =====  =====  =====
-PSF σ (px)    SNR   CRB (px)  CoM    IWCoG  Gauss
-============  ====  ========  =====  =====  =====
-0.5           29    0.0255    4.29   1.49   1.03
-0.5           141   0.0043    1.53   8.11   1.08
-0.8           26    0.0428    2.78   1.09   1.02
-0.8           51    0.0201    2.10   1.20   1.10
-0.8           140   0.0065    1.39   1.41   1.00
-1.2           22    0.0764    1.92   1.12   0.98
-1.2           138   0.0099    1.15   1.17   1.00
-2.0           16    0.1776    1.73   1.25   1.05
-2.0           132   0.0180    1.16   1.15   0.90
-============  ====  ========  =====  =====  =====
-
-Pixel-phase bias (S-curve), mean over 60 noisy stars at SNR ≈ 140, star at phase 0.1–0.4 px:
-windowed CoM ≤ 0.005 px; IWCoG 0.05 px at σ = 0.5 (its weight cannot be narrower than
-0.8 px), ≤ 0.007 px from σ = 0.8; Gaussian fit ≤ 0.003 px; thesis 000's 3×3-ROI CoM
-(:mod:`skyfix.detect.hillclimb`) −0.02 px at σ = 0.5 but −0.13 px at σ = 0.8 and −0.24 px at
-σ = 1.2 (pulled toward the pixel centre: the ROI cuts the wings). Without the gain the fit
-weighs pixels uniformly: ~1.2 × CRB at high SNR, with honest sandwich errors.
+How close each comes to the bound, and its S-curve, is measured by ``skyfix analyze
+centroids`` (:mod:`skyfix.analysis.centroid_study`; tables in ``docs/centroiding.md``). In short:
+the fit reaches ~1.0–1.1 × CRB from σ = 0.5 px when the gain is given (~1.2 × at high SNR
+without it, with honest sandwich errors); IWCoG ~1.1–1.2 × from σ = 0.8 px but an S-curve of
+0.05 px at σ = 0.5 (its weight is floored at 0.8 px); the thresholded CoM 1.2–4 × (it drops the
+wings), and thesis 000's 3×3-ROI CoM a −0.24 px pull toward the pixel centre at σ = 1.2 px.
 """
 
 from __future__ import annotations
