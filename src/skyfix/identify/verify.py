@@ -18,6 +18,8 @@ import math
 import numba
 import numpy as np
 
+_N_RADII = 5  # verification radii R, R/2, ..., R/16
+
 __all__ = ["log_binom_sf", "star_limit", "stars_in_view", "gather_stars", "project_stars", "match_greedy",
            "grid_index", "match_grid", "verify_attitude"]
 
@@ -228,16 +230,16 @@ def verify_attitude(A, f, frame, n_cat_max, n_img, p, radius_px, pattern, combo,
 
     The pattern's own stars are not counted. Each catalogue star lands by chance within ``r`` of
     some centroid with ``p = n_img·π·r² / frame area``; the matches are counted within the full
-    radius and within a half and a quarter of it (a clean frame earns the tighter, more telling
-    test; a distorted one still passes with the full radius), and the best of the three binomial
-    tails, times 3 for the choice, is returned with (matches within the radius, catalogue stars).
+    radius and within 1/2, 1/4, 1/8 and 1/16 of it (a clean frame earns the tighter, more telling
+    test; a distorted one still passes with the full radius), and the best of the five binomial
+    tails, times 5 for the choice, is returned with (matches within the radius, catalogue stars).
     """
     limit = star_limit(len(star_vectors), n_cat_max, frame, f, 2.0)
     n_view = stars_in_view(A, f, 0.0, frame, limit, star_vectors, cell_centres, cell_start,
                             cell_stars, cell_radius, view_idx, view_x, view_y)
     n_cat = min(n_view, n_cat_max)
     match_greedy(view_x, view_y, n_cat, p, n_img, radius_px, used, match_img)
-    k_full = k_half = k_quarter = 0
+    k = np.zeros(_N_RADII, dtype=np.int64)  # matches within radius_px / 2**m
     n = 0
     r2 = radius_px * radius_px
     for j in range(n_cat):
@@ -250,13 +252,16 @@ def verify_attitude(A, f, frame, n_cat_max, n_img, p, radius_px, pattern, combo,
         n += 1
         i = match_img[j]
         if i >= 0 and i != combo[0] and i != combo[1] and i != combo[2] and i != combo[3]:
-            k_full += 1
             d2 = (p[i, 0] - view_x[j]) ** 2 + (p[i, 1] - view_y[j]) ** 2
-            if d2 <= r2 / 4.0:
-                k_half += 1
-            if d2 <= r2 / 16.0:
-                k_quarter += 1
+            lim = r2
+            for m in range(_N_RADII):
+                if d2 <= lim:
+                    k[m] += 1
+                lim /= 4.0
     p_full = min(1.0, n_img * np.pi * r2 / ((frame[1] - frame[0]) * (frame[3] - frame[2])))
-    logp = min(log_binom_sf(k_full, n, p_full), log_binom_sf(k_half, n, p_full / 4.0),
-               log_binom_sf(k_quarter, n, p_full / 16.0)) + np.log(3.0)
+    logp = 0.0
+    for m in range(_N_RADII):
+        logp = min(logp, log_binom_sf(k[m], n, p_full / 4.0**m))
+    logp += np.log(float(_N_RADII))
+    k_full = k[0]
     return logp, k_full, n
