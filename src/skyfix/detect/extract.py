@@ -716,6 +716,7 @@ def _measure(img, labels, ids, boxes, bg_grid, iy, fy, ix, fx, saturation, min_s
         nskip = 0
         for _attempt in range(4):
             sw = swx = swy = swxx = swyy = swxy = 0.0
+            total = 0.0  # plain sum: clipping negative pixels would bias faint fluxes up
             sx = sy = sxx = syy = 0.0
             npix = 0
             nsat = 0
@@ -742,6 +743,7 @@ def _measure(img, labels, ids, boxes, bg_grid, iy, fy, ix, fx, saturation, min_s
                         continue
                     r = _residual(img, bg_grid, iy, fy, ix, fx, y, x)
                     npix += 1
+                    total += r
                     sx += x
                     sy += y
                     sxx += x * x
@@ -768,7 +770,7 @@ def _measure(img, labels, ids, boxes, bg_grid, iy, fy, ix, fx, saturation, min_s
         if sw <= 0.0:
             continue
         xc, yc = swx / sw, swy / sw
-        out[c, 0] = sw
+        out[c, 0] = total
         out[c, 1] = xc
         out[c, 2] = yc
         out[c, 3] = npix
