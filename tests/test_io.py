@@ -123,3 +123,14 @@ def test_mostly_nan_frame_rejected(tmp_path):
     fits.writeto(tmp_path / "nan.fits", a)
     with pytest.raises(ImageReadError, match="NaN"):
         read_image(tmp_path / "nan.fits")
+
+
+def test_colour_jpeg_decodes_to_bt601_luma(tmp_path):
+    rng = np.random.default_rng(2)
+    rgb = rng.integers(0, 256, (40, 48, 3), dtype=np.uint8)
+    rgb = np.repeat(np.repeat(rgb[::8, ::8], 8, axis=0), 8, axis=1)[:40, :48]  # flat 8×8 blocks
+    Image.fromarray(rgb).save(tmp_path / "c.jpg", quality=100, subsampling=0)
+    img = read_image(tmp_path / "c.jpg")
+    luma = rgb.astype(float) @ np.array([0.299, 0.587, 0.114])
+    assert img.shape == (40, 48)
+    assert np.median(np.abs(img - luma)) < 1.0
