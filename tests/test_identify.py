@@ -240,3 +240,17 @@ def test_fov_estimated_across_and_beyond_the_database_range(database, catalog, f
             assert res.camera.fov_deg == pytest.approx(fov, rel=2e-3)
             solved += 1
     assert solved >= 4
+
+
+def test_catalog_vectors_at_the_requested_epoch(database, fields):
+    res = identify(fields[0].xy, W, H, database=database, epoch=1991.25)
+    assert res.success
+    hip = load_hipparcos(epoch=1991.25)
+    where = {int(h): i for i, h in enumerate(hip.ids)}
+    expect = hip.vectors[[where[int(h)] for h in res.catalog_ids]]
+    # Proper motion applied from the database epoch back to 1991.25 (linear steps there and
+    # back differ at second order: ~0.05″ for the fastest stars).
+    assert np.max(angle_between(res.catalog_vectors, expect)) / ARCSEC < 0.1
+    moved = np.max(angle_between(res.catalog_vectors, np.asarray(database.star_vectors)[
+        [int(np.flatnonzero(np.asarray(database.star_ids) == h)[0]) for h in res.catalog_ids]])) / ARCSEC
+    assert moved > 0.1  # some matched star has a proper motion worth > 0.1″ over 35 years
