@@ -299,3 +299,24 @@ def test_streak_is_measured_not_dropped():
     assert c.x[0] == pytest.approx(60.0, abs=0.1) and c.y[0] == pytest.approx(50.0, abs=0.1)
     assert c.elongation[0] > 4
     assert c.angle[0] == pytest.approx(ang, abs=0.02)
+
+
+def test_particle_tracks_rejected_trailed_stars_kept():
+    """Cosmic rays are one pixel wide; a trailed star keeps the PSF's width across its trail."""
+    xy, flux = random_field(n=20, seed=9)
+    img = render_stars((480, 640), xy, flux, sigma=1.3, noise=3.0)
+    tracks = [((100, 50), (118, 58)), ((500, 400), (490, 420)), ((300, 200), (330, 201))]
+    for (x0, y0), (x1, y1) in tracks:
+        n = int(max(abs(x1 - x0), abs(y1 - y0))) + 1
+        rows = np.round(np.linspace(y0, y1, n)).astype(int)
+        img[rows, np.round(np.linspace(x0, x1, n)).astype(int)] += 800.0
+    t = np.linspace(-8, 8, 33)
+    trail = np.column_stack([560 + t, 60 + 0.3 * t])
+    img += render_stars((480, 640), trail, np.full(33, 300.0), sigma=1.3, noise=0.0, background=0.0)
+    c = extract_centroids(img)
+    mid = np.array([[0.5 * (a[0] + b[0]), 0.5 * (a[1] + b[1])] for a, b in tracks])
+    d_track, _ = nearest(c, mid)
+    assert np.all(d_track > 5)  # no track survives
+    d_trail, k = nearest(c, np.array([[560.0, 60.0]]))
+    assert d_trail[0] < 0.3 and c.elongation[k[0]] > 3  # the trailed star does
+    assert len(extract_centroids(img, reject_tracks=False)) >= len(c) + 2

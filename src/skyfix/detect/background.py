@@ -29,6 +29,10 @@ __all__ = ["Background", "estimate_background", "smooth3", "default_tile_size"]
 
 # A clipped RMS at ±3σ of a Gaussian underestimates σ by this factor.
 _CLIP = 3.0
+# Raw noise below this (in levels) on integer data counts as quantised.
+_QUANTISED_SIGMA = 1.0
+# Noise of the 3×3 binomial mean of white noise, relative to the pixel noise: √(36/256).
+_SMOOTH_WHITE = 0.375
 # The sampling lattice in a tile has about this many points per side.
 _SAMPLES_PER_SIDE = 10
 _CLIP_CORRECTION = 1.0 / math.sqrt(1.0 - 2.0 * _CLIP * math.exp(-0.5 * _CLIP**2) / math.sqrt(2 * math.pi)
@@ -150,7 +154,17 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     if grid_filter > 1 and min(ny, nx) > 1:
         noise_s = ndimage.median_filter(noise_s, size=grid_filter, mode="nearest")
     # raw-pixel noise: one pooled robust estimate, spread over the tiles like the smoothed noise
-    _, raw_sigma = _robust_level_noise(raw_res, 1.0 if is_int else 0.0)
+    raw_med, raw_sigma = _robust_level_noise(raw_res, 1.0 if is_int else 0.0)
+    if is_int and raw_sigma < _QUANTISED_SIGMA and raw_res.size:
+        # Noise below one level: most pixels share a value, so medians sit on the integer grid
+        # while the sky's mean does not (a few tenths of a level, times hundreds of pixels in a
+        # footprint), and the lower half of the distribution hides the noise. Use the clipped
+        # mean for the level and the white-noise smoothing factor as a floor for the noise.
+        near = np.abs(raw_res - raw_med) <= _CLIP * max(raw_sigma, 1.0)
+        delta = float(np.mean(raw_res[near]) - raw_med) if near.any() else 0.0
+        level = level + delta
+        level_raw = level_raw + delta
+        noise_s = np.maximum(noise_s, _SMOOTH_WHITE * raw_sigma)
     ref_s = float(np.median(noise_s))
     kappa = raw_sigma / ref_s if ref_s > 0 else 1.0
     return Background(level=level_raw, noise=kappa * noise_s, level_smooth=level, noise_smooth=noise_s,

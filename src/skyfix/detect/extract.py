@@ -47,6 +47,8 @@ _DIFFUSE_PERCENTILE = 30
 # Fraction of a component's positive raw light in its brightest pixel beyond which it is a hot
 # pixel (a star centred on a pixel with PSF σ = 0.35 px puts 80% there).
 _HOT_CONCENTRATION = 0.9
+# A particle track's variance across, relative to a typical star's, is below this.
+_TRACK_WIDTH_RATIO = 1.0 / 3.0
 
 
 def extract_centroids(
@@ -68,6 +70,7 @@ def extract_centroids(
     centroid: str = "com",
     gain: float | None = None,
     deblend: float | None = 0.3,
+    reject_tracks: bool = True,
 ) -> Centroids:
     """Find stars in a frame and measure their centroids, brightest first.
 
@@ -137,6 +140,11 @@ def extract_centroids(
         than 3 such maxima is texture and stays whole. ``None`` turns it off (e.g. for
         defocused, ring-shaped PSFs).
 
+    reject_tracks : bool
+        Drop cosmic-ray and other particle tracks (``"components"`` only): candidates longer
+        than 2:1 and narrower across than a third of the typical star's variance (starlight,
+        even trailed, keeps the PSF's width).
+
     Returns
     -------
     Centroids
@@ -157,7 +165,7 @@ def extract_centroids(
     if method == "components":
         c = _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharpness,
                         max_noise_ratio, max_diffuseness, max_elongation, saturation, tile, background,
-                        deblend)
+                        deblend, reject_tracks)
     elif method == "threshold_hillclimb":
         from skyfix.detect.hillclimb import extract_hillclimb
 
@@ -176,7 +184,8 @@ def extract_centroids(
 
 
 def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharpness, max_noise_ratio,
-                max_diffuseness, max_elongation, saturation, tile, background, deblend) -> Centroids:
+                max_diffuseness, max_elongation, saturation, tile, background, deblend,
+                reject_tracks) -> Centroids:
     """The default detector (module docstring, steps 1–5)."""
     h, w = img.shape
     ws = _workspace(h, w)
@@ -250,6 +259,8 @@ def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharp
     good = (flux > 0) & (sharp >= min_sharpness) & ((nhot == 0) | ((snr >= sigma) & ~is_part))
     if max_elongation is not None:
         good &= elong <= max_elongation
+    if reject_tracks:
+        good &= ~_particle_tracks(0.5 * (tr - det), elong, snr, good)
     if max_diffuseness is not None:
         good &= ~_diffuse(flux, peak, snr, peak / noise_px, nsat > 0, good, max_diffuseness)
     if max_noise_ratio is not None:
@@ -338,6 +349,20 @@ def saturation_level(image: np.ndarray) -> float:
 def _full_scale(vmax: float) -> float:
     near = np.abs(_FULL_SCALES - vmax) <= 0.005 * _FULL_SCALES
     return vmax if near.any() else math.inf
+
+
+def _particle_tracks(minor_var, elong, snr, candidate):
+    """Cosmic-ray and other particle tracks: elongated yet narrower across than any star.
+
+    Starlight passes the optics, so even a trailed star keeps the PSF's width across its
+    trail; a particle track is about one pixel wide. A candidate longer than 2:1 whose variance
+    across is below a third of the frame's typical (compact, SNR > 10) star's is a track.
+    """
+    compact = candidate & (elong < 1.5) & (snr > 10.0)
+    if compact.sum() < 3:
+        return np.zeros(elong.size, bool)
+    typical = float(np.median(minor_var[compact]))
+    return (elong > 2.0) & (minor_var < _TRACK_WIDTH_RATIO * typical)
 
 
 def _diffuse(flux, peak, snr, peak_snr, saturated, candidate, ratio):
