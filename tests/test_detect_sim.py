@@ -18,9 +18,9 @@ simulate = pytest.importorskip("skyfix.simulate")
 
 # preset: (min matched among the 20 brightest, max RMS px of matched stars with SNR > 20)
 CASES = {
-    "generic": (16, 0.12),  # measured 18, 18, 18; 0.05–0.10 px
-    "has2": (11, 0.12),  # 17, 17, 13; 0.03–0.07 px
-    "sunsat": (14, 0.15),  # 18, 17, 16; 0.06–0.08 px (6-bit)
+    "generic": (18, 0.12),  # measured 20, 20, 20; 0.04–0.10 px
+    "has2": (11, 0.12),  # 17, 16, 13; 0.03–0.07 px
+    "sunsat": (16, 0.15),  # 19, 18, 18; 0.06–0.08 px (6-bit)
 }
 
 

@@ -48,7 +48,7 @@ _DIFFUSE_PERCENTILE = 30
 # pixel (a star centred on a pixel with PSF σ = 0.35 px puts 80% there).
 _HOT_CONCENTRATION = 0.9
 # A particle track's variance across, relative to a typical star's, is below this.
-_TRACK_WIDTH_RATIO = 1.0 / 3.0
+_TRACK_WIDTH_RATIO = 0.4
 
 
 def extract_centroids(
@@ -352,17 +352,21 @@ def _full_scale(vmax: float) -> float:
 
 
 def _particle_tracks(minor_var, elong, snr, candidate):
-    """Cosmic-ray and other particle tracks: elongated yet narrower across than any star.
+    """Cosmic-ray and other particle tracks: narrower across than any starlight.
 
     Starlight passes the optics, so even a trailed star keeps the PSF's width across its
-    trail; a particle track is about one pixel wide. A candidate longer than 2:1 whose variance
-    across is below a third of the frame's typical (compact, SNR > 10) star's is a track.
+    trail; a particle track or hit is about one pixel wide. A candidate whose variance across
+    is below ``_TRACK_WIDTH_RATIO`` of the frame's typical (compact, SNR > 10) star's and that is
+    longer than 1.5:1 is a track; below half that ratio it is one whatever its length. Only
+    candidates with SNR ≥ 20 are judged: a faint star's footprint holds just its core, so its
+    moments look narrow too.
     """
     compact = candidate & (elong < 1.5) & (snr > 10.0)
     if compact.sum() < 3:
         return np.zeros(elong.size, bool)
-    typical = float(np.median(minor_var[compact]))
-    return (elong > 2.0) & (minor_var < _TRACK_WIDTH_RATIO * typical)
+    rel = minor_var / float(np.median(minor_var[compact]))
+    narrow = ((elong > 1.5) & (rel < _TRACK_WIDTH_RATIO)) | (rel < 0.5 * _TRACK_WIDTH_RATIO)
+    return narrow & (snr >= 20.0)
 
 
 def _diffuse(flux, peak, snr, peak_snr, saturated, candidate, ratio):
