@@ -1,20 +1,25 @@
 """The default star extractor: background, k·σ threshold, connected components, centroids.
 
-Pipeline of :func:`extract_centroids`:
+Pipeline of :func:`extract_centroids` (``method="components"``):
 
 1. Tiled robust background and noise (:mod:`skyfix.detect.background`) of the raw frame and of
    the frame smoothed by a 3×3 binomial kernel (a cheap matched filter for a PSF of σ ≈ 1 px).
-2. Pixels whose smoothed value exceeds the smoothed sky by ``sigma``·σ are grouped into
-   8-connected components by a flood fill (numba), which also records each component's size,
-   bounding box and summed excess.
-3. Components that are too small, too large or too extended (foreground, Moon, trees, roof
-   edges and the like) are dropped.
-4. The survivors are measured on the raw frame minus the interpolated sky, over the component
+2. Pixels whose smoothed value exceeds the smoothed sky by ``sigma``·σ (more on the frame
+   border, where smoothing averages fewer pixels) are grouped into 8-connected components by a
+   flood fill (numba), which also records each component's size, box and summed excess.
+3. Components that are too small, too large or too extended (Moon, roof edges) are dropped, and
+   lone hot pixels (nearly all the light in one pixel) before the cap on measured candidates.
+4. Touching stars are split at the saddle between prominent maxima (``deblend``).
+5. Each candidate is measured on the raw frame minus the interpolated sky, over the component
    grown by one pixel so faint wings count: intensity-weighted centroid (negative residuals
-   weigh zero), flux, peak, second moments → elongation, SNR, the centroid's noise σ, and
-   saturation.
-5. Hot pixels (a peak much sharper than any optics gives: the mean of its 8 neighbours is a
-   tiny fraction of it) are dropped; the rest are sorted by flux and cut to ``max_stars``.
+   weigh zero), flux (plain sum), peak, second moments → elongation and direction, SNR, the
+   centroid's noise σ, and saturation. A peak sharper than optics allow is a hot pixel: it is
+   left out and the star measured again.
+6. Rejections: hot pixels; particle tracks (narrower than starlight); diffuse blobs (foliage,
+   cloud, nebulae: far larger ``flux/peak`` than the frame's typical star); anything in or next
+   to a cluttered tile (tile noise > ``max_noise_ratio`` × the median: lit trees, roofs, a comet).
+7. Optional refinement by IWCoG or a 2-D Gaussian fit (``centroid=``); sort by flux, cut to
+   ``max_stars``.
 
 Bad frames (constant, black, saturated, 1×1, too many non-finite pixels) give an empty list.
 """
