@@ -1,15 +1,22 @@
 """Sky background and noise: a tiled robust estimate on a coarse grid, interpolated bilinearly.
 
 The frame is cut into tiles (about 1/16 of the short side, 32–64 px). In each tile a regular
-lattice of ~144 pixels of the 3×3-smoothed frame gives the median (the sky level) and a clipped
-RMS about it (the noise σ; a plain MAD collapses to zero on 8-bit frames whose noise is below
-one level). The raw-pixel noise is one pooled robust estimate over about 64 tiles, scaled tile
-by tile like the smoothed noise. The grid is interpolated bilinearly between tile centres (and
-extrapolated linearly over the half tile beyond the outer centres). An optional median filter
-over the grid (``grid_filter``) removes tiles dominated by a bright object, but it also bends
-strong vignetting at the corners, so it is off by default: the tile median already ignores
-stars, and large bright objects are rejected by the extractor.
-Vignetting, sky glow and gradients that vary over more than a couple of tiles are followed.
+lattice of ~100 pixels of the 3×3-smoothed frame gives the median (the sky level). The grid is
+interpolated bilinearly between tile centres (and extrapolated linearly over the half tile
+beyond the outer centres); then, in a second pass, each tile's samples minus that model give a
+correction to its level (a plain median of a sloped tile is as uncertain as the slope is steep)
+and the noise σ: a clipped RMS of the values *below* the median (stars only add light, so the
+lower half is noise alone even when a bright star fills much of a tile; a plain MAD collapses
+to zero on 8-bit frames whose noise is below one level). The raw-pixel noise is one pooled
+robust estimate over about 64 tiles, scaled tile by tile like the smoothed noise. On strongly
+quantised frames (raw noise below one level) the level is the clipped mean and the smoothed
+noise is floored at the white-noise value.
+
+Vignetting, sky glow and gradients that vary over more than a couple of tiles are followed. An
+optional median filter over the grid (``grid_filter``) removes tiles dominated by a bright
+object but bends strong vignetting at the corners, so it is off by default. ``method="global"``
+(one offset, thesis 000) and ``method="rows"`` (one level per row, thesis 004) are the seeds'
+simpler models.
 
 The statistics are those of the smoothed frame because that is the image the extractor
 thresholds: measuring its noise directly keeps the threshold right for spatially correlated
