@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from skyfix.attitude import attitude_covariance, solve_attitude
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
+from skyfix.final_fit import final_fit
 from skyfix.geometry import quaternion_from_attitude, radec_roll_from_attitude, vector_to_radec
 from skyfix.solution import Match, Solution
 
@@ -142,7 +142,8 @@ def solve_centroids(
         sol.reason = ident.reason
         log.info("%s: identification failed: %s", name, ident.reason)
         return sol
-    _fill_attitude(sol, xy, ident, attitude_method)
+    _fill_attitude(sol, xy, ident, attitude_method, camera_given=camera is not None, database=database,
+                   epoch=epoch)
     sol.time_ms["attitude"] = 1e3 * (time.perf_counter() - t1)
     sol.time_ms["total"] = 1e3 * (time.perf_counter() - t0)
     log.info("%s: solved with %d stars, P(false) %.2g, rmse %.2f″", name, sol.n_matched,
@@ -150,44 +151,16 @@ def solve_centroids(
     return sol
 
 
-def _angles(b: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """Angles (rad) between observed rays ``b`` and catalogue vectors ``r`` rotated by ``A``."""
-    chord = np.sqrt(np.sum((b - r @ A.T) ** 2, axis=1))
-    return 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0))
-
-
-def _inliers(resid: np.ndarray, floor_rad: float) -> np.ndarray:
-    """Stars to fit: residual lengths of 2-D Gaussian errors are Rayleigh distributed (median
-    1.177 σ); those beyond 4 σ (P = 3e-4 by chance; σ floored at ``floor_rad``) are blends or
-    mismatched faint stars. At least half of the stars, and three, are always kept."""
-    sigma = max(float(np.median(resid)) / 1.177, floor_rad)
-    keep = resid <= 4.0 * sigma
-    n_min = min(len(resid), max(3, len(resid) // 2))
-    if keep.sum() < n_min:
-        keep = resid <= np.sort(resid)[n_min - 1]
-    return keep
-
-
-def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str) -> None:
-    camera: Camera = ident.camera
-    idx_all = np.asarray(ident.star_index)
-    b_all = camera.pixel_to_ray(xy[idx_all])
-    r_all = np.asarray(ident.catalog_vectors)
-    # Identification already fitted robustly; its attitude tells which matches are outliers,
-    # then the chosen Wahba solver fits the rest once.
-    keep = _inliers(_angles(b_all, r_all, np.asarray(ident.A_icrs_to_cam)), 0.1 * camera.plate_scale_rad)
-    idx, b, r = idx_all[keep], b_all[keep], r_all[keep]
-    A = solve_attitude(b, r, method=attitude_method)
-    resid = _angles(b, r, A)
+def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *, camera_given: bool,
+                   database, epoch: float | None) -> None:
+    fit = final_fit(xy, ident, camera_given=camera_given, database=database, epoch=epoch,
+                    method=attitude_method)
+    A, camera, idx, resid = fit.A_icrs_to_cam, fit.camera, fit.star_index, fit.residuals_rad
     n = len(idx)
     rmse = float(np.sqrt(np.mean(resid**2)))
-    # Per-axis centroid σ from the fit's own residuals (3 attitude dof used), floored at
-    # 0.05 px so a lucky tiny residual does not claim an impossible precision.
-    dof = max(2 * n - 3, 1)
-    sigma = max(float(np.sqrt(np.sum(resid**2) / dof)), 0.05 * camera.plate_scale_rad)
-    cov = attitude_covariance(A, b, sigma) / _ARCSEC**2
+    cov = fit.covariance_rad2 / _ARCSEC**2
     ra, dec, roll = radec_roll_from_attitude(A)
-    cat_ra, cat_dec = vector_to_radec(r)
+    cat_ra, cat_dec = vector_to_radec(fit.catalog_vectors)
     sol.status = "solved"
     sol.reason = ""
     sol.ra_deg, sol.dec_deg, sol.roll_deg = math.degrees(ra), math.degrees(dec), math.degrees(roll)
@@ -199,6 +172,6 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str) -
     sol.rmse_arcsec = rmse / _ARCSEC
     sol.A_icrs_to_cam = A
     sol.camera = camera
-    columns = (xy[idx, 0], xy[idx, 1], np.asarray(ident.catalog_ids)[keep], np.degrees(cat_ra),
-               np.degrees(cat_dec), np.asarray(ident.catalog_mag, dtype=float)[keep], resid / _ARCSEC)
+    columns = (xy[idx, 0], xy[idx, 1], fit.catalog_ids, np.degrees(cat_ra), np.degrees(cat_dec),
+               fit.catalog_mag, resid / _ARCSEC)
     sol.matches = [Match(*row) for row in zip(*(c.tolist() for c in columns), strict=True)]

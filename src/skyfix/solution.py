@@ -11,7 +11,7 @@ import numpy as np
 __all__ = ["Match", "Solution"]
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Match:
     """One image star matched to a catalogue star."""
 

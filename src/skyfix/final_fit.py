@@ -1,0 +1,176 @@
+"""The final fit after identification: outliers out, camera model chosen, stars re-matched,
+attitude and its covariance.
+
+Identification proves *which* stars are in the image; this stage makes the attitude as good
+and its error bar as honest as the stars allow. With a camera given by the user the camera is
+taken as exact and Wahba's problem is solved with the chosen method (QUEST covariance). With
+no camera, the camera model the stars support is chosen by BIC (focal length, aspect ratio,
+radial distortion: :func:`skyfix.calibrate.select_camera_model`), the catalogue is re-matched
+through that model, and the covariance comes from the joint fit, so the attitude's error bar
+includes what the unknown camera leaves uncertain.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from skyfix.attitude import attitude_covariance, solve_attitude
+from skyfix.calibrate import fit_camera, score_camera_models
+from skyfix.camera import Camera
+
+__all__ = ["FinalFit", "final_fit"]
+
+
+@dataclass(frozen=True)
+class FinalFit:
+    """Attitude, camera and the stars that support them.
+
+    Attributes
+    ----------
+    A_icrs_to_cam : (3, 3)
+    camera : Camera — the camera model used (fitted when none was given).
+    star_index : (M,) int — indices into the centroids.
+    catalog_ids : (M,) int
+    catalog_vectors : (M, 3)
+    catalog_mag : (M,)
+    residuals_rad : (M,) — angle between each star's ray and its catalogue direction.
+    covariance_rad2 : (3, 3) — attitude error about the camera axes (x, y, roll).
+    camera_params : tuple of str — camera parameters fitted ("" when the camera was given).
+    """
+
+    A_icrs_to_cam: np.ndarray
+    camera: Camera
+    star_index: np.ndarray
+    catalog_ids: np.ndarray
+    catalog_vectors: np.ndarray
+    catalog_mag: np.ndarray
+    residuals_rad: np.ndarray
+    covariance_rad2: np.ndarray
+    camera_params: tuple[str, ...]
+
+
+def angles(b: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """Angles (rad) between observed rays ``b`` and catalogue vectors ``r`` rotated by ``A``."""
+    chord = np.sqrt(np.sum((b - r @ A.T) ** 2, axis=1))
+    return 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0))
+
+
+def inliers(resid: np.ndarray, floor: float) -> np.ndarray:
+    """Stars to fit: residual lengths of 2-D Gaussian errors are Rayleigh distributed (median
+    1.177 σ); those beyond 4 σ (P = 3e-4 by chance; σ floored at ``floor``) are blends or
+    mismatched faint stars. At least half of the stars, and three, are always kept."""
+    sigma = max(float(np.median(resid)) / 1.177, floor)
+    keep = resid <= 4.0 * sigma
+    n_min = min(len(resid), max(3, len(resid) // 2))
+    if keep.sum() < n_min:
+        keep = resid <= np.sort(resid)[n_min - 1]
+    return keep
+
+
+def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch: float | None = None,
+              method: str = "svd") -> FinalFit:
+    """Refine a successful identification into the final attitude (see the module text).
+
+    Parameters
+    ----------
+    xy : (N, 2) centroids, px.
+    ident : skyfix.identify.Identification (successful).
+    camera_given : bool — the user gave the camera: take it as exact.
+    database : PatternDatabase, optional — its star table serves the re-matching.
+    epoch : float, optional — Julian year of the catalogue positions.
+    method : str — Wahba solver for the attitude.
+    """
+    camera: Camera = ident.camera
+    idx = np.asarray(ident.star_index)
+    ids = np.asarray(ident.catalog_ids)
+    r = np.asarray(ident.catalog_vectors, dtype=np.float64)
+    mag = np.asarray(ident.catalog_mag, dtype=np.float64)
+    A = np.asarray(ident.A_icrs_to_cam, dtype=np.float64)
+    keep = inliers(angles(camera.pixel_to_ray(xy[idx]), r, A), 0.1 * camera.plate_scale_rad)
+    idx, ids, r, mag = idx[keep], ids[keep], r[keep], mag[keep]
+    params: tuple[str, ...] = ()
+    cov = None
+    if not camera_given and len(idx) >= 4:
+        best = min(score_camera_models(xy[idx], r, camera, A), key=lambda sc: sc.bic)
+        params, cov = best.params, best.attitude_covariance_rad2
+        if set(params) - {"f", "k1"}:
+            # The model grew beyond identification's (focal length, k1, already fitted): the
+            # matches made through the simpler model may miss stars or hold wrong ones, so
+            # fit the model and match again.
+            fit = fit_camera(xy[idx], r, camera, A, params)
+            if _largest_shift_px(camera, A, fit.camera, fit.A_icrs_to_cam) > 0.5:
+                fit, idx, ids, r, mag = _rematch(xy, fit, database, epoch, (idx, ids, r, mag))
+            camera, A, cov = fit.camera, fit.A_icrs_to_cam, fit.attitude_covariance_rad2
+    b = camera.pixel_to_ray(xy[idx])
+    A = solve_attitude(b, r, method=method)
+    resid = angles(b, r, A)
+    if cov is None:
+        # Per-axis σ from the fit's own residuals (3 attitude dof used), floored at 0.05 px
+        # so a lucky tiny residual does not claim an impossible precision.
+        dof = max(2 * len(idx) - 3, 1)
+        sigma = max(math.sqrt(float(np.sum(resid**2)) / dof), 0.05 * camera.plate_scale_rad)
+        cov = attitude_covariance(A, b, sigma)
+    return FinalFit(A, camera, idx, ids, r, mag, resid, cov, params)
+
+
+def _largest_shift_px(cam0: Camera, A0: np.ndarray, cam1: Camera, A1: np.ndarray) -> float:
+    """How far (px) the new model moves a star anywhere on a 5×5 grid over the frame; below
+    about half a pixel the old matches stand, as the match radius is larger."""
+    gx, gy = np.meshgrid(np.linspace(0, cam0.width - 1, 5), np.linspace(0, cam0.height - 1, 5))
+    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    sky = cam0.pixel_to_ray(grid) @ A0  # rows: ICRS directions of the grid pixels
+    moved, _ = cam1.ray_to_pixel(sky @ A1.T)
+    return float(np.max(np.hypot(*(moved - grid).T)))
+
+
+def _star_tree(database) -> cKDTree:
+    tree = database.__dict__.get("_star_tree")
+    if tree is None:
+        tree = cKDTree(np.asarray(database.star_vectors, dtype=np.float64))
+        database.__dict__["_star_tree"] = tree
+    return tree
+
+
+def _rematch(xy: np.ndarray, fit, database, epoch: float | None, current: tuple):
+    """Match the database's stars to the centroids through the fitted model, refit, twice."""
+    if database is None:
+        from skyfix.identify import default_database
+
+        database = default_database()
+    tree = _star_tree(database)
+    img_tree = cKDTree(xy)
+    for _ in range(2):
+        cam, A = fit.camera, fit.A_icrs_to_cam
+        half_diag = math.radians(cam.fov_diagonal_deg) / 2.0 * 1.05
+        near = np.asarray(tree.query_ball_point(A[2], 2.0 * math.sin(half_diag / 2.0)), dtype=np.int64)
+        if len(near) == 0:
+            break
+        v = database.vectors_at(near, epoch)
+        uv, front = cam.ray_to_pixel(v @ A.T)
+        seen = front & cam.in_frame(uv)
+        near, v, uv = near[seen], v[seen], uv[seen]
+        radius = max(4.0 * fit.sigma_px, 1.0)
+        dist, j = img_tree.query(uv, distance_upper_bound=radius)
+        hit = np.isfinite(dist)
+        star, cen = np.flatnonzero(hit), j[hit]
+        # Unambiguous pairs only: a centroid with two catalogue stars (a blend) or a star
+        # claimed by two centroids says nothing reliable about the camera.
+        n_stars_near = cKDTree(uv).query_ball_point(xy[cen], radius, return_length=True)
+        n_claims = np.bincount(cen, minlength=len(xy))[cen]
+        ok = (n_stars_near == 1) & (n_claims == 1)
+        star, cen = star[ok], cen[ok]
+        if len(cen) < max(4, len(current[0]) // 2):
+            break  # re-matching lost stars: keep what identification verified
+        r = v[star]
+        new = fit_camera(xy[cen], r, cam, A, fit.params)
+        keep = inliers(np.hypot(*new.residuals_px.T), 0.1)
+        if keep.sum() < 4:
+            break
+        fit = fit_camera(xy[cen][keep], r[keep], cam, A, fit.params)
+        current = (cen[keep], np.asarray(database.star_ids)[near[star]][keep], r[keep],
+                   np.asarray(database.star_mag, dtype=np.float64)[near[star]][keep])
+    return (fit, *current)
