@@ -119,3 +119,19 @@ def test_cli_calibrate_frames_then_solve(tmp_path):
     # The example's camera has a 64 ADU bias: a 30 ADU dark still leaves it solvable.
     result = runner.invoke(app, ["solve", str(EXAMPLE), "--calibration", str(maps)])
     assert result.exit_code == 0 and "solved" in result.output
+
+
+def test_cli_database_build_and_use(tmp_path):
+    out = tmp_path / "db.npz"
+    result = runner.invoke(app, ["database", "build", "--fov-min", "14", "--fov-max", "20", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "FOV 14–20°" in result.output
+    result = runner.invoke(app, ["solve", "--json", "--database", str(out), str(EXAMPLE)])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["status"] == "solved"
+    bad = tmp_path / "bad.npz"
+    bad.write_text("junk")
+    result = runner.invoke(app, ["solve", "--database", str(bad), str(EXAMPLE)])
+    assert result.exit_code == 2 and "pattern database" in result.output
+    result = runner.invoke(app, ["database", "build", "--fov-min", "30", "--fov-max", "10"])
+    assert result.exit_code == 2

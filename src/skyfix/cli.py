@@ -62,6 +62,7 @@ def solve(
     json_out: bool = typer.Option(False, "--json", help="One JSON Solution per image per line."),
     wcs: Path = typer.Option(None, "--wcs", help="Write a FITS WCS header (use {stem} for many images)."),
     plot: Path = typer.Option(None, "--plot", help="Write a PNG with identified stars circled."),
+    database_file: Path = typer.Option(None, "--database", help="Pattern database file (default: cached)."),
     calibration: Path = typer.Option(None, "--calibration", help="Maps from `skyfix calibrate frames`."),
     dark: Path = typer.Option(None, "--dark", help="Master dark image to subtract."),
     flat: Path = typer.Option(None, "--flat", help="Master flat image to divide by (normalised to 1)."),
@@ -78,9 +79,9 @@ def solve(
             camera = _load_camera(camera_file)
         if fov is not None and not 0.1 <= fov <= 120:
             _fail(f"--fov {fov} is not a plausible field of view (0.1–120 degrees)")
-        from skyfix.identify import default_database
+        from skyfix.identify import PatternDatabase, default_database
 
-        database = default_database()
+        database = default_database() if database_file is None else PatternDatabase.load(database_file)
     except SkyfixError as exc:
         _fail(str(exc))
 
@@ -176,7 +177,8 @@ def database_build(
         db.save(path)
     except SkyfixError as exc:
         _fail(str(exc))
-    typer.echo(f"wrote {path} ({db.summary()})")
+    typer.echo(f"wrote {path} ({len(db)} patterns of {len(db.star_ids)} stars, FOV {db.fov_min_deg:g}–"
+               f"{db.fov_max_deg:g}°)")
 
 
 @app.command()
