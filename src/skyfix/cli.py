@@ -55,7 +55,8 @@ def _output_path(template: Path | None, image: Path, n_images: int, suffix: str)
 def solve(
     images: list[Path] = typer.Argument(..., help="Image files (FITS, PNG, TIFF, JPEG)."),
     fov: float = typer.Option(None, "--fov", help="Horizontal field of view, degrees (optional)."),
-    fov_tolerance: float = typer.Option(None, "--fov-tolerance", help="Tolerance on --fov, degrees."),
+    fov_tolerance: float = typer.Option(None, "--fov-tolerance",
+                                        help="Allowed error of --fov, degrees (default 10%)."),
     camera_file: str = typer.Option(None, "--camera", help="Camera TOML file or preset name."),
     epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: now)."),
     method: str = typer.Option("svd", "--attitude", help="Wahba solver: svd, quest, esoq2, q-method, triad."),
