@@ -26,6 +26,7 @@ The covariance is the QUEST measurement model (Shuster & Oh 1981) in the camera 
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
@@ -69,23 +70,72 @@ def _prepare(b_cam: np.ndarray, r_icrs: np.ndarray, weights: np.ndarray | None,
     w = np.ones(len(b)) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
     if w.shape != (len(b),):
         raise ValueError(f"attitude needs one weight per vector, got {w.shape[0]} for {len(b)}")
-    if not (np.all(np.isfinite(b)) and np.all(np.isfinite(r)) and np.all(np.isfinite(w))):
-        raise ValueError("attitude vectors and weights must be finite")
-    if np.any(w < 0):
-        raise ValueError("attitude weights must be non-negative")
-    keep = w > 0
-    if keep.sum() < 2:
-        raise ValueError(f"attitude needs at least 2 weighted vectors, got {int(keep.sum())}")
-    b, r, w = b[keep], r[keep], w[keep]
-    nb = np.linalg.norm(b, axis=1)
-    nr = np.linalg.norm(r, axis=1)
-    if np.any(nb == 0) or np.any(nr == 0):
-        raise ValueError("attitude vectors must be non-zero")
-    b, r = b / nb[:, None], r / nr[:, None]
-    for name, v in (("observed", b), ("catalogue", r)):
-        if np.max(np.linalg.norm(np.cross(v, v[0]), axis=1)) < _COLLINEAR_SIN:
-            raise ValueError(f"attitude is undetermined: all {name} vectors are collinear")
-    return b, r, w / w.sum()
+    code, n_kept, b, r, w = _checked_unit_vectors(np.ascontiguousarray(b), np.ascontiguousarray(r),
+                                                  np.ascontiguousarray(w))
+    if code:
+        raise ValueError(_PREPARE_ERRORS[code].format(n_kept))
+    return b, r, w
+
+
+_PREPARE_ERRORS = {
+    1: "attitude vectors and weights must be finite",
+    2: "attitude weights must be non-negative",
+    3: "attitude needs at least 2 weighted vectors, got {}",
+    4: "attitude vectors must be non-zero",
+    5: "attitude is undetermined: all observed vectors are collinear",
+    6: "attitude is undetermined: all catalogue vectors are collinear",
+}
+
+
+@numba.njit(cache=True)
+def _checked_unit_vectors(b, r, w):
+    """The checks of :func:`_prepare` in one pass: (error code of ``_PREPARE_ERRORS`` or 0,
+    vectors kept, unit ``b``, unit ``r``, weights of the kept vectors normalised to sum 1)."""
+    n = b.shape[0]
+    for i in range(n):
+        if not np.isfinite(w[i]):
+            return 1, 0, b, r, w
+        for k in range(3):
+            if not (np.isfinite(b[i, k]) and np.isfinite(r[i, k])):
+                return 1, 0, b, r, w
+    n_kept = 0
+    for i in range(n):
+        if w[i] < 0:
+            return 2, 0, b, r, w
+        if w[i] > 0:
+            n_kept += 1
+    if n_kept < 2:
+        return 3, n_kept, b, r, w
+    bu = np.empty((n_kept, 3))
+    ru = np.empty((n_kept, 3))
+    wu = np.empty(n_kept)
+    j = 0
+    total = 0.0
+    for i in range(n):
+        if w[i] > 0:
+            nb = np.sqrt(b[i, 0] * b[i, 0] + b[i, 1] * b[i, 1] + b[i, 2] * b[i, 2])
+            nr = np.sqrt(r[i, 0] * r[i, 0] + r[i, 1] * r[i, 1] + r[i, 2] * r[i, 2])
+            if nb == 0 or nr == 0:
+                return 4, n_kept, b, r, w
+            for k in range(3):
+                bu[j, k] = b[i, k] / nb
+                ru[j, k] = r[i, k] / nr
+            wu[j] = w[i]
+            total += w[i]
+            j += 1
+    for code, v in ((5, bu), (6, ru)):
+        # Largest sine of the angle to the first vector: below _COLLINEAR_SIN all are collinear.
+        largest = 0.0
+        for i in range(n_kept):
+            c0 = v[i, 1] * v[0, 2] - v[i, 2] * v[0, 1]
+            c1 = v[i, 2] * v[0, 0] - v[i, 0] * v[0, 2]
+            c2 = v[i, 0] * v[0, 1] - v[i, 1] * v[0, 0]
+            largest = max(largest, np.sqrt(c0 * c0 + c1 * c1 + c2 * c2))
+        if largest < _COLLINEAR_SIN:
+            return code, n_kept, b, r, w
+    for j in range(n_kept):
+        wu[j] = wu[j] / total
+    return 0, n_kept, bu, ru, wu
 
 
 def _profile(b: np.ndarray, r: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -168,9 +218,23 @@ def svd_attitude(b_cam: np.ndarray, r_icrs: np.ndarray, weights: np.ndarray | No
     A : (3, 3) rotation matrix, ``b ≈ A r``.
     """
     b, r, w = _prepare(b_cam, r_icrs, weights)
-    U, _, Vt = np.linalg.svd(_profile(b, r, w))
+    return _svd_kernel(b, r, w)
+
+
+@numba.njit(cache=True)
+def _svd_kernel(b, r, w):
+    """``U diag(1, 1, det U det V) Vᵀ`` from the SVD of ``B = Σ w b rᵀ``."""
+    B = np.zeros((3, 3))
+    for i in range(b.shape[0]):
+        for j in range(3):
+            bw = b[i, j] * w[i]
+            for k in range(3):
+                B[j, k] += bw * r[i, k]
+    U, _, Vt = np.linalg.svd(B)
     d = np.linalg.det(U) * np.linalg.det(Vt)
-    return U @ np.diag([1.0, 1.0, d]) @ Vt
+    for j in range(3):
+        U[j, 2] *= d
+    return U @ Vt
 
 
 def qmethod_attitude(b_cam: np.ndarray, r_icrs: np.ndarray,
@@ -355,24 +419,48 @@ def attitude_covariance(A_icrs_to_cam: np.ndarray, b_cam: np.ndarray, sigma_rad:
     b = np.asarray(b_cam, dtype=np.float64)
     if b.ndim != 2 or b.shape[1] != 3:
         raise ValueError(f"attitude covariance needs (N, 3) vectors, got {b.shape}")
-    b = b / np.linalg.norm(b, axis=1, keepdims=True)
     sig = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), (len(b),))
-    if np.any(~np.isfinite(sig)) or np.any(sig <= 0):
+    if not (np.all(np.isfinite(sig)) and np.all(sig > 0)):
         raise ValueError("attitude covariance needs positive finite sigma_rad")
     info_w = 1.0 / sig**2
     if weights is not None:
         info_w = info_w * np.asarray(weights, dtype=np.float64)
-    F = info_w.sum() * np.eye(3) - (b * info_w[:, None]).T @ b
-    if np.linalg.cond(F) > 1e14:
+    cond, P = _information_inverse(np.ascontiguousarray(b), np.ascontiguousarray(info_w, dtype=np.float64))
+    if not cond <= 1e14:
         raise ValueError("attitude covariance is unbounded: fewer than two distinct directions")
-    P = np.linalg.inv(F)
-    P = 0.5 * (P + P.T)
     if frame == "camera":
         return P
     if frame == "icrs":
         A = np.asarray(A_icrs_to_cam, dtype=np.float64)
         return A.T @ P @ A
     raise ValueError(f"unknown covariance frame {frame!r}; use 'camera' or 'icrs'")
+
+
+@numba.njit(cache=True)
+def _information_inverse(b, info_w):
+    """Condition number of ``F = Σ w_i (I − b̂_i b̂_iᵀ)`` (b̂ = b / |b|) and ``F⁻¹`` symmetrised."""
+    F = np.zeros((3, 3))
+    total = 0.0
+    for i in range(b.shape[0]):
+        nb = np.sqrt(b[i, 0] * b[i, 0] + b[i, 1] * b[i, 1] + b[i, 2] * b[i, 2])
+        u0, u1, u2 = b[i, 0] / nb, b[i, 1] / nb, b[i, 2] / nb
+        total += info_w[i]
+        F[0, 0] -= info_w[i] * u0 * u0
+        F[0, 1] -= info_w[i] * u0 * u1
+        F[0, 2] -= info_w[i] * u0 * u2
+        F[1, 1] -= info_w[i] * u1 * u1
+        F[1, 2] -= info_w[i] * u1 * u2
+        F[2, 2] -= info_w[i] * u2 * u2
+    F[1, 0], F[2, 0], F[2, 1] = F[0, 1], F[0, 2], F[1, 2]
+    for k in range(3):
+        F[k, k] += total
+    if not np.all(np.isfinite(F)):
+        return np.inf, F
+    cond = np.linalg.cond(F)
+    if not cond <= 1e14:
+        return cond, F
+    P = np.linalg.inv(F)
+    return cond, 0.5 * (P + P.T)
 
 
 def attitude_error(A_true: np.ndarray, A_est: np.ndarray) -> np.ndarray:

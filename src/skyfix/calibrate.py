@@ -13,6 +13,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from skyfix.camera import Camera
@@ -308,33 +309,174 @@ def score_camera_models(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_ic
     ``k`` free numbers is scored only with at least ``min_stars_per_number · k`` stars (the
     first model is always scored), so sparse fields keep simple models.
     """
-    xy = np.asarray(xy, dtype=np.float64)
+    scored, bic, rss, cov = _model_scores(xy, r_icrs, camera, A_icrs_to_cam, models, min_stars_per_number)
+    return [ModelScore(tuple(params), float(bic[i]), float(rss[i]), cov[i])
+            for i, params in enumerate(scored)]
+
+
+def _model_scores(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_cam: np.ndarray,
+                  models: Sequence[Sequence[str]] = MODEL_LADDER, min_stars_per_number: float = 2.0,
+                  ) -> tuple[list, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`score_camera_models` as arrays: the models scored, their BIC (K,), RSS (K,) px²
+    and attitude covariances (K, 3, 3) rad² (no ModelScore objects: the final fit's hot path)."""
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
     r = np.asarray(r_icrs, dtype=np.float64)
-    union = tuple(dict.fromkeys(p for m in models for p in m))
+    codes, blocks = _model_blocks(tuple(tuple(m) for m in models))
     rays0 = r @ np.asarray(A_icrs_to_cam, dtype=np.float64).T
-    r0 = _residuals(camera, union, np.zeros(3 + sum(PARAMETERS[p] for p in union)), rays0, xy)
-    J = _jacobian_at_start(camera, union, rays0)
-    columns, i = {}, 3
-    for name in union:
-        columns[name] = list(range(i, i + PARAMETERS[name]))
-        i += PARAMETERS[name]
-    n = r0.size
-    JtJ, Jtr, rr = J.T @ J, J.T @ r0, float(r0 @ r0)
-    scores: list[ModelScore] = []
-    for params in models:
-        cols = [0, 1, 2] + [c for name in params for c in columns[name]]
-        if 2 * len(xy) <= len(cols) or (len(xy) < min_stars_per_number * len(cols) and scores):
+    rmax = math.hypot(camera.width, camera.height) / 2.0 / camera.fx
+    cam = np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.skew, camera.k1, camera.k2, camera.k3,
+                    camera.p1, camera.p2], dtype=np.float64)
+    JtJ, Jtr, rr = _normal_equations_at_start(xy, rays0, cam, rmax, rmax**2, rmax**4, codes)
+    n = 2 * len(xy)
+    chosen = []
+    for k, (_, cols) in enumerate(blocks):
+        if n <= len(cols) or (len(xy) < min_stars_per_number * len(cols) and chosen):
             continue
-        # Normal equations on the sub-block: step = −(JᵀJ)⁻¹Jᵀr, RSS = rᵀr + stepᵀJᵀr.
-        inv = _inverse(JtJ[np.ix_(cols, cols)])
-        step = -inv @ Jtr[cols]
-        rss = max(rr + float(step @ Jtr[cols]), 1e-300)
-        bic = n * math.log(rss / n) + len(cols) * math.log(n)
-        cov = rss / max(n - len(cols), 1) * inv[:3, :3]
-        scores.append(ModelScore(tuple(params), bic, rss, cov))
-    if not scores:
+        chosen.append(k)
+    if not chosen:
         raise ValueError(f"too few stars ({len(xy)}) to fit a camera model")
-    return scores
+    cols = np.zeros((len(chosen), len(Jtr)), dtype=np.int64)
+    n_cols = np.zeros(len(chosen), dtype=np.int64)
+    for i, k in enumerate(chosen):
+        c = blocks[k][1]
+        cols[i, :len(c)] = c
+        n_cols[i] = len(c)
+    bic, rss, cov = _score_blocks(JtJ, Jtr, rr, n, cols, n_cols)
+    return [blocks[k][0] for k in chosen], bic, rss, cov
+
+
+_BLOCKS_CACHE: dict = {}
+
+# Codes of the parameters in the numba kernels, and how many numbers each is.
+_PARAMETER_CODES = {"f": 0, "aspect": 1, "principal_point": 2, "k1": 3, "k2": 4, "tangential": 5}
+
+
+def _model_blocks(models: tuple[tuple[str, ...], ...]) -> tuple[np.ndarray, list]:
+    """Kernel codes of the union of the models' parameters (in order of first appearance), and
+    each model's parameters with its columns of the union's Jacobian (rotations 0–2 first)."""
+    hit = _BLOCKS_CACHE.get(models)
+    if hit is None:
+        union = tuple(dict.fromkeys(p for m in models for p in m))
+        unknown = set(union) - set(PARAMETERS)
+        if unknown:
+            raise ValueError(f"unknown camera parameters: {', '.join(sorted(unknown))}")
+        columns, i = {}, 3
+        for name in union:
+            columns[name] = list(range(i, i + PARAMETERS[name]))
+            i += PARAMETERS[name]
+        blocks = [(m, [0, 1, 2] + [c for name in m for c in columns[name]]) for m in models]
+        hit = (np.array([_PARAMETER_CODES[p] for p in union], dtype=np.int64), blocks)
+        if len(_BLOCKS_CACHE) < 64:
+            _BLOCKS_CACHE[models] = hit
+    return hit
+
+
+@numba.njit(cache=True)
+def _normal_equations_at_start(xy, rays0, cam, rmax, rmax2, rmax4, codes):
+    """``JᵀJ`` (P, P), ``Jᵀr`` (P,) and ``rᵀr`` at ``p = 0`` for the parameters ``codes``
+    (:data:`_PARAMETER_CODES`): the residuals of :func:`_residuals_batch` and the Jacobian of
+    :func:`_jacobian_at_start`, star by star, without forming ``J``."""
+    fx, fy, cx, cy, s, k1, k2, k3, p1, p2 = (cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6],
+                                             cam[7], cam[8], cam[9])
+    P = 3
+    for c in codes:
+        P += 2 if (c == 2 or c == 5) else 1
+    JtJ = np.zeros((P, P))
+    Jtr = np.zeros(P)
+    rr = 0.0
+    ju = np.empty(P)
+    jv = np.empty(P)
+    for i in range(xy.shape[0]):
+        X, Y, Z = rays0[i, 0], rays0[i, 1], rays0[i, 2]
+        xn = X / Z
+        yn = Y / Z
+        r2 = xn * xn + yn * yn
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        drad = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+        xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
+        yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
+        u = fx * xd + s * yd + cx - xy[i, 0]
+        v = fy * yd + cy - xy[i, 1]
+        dxx = radial + 2.0 * xn * xn * drad + 2.0 * p1 * yn + 6.0 * p2 * xn
+        dxy = 2.0 * xn * yn * drad + 2.0 * p1 * xn + 2.0 * p2 * yn
+        dyx = dxy
+        dyy = radial + 2.0 * yn * yn * drad + 6.0 * p1 * yn + 2.0 * p2 * xn
+        # Rotations ω = e_x, e_y, e_z of the camera frame (δray = ω × ray) through the lens.
+        for k in range(3):
+            if k == 0:
+                dxn, dyn = (0.0 - xn * Y) / Z, (-Z - yn * Y) / Z
+            elif k == 1:
+                dxn, dyn = (Z + xn * X) / Z, (0.0 + yn * X) / Z
+            else:
+                dxn, dyn = -Y / Z, X / Z
+            dxd = dxx * dxn + dxy * dyn
+            dyd = dyx * dxn + dyy * dyn
+            ju[k] = fx * dxd + s * dyd
+            jv[k] = fy * dyd
+        j = 3
+        for c in codes:
+            if c == 0:  # f
+                ju[j], jv[j] = fx * xd + s * yd, fy * yd
+            elif c == 1:  # aspect
+                ju[j], jv[j] = 0.0, fy * yd
+            elif c == 2:  # principal_point
+                ju[j], jv[j] = fx, 0.0
+                j += 1
+                ju[j], jv[j] = 0.0, fx
+            elif c == 3:  # k1
+                ju[j], jv[j] = (fx * (xn * r2) + s * (yn * r2)) / rmax2, fy * (yn * r2) / rmax2
+            elif c == 4:  # k2
+                ju[j] = (fx * (xn * r2 * r2) + s * (yn * r2 * r2)) / rmax4
+                jv[j] = fy * (yn * r2 * r2) / rmax4
+            else:  # tangential
+                a, b = 2.0 * xn * yn, r2 + 2.0 * yn * yn
+                ju[j], jv[j] = (fx * a + s * b) / rmax, fy * b / rmax
+                j += 1
+                a, b = r2 + 2.0 * xn * xn, 2.0 * xn * yn
+                ju[j], jv[j] = (fx * a + s * b) / rmax, fy * b / rmax
+            j += 1
+        for a in range(P):
+            Jtr[a] += ju[a] * u + jv[a] * v
+            for b in range(a, P):
+                JtJ[a, b] += ju[a] * ju[b] + jv[a] * jv[b]
+        rr += u * u + v * v
+    for a in range(P):
+        for b in range(a):
+            JtJ[a, b] = JtJ[b, a]
+    return JtJ, Jtr, rr
+
+
+@numba.njit(cache=True)
+def _score_blocks(JtJ, Jtr, rr, n, cols, n_cols):
+    """BIC, RSS and attitude covariance of each model's linear step (see
+    :func:`score_camera_models`); model ``m`` uses the columns ``cols[m, :n_cols[m]]``."""
+    K = n_cols.shape[0]
+    bic = np.empty(K)
+    rss = np.empty(K)
+    cov = np.empty((K, 3, 3))
+    for m in range(K):
+        k = n_cols[m]
+        sub = np.empty((k, k))
+        g = np.empty(k)
+        for a in range(k):
+            g[a] = Jtr[cols[m, a]]
+            for b in range(k):
+                sub[a, b] = JtJ[cols[m, a], cols[m, b]]
+        try:
+            inv = np.linalg.inv(sub)
+        except Exception:  # singular: the pseudo-inverse, as _inverse
+            inv = np.linalg.pinv(sub)
+        # Normal equations on the sub-block: step = −(JᵀJ)⁻¹Jᵀr, RSS = rᵀr + stepᵀJᵀr.
+        dot = 0.0
+        for a in range(k):
+            step = 0.0
+            for b in range(k):
+                step -= inv[a, b] * g[b]
+            dot += step * g[a]
+        rss[m] = max(rr + dot, 1e-300)
+        bic[m] = n * math.log(rss[m] / n) + k * math.log(n)
+        cov[m] = rss[m] / max(n - k, 1) * inv[:3, :3]
+    return bic, rss, cov
 
 
 def select_camera_model(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_cam: np.ndarray,

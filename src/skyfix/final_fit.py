@@ -15,11 +15,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
 from skyfix.attitude import attitude_covariance, solve_attitude
-from skyfix.calibrate import fit_camera, score_camera_models
+from skyfix.calibrate import _model_scores, fit_camera
 from skyfix.camera import Camera
 
 __all__ = ["FinalFit", "final_fit"]
@@ -55,17 +56,37 @@ class FinalFit:
 
 def angles(b: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
     """Angles (rad) between observed rays ``b`` and catalogue vectors ``r`` rotated by ``A``."""
-    chord = np.sqrt(np.sum((b - r @ A.T) ** 2, axis=1))
-    return 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0))
+    return _angles(np.ascontiguousarray(b, dtype=np.float64), np.ascontiguousarray(r, dtype=np.float64),
+                   np.ascontiguousarray(A, dtype=np.float64))
+
+
+@numba.njit(cache=True)
+def _angles(b, r, A):
+    out = np.empty(b.shape[0])
+    for i in range(b.shape[0]):
+        chord2 = 0.0
+        for j in range(3):
+            d = b[i, j] - (r[i, 0] * A[j, 0] + r[i, 1] * A[j, 1] + r[i, 2] * A[j, 2])
+            chord2 += d * d
+        out[i] = 2.0 * np.arcsin(min(np.sqrt(chord2) / 2.0, 1.0))
+    return out
 
 
 def inliers(resid: np.ndarray, floor: float) -> np.ndarray:
     """Stars to fit: residual lengths of 2-D Gaussian errors are Rayleigh distributed (median
     1.177 σ); those beyond 4 σ (P = 3e-4 by chance; σ floored at ``floor``) are blends or
     mismatched faint stars. At least half of the stars, and three, are always kept."""
-    sigma = max(float(np.median(resid)) / 1.177, floor)
+    return _inliers(np.ascontiguousarray(resid, dtype=np.float64), float(floor))
+
+
+@numba.njit(cache=True)
+def _inliers(resid, floor):
+    n = resid.shape[0]
+    if n == 0:
+        return np.zeros(0, dtype=np.bool_)
+    sigma = max(np.median(resid) / 1.177, floor)
     keep = resid <= 4.0 * sigma
-    n_min = min(len(resid), max(3, len(resid) // 2))
+    n_min = min(n, max(3, n // 2))
     if keep.sum() < n_min:
         keep = resid <= np.sort(resid)[n_min - 1]
     return keep
@@ -87,16 +108,20 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
     camera: Camera = ident.camera
     idx = np.asarray(ident.star_index)
     ids = np.asarray(ident.catalog_ids)
-    r = np.asarray(ident.catalog_vectors, dtype=np.float64)
+    r = np.ascontiguousarray(ident.catalog_vectors, dtype=np.float64)
     mag = np.asarray(ident.catalog_mag, dtype=np.float64)
-    A = np.asarray(ident.A_icrs_to_cam, dtype=np.float64)
-    keep = inliers(angles(camera.pixel_to_ray(xy[idx]), r, A), 0.1 * camera.plate_scale_rad)
-    idx, ids, r, mag = idx[keep], ids[keep], r[keep], mag[keep]
+    A = np.ascontiguousarray(ident.A_icrs_to_cam, dtype=np.float64)
+    xy_idx = xy[idx]
+    b = camera.pixel_to_ray(xy_idx)
+    keep = _inliers(_angles(b, r, A), 0.1 * camera.plate_scale_rad)
+    if not keep.all():
+        idx, ids, r, mag, b, xy_idx = idx[keep], ids[keep], r[keep], mag[keep], b[keep], xy_idx[keep]
     params: tuple[str, ...] = ()
     cov = None
     if not camera_given and len(idx) >= 4:
-        best = min(score_camera_models(xy[idx], r, camera, A), key=lambda sc: sc.bic)
-        params, cov = best.params, best.attitude_covariance_rad2
+        scored, bic, _, covs = _model_scores(xy_idx, r, camera, A)
+        best = int(np.argmin(bic))  # the first of equal scores, as min()
+        params, cov = scored[best], covs[best]
         if set(params) - {"f", "k1"}:
             # The model grew beyond identification's (focal length, k1, already fitted): the
             # matches made through the simpler model may miss stars or hold wrong ones, so
@@ -105,9 +130,9 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
             if _largest_shift_px(camera, A, fit.camera, fit.A_icrs_to_cam) > 0.5:
                 fit, idx, ids, r, mag = _rematch(xy, fit, database, epoch, (idx, ids, r, mag))
             camera, A, cov = fit.camera, fit.A_icrs_to_cam, fit.attitude_covariance_rad2
-    b = camera.pixel_to_ray(xy[idx])
+            b = camera.pixel_to_ray(xy[idx])
     A = solve_attitude(b, r, method=method)
-    resid = angles(b, r, A)
+    resid = _angles(b, r, np.ascontiguousarray(A))
     if cov is None:
         # Per-axis σ from the fit's own residuals (3 attitude dof used), floored at 0.05 px
         # so a lucky tiny residual does not claim an impossible precision.

@@ -172,6 +172,7 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     sol.rmse_arcsec = rmse / _ARCSEC
     sol.A_icrs_to_cam = A
     sol.camera = camera
-    columns = (xy[idx, 0], xy[idx, 1], fit.catalog_ids, np.degrees(cat_ra), np.degrees(cat_dec),
+    star_xy = xy[idx]
+    columns = (star_xy[:, 0], star_xy[:, 1], fit.catalog_ids, np.degrees(cat_ra), np.degrees(cat_dec),
                fit.catalog_mag, resid / _ARCSEC)
-    sol.matches = [Match(*row) for row in zip(*(c.tolist() for c in columns), strict=True)]
+    sol.matches = list(map(Match, *(c.tolist() for c in columns)))
