@@ -320,40 +320,32 @@ def _model_scores(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_
     """:func:`score_camera_models` as arrays: the models scored, their BIC (K,), RSS (K,) px²
     and attitude covariances (K, 3, 3) rad² (no ModelScore objects: the final fit's hot path)."""
     xy = np.ascontiguousarray(xy, dtype=np.float64)
-    r = np.asarray(r_icrs, dtype=np.float64)
-    codes, blocks = _model_blocks(tuple(tuple(m) for m in models))
-    rays0 = r @ np.asarray(A_icrs_to_cam, dtype=np.float64).T
+    r = np.ascontiguousarray(r_icrs, dtype=np.float64)
+    A = np.ascontiguousarray(A_icrs_to_cam, dtype=np.float64)
+    models = models if models is MODEL_LADDER else tuple(tuple(m) for m in models)
+    codes, cols, n_cols = _model_blocks(models)
     rmax = math.hypot(camera.width, camera.height) / 2.0 / camera.fx
     cam = np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.skew, camera.k1, camera.k2, camera.k3,
                     camera.p1, camera.p2], dtype=np.float64)
-    JtJ, Jtr, rr = _normal_equations_at_start(xy, rays0, cam, rmax, rmax**2, rmax**4, codes)
-    n = 2 * len(xy)
-    chosen = []
-    for k, (_, cols) in enumerate(blocks):
-        if n <= len(cols) or (len(xy) < min_stars_per_number * len(cols) and chosen):
-            continue
-        chosen.append(k)
-    if not chosen:
+    chosen, bic, rss, cov = _score_models(xy, r, A, cam, rmax, codes, cols, n_cols,
+                                          float(min_stars_per_number))
+    if not chosen.any():
         raise ValueError(f"too few stars ({len(xy)}) to fit a camera model")
-    cols = np.zeros((len(chosen), len(Jtr)), dtype=np.int64)
-    n_cols = np.zeros(len(chosen), dtype=np.int64)
-    for i, k in enumerate(chosen):
-        c = blocks[k][1]
-        cols[i, :len(c)] = c
-        n_cols[i] = len(c)
-    bic, rss, cov = _score_blocks(JtJ, Jtr, rr, n, cols, n_cols)
-    return [blocks[k][0] for k in chosen], bic, rss, cov
+    if chosen.all():
+        return list(models), bic, rss, cov
+    k = np.flatnonzero(chosen)
+    return [models[i] for i in k], bic[k], rss[k], cov[k]
 
 
 _BLOCKS_CACHE: dict = {}
 
-# Codes of the parameters in the numba kernels, and how many numbers each is.
+# Codes of the parameters in the numba kernels.
 _PARAMETER_CODES = {"f": 0, "aspect": 1, "principal_point": 2, "k1": 3, "k2": 4, "tangential": 5}
 
 
-def _model_blocks(models: tuple[tuple[str, ...], ...]) -> tuple[np.ndarray, list]:
-    """Kernel codes of the union of the models' parameters (in order of first appearance), and
-    each model's parameters with its columns of the union's Jacobian (rotations 0–2 first)."""
+def _model_blocks(models: tuple[tuple[str, ...], ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Kernel codes (U,) of the union of the models' parameters (in order of first appearance),
+    and each model's columns of the union's Jacobian (rotations 0–2 first): ``cols[m, :n_cols[m]]``."""
     hit = _BLOCKS_CACHE.get(models)
     if hit is None:
         union = tuple(dict.fromkeys(p for m in models for p in m))
@@ -364,15 +356,41 @@ def _model_blocks(models: tuple[tuple[str, ...], ...]) -> tuple[np.ndarray, list
         for name in union:
             columns[name] = list(range(i, i + PARAMETERS[name]))
             i += PARAMETERS[name]
-        blocks = [(m, [0, 1, 2] + [c for name in m for c in columns[name]]) for m in models]
-        hit = (np.array([_PARAMETER_CODES[p] for p in union], dtype=np.int64), blocks)
+        blocks = [[0, 1, 2] + [c for name in m for c in columns[name]] for m in models]
+        cols = np.zeros((len(models), i), dtype=np.int64)
+        for k, c in enumerate(blocks):
+            cols[k, :len(c)] = c
+        hit = (np.array([_PARAMETER_CODES[p] for p in union], dtype=np.int64), cols,
+               np.array([len(c) for c in blocks], dtype=np.int64))
         if len(_BLOCKS_CACHE) < 64:
             _BLOCKS_CACHE[models] = hit
     return hit
 
 
 @numba.njit(cache=True)
-def _normal_equations_at_start(xy, rays0, cam, rmax, rmax2, rmax4, codes):
+def _score_models(xy, r, A, cam, rmax, codes, cols, n_cols, min_stars_per_number):
+    """Which models the stars support (see :func:`score_camera_models`; the first scorable
+    always), and their BIC, RSS and covariance (filled for those only)."""
+    n_stars = xy.shape[0]
+    rays0 = np.empty((n_stars, 3))
+    for i in range(n_stars):
+        for j in range(3):
+            rays0[i, j] = r[i, 0] * A[j, 0] + r[i, 1] * A[j, 1] + r[i, 2] * A[j, 2]
+    JtJ, Jtr, rr = _normal_equations_at_start(xy, rays0, cam, rmax, codes)
+    chosen = np.zeros(n_cols.shape[0], dtype=np.bool_)
+    any_chosen = False
+    for m in range(n_cols.shape[0]):
+        k = n_cols[m]
+        if 2 * n_stars <= k or (n_stars < min_stars_per_number * k and any_chosen):
+            continue
+        chosen[m] = True
+        any_chosen = True
+    bic, rss, cov = _score_blocks(JtJ, Jtr, rr, 2 * n_stars, cols, n_cols, chosen)
+    return chosen, bic, rss, cov
+
+
+@numba.njit(cache=True)
+def _normal_equations_at_start(xy, rays0, cam, rmax, codes):
     """``JᵀJ`` (P, P), ``Jᵀr`` (P,) and ``rᵀr`` at ``p = 0`` for the parameters ``codes``
     (:data:`_PARAMETER_CODES`): the residuals of :func:`_residuals_batch` and the Jacobian of
     :func:`_jacobian_at_start`, star by star, without forming ``J``."""
@@ -381,6 +399,7 @@ def _normal_equations_at_start(xy, rays0, cam, rmax, rmax2, rmax4, codes):
     P = 3
     for c in codes:
         P += 2 if (c == 2 or c == 5) else 1
+    c1, c2, c4 = 1.0 / rmax, 1.0 / rmax**2, 1.0 / rmax**4
     JtJ = np.zeros((P, P))
     Jtr = np.zeros(P)
     rr = 0.0
@@ -388,29 +407,30 @@ def _normal_equations_at_start(xy, rays0, cam, rmax, rmax2, rmax4, codes):
     jv = np.empty(P)
     for i in range(xy.shape[0]):
         X, Y, Z = rays0[i, 0], rays0[i, 1], rays0[i, 2]
-        xn = X / Z
-        yn = Y / Z
+        iz = 1.0 / Z
+        xn = X * iz
+        yn = Y * iz
         r2 = xn * xn + yn * yn
         radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        drad = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+        drad = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
         xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
         yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
         u = fx * xd + s * yd + cx - xy[i, 0]
         v = fy * yd + cy - xy[i, 1]
+        # d(xd, yd) / d(xn, yn)
         dxx = radial + 2.0 * xn * xn * drad + 2.0 * p1 * yn + 6.0 * p2 * xn
         dxy = 2.0 * xn * yn * drad + 2.0 * p1 * xn + 2.0 * p2 * yn
-        dyx = dxy
         dyy = radial + 2.0 * yn * yn * drad + 6.0 * p1 * yn + 2.0 * p2 * xn
-        # Rotations ω = e_x, e_y, e_z of the camera frame (δray = ω × ray) through the lens.
+        # Rotations ω = e_x, e_y, e_z of the camera frame (δray = ω × ray): d(xn, yn).
         for k in range(3):
             if k == 0:
-                dxn, dyn = (0.0 - xn * Y) / Z, (-Z - yn * Y) / Z
+                dxn, dyn = -xn * yn, -1.0 - yn * yn
             elif k == 1:
-                dxn, dyn = (Z + xn * X) / Z, (0.0 + yn * X) / Z
+                dxn, dyn = 1.0 + xn * xn, yn * xn
             else:
-                dxn, dyn = -Y / Z, X / Z
+                dxn, dyn = -yn, xn
             dxd = dxx * dxn + dxy * dyn
-            dyd = dyx * dxn + dyy * dyn
+            dyd = dxy * dxn + dyy * dyn
             ju[k] = fx * dxd + s * dyd
             jv[k] = fy * dyd
         j = 3
@@ -424,16 +444,15 @@ def _normal_equations_at_start(xy, rays0, cam, rmax, rmax2, rmax4, codes):
                 j += 1
                 ju[j], jv[j] = 0.0, fx
             elif c == 3:  # k1
-                ju[j], jv[j] = (fx * (xn * r2) + s * (yn * r2)) / rmax2, fy * (yn * r2) / rmax2
+                ju[j], jv[j] = (fx * xn + s * yn) * r2 * c2, fy * yn * r2 * c2
             elif c == 4:  # k2
-                ju[j] = (fx * (xn * r2 * r2) + s * (yn * r2 * r2)) / rmax4
-                jv[j] = fy * (yn * r2 * r2) / rmax4
+                ju[j], jv[j] = (fx * xn + s * yn) * r2 * r2 * c4, fy * yn * r2 * r2 * c4
             else:  # tangential
-                a, b = 2.0 * xn * yn, r2 + 2.0 * yn * yn
-                ju[j], jv[j] = (fx * a + s * b) / rmax, fy * b / rmax
+                ta, tb = 2.0 * xn * yn, r2 + 2.0 * yn * yn
+                ju[j], jv[j] = (fx * ta + s * tb) * c1, fy * tb * c1
                 j += 1
-                a, b = r2 + 2.0 * xn * xn, 2.0 * xn * yn
-                ju[j], jv[j] = (fx * a + s * b) / rmax, fy * b / rmax
+                ta, tb = r2 + 2.0 * xn * xn, 2.0 * xn * yn
+                ju[j], jv[j] = (fx * ta + s * tb) * c1, fy * tb * c1
             j += 1
         for a in range(P):
             Jtr[a] += ju[a] * u + jv[a] * v
@@ -447,14 +466,53 @@ def _normal_equations_at_start(xy, rays0, cam, rmax, rmax2, rmax4, codes):
 
 
 @numba.njit(cache=True)
-def _score_blocks(JtJ, Jtr, rr, n, cols, n_cols):
-    """BIC, RSS and attitude covariance of each model's linear step (see
+def _spd_inverse(M):
+    """Inverse of a small symmetric positive definite matrix by Cholesky, and whether it was
+    (a pivot ≤ 0 returns False); a tenth of a LAPACK call's overhead at these sizes."""
+    k = M.shape[0]
+    L = np.zeros((k, k))
+    for j in range(k):
+        d = M[j, j]
+        for p in range(j):
+            d -= L[j, p] * L[j, p]
+        if not d > 0.0:
+            return L, False
+        L[j, j] = math.sqrt(d)
+        for i in range(j + 1, k):
+            t = M[i, j]
+            for p in range(j):
+                t -= L[i, p] * L[j, p]
+            L[i, j] = t / L[j, j]
+    Li = np.zeros((k, k))  # L⁻¹, lower triangular
+    for j in range(k):
+        Li[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, k):
+            t = 0.0
+            for p in range(j, i):
+                t -= L[i, p] * Li[p, j]
+            Li[i, j] = t / L[i, i]
+    inv = np.empty((k, k))  # M⁻¹ = L⁻ᵀ L⁻¹
+    for a in range(k):
+        for b in range(a, k):
+            t = 0.0
+            for p in range(b, k):
+                t += Li[p, a] * Li[p, b]
+            inv[a, b] = t
+            inv[b, a] = t
+    return inv, True
+
+
+@numba.njit(cache=True)
+def _score_blocks(JtJ, Jtr, rr, n, cols, n_cols, chosen):
+    """BIC, RSS and attitude covariance of each chosen model's linear step (see
     :func:`score_camera_models`); model ``m`` uses the columns ``cols[m, :n_cols[m]]``."""
     K = n_cols.shape[0]
-    bic = np.empty(K)
-    rss = np.empty(K)
-    cov = np.empty((K, 3, 3))
+    bic = np.full(K, np.nan)
+    rss = np.full(K, np.nan)
+    cov = np.full((K, 3, 3), np.nan)
     for m in range(K):
+        if not chosen[m]:
+            continue
         k = n_cols[m]
         sub = np.empty((k, k))
         g = np.empty(k)
@@ -462,10 +520,12 @@ def _score_blocks(JtJ, Jtr, rr, n, cols, n_cols):
             g[a] = Jtr[cols[m, a]]
             for b in range(k):
                 sub[a, b] = JtJ[cols[m, a], cols[m, b]]
-        try:
-            inv = np.linalg.inv(sub)
-        except Exception:  # singular: the pseudo-inverse, as _inverse
-            inv = np.linalg.pinv(sub)
+        inv, ok = _spd_inverse(sub)
+        if not ok:  # not numerically positive definite: LU, or the pseudo-inverse if singular
+            try:
+                inv = np.linalg.inv(sub)
+            except Exception:
+                inv = np.linalg.pinv(sub)
         # Normal equations on the sub-block: step = −(JᵀJ)⁻¹Jᵀr, RSS = rᵀr + stepᵀJᵀr.
         dot = 0.0
         for a in range(k):

@@ -111,9 +111,9 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
     r = np.ascontiguousarray(ident.catalog_vectors, dtype=np.float64)
     mag = np.asarray(ident.catalog_mag, dtype=np.float64)
     A = np.ascontiguousarray(ident.A_icrs_to_cam, dtype=np.float64)
-    xy_idx = xy[idx]
-    b = camera.pixel_to_ray(xy_idx)
-    keep = _inliers(_angles(b, r, A), 0.1 * camera.plate_scale_rad)
+    xy_idx = np.ascontiguousarray(xy[idx], dtype=np.float64)
+    b, keep = _rays_and_inliers(xy_idx, r, A, _camera_array(camera), camera.has_distortion,
+                                1e-5 / max(camera.fx, camera.fy), 0.1 * camera.plate_scale_rad)
     if not keep.all():
         idx, ids, r, mag, b, xy_idx = idx[keep], ids[keep], r[keep], mag[keep], b[keep], xy_idx[keep]
     params: tuple[str, ...] = ()
@@ -140,6 +140,53 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
         sigma = max(math.sqrt(float(np.sum(resid**2)) / dof), 0.05 * camera.plate_scale_rad)
         cov = attitude_covariance(A, b, sigma)
     return FinalFit(A, camera, idx, ids, r, mag, resid, cov, params)
+
+
+def _camera_array(camera: Camera) -> np.ndarray:
+    return np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.skew, camera.k1, camera.k2, camera.k3,
+                     camera.p1, camera.p2], dtype=np.float64)
+
+
+@numba.njit(cache=True)
+def _rays_and_inliers(xy, r, A, cam, distorted, tol, floor):
+    """``camera.pixel_to_ray(xy)`` (the same arithmetic: Brown–Conrady inverted by the same
+    fixed-point iteration, stopped by the largest step over all stars, ``tol``), and the
+    :func:`inliers` of their :func:`angles` to ``r`` rotated by ``A``."""
+    fx, fy, cx, cy, skew, k1, k2, k3, p1, p2 = (cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6],
+                                                cam[7], cam[8], cam[9])
+    n = xy.shape[0]
+    xd = np.empty(n)
+    yd = np.empty(n)
+    for i in range(n):
+        yd[i] = (xy[i, 1] - cy) / fy
+        xd[i] = (xy[i, 0] - cx - skew * yd[i]) / fx
+    xn = xd.copy()
+    yn = yd.copy()
+    if distorted:
+        xs = np.empty(n)
+        ys = np.empty(n)
+        for _ in range(50):
+            step = 0.0
+            for i in range(n):
+                x, y = xn[i], yn[i]
+                r2 = x * x + y * y
+                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+                dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+                dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+                xs[i] = (xd[i] - dx) / radial
+                ys[i] = (yd[i] - dy) / radial
+                step = max(step, abs(xs[i] - x) + abs(ys[i] - y))
+            xn[:] = xs
+            yn[:] = ys
+            if step < tol:
+                break
+    b = np.empty((n, 3))
+    for i in range(n):
+        norm = np.sqrt(xn[i] * xn[i] + yn[i] * yn[i] + 1.0)
+        b[i, 0] = xn[i] / norm
+        b[i, 1] = yn[i] / norm
+        b[i, 2] = 1.0 / norm
+    return b, _inliers(_angles(b, r, A), floor)
 
 
 def _largest_shift_px(cam0: Camera, A0: np.ndarray, cam1: Camera, A1: np.ndarray) -> float:

@@ -11,12 +11,13 @@ import math
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
 from skyfix.final_fit import final_fit
-from skyfix.geometry import quaternion_from_attitude, radec_roll_from_attitude, vector_to_radec
+from skyfix.geometry import quaternion_from_attitude, radec_roll_from_attitude
 from skyfix.solution import Match, Solution
 
 __all__ = ["solve", "solve_centroids"]
@@ -157,10 +158,11 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
                     method=attitude_method)
     A, camera, idx, resid = fit.A_icrs_to_cam, fit.camera, fit.star_index, fit.residuals_rad
     n = len(idx)
-    rmse = float(np.sqrt(np.mean(resid**2)))
+    ra_deg, dec_deg, resid_arcsec, rmse = _match_columns(np.ascontiguousarray(fit.catalog_vectors,
+                                                                              dtype=np.float64),
+                                                         np.ascontiguousarray(resid, dtype=np.float64))
     cov = fit.covariance_rad2 / _ARCSEC**2
     ra, dec, roll = radec_roll_from_attitude(A)
-    cat_ra, cat_dec = vector_to_radec(fit.catalog_vectors)
     sol.status = "solved"
     sol.reason = ""
     sol.ra_deg, sol.dec_deg, sol.roll_deg = math.degrees(ra), math.degrees(dec), math.degrees(roll)
@@ -173,6 +175,26 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     sol.A_icrs_to_cam = A
     sol.camera = camera
     star_xy = xy[idx]
-    columns = (star_xy[:, 0], star_xy[:, 1], fit.catalog_ids, np.degrees(cat_ra), np.degrees(cat_dec),
-               fit.catalog_mag, resid / _ARCSEC)
+    columns = (star_xy[:, 0], star_xy[:, 1], fit.catalog_ids, ra_deg, dec_deg, fit.catalog_mag, resid_arcsec)
     sol.matches = list(map(Match, *(c.tolist() for c in columns)))
+
+
+@numba.njit(cache=True)
+def _match_columns(v, resid):
+    """RA and Dec (degrees) of the catalogue vectors (:func:`skyfix.geometry.vector_to_radec`),
+    the residuals in arcseconds and their RMS (radians), in one pass."""
+    n = v.shape[0]
+    ra = np.empty(n)
+    dec = np.empty(n)
+    res = np.empty(n)
+    ss = 0.0
+    for i in range(n):
+        norm = np.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
+        a = np.arctan2(v[i, 1] / norm, v[i, 0] / norm)
+        if a < 0.0:
+            a += 2.0 * np.pi
+        ra[i] = np.degrees(a + 0.0)
+        dec[i] = np.degrees(np.arcsin(min(max(v[i, 2] / norm, -1.0), 1.0)))
+        res[i] = resid[i] / _ARCSEC
+        ss += resid[i] * resid[i]
+    return ra, dec, res, np.sqrt(ss / n) if n else np.nan
