@@ -134,14 +134,21 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
         raise ValueError(f"unknown background method {method!r}; choose tiled, global or rows")
     edges_y = np.linspace(0, h, ny + 1).round().astype(np.int64)
     edges_x = np.linspace(0, w, nx + 1).round().astype(np.int64)
-    sm = smooth3(img) if smoothed is None else np.ascontiguousarray(smoothed, dtype=np.float32)
+    # The statistics need the smoothed frame only on the sampling lattice: without a smoothed
+    # frame from the caller, the 3×3 kernel is evaluated at those points alone (a tenth of the
+    # pixels or fewer), so the extractor can smooth and threshold in one later pass.
+    if smoothed is None:
+        sm = np.empty((0, 0), np.float32)
+    else:
+        sm = np.ascontiguousarray(smoothed, dtype=np.float32)
+    smp, rawp, cnt, med = _lattice_samples(img, sm, edges_y, edges_x, sy, sx, method == "rows")
     if method == "rows":
         # levels of the raw rows; the smoothed frame sees each row mixed [1 2 1]/4 with its neighbours
-        level_raw = _tile_medians(img, edges_y, edges_x, sy, sx)
+        level_raw = med.reshape(ny, nx)
         padded = np.concatenate([level_raw[:1], level_raw, level_raw[-1:]])
         level = 0.25 * padded[:-2] + 0.5 * padded[1:-1] + 0.25 * padded[2:]
     else:
-        level = _tile_medians(sm, edges_y, edges_x, sy, sx)
+        level = med.reshape(ny, nx)
     if grid_filter > 1 and min(ny, nx) > 1:
         level = ndimage.median_filter(level, size=grid_filter, mode="nearest")
     cy = 0.5 * (edges_y[:-1] + edges_y[1:]) - 0.5
@@ -153,7 +160,8 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     # noise about the interpolated sky, not the tile median, so a gradient across a tile is
     # not taken for noise
     is_int = is_integer_valued(img)
-    stats, raw_res = _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix, fx, is_int)
+    stats, raw_res = _tile_noise(smp, rawp, cnt, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix, fx,
+                                 is_int, method != "rows")
     if method != "rows":  # rows are one pixel tall: no gradient inside them to correct for
         level = level + stats[..., 0]
         level_raw = level
@@ -259,7 +267,8 @@ def _robust_level_noise(v, quantum=0.0, lower=False):
     n = v.size
     if n == 0:
         return 0.0, 0.0
-    med = np.median(v)
+    scratch = v.astype(np.float64)  # a copy: the selection reorders it
+    med = _median_inplace(scratch, n)
     if lower:
         m = 0
         dev = np.empty(n)
@@ -270,7 +279,8 @@ def _robust_level_noise(v, quantum=0.0, lower=False):
         dev = dev[:m]
     else:
         dev = np.abs(v - med)
-    s0 = max(1.4826 * np.median(dev), quantum)
+    scratch = dev.copy()
+    s0 = max(1.4826 * _median_inplace(scratch, dev.size), quantum)
     if s0 <= 0.0:
         # more than half the sample equals the median: start from the smallest step seen
         step = np.inf
@@ -301,36 +311,40 @@ def _robust_level_noise(v, quantum=0.0, lower=False):
 def _select(a, lo, hi, k):
     """Partially sort ``a[lo:hi]`` in place so that ``a[k]`` is its k-th smallest; returns it.
 
-    Quickselect with a median-of-three pivot; no allocation (the tiles call it thousands of
-    times per frame).
+    Quickselect with a median-of-three pivot and branch-free Lomuto partitions (about 3× faster
+    than Hoare's on noise, whose comparisons a branch predictor cannot guess); no allocation
+    (the tiles call it thousands of times per frame). Values equal to the pivot are gathered
+    in a second pass, so quantised data with many ties stays linear. Terminates on NaN.
     """
     hi -= 1
     while hi > lo:
-        mid = (lo + hi) // 2
-        # median of three to a[mid]
-        if a[mid] < a[lo]:
-            a[mid], a[lo] = a[lo], a[mid]
-        if a[hi] < a[lo]:
-            a[hi], a[lo] = a[lo], a[hi]
-        if a[hi] < a[mid]:
-            a[hi], a[mid] = a[mid], a[hi]
-        pivot = a[mid]
-        i, j = lo, hi
-        while i <= j:
-            while a[i] < pivot:
-                i += 1
-            while a[j] > pivot:
-                j -= 1
-            if i <= j:
-                a[i], a[j] = a[j], a[i]
-                i += 1
-                j -= 1
-        if k <= j:
-            hi = j
-        elif k >= i:
-            lo = i
-        else:
-            break
+        mid = (lo + hi) >> 1
+        u, v, t = a[lo], a[mid], a[hi]
+        if u > v:
+            u, v = v, u
+        if v > t:
+            v = t
+        pivot = max(u, v)
+        # a[lo:store] < pivot ≤ a[store:hi+1]; every element is swapped, the index moves or not
+        store = lo
+        for i in range(lo, hi + 1):
+            e = a[i]
+            a[i] = a[store]
+            a[store] = e
+            store += e < pivot
+        if k < store:
+            hi = store - 1
+            continue
+        # then the ties: a[store:eq] == pivot
+        eq = store
+        for i in range(store, hi + 1):
+            e = a[i]
+            a[i] = a[eq]
+            a[eq] = e
+            eq += e == pivot
+        if k < eq or eq == lo:  # found, or a NaN pivot that nothing equals
+            return a[k] if eq == lo else pivot
+        lo = eq
     return a[k]
 
 
@@ -398,43 +412,77 @@ def _lattice_start(e0, e1, stride):
 
 
 @njit(cache=True)
-def _tile_medians(sm, edges_y, edges_x, sy, sx):
-    """Median of the smoothed frame on a sampling lattice in each tile, (ny, nx)."""
-    ny, nx = edges_y.size - 1, edges_x.size - 1
-    out = np.empty((ny, nx))
-    cap_y = (edges_y[1:] - edges_y[:-1]).max() // sy + 1
-    buf = np.empty(cap_y * ((edges_x[1:] - edges_x[:-1]).max() // sx + 1), np.float64)
-    for ty in range(ny):
-        for tx in range(nx):
-            k = 0
-            for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], sy), edges_y[ty + 1], sy):
-                for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], sx), edges_x[tx + 1], sx):
-                    buf[k] = sm[y, x]
-                    k += 1
-            out[ty, tx] = _median_inplace(buf, k)
-    return out
+def _smooth_at(img, y, x):
+    """:func:`smooth3` at one pixel, with the same arithmetic (edges replicated)."""
+    h, w = img.shape
+    ya, yb = max(y - 1, 0), min(y + 1, h - 1)
+    xa, xb = max(x - 1, 0), min(x + 1, w - 1)
+    ta = np.float32(img[ya, xa] + 2.0 * img[y, xa] + img[yb, xa])
+    tb = np.float32(img[ya, x] + 2.0 * img[y, x] + img[yb, x])
+    tc = np.float32(img[ya, xb] + 2.0 * img[y, xb] + img[yb, xb])
+    if w == 1:
+        return np.float32(tb * 0.25)
+    return np.float32((ta + 2.0 * tb + tc) * 0.0625)
 
 
 @njit(cache=True)
-def _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix, fx, is_int):
+def _lattice_samples(img, sm, edges_y, edges_x, sy, sx, of_raw=False):
+    """The smoothed and raw frame on each tile's sampling lattice, and each tile's median.
+
+    ``sm`` is the smoothed frame, or a 0×0 array to smooth at the lattice points only.
+    Returns (T, cap) float64 smoothed and raw samples in scan order (tiles row-major), (T,)
+    counts, and (T,) medians of the smoothed samples (of the raw ones if ``of_raw``).
+    """
+    ny, nx = edges_y.size - 1, edges_x.size - 1
+    cap = ((edges_y[1:] - edges_y[:-1]).max() // sy + 1) * ((edges_x[1:] - edges_x[:-1]).max() // sx + 1)
+    smp = np.empty((ny * nx, cap))
+    rawp = np.empty((ny * nx, cap))
+    cnt = np.zeros(ny * nx, np.int64)
+    med = np.empty(ny * nx)
+    have_sm = sm.shape[0] > 0
+    for ty in range(ny):
+        buf = np.empty(cap)
+        for tx in range(nx):
+            t = ty * nx + tx
+            k = 0
+            for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], sy), edges_y[ty + 1], sy):
+                for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], sx), edges_x[tx + 1], sx):
+                    v = img[y, x]
+                    smp[t, k] = sm[y, x] if have_sm else _smooth_at(img, y, x)
+                    rawp[t, k] = v
+                    buf[k] = v if of_raw else smp[t, k]
+                    k += 1
+            cnt[t] = k
+            med[t] = _median_inplace(buf, k)
+    return smp, rawp, cnt, med
+
+
+@njit(cache=True)
+def _tile_noise(smp, rawp, cnt, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix, fx, is_int,
+                same_level):
     """Per tile, the median and lower-side clipped RMS of the smoothed frame minus the sky model.
 
     The median is a correction to the tile's level: a plain tile median of a sky with a
     gradient is as uncertain as the gradient is steep, the median about the model is not.
-    Returns them as (ny, nx, 2), then the raw samples minus the sky pooled over about 64
-    tiles. ``is_int``: the frame holds integers (quantised data).
+    ``smp``, ``rawp``: the lattice samples of :func:`_lattice_samples`. Returns the statistics
+    as (ny, nx, 2), then the raw samples minus the sky pooled over about 64 tiles (in tile
+    order).
+    ``is_int``: the frame holds integers (quantised data); ``same_level``: ``level_raw`` is
+    ``level``.
     """
     ny, nx = edges_y.size - 1, edges_x.size - 1
     out = np.empty((ny, nx, 2))
-    cap_y = (edges_y[1:] - edges_y[:-1]).max() // sy + 1
-    cap = cap_y * ((edges_x[1:] - edges_x[:-1]).max() // sx + 1)
-    res = np.empty(cap, np.float64)
-    raw = np.empty(cap, np.float64)
+    cap = smp.shape[1]
     pool_every = max(1, (ny * nx) // 64)
-    pooled = np.empty(((ny * nx) // pool_every + 1) * cap, np.float64)
-    npool = 0
+    start = np.zeros(ny * nx + 1, np.int64)  # where each tile's pooled samples go
+    for t in range(ny * nx):
+        start[t + 1] = start[t] + (cnt[t] if t % pool_every == 0 else 0)
+    pooled = np.empty(start[-1], np.float64)
     for ty in range(ny):
+        res = np.empty(cap, np.float64)
         for tx in range(nx):
+            t = ty * nx + tx
+            pool = t % pool_every == 0
             k = 0
             for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], sy), edges_y[ty + 1], sy):
                 i = iy[y]
@@ -446,20 +494,20 @@ def _tile_noise(img, sm, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix,
                     g = fx[x]
                     top = (1.0 - g) * level[i, j] + g * level[i, j1]
                     bot = (1.0 - g) * level[i1, j] + g * level[i1, j1]
-                    res[k] = sm[y, x] - ((1.0 - f) * top + f * bot)
-                    top = (1.0 - g) * level_raw[i, j] + g * level_raw[i, j1]
-                    bot = (1.0 - g) * level_raw[i1, j] + g * level_raw[i1, j1]
-                    raw[k] = img[y, x] - ((1.0 - f) * top + f * bot)
+                    model = (1.0 - f) * top + f * bot
+                    res[k] = smp[t, k] - model
+                    if pool:  # the raw residuals of the pooled tiles only
+                        if not same_level:
+                            top = (1.0 - g) * level_raw[i, j] + g * level_raw[i, j1]
+                            bot = (1.0 - g) * level_raw[i1, j] + g * level_raw[i1, j1]
+                            model = (1.0 - f) * top + f * bot
+                        pooled[start[t] + k] = rawp[t, k] - model
                     k += 1
             # a 3×3 binomial mean of integers moves in steps of 1/16
             med, sig = _tile_level_noise(res, k, 0.0625 if is_int else 0.0)
             out[ty, tx, 0] = med
             out[ty, tx, 1] = sig
-            if (ty * nx + tx) % pool_every == 0:
-                for m in range(k):
-                    pooled[npool] = raw[m]
-                    npool += 1
-    return out, pooled[:npool]
+    return out, pooled
 
 
 @njit(cache=True)

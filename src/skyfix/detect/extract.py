@@ -33,7 +33,7 @@ import numpy as np
 from numba import njit
 from scipy import ndimage
 
-from skyfix.detect.background import Background, estimate_background, interp_weights, smooth3_stats
+from skyfix.detect.background import Background, estimate_background, interp_weights
 from skyfix.detect.centroid import CENTROIDERS, refine_centroids
 from skyfix.detect.centroids import Centroids
 from skyfix.errors import ImageReadError
@@ -192,25 +192,35 @@ def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharp
                 max_diffuseness, max_elongation, saturation, tile, background, deblend,
                 reject_tracks) -> Centroids:
     """The default detector (module docstring, steps 1–5)."""
-    h, w = img.shape
-    ws = _workspace(h, w)
-    sm, total = smooth3_stats(img, out=ws.smooth)
-    if not math.isfinite(total):  # NaN/Inf pixels (or an overflowing sum): replace, smooth again
+    args = (sigma, max_stars, min_area, max_area, max_extent, min_sharpness, max_noise_ratio, max_diffuseness,
+            max_elongation, saturation, tile, background, deblend, reject_tracks)
+    c = _components_pass(img, *args, check_finite=True)
+    if c is None:  # NaN/Inf pixels (or an overflowing sum): replace them, then once more
         try:
             img = as_image(img, name="image")
         except ImageReadError:
-            return Centroids.empty((h, w), reason="mostly non-finite")
-        sm, total = smooth3_stats(img, out=ws.smooth)
-    bg = estimate_background(img, tile=tile, smoothed=sm) if background is None else background
+            return Centroids.empty(img.shape, reason="mostly non-finite")
+        c = _components_pass(img, *args, check_finite=False)
+    return c
+
+
+def _components_pass(img, sigma, max_stars, min_area, max_area, max_extent, min_sharpness, max_noise_ratio,
+                     max_diffuseness, max_elongation, saturation, tile, background, deblend,
+                     reject_tracks, check_finite) -> Centroids | None:
+    """:func:`_components` on one frame; ``None`` if ``check_finite`` and a pixel is not finite."""
+    h, w = img.shape
+    # the background needs the smoothed frame only on its sampling lattice, so it comes first
+    # and the full-frame smoothing, threshold, sum and maximum share one pass
+    bg = estimate_background(img, tile=tile) if background is None else background
     level, noise = bg.global_level, bg.global_noise
     if not np.any(bg.noise_smooth > 0):
+        if check_finite and not math.isfinite(float(img.sum(dtype=np.float64))):
+            return None
         return Centroids.empty((h, w), level, noise, reason="flat frame")
     if max_area is None:
         max_area = int(max(400, 0.002 * h * w))
     if max_extent is None:
         max_extent = int(max(32, 0.06 * min(h, w)))
-    if saturation is None:
-        saturation = saturation_level(img)
 
     iy, fy = interp_weights(bg.centers_y, h)
     ix, fx = interp_weights(bg.centers_x, w)
@@ -218,14 +228,21 @@ def _components(img, sigma, max_stars, min_area, max_area, max_extent, min_sharp
     # flat (noise-free) sky is not detected everywhere.
     floor = 1e-6 * max(1.0, float(np.abs(bg.level_smooth).max()))
     thr_grid = bg.level_smooth + np.maximum(sigma * bg.noise_smooth, floor)
+    ws = _workspace(h, w)
+    sm = ws.smooth
+    total, vmax = _smooth_threshold(img, img.view(np.int32), sm, ws.mask, thr_grid, bg.level_smooth,
+                                    iy, fy, ix, fx)
+    if check_finite and not math.isfinite(total):
+        return None
+    if saturation is None:
+        saturation = _full_scale(float(vmax))
     labels = ws.labels
     if ws.dirty is None:
         labels.fill(0)
     else:  # clear only what the last call labelled
         _clear_boxes(labels, ws.dirty)
     ws.dirty = None
-    comps = _label(sm, img, labels, ws.mask, thr_grid, bg.level_smooth, bg.level, iy, fy, ix, fx,
-                   _MAX_COMPONENTS)
+    comps = _label(sm, img, labels, ws.mask, bg.level_smooth, bg.level, iy, fy, ix, fx, _MAX_COMPONENTS)
     ws.dirty = comps[:, 1:5].astype(np.int64)
     n_comp = comps.shape[0]
     if n_comp == 0:
@@ -475,36 +492,72 @@ def _grid_rows(grid, ix, fx, w):
     return r0, dr
 
 
-@njit(cache=True)
-def _label(sm, img, labels, mask, thr_grid, bg_grid, raw_bg_grid, iy, fy, ix, fx, max_components):
-    """8-connected flood fill of pixels with ``sm > threshold``; labels are 1-based.
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def _smooth_threshold(img, bits, sm, mask, thr_grid, bg_grid, iy, fy, ix, fx):
+    """One pass over the frame: :func:`smooth3` into ``sm``, ``sm > threshold`` into ``mask``.
 
-    ``mask`` is a (H, W rounded up to 8) uint8 scratch frame. Returns (K, 8) float64: area,
-    ymin, ymax, xmin, xmax, summed excess of ``sm`` over the sky, and of the raw frame the
-    highest pixel and the sum of positive pixels above the sky.
+    ``bits`` is ``img`` viewed as int32, ``mask`` a (H, W rounded up to 8) uint8 frame. The
+    threshold grid is interpolated bilinearly (raised on the border, :func:`_threshold_at`).
+    Returns the sum of the raw frame (non-finite if any pixel is) and its maximum.
+    Reassociation lets the row loops vectorise; NaN and Inf still propagate (no "nnan"/"ninf").
     """
-    h, w = sm.shape
-    comps = np.zeros((max_components, 8))
-    stack = np.empty(h * w, np.int64)
-    # grids interpolated along x at the tile-centre rows: any pixel row is then r0 + f·dr, one
-    # fused multiply-add per pixel
+    h, w = img.shape
+    # the threshold grid interpolated along x at the tile-centre rows: any pixel row is then
+    # r0 + f·dr, one fused multiply-add per pixel
     t0, dt = _grid_rows(thr_grid, ix, fx, w)
-    b0, db = _grid_rows(bg_grid, ix, fx, w)
-    q0, dq = _grid_rows(raw_bg_grid, ix, fx, w)
-    # pass 1: the above-threshold mask, row by row (SIMD)
+    tmp = np.empty(w, np.float32)
+    total = 0.0
+    top = np.int32(-(2**31))
     for y in range(h):
+        ya, yb = max(y - 1, 0), min(y + 1, h - 1)
+        acc = np.float32(0.0)
+        for x in range(w):
+            v = img[y, x]
+            tmp[x] = img[ya, x] + 2.0 * v + img[yb, x]
+            acc += v
+            # the maximum on the float's bits made monotonic as int32: a float max reduction
+            # does not vectorise without "nnan", an integer one does
+            b = bits[y, x]
+            top = max(top, b ^ ((b >> 31) & np.int32(0x7FFFFFFF)))
+        total += acc
+        out = sm[y]
+        if w == 1:
+            out[0] = tmp[0] * 0.25
+        else:
+            out[0] = (3.0 * tmp[0] + tmp[1]) * 0.0625
+            for x in range(1, w - 1):
+                out[x] = (tmp[x - 1] + 2.0 * tmp[x] + tmp[x + 1]) * 0.0625
+            out[w - 1] = (tmp[w - 2] + 3.0 * tmp[w - 1]) * 0.0625
         i = iy[y]
         f = np.float32(fy[y])
-        row = sm[y]
+        m = mask[y]
         for x in range(w):
-            mask[y, x] = row[x] > t0[i, x] + f * dt[i, x]
+            m[x] = out[x] > t0[i, x] + f * dt[i, x]
         # border pixels: the replicated edge makes their smoothed noise larger
         if y == 0 or y == h - 1:
             for x in range(w):
-                mask[y, x] = row[x] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, x, h, w)
+                m[x] = out[x] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, x, h, w)
         else:
-            mask[y, 0] = row[0] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, 0, h, w)
-            mask[y, w - 1] = row[w - 1] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, w - 1, h, w)
+            m[0] = out[0] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, 0, h, w)
+            m[w - 1] = out[w - 1] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, w - 1, h, w)
+    top ^= (top >> 31) & np.int32(0x7FFFFFFF)
+    return total, np.array([top], np.int32).view(np.float32)[0]
+
+
+@njit(cache=True)
+def _label(sm, img, labels, mask, bg_grid, raw_bg_grid, iy, fy, ix, fx, max_components):
+    """8-connected flood fill of the pixels set in ``mask``; labels are 1-based.
+
+    ``mask`` is the (H, W rounded up to 8) uint8 frame of :func:`_smooth_threshold`. Returns
+    (K, 8) float64: area, ymin, ymax, xmin, xmax, summed excess of ``sm`` over the sky, and of
+    the raw frame the highest pixel and the sum of positive pixels above the sky.
+    """
+    h, w = sm.shape
+    # both grow on demand: multi-megabyte worst-case buffers cost more to map than to fill
+    comps = np.empty((min(max_components, 1024), 8))
+    stack = np.empty(1024, np.int64)
+    b0, db = _grid_rows(bg_grid, ix, fx, w)
+    q0, dq = _grid_rows(raw_bg_grid, ix, fx, w)
     # pass 2: visit only non-zero 8-byte words; flood-fill from each unlabelled pixel
     k = 0
     for y in range(h):
@@ -517,6 +570,10 @@ def _label(sm, img, labels, mask, thr_grid, bg_grid, raw_bg_grid, iy, fy, ix, fx
                     continue
                 if k >= max_components:
                     return comps[:k]
+                if k == comps.shape[0]:
+                    bigger = np.empty((min(2 * k, max_components), 8))
+                    bigger[:k] = comps
+                    comps = bigger
                 lab = k + 1
                 labels[y, x] = lab
                 stack[0] = y * w + x
@@ -527,6 +584,10 @@ def _label(sm, img, labels, mask, thr_grid, bg_grid, raw_bg_grid, iy, fy, ix, fx
                 raw_peak = -np.inf
                 raw_sum = 0.0
                 while top > 0:
+                    if top + 9 > stack.size:
+                        bigger_stack = np.empty(2 * stack.size, np.int64)
+                        bigger_stack[:top] = stack[:top]
+                        stack = bigger_stack
                     top -= 1
                     p = stack[top]
                     py, px = p // w, p % w
