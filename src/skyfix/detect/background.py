@@ -70,12 +70,12 @@ class Background:
     @property
     def global_level(self) -> float:
         """Median sky level over the tiles, ADU."""
-        return float(np.median(self.level))
+        return float(median_of(self.level))
 
     @property
     def global_noise(self) -> float:
         """Median per-pixel noise σ over the tiles, ADU."""
-        return float(np.median(self.noise))
+        return float(median_of(self.noise))
 
     def level_map(self, shape: tuple[int, int], smooth: bool = False) -> np.ndarray:
         """The sky level interpolated to every pixel, float32 (H, W)."""
@@ -219,16 +219,42 @@ def interpolate_grid(grid: np.ndarray, centers_y: np.ndarray, centers_x: np.ndar
 
 def interp_weights(centers: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """For pixels 0..n-1: index of the lower tile centre and the weight of the upper one."""
-    pos = np.arange(n, dtype=np.float64)
-    if centers.size == 1:
-        return np.zeros(n, np.int64), np.zeros(n, np.float32)
-    i = np.clip(np.searchsorted(centers, pos, side="right") - 1, 0, centers.size - 2)
-    # linear beyond the outer centres too (half a tile): a gradient continues to the edge
-    f = (pos - centers[i]) / (centers[i + 1] - centers[i])
-    return i.astype(np.int64), f.astype(np.float32)
+    return _interp_weights(np.ascontiguousarray(centers, dtype=np.float64), int(n))
+
+
+def median_of(values: np.ndarray) -> float:
+    """Median of an array (as ``np.median``, without its per-call overhead on small arrays)."""
+    return _median_of(np.ascontiguousarray(values, dtype=np.float64).reshape(-1))
 
 
 # --- numba kernels ------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _interp_weights(centers, n):
+    i = np.zeros(n, np.int64)
+    f = np.zeros(n, np.float32)
+    m = centers.size
+    if m == 1:
+        return i, f
+    j = 0  # centres ≤ pos (searchsorted "right"), advanced as pos grows
+    for p in range(n):
+        pos = float(p)
+        while j < m and centers[j] <= pos:
+            j += 1
+        k = min(max(j - 1, 0), m - 2)
+        i[p] = k
+        # linear beyond the outer centres too (half a tile): a gradient continues to the edge
+        f[p] = (pos - centers[k]) / (centers[k + 1] - centers[k])
+    return i, f
+
+
+@njit(cache=True)
+def _median_of(v):
+    """Median of a 1-D float64 array (NaN if empty), leaving it untouched."""
+    if v.size == 0:
+        return np.nan
+    return _median_inplace(v.copy(), v.size)
 
 
 # reassociation lets the row sum vectorise; NaN and Inf still propagate (no "nnan"/"ninf")

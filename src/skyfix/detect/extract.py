@@ -31,9 +31,8 @@ import threading
 
 import numpy as np
 from numba import njit
-from scipy import ndimage
 
-from skyfix.detect.background import Background, estimate_background, interp_weights
+from skyfix.detect.background import Background, _median_of, estimate_background, interp_weights
 from skyfix.detect.centroid import CENTROIDERS, refine_centroids
 from skyfix.detect.centroids import Centroids
 from skyfix.errors import ImageReadError
@@ -269,24 +268,12 @@ def _components_pass(img, sigma, max_stars, min_area, max_area, max_extent, min_
         n_split = ids.size - idx.size
     m = _measure(img, labels, ids, boxes, bg.level, iy, fy, ix, fx, float(saturation), float(min_sharpness))
     flux, x, y, npix, peak, sharp, mxx, myy, mxy, sxx, syy, nsat, nhot = m.T
-    noise_px = _noise_at(bg.noise, iy, fy, ix, fx, x, y)
-    tr = mxx + myy
-    det = np.sqrt(np.maximum((mxx - myy) ** 2 + 4.0 * mxy**2, 0.0))
-    # the 1/12 px² of a uniform pixel keeps a one-pixel object's minor axis above zero
-    lam1, lam2 = 0.5 * (tr + det) + 1.0 / 12.0, np.maximum(0.5 * (tr - det), 0.0) + 1.0 / 12.0
-    elong = np.sqrt(lam1 / lam2)
-    snr = flux / (noise_px * np.sqrt(np.maximum(npix, 1.0)))
-    # hot pixels: too sharp even after leaving out up to 3 of them, or nothing left but noise;
-    # a deblended part around a hot pixel is only a neighbouring star's wing
-    good = (flux > 0) & (sharp >= min_sharpness) & ((nhot == 0) | ((snr >= sigma) & ~is_part))
-    if max_elongation is not None:
-        good &= elong <= max_elongation
-    if reject_tracks:
-        good &= ~_particle_tracks(0.5 * (tr - det), elong, snr, good)
-    if max_diffuseness is not None:
-        good &= ~_diffuse(flux, peak, snr, peak / noise_px, nsat > 0, good, max_diffuseness)
-    if max_noise_ratio is not None:
-        good &= ~_cluttered(bg, x, y, max_noise_ratio)
+    # rejections (module docstring, step 6) in one kernel: dozens of small numpy calls cost more
+    noise_px, elong, snr, good = _screen(
+        m, is_part, bg.noise, bg.noise_smooth, bg.centers_y, bg.centers_x, iy, fy, ix, fx, float(sigma),
+        float(min_sharpness), math.inf if max_elongation is None else float(max_elongation), reject_tracks,
+        math.nan if max_diffuseness is None else float(max_diffuseness),
+        math.nan if max_noise_ratio is None else float(max_noise_ratio))
     sel = np.flatnonzero(good)
     sel = sel[np.argsort(-flux[sel], kind="stable")][:max_stars]
     return Centroids(
@@ -373,6 +360,7 @@ def _full_scale(vmax: float) -> float:
     return vmax if near.any() else math.inf
 
 
+@njit(cache=True)
 def _particle_tracks(minor_var, elong, snr, candidate):
     """Cosmic-ray and other particle tracks: narrower across than any starlight.
 
@@ -385,37 +373,72 @@ def _particle_tracks(minor_var, elong, snr, candidate):
     """
     compact = candidate & (elong < 1.5) & (snr > 10.0)
     if compact.sum() < 3:
-        return np.zeros(elong.size, bool)
-    rel = minor_var / float(np.median(minor_var[compact]))
+        return np.zeros(elong.size, np.bool_)
+    rel = minor_var / _median_of(minor_var[compact])
     narrow = ((elong > 1.5) & (rel < _TRACK_WIDTH_RATIO)) | (rel < 0.5 * _TRACK_WIDTH_RATIO)
     return narrow & (snr >= 20.0)
 
 
+@njit(cache=True)
 def _diffuse(flux, peak, snr, peak_snr, saturated, candidate, ratio):
     """Objects far more spread out than the frame's typical star (see ``max_diffuseness``)."""
     aeff = flux / np.maximum(peak, 1e-30)
     typical = candidate & ~saturated & (snr > 10.0)
     if not typical.any():
-        return np.zeros(flux.size, bool)
-    rel = aeff / np.percentile(aeff[typical], _DIFFUSE_PERCENTILE)
+        return np.zeros(flux.size, np.bool_)
+    rel = aeff / _percentile_linear(aeff[typical], _DIFFUSE_PERCENTILE / 100.0)
     return ((rel > ratio) & (peak_snr < _DIFFUSE_MAX_PEAK_SNR)) | ((rel > ratio * 10.0 / 3.0) & ~saturated)
 
 
-def _cluttered(bg: Background, x: np.ndarray, y: np.ndarray, ratio: float) -> np.ndarray:
+@njit(cache=True)
+def _percentile_linear(v, q):
+    """``np.percentile(v, 100·q)`` (linear method), with numpy's arithmetic."""
+    a = np.sort(v)
+    n = a.size
+    vi = (n - 1) * q
+    if vi >= n - 1:
+        return a[n - 1]
+    lo = int(math.floor(vi))
+    gamma = vi - lo
+    diff = a[lo + 1] - a[lo]
+    if gamma >= 0.5:
+        return a[lo + 1] - diff * (1.0 - gamma)
+    return a[lo] + diff * gamma
+
+
+@njit(cache=True)
+def _cluttered(noise_smooth, centers_y, centers_x, x, y, ratio):
     """Positions in or next to a tile whose noise exceeds ``ratio`` × the frame's median noise.
 
     The neighbouring tiles count too because lit foreground thins out at its edge (the last
     leaves of a tree) while its tile noise is already back to normal.
     """
-    noisy = bg.noise_smooth > ratio * float(np.median(bg.noise_smooth))
-    if min(noisy.shape) > 1:
-        noisy = ndimage.binary_dilation(noisy, structure=np.ones((3, 3), bool))
-    return noisy[_nearest_index(bg.centers_y, y), _nearest_index(bg.centers_x, x)]
+    ny, nx = noise_smooth.shape
+    noisy = noise_smooth > ratio * _median_of(noise_smooth.ravel())
+    out = np.zeros(x.size, np.bool_)
+    if not noisy.any():
+        return out
+    if ny > 1 and nx > 1:
+        grown = np.zeros_like(noisy)
+        for i in range(ny):
+            for j in range(nx):
+                if noisy[i, j]:
+                    grown[max(i - 1, 0):i + 2, max(j - 1, 0):j + 2] = True
+        noisy = grown
+    for c in range(x.size):
+        out[c] = noisy[_nearest_index(centers_y, y[c]), _nearest_index(centers_x, x[c])]
+    return out
 
 
-def _nearest_index(centers: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Index of the nearest tile centre for each value."""
-    return np.abs(v[:, None] - centers[None, :]).argmin(axis=1)
+@njit(cache=True)
+def _nearest_index(centers, v):
+    """Index of the nearest tile centre (the first one on a tie)."""
+    best, bd = 0, abs(v - centers[0])
+    for k in range(1, centers.size):
+        d = abs(v - centers[k])
+        if d < bd:
+            best, bd = k, d
+    return best
 
 
 def _noise_at(grid, iy, fy, ix, fx, x, y):
@@ -434,6 +457,58 @@ def _noise_at(grid, iy, fy, ix, fx, x, y):
 
 
 # --- numba kernels ------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _screen(m, is_part, noise_grid, noise_smooth, centers_y, centers_x, iy, fy, ix, fx, sigma, min_sharpness,
+            max_elongation, reject_tracks, max_diffuseness, max_noise_ratio):
+    """Noise, elongation and SNR of the measured candidates, and which of them are stars.
+
+    ``m`` is :func:`_measure`'s table. The tests run in this order, each on the survivors of the
+    ones before: flux > 0, sharpness, hot pixels, ``max_elongation`` (``inf``: none), particle
+    tracks (:func:`_particle_tracks`), diffuse blobs (:func:`_diffuse`, ``max_diffuseness``
+    NaN: none), cluttered tiles (:func:`_cluttered`, ``max_noise_ratio`` NaN: none).
+    Returns (noise_px, elongation, snr, good).
+    """
+    n = m.shape[0]
+    noise_px = np.empty(n)
+    elong = np.empty(n)
+    snr = np.empty(n)
+    minor = np.empty(n)
+    good = np.zeros(n, np.bool_)
+    ny, nx = noise_grid.shape
+    for c in range(n):
+        flux, x, y, npix = m[c, 0], m[c, 1], m[c, 2], m[c, 3]
+        mxx, myy, mxy = m[c, 6], m[c, 7], m[c, 8]
+        # noise at the rounded position, bilinear in the grid (as _noise_at)
+        xi = min(max(int(np.rint(x)), 0), ix.size - 1)
+        yi = min(max(int(np.rint(y)), 0), iy.size - 1)
+        i, j = iy[yi], ix[xi]
+        i1, j1 = min(i + 1, ny - 1), min(j + 1, nx - 1)
+        f, g = fy[yi], fx[xi]
+        top = (np.float32(1.0) - g) * noise_grid[i, j] + g * noise_grid[i, j1]
+        bot = (np.float32(1.0) - g) * noise_grid[i1, j] + g * noise_grid[i1, j1]
+        noise_px[c] = max((np.float32(1.0) - f) * top + f * bot, 1e-12)
+        tr = mxx + myy
+        det = math.sqrt(max((mxx - myy) * (mxx - myy) + 4.0 * (mxy * mxy), 0.0))
+        # the 1/12 px² of a uniform pixel keeps a one-pixel object's minor axis above zero
+        lam1, lam2 = 0.5 * (tr + det) + 1.0 / 12.0, max(0.5 * (tr - det), 0.0) + 1.0 / 12.0
+        elong[c] = math.sqrt(lam1 / lam2)
+        minor[c] = 0.5 * (tr - det)
+        snr[c] = flux / (noise_px[c] * math.sqrt(max(npix, 1.0)))
+        # hot pixels: too sharp even after leaving out up to 3 of them, or nothing left but
+        # noise; a deblended part around a hot pixel is only a neighbouring star's wing
+        good[c] = (flux > 0) and (m[c, 5] >= min_sharpness) and (
+            m[c, 12] == 0 or (snr[c] >= sigma and not is_part[c]))
+        if elong[c] > max_elongation:
+            good[c] = False
+    if reject_tracks:
+        good &= ~_particle_tracks(minor, elong, snr, good)
+    if not math.isnan(max_diffuseness):
+        good &= ~_diffuse(m[:, 0], m[:, 4], snr, m[:, 4] / noise_px, m[:, 11] > 0, good, max_diffuseness)
+    if not math.isnan(max_noise_ratio):
+        good &= ~_cluttered(noise_smooth, centers_y, centers_x, m[:, 1], m[:, 2], max_noise_ratio)
+    return noise_px, elong, snr, good
 
 
 @njit(cache=True)
