@@ -63,17 +63,22 @@ _FRAME_FLIPS = np.array([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], 
 def _prepare(b_cam: np.ndarray, r_icrs: np.ndarray, weights: np.ndarray | None,
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Validated unit vectors (N, 3), (N, 3) and weights (N,) summing to 1; ValueError otherwise."""
-    b = np.asarray(b_cam, dtype=np.float64)
-    r = np.asarray(r_icrs, dtype=np.float64)
-    if b.ndim != 2 or b.shape[1] != 3 or r.shape != b.shape:
-        raise ValueError(f"attitude needs matching (N, 3) vector arrays, got {b.shape} and {r.shape}")
-    w = np.ones(len(b)) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
-    if w.shape != (len(b),):
-        raise ValueError(f"attitude needs one weight per vector, got {w.shape[0]} for {len(b)}")
-    code, n_kept, b, r, w = _checked_unit_vectors(np.ascontiguousarray(b), np.ascontiguousarray(r),
-                                                  np.ascontiguousarray(w))
+    code, n_kept, b, r, w = _checked_unit_vectors(*_checked_arrays(b_cam, r_icrs, weights))
     if code:
         raise ValueError(_PREPARE_ERRORS[code].format(n_kept))
+    return b, r, w
+
+
+def _checked_arrays(b_cam: np.ndarray, r_icrs: np.ndarray, weights: np.ndarray | None,
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Contiguous float arrays (N, 3), (N, 3), (N,) of matching shapes; ValueError otherwise."""
+    b = np.ascontiguousarray(b_cam, dtype=np.float64)
+    r = np.ascontiguousarray(r_icrs, dtype=np.float64)
+    if b.ndim != 2 or b.shape[1] != 3 or r.shape != b.shape:
+        raise ValueError(f"attitude needs matching (N, 3) vector arrays, got {b.shape} and {r.shape}")
+    w = np.ones(len(b)) if weights is None else np.ascontiguousarray(weights, dtype=np.float64).reshape(-1)
+    if w.shape != (len(b),):
+        raise ValueError(f"attitude needs one weight per vector, got {w.shape[0]} for {len(b)}")
     return b, r, w
 
 
@@ -217,24 +222,78 @@ def svd_attitude(b_cam: np.ndarray, r_icrs: np.ndarray, weights: np.ndarray | No
     -------
     A : (3, 3) rotation matrix, ``b ≈ A r``.
     """
-    b, r, w = _prepare(b_cam, r_icrs, weights)
-    return _svd_kernel(b, r, w)
+    b, r, w = _checked_arrays(b_cam, r_icrs, weights)
+    code, n_kept, A = _checked_svd(b, r, w)
+    if code:
+        raise ValueError(_PREPARE_ERRORS[code].format(n_kept))
+    return A
+
+
+@numba.njit(cache=True)
+def _checked_svd(b, r, w):
+    """:func:`_checked_unit_vectors` and :func:`_svd_kernel` in one call (the final fit's path)."""
+    code, n_kept, bu, ru, wu = _checked_unit_vectors(b, r, w)
+    if code:
+        return code, n_kept, np.empty((3, 3))
+    return code, n_kept, _svd_kernel(bu, ru, wu)
 
 
 @numba.njit(cache=True)
 def _svd_kernel(b, r, w):
-    """``U diag(1, 1, det U det V) Vᵀ`` from the SVD of ``B = Σ w b rᵀ``."""
+    """The proper orthogonal factor of ``B = Σ w b rᵀ``: ``U diag(1, 1, det U det V) Vᵀ`` from
+    its SVD. A well-conditioned ``B`` with ``det B > 0`` (any star field of three or more stars)
+    takes the same factor from the scaled Newton iteration for the polar decomposition,
+    ``X ← (γ X + X⁻ᵀ / γ) / 2`` (Higham 1986), equal to the SVD's to rounding and free of a
+    LAPACK call; the SVD serves every other case."""
     B = np.zeros((3, 3))
     for i in range(b.shape[0]):
         for j in range(3):
             bw = b[i, j] * w[i]
             for k in range(3):
                 B[j, k] += bw * r[i, k]
+    X = _polar_newton(B)
+    if X.shape[0] == 3:
+        return X
     U, _, Vt = np.linalg.svd(B)
     d = np.linalg.det(U) * np.linalg.det(Vt)
     for j in range(3):
         U[j, 2] *= d
     return U @ Vt
+
+
+@numba.njit(cache=True)
+def _polar_newton(B):
+    """Orthogonal polar factor of a 3×3 ``B`` with ``det B > 0`` by scaled Newton iteration,
+    or an empty (0, 3) array when ``B`` is ill-conditioned, improper or does not converge."""
+    fail = np.empty((0, 3))
+    fro = np.sqrt(np.sum(B * B))
+    X = B / fro if fro > 0.0 else B
+    scaled = True
+    for _ in range(40):
+        # X⁻ᵀ = cof(X) / det X
+        C = np.empty((3, 3))
+        C[0, 0] = X[1, 1] * X[2, 2] - X[1, 2] * X[2, 1]
+        C[0, 1] = X[1, 2] * X[2, 0] - X[1, 0] * X[2, 2]
+        C[0, 2] = X[1, 0] * X[2, 1] - X[1, 1] * X[2, 0]
+        C[1, 0] = X[0, 2] * X[2, 1] - X[0, 1] * X[2, 2]
+        C[1, 1] = X[0, 0] * X[2, 2] - X[0, 2] * X[2, 0]
+        C[1, 2] = X[0, 1] * X[2, 0] - X[0, 0] * X[2, 1]
+        C[2, 0] = X[0, 1] * X[1, 2] - X[0, 2] * X[1, 1]
+        C[2, 1] = X[0, 2] * X[1, 0] - X[0, 0] * X[1, 2]
+        C[2, 2] = X[0, 0] * X[1, 1] - X[0, 1] * X[1, 0]
+        det = X[0, 0] * C[0, 0] + X[0, 1] * C[0, 1] + X[0, 2] * C[0, 2]
+        if not det > 1e-12:  # improper, singular or too ill-conditioned for this iteration
+            return fail
+        Xit = C / det
+        g = np.sqrt(np.sqrt(np.sum(Xit * Xit)) / np.sqrt(np.sum(X * X))) if scaled else 1.0
+        Y = 0.5 * (g * X + Xit / g)
+        change = np.sqrt(np.sum((Y - X) ** 2))
+        X = Y
+        if change < 1e-3:
+            scaled = False  # near convergence the unscaled step converges quadratically
+        if change < 1e-15:
+            return X
+    return fail
 
 
 def qmethod_attitude(b_cam: np.ndarray, r_icrs: np.ndarray,

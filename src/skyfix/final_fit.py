@@ -112,9 +112,8 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
     mag = np.asarray(ident.catalog_mag, dtype=np.float64)
     A = np.ascontiguousarray(ident.A_icrs_to_cam, dtype=np.float64)
     xy_idx = np.ascontiguousarray(xy[idx], dtype=np.float64)
-    b, keep = _rays_and_inliers(xy_idx, r, A, _camera_array(camera), camera.has_distortion,
-                                1e-5 / max(camera.fx, camera.fy), 0.1 * camera.plate_scale_rad)
-    if not keep.all():
+    b, keep, n_kept = _rays_and_inliers(xy_idx, r, A, _camera_array(camera))
+    if n_kept < len(keep):
         idx, ids, r, mag, b, xy_idx = idx[keep], ids[keep], r[keep], mag[keep], b[keep], xy_idx[keep]
     params: tuple[str, ...] = ()
     cov = None
@@ -148,12 +147,16 @@ def _camera_array(camera: Camera) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _rays_and_inliers(xy, r, A, cam, distorted, tol, floor):
-    """``camera.pixel_to_ray(xy)`` (the same arithmetic: Brown–Conrady inverted by the same
-    fixed-point iteration, stopped by the largest step over all stars, ``tol``), and the
-    :func:`inliers` of their :func:`angles` to ``r`` rotated by ``A``."""
+def _rays_and_inliers(xy, r, A, cam):
+    """``camera.pixel_to_ray(xy)`` for the camera ``cam`` (:func:`_camera_array`), with the same
+    arithmetic (Brown–Conrady inverted by the same fixed-point iteration, stopped when no star
+    moves by 1e-5 px), and the :func:`inliers` of their :func:`angles` to ``r`` rotated by ``A``
+    (σ floored at a tenth of the plate scale), and how many those are."""
     fx, fy, cx, cy, skew, k1, k2, k3, p1, p2 = (cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6],
                                                 cam[7], cam[8], cam[9])
+    distorted = k1 != 0.0 or k2 != 0.0 or k3 != 0.0 or p1 != 0.0 or p2 != 0.0
+    tol = 1e-5 / max(fx, fy)
+    floor = 0.1 * (1.0 / np.sqrt(fx * fy))
     n = xy.shape[0]
     xd = np.empty(n)
     yd = np.empty(n)
@@ -186,7 +189,8 @@ def _rays_and_inliers(xy, r, A, cam, distorted, tol, floor):
         b[i, 0] = xn[i] / norm
         b[i, 1] = yn[i] / norm
         b[i, 2] = 1.0 / norm
-    return b, _inliers(_angles(b, r, A), floor)
+    keep = _inliers(_angles(b, r, A), floor)
+    return b, keep, keep.sum()
 
 
 def _largest_shift_px(cam0: Camera, A0: np.ndarray, cam1: Camera, A1: np.ndarray) -> float:

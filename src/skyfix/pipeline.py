@@ -17,7 +17,6 @@ import numpy as np
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
 from skyfix.final_fit import final_fit
-from skyfix.geometry import quaternion_from_attitude, radec_roll_from_attitude
 from skyfix.solution import Match, Solution
 
 __all__ = ["solve", "solve_centroids"]
@@ -162,12 +161,12 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
                                                                               dtype=np.float64),
                                                          np.ascontiguousarray(resid, dtype=np.float64))
     cov = fit.covariance_rad2 / _ARCSEC**2
-    ra, dec, roll = radec_roll_from_attitude(A)
+    pointing = _pointing(np.ascontiguousarray(A, dtype=np.float64)).tolist()
     sol.status = "solved"
     sol.reason = ""
-    sol.ra_deg, sol.dec_deg, sol.roll_deg = math.degrees(ra), math.degrees(dec), math.degrees(roll)
+    sol.ra_deg, sol.dec_deg, sol.roll_deg = pointing[:3]
     sol.fov_deg = camera.fov_deg
-    sol.quaternion_xyzw = quaternion_from_attitude(A).tolist()
+    sol.quaternion_xyzw = pointing[3:]
     sol.covariance_arcsec2 = cov.tolist()
     sol.n_matched = n
     sol.prob_false = float(ident.prob_false)
@@ -198,3 +197,51 @@ def _match_columns(v, resid):
         res[i] = resid[i] / _ARCSEC
         ss += resid[i] * resid[i]
     return ra, dec, res, np.sqrt(ss / n) if n else np.nan
+
+
+@numba.njit(cache=True)
+def _pointing(A):
+    """RA, Dec, roll (degrees) and quaternion ``[x, y, z, w]`` of an attitude: the arithmetic of
+    :func:`skyfix.geometry.radec_roll_from_attitude` and :func:`~skyfix.geometry.quaternion_from_attitude`
+    (which stay the reference; ``tests/test_pipeline_fast.py`` holds them equal) in one call."""
+    out = np.empty(7)
+    norm = np.sqrt(A[2, 0] * A[2, 0] + A[2, 1] * A[2, 1] + A[2, 2] * A[2, 2])
+    ra = np.arctan2(A[2, 1] / norm, A[2, 0] / norm)
+    if ra < 0.0:
+        ra += 2.0 * np.pi
+    ra += 0.0
+    dec = np.arcsin(min(max(A[2, 2] / norm, -1.0), 1.0))
+    east = (-np.sin(ra), np.cos(ra), 0.0)
+    north = (-np.sin(dec) * np.cos(ra), -np.sin(dec) * np.sin(ra), np.cos(dec))
+    if abs(np.cos(dec)) < 1e-12:
+        # At a pole east/north are undefined; use the RA-independent limit of the frame.
+        north = (-np.sign(dec) * np.cos(ra), -np.sign(dec) * np.sin(ra), 0.0)
+    up = (-A[1, 0], -A[1, 1], -A[1, 2])
+    roll = np.arctan2(up[0] * east[0] + up[1] * east[1] + up[2] * east[2],
+                      up[0] * north[0] + up[1] * north[1] + up[2] * north[2])
+    if roll < 0.0:
+        roll += 2.0 * np.pi
+    roll += 0.0
+    out[0], out[1], out[2] = np.degrees(ra), np.degrees(dec), np.degrees(roll)
+    # Shepperd's method: the largest of the four squared components first.
+    t = A[0, 0] + A[1, 1] + A[2, 2]
+    k = 0
+    if A[1, 1] > A[k, k]:
+        k = 1
+    if A[2, 2] > A[k, k]:
+        k = 2
+    if t > A[k, k]:
+        k = 3
+    if k == 3:
+        q = (A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1], 1.0 + t)
+    elif k == 0:
+        q = (1.0 + 2.0 * A[0, 0] - t, A[0, 1] + A[1, 0], A[0, 2] + A[2, 0], A[2, 1] - A[1, 2])
+    elif k == 1:
+        q = (A[0, 1] + A[1, 0], 1.0 + 2.0 * A[1, 1] - t, A[1, 2] + A[2, 1], A[0, 2] - A[2, 0])
+    else:
+        q = (A[0, 2] + A[2, 0], A[1, 2] + A[2, 1], 1.0 + 2.0 * A[2, 2] - t, A[1, 0] - A[0, 1])
+    qn = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    sign = 1.0 if q[3] / qn >= 0 else -1.0
+    for i in range(4):
+        out[3 + i] = sign * (q[i] / qn)
+    return out
