@@ -118,7 +118,7 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     -------
     Background
     """
-    img = np.ascontiguousarray(image, dtype=np.float32)
+    img = _frame(image)
     h, w = img.shape
     if method == "tiled":
         t = default_tile_size(img.shape) if tile is None else int(max(1, min(tile, h, w)))
@@ -184,6 +184,18 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     kappa = raw_sigma / ref_s if ref_s > 0 else 1.0
     return Background(level=level_raw, noise=kappa * noise_s, level_smooth=level, noise_smooth=noise_s,
                       centers_y=cy, centers_x=cx, tile=t)
+
+
+def _frame(image: np.ndarray) -> np.ndarray:
+    """A C-contiguous frame for the kernels: 8/16-bit unsigned data as is, anything else float32.
+
+    Both integer types are exact in float32, so the kernels' arithmetic gives the same numbers
+    on them, without a conversion pass and with half or a quarter of the memory traffic.
+    """
+    a = np.asarray(image)
+    if a.dtype in (np.uint8, np.uint16):
+        return np.ascontiguousarray(a)
+    return np.ascontiguousarray(a, dtype=np.float32)
 
 
 def is_integer_valued(image: np.ndarray) -> bool:

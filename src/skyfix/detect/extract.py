@@ -159,8 +159,14 @@ def extract_centroids(
     if centroid not in CENTROIDERS:
         raise ValueError(f"unknown centroider {centroid!r}; choose one of {', '.join(CENTROIDERS)}")
     try:
-        # the default method finds non-finite pixels itself while smoothing (one pass less)
-        img = as_image(image, name="image", replace_nonfinite=method != "components")
+        raw = np.asarray(image)
+        if method == "components" and centroid == "com" and raw.ndim == 2 and raw.size and raw.dtype in (
+                np.uint8, np.uint16):
+            # 8/16-bit frames go to the kernels as they are (no float32 copy; same numbers)
+            img = np.ascontiguousarray(raw)
+        else:
+            # the default method finds non-finite pixels itself while smoothing (one pass less)
+            img = as_image(image, name="image", replace_nonfinite=method != "components")
     except ImageReadError:
         return Centroids.empty((0, 0) if np.ndim(image) != 2 else np.shape(image), reason="unusable")
     h, w = img.shape
@@ -229,8 +235,9 @@ def _components_pass(img, sigma, max_stars, min_area, max_area, max_extent, min_
     thr_grid = bg.level_smooth + np.maximum(sigma * bg.noise_smooth, floor)
     ws = _workspace(h, w)
     sm = ws.smooth
-    total, vmax = _smooth_threshold(img, img.view(np.int32), sm, ws.mask, thr_grid, bg.level_smooth,
-                                    iy, fy, ix, fx)
+    is_float = img.dtype == np.float32
+    total, vmax = _smooth_threshold(img, img.view(np.int32) if is_float else img, is_float, sm, ws.mask,
+                                    thr_grid, bg.level_smooth, iy, fy, ix, fx)
     if check_finite and not math.isfinite(total):
         return None
     if saturation is None:
@@ -568,10 +575,11 @@ def _grid_rows(grid, ix, fx, w):
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
-def _smooth_threshold(img, bits, sm, mask, thr_grid, bg_grid, iy, fy, ix, fx):
+def _smooth_threshold(img, bits, float_bits, sm, mask, thr_grid, bg_grid, iy, fy, ix, fx):
     """One pass over the frame: :func:`smooth3` into ``sm``, ``sm > threshold`` into ``mask``.
 
-    ``bits`` is ``img`` viewed as int32, ``mask`` a (H, W rounded up to 8) uint8 frame. The
+    ``bits`` is a float32 ``img`` viewed as int32 (``float_bits``), or an unsigned integer
+    ``img`` itself (its values are their own order); ``mask`` a (H, W rounded up to 8) uint8 frame. The
     threshold grid is interpolated bilinearly (raised on the border, :func:`_threshold_at`).
     Returns the sum of the raw frame (non-finite if any pixel is) and its maximum.
     Reassociation lets the row loops vectorise; NaN and Inf still propagate (no "nnan"/"ninf").
@@ -615,8 +623,10 @@ def _smooth_threshold(img, bits, sm, mask, thr_grid, bg_grid, iy, fy, ix, fx):
         else:
             m[0] = out[0] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, 0, h, w)
             m[w - 1] = out[w - 1] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, w - 1, h, w)
+    if not float_bits:
+        return total, float(top)
     top ^= (top >> 31) & np.int32(0x7FFFFFFF)
-    return total, np.array([top], np.int32).view(np.float32)[0]
+    return total, float(np.array([top], np.int32).view(np.float32)[0])
 
 
 @njit(cache=True)
