@@ -327,10 +327,18 @@ def _model_scores(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_
     rmax = math.hypot(camera.width, camera.height) / 2.0 / camera.fx
     cam = np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.skew, camera.k1, camera.k2, camera.k3,
                     camera.p1, camera.p2], dtype=np.float64)
-    chosen, bic, rss, cov = _score_models(xy, r, A, cam, rmax, codes, cols, n_cols,
-                                          float(min_stars_per_number))
+    chosen, bic, rss, cov, ok, JtJ, Jtr, rr = _score_models(xy, r, A, cam, rmax, codes, cols, n_cols,
+                                                            float(min_stars_per_number))
     if not chosen.any():
         raise ValueError(f"too few stars ({len(xy)}) to fit a camera model")
+    if not ok:  # a block not numerically positive definite: LU inverses (pseudo-inverse if singular)
+        n = 2 * len(xy)
+        for m in np.flatnonzero(chosen):
+            c = cols[m, :n_cols[m]]
+            inv = _inverse(JtJ[np.ix_(c, c)])
+            rss[m] = max(rr - float(Jtr[c] @ inv @ Jtr[c]), 1e-300)
+            bic[m] = n * math.log(rss[m] / n) + len(c) * math.log(n)
+            cov[m] = rss[m] / max(n - len(c), 1) * inv[:3, :3]
     if chosen.all():
         return list(models), bic, rss, cov
     k = np.flatnonzero(chosen)
@@ -385,8 +393,8 @@ def _score_models(xy, r, A, cam, rmax, codes, cols, n_cols, min_stars_per_number
             continue
         chosen[m] = True
         any_chosen = True
-    bic, rss, cov = _score_blocks(JtJ, Jtr, rr, 2 * n_stars, cols, n_cols, chosen)
-    return chosen, bic, rss, cov
+    bic, rss, cov, ok = _score_blocks(JtJ, Jtr, rr, 2 * n_stars, cols, n_cols, chosen)
+    return chosen, bic, rss, cov, ok, JtJ, Jtr, rr
 
 
 @numba.njit(cache=True)
@@ -507,9 +515,9 @@ def _score_blocks(JtJ, Jtr, rr, n, cols, n_cols, chosen):
     """BIC, RSS and attitude covariance of each chosen model's linear step (see
     :func:`score_camera_models`); model ``m`` uses the columns ``cols[m, :n_cols[m]]``."""
     K = n_cols.shape[0]
-    bic = np.full(K, np.nan)
-    rss = np.full(K, np.nan)
-    cov = np.full((K, 3, 3), np.nan)
+    bic = np.empty(K)
+    rss = np.empty(K)
+    cov = np.empty((K, 3, 3))
     for m in range(K):
         if not chosen[m]:
             continue
@@ -521,11 +529,8 @@ def _score_blocks(JtJ, Jtr, rr, n, cols, n_cols, chosen):
             for b in range(k):
                 sub[a, b] = JtJ[cols[m, a], cols[m, b]]
         inv, ok = _spd_inverse(sub)
-        if not ok:  # not numerically positive definite: LU, or the pseudo-inverse if singular
-            try:
-                inv = np.linalg.inv(sub)
-            except Exception:
-                inv = np.linalg.pinv(sub)
+        if not ok:  # not numerically positive definite: the caller redoes it with numpy
+            return bic, rss, cov, False
         # Normal equations on the sub-block: step = −(JᵀJ)⁻¹Jᵀr, RSS = rᵀr + stepᵀJᵀr.
         dot = 0.0
         for a in range(k):
@@ -535,8 +540,11 @@ def _score_blocks(JtJ, Jtr, rr, n, cols, n_cols, chosen):
             dot += step * g[a]
         rss[m] = max(rr + dot, 1e-300)
         bic[m] = n * math.log(rss[m] / n) + k * math.log(n)
-        cov[m] = rss[m] / max(n - k, 1) * inv[:3, :3]
-    return bic, rss, cov
+        scale = rss[m] / max(n - k, 1)
+        for a in range(3):
+            for b in range(3):
+                cov[m, a, b] = scale * inv[a, b]
+    return bic, rss, cov, True
 
 
 def select_camera_model(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_cam: np.ndarray,

@@ -80,15 +80,33 @@ def inliers(resid: np.ndarray, floor: float) -> np.ndarray:
 
 
 @numba.njit(cache=True)
+def _sorted(a):
+    """A sorted copy of a short 1-D array (Shell sort: compiles in a fraction of np.sort's time)."""
+    out = a.copy()
+    n = out.shape[0]
+    for gap in (701, 301, 132, 57, 23, 10, 4, 1):  # Ciura's gaps
+        for i in range(gap, n):
+            v = out[i]
+            j = i
+            while j >= gap and out[j - gap] > v:
+                out[j] = out[j - gap]
+                j -= gap
+            out[j] = v
+    return out
+
+
+@numba.njit(cache=True)
 def _inliers(resid, floor):
     n = resid.shape[0]
     if n == 0:
         return np.zeros(0, dtype=np.bool_)
-    sigma = max(np.median(resid) / 1.177, floor)
+    ordered = _sorted(resid)
+    median = ordered[n // 2] if n % 2 else (ordered[n // 2 - 1] + ordered[n // 2]) / 2.0
+    sigma = max(median / 1.177, floor)
     keep = resid <= 4.0 * sigma
     n_min = min(n, max(3, n // 2))
     if keep.sum() < n_min:
-        keep = resid <= np.sort(resid)[n_min - 1]
+        keep = resid <= ordered[n_min - 1]
     return keep
 
 
@@ -179,8 +197,8 @@ def _rays_and_inliers(xy, r, A, cam):
                 xs[i] = (xd[i] - dx) / radial
                 ys[i] = (yd[i] - dy) / radial
                 step = max(step, abs(xs[i] - x) + abs(ys[i] - y))
-            xn[:] = xs
-            yn[:] = ys
+            xn, xs = xs, xn
+            yn, ys = ys, yn
             if step < tol:
                 break
     b = np.empty((n, 3))
@@ -190,7 +208,10 @@ def _rays_and_inliers(xy, r, A, cam):
         b[i, 1] = yn[i] / norm
         b[i, 2] = 1.0 / norm
     keep = _inliers(_angles(b, r, A), floor)
-    return b, keep, keep.sum()
+    n_kept = 0
+    for k in keep:
+        n_kept += k
+    return b, keep, n_kept
 
 
 def _largest_shift_px(cam0: Camera, A0: np.ndarray, cam1: Camera, A1: np.ndarray) -> float:

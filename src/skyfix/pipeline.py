@@ -203,7 +203,7 @@ def _match_columns(v, resid):
 def _pointing(A):
     """RA, Dec, roll (degrees) and quaternion ``[x, y, z, w]`` of an attitude: the arithmetic of
     :func:`skyfix.geometry.radec_roll_from_attitude` and :func:`~skyfix.geometry.quaternion_from_attitude`
-    (which stay the reference; ``tests/test_pipeline_fast.py`` holds them equal) in one call."""
+    (which stay the reference; ``tests/test_final_fit_kernels.py`` holds them equal) in one call."""
     out = np.empty(7)
     norm = np.sqrt(A[2, 0] * A[2, 0] + A[2, 1] * A[2, 1] + A[2, 2] * A[2, 2])
     ra = np.arctan2(A[2, 1] / norm, A[2, 0] / norm)
