@@ -65,7 +65,7 @@ def _scores_numpy(xy, r, camera, A, models):
         cols = [0, 1, 2] + [c for name in m for c in columns[name]]
         if n <= len(cols) or (len(xy) < 2 * len(cols) and out):
             continue
-        inv = np.linalg.inv(J[:, cols].T @ J[:, cols])
+        inv = calibrate._inverse(J[:, cols].T @ J[:, cols])
         g = J[:, cols].T @ res
         rss = res @ res - g @ inv @ g
         bic = n * math.log(rss / n) + len(cols) * math.log(n)
@@ -88,6 +88,21 @@ def test_model_scores_equal_numpy(camera, n_stars):
         assert s.bic == pytest.approx(bic, rel=1e-9, abs=1e-6)
         assert s.rss_px2 == pytest.approx(rss, rel=1e-8)
         np.testing.assert_allclose(s.attitude_covariance_rad2, cov, rtol=1e-7, atol=1e-9 * np.abs(cov).max())
+
+
+def test_singular_blocks_fall_back_to_numpy():
+    # Every star on the optical axis: the focal-length column is zero, each block singular.
+    camera = CAMERAS[0]
+    rng = np.random.default_rng(10)
+    xy = np.array([camera.cx, camera.cy]) + rng.normal(0, 0.3, (12, 2))
+    r = np.tile([0.0, 0.0, 1.0], (12, 1))
+    got = calibrate.score_camera_models(xy, r, camera, np.eye(3))
+    ref = _scores_numpy(xy, r, camera, np.eye(3), calibrate.MODEL_LADDER)
+    assert [s.params for s in got] == [m for m, *_ in ref]
+    for s, (_, bic, rss, cov) in zip(got, ref, strict=True):
+        assert s.bic == pytest.approx(bic, rel=1e-9)
+        assert s.rss_px2 == pytest.approx(rss, rel=1e-9)
+        np.testing.assert_allclose(s.attitude_covariance_rad2, cov, rtol=1e-7, atol=1e-12)
 
 
 def test_spd_inverse_and_its_refusal():
