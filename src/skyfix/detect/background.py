@@ -25,6 +25,7 @@ noise (JPEG, Bayer interpolation), where σ_raw·√(Σw²) would be wrong.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -132,8 +133,7 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
         sy, sx = 1, max(1, w // 128)
     else:
         raise ValueError(f"unknown background method {method!r}; choose tiled, global or rows")
-    edges_y = np.linspace(0, h, ny + 1).round().astype(np.int64)
-    edges_x = np.linspace(0, w, nx + 1).round().astype(np.int64)
+    edges_y, edges_x = _tile_edges(h, ny), _tile_edges(w, nx)
     # The statistics need the smoothed frame only on the sampling lattice: without a smoothed
     # frame from the caller, the 3×3 kernel is evaluated at those points alone (a tenth of the
     # pixels or fewer), so the extractor can smooth and threshold in one later pass.
@@ -180,7 +180,7 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
         level = level + delta
         level_raw = level_raw + delta
         noise_s = np.maximum(noise_s, _SMOOTH_WHITE * raw_sigma)
-    ref_s = float(np.median(noise_s))
+    ref_s = median_of(noise_s)
     kappa = raw_sigma / ref_s if ref_s > 0 else 1.0
     return Background(level=level_raw, noise=kappa * noise_s, level_smooth=level, noise_smooth=noise_s,
                       centers_y=cy, centers_x=cx, tile=t)
@@ -200,8 +200,25 @@ def _frame(image: np.ndarray) -> np.ndarray:
 
 def is_integer_valued(image: np.ndarray) -> bool:
     """Whether a frame holds whole numbers (8/16-bit data), judged on a sparse subsample."""
-    sub = np.asarray(image)[::7, ::5]
+    a = np.asarray(image)
+    if a.dtype.kind in "biu":
+        return True
+    if a.ndim == 2 and a.dtype in (np.float32, np.float64):
+        return bool(_whole_on_lattice(a, 7, 5))
+    sub = a[::7, ::5]
     return bool(np.array_equal(sub, np.floor(sub)))
+
+
+@functools.lru_cache(maxsize=64)
+def _tile_edges_cached(n: int, m: int) -> np.ndarray:
+    edges = np.linspace(0, n, m + 1).round().astype(np.int64)
+    edges.setflags(write=False)
+    return edges
+
+
+def _tile_edges(n: int, m: int) -> np.ndarray:
+    """Edges of ``m`` near-equal tiles over ``n`` pixels, (m + 1,) int64 (read-only, cached)."""
+    return _tile_edges_cached(int(n), int(m))
 
 
 def smooth3(image: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
@@ -240,6 +257,17 @@ def median_of(values: np.ndarray) -> float:
 
 
 # --- numba kernels ------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _whole_on_lattice(a, sy, sx):
+    """Whether every ``a[::sy, ::sx]`` is a whole number (as ``np.floor(v) == v``: False on NaN)."""
+    for y in range(0, a.shape[0], sy):
+        for x in range(0, a.shape[1], sx):
+            v = a[y, x]
+            if not (math.floor(v) == v):
+                return False
+    return True
 
 
 @njit(cache=True)
@@ -387,10 +415,43 @@ def _select(a, lo, hi, k):
 
 
 @njit(cache=True)
-def _median_inplace(a, n):
-    """Median of ``a[:n]`` (reordered in place); below index n//2 lie values ≤ it."""
+def _select_around(a, n, k, guess):
+    """:func:`_select` on ``a[:n]`` whose first partition is around ``guess``, a likely value.
+
+    Neighbouring tiles have nearly the same sky, so one tile's median is a good first pivot
+    for the next: the selection then works on the few values beside it (on quantised data the
+    guess is often the median itself and two passes find it).
+    """
+    store = 0
+    for i in range(n):
+        e = a[i]
+        a[i] = a[store]
+        a[store] = e
+        store += e < guess
+    if k < store:
+        return _select(a, 0, store, k)
+    eq = store
+    for i in range(store, n):
+        e = a[i]
+        a[i] = a[eq]
+        a[eq] = e
+        eq += e == guess
+    if k < eq:
+        return a[k]
+    return _select(a, eq, n, k)
+
+
+@njit(cache=True)
+def _median_inplace(a, n, guess=np.nan):
+    """Median of ``a[:n]`` (reordered in place); below index n//2 lie values ≤ it.
+
+    ``guess``, if not NaN, is a likely value of the median (see :func:`_select_around`).
+    """
     k = n // 2
-    upper = _select(a, 0, n, k)
+    if math.isnan(guess):
+        upper = _select(a, 0, n, k)
+    else:
+        upper = _select_around(a, n, k, guess)
     if n % 2 == 1:
         return upper
     lower = a[0]
@@ -400,22 +461,27 @@ def _median_inplace(a, n):
 
 
 @njit(cache=True)
-def _tile_level_noise(a, n, quantum):
+def _tile_level_noise(a, n, quantum, guess=np.nan, guess_lower=np.nan):
     """Median and lower-side clipped RMS of ``a[:n]``, in place and without allocating.
 
-    The same estimate as ``_robust_level_noise(a[:n], quantum, lower=True)``.
+    The same estimate as ``_robust_level_noise(a[:n], quantum, lower=True)``. ``guess`` and
+    ``guess_lower``: likely values of the median and of the lower half's median less the
+    median (NaN: none).
+    Returns the median, the RMS and the lower half's median.
     """
     if n == 0:
-        return 0.0, 0.0
-    med = _median_inplace(a, n)
-    # the values ≤ median: the first n//2 after the select, plus any ties above
+        return 0.0, 0.0, np.nan
+    med = _median_inplace(a, n, guess)
+    # the values ≤ median: the first n//2 after the select, plus any ties above (branch-free)
     m = 0
     for i in range(n):
-        if a[i] <= med:
-            a[m], a[i] = a[i], a[m]
-            m += 1
+        e = a[i]
+        a[i] = a[m]
+        a[m] = e
+        m += e <= med
     # median of the deviations med − a[i] is med − (median of the lower values)
-    s0 = max(1.4826 * (med - _median_inplace(a, m)), quantum)
+    lower_med = _median_inplace(a, m, med + guess_lower)
+    s0 = max(1.4826 * (med - lower_med), quantum)
     if s0 <= 0.0:
         step = np.inf
         for i in range(m):
@@ -424,7 +490,7 @@ def _tile_level_noise(a, n, quantum):
                 step = d
         s0 = step if step < np.inf else 0.0
     if s0 <= 0.0:
-        return med, 0.0
+        return med, 0.0, lower_med
     cut = _CLIP * s0
     s = s0
     for _ in range(4):
@@ -440,7 +506,7 @@ def _tile_level_noise(a, n, quantum):
         if abs(new_cut - cut) < 1e-3 * cut:
             break
         cut = new_cut
-    return med, s
+    return med, s, lower_med
 
 
 @njit(cache=True)
@@ -478,8 +544,8 @@ def _lattice_samples(img, sm, edges_y, edges_x, sy, sx, of_raw=False):
     cnt = np.zeros(ny * nx, np.int64)
     med = np.empty(ny * nx)
     have_sm = sm.shape[0] > 0
+    buf = np.empty(cap)
     for ty in range(ny):
-        buf = np.empty(cap)
         for tx in range(nx):
             t = ty * nx + tx
             k = 0
@@ -491,7 +557,8 @@ def _lattice_samples(img, sm, edges_y, edges_x, sy, sx, of_raw=False):
                     buf[k] = v if of_raw else smp[t, k]
                     k += 1
             cnt[t] = k
-            med[t] = _median_inplace(buf, k)
+            # the previous tile's median (the one above at a row start) as the first pivot
+            med[t] = _median_inplace(buf, k, med[t - 1] if tx > 0 else (med[t - nx] if ty > 0 else np.nan))
     return smp, rawp, cnt, med
 
 
@@ -516,8 +583,9 @@ def _tile_noise(smp, rawp, cnt, level, level_raw, edges_y, edges_x, sy, sx, iy, 
     for t in range(ny * nx):
         start[t + 1] = start[t] + (cnt[t] if t % pool_every == 0 else 0)
     pooled = np.empty(start[-1], np.float64)
+    res = np.empty(cap, np.float64)
+    lower_offset = np.nan
     for ty in range(ny):
-        res = np.empty(cap, np.float64)
         for tx in range(nx):
             t = ty * nx + tx
             pool = t % pool_every == 0
@@ -542,7 +610,10 @@ def _tile_noise(smp, rawp, cnt, level, level_raw, edges_y, edges_x, sy, sx, iy, 
                         pooled[start[t] + k] = rawp[t, k] - model
                     k += 1
             # a 3×3 binomial mean of integers moves in steps of 1/16
-            med, sig = _tile_level_noise(res, k, 0.0625 if is_int else 0.0)
+            # first pivots: residuals about the sky model centre on 0; the lower half's median
+            # sits about as far below as in the previous tile
+            med, sig, lower = _tile_level_noise(res, k, 0.0625 if is_int else 0.0, 0.0, lower_offset)
+            lower_offset = lower - med
             out[ty, tx, 0] = med
             out[ty, tx, 1] = sig
     return out, pooled

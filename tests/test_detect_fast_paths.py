@@ -1,0 +1,124 @@
+"""The extractor's fast paths give the same stars as the plain ones.
+
+Integer frames skip the float32 copy, the background samples the smoothed frame only on its
+lattice, the medians use a branch-free quickselect with a guessed first pivot, and non-finite
+pixels are found during the fused smoothing pass. Each must give the numbers of the direct
+computation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skyfix.detect import extract_centroids
+from skyfix.detect.background import (
+    _median_inplace,
+    estimate_background,
+    interp_weights,
+    is_integer_valued,
+    median_of,
+    smooth3,
+)
+
+
+def _star_field(seed: int = 3, h: int = 240, w: int = 320, n: int = 25) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussian stars (σ = 1.2 px) on a sloped sky with Poisson-like noise, uint16, and their truth."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w]
+    img = 300.0 + 80.0 * xx / w + rng.normal(0.0, 6.0, (h, w))
+    xy = np.column_stack([rng.uniform(8, w - 8, n), rng.uniform(8, h - 8, n)])
+    for (x0, y0), f in zip(xy, 10 ** rng.uniform(3.3, 4.5, n), strict=True):
+        img += f / (2 * np.pi * 1.44) * np.exp(-((xx - x0) ** 2 + (yy - y0) ** 2) / (2 * 1.44))
+    return np.clip(np.round(img), 0, 4095).astype(np.uint16), xy
+
+
+def _same(a, b) -> None:
+    assert len(a) == len(b) > 0
+    np.testing.assert_allclose(a.xy, b.xy, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(a.flux, b.flux, rtol=1e-9)
+    np.testing.assert_array_equal(a.saturated, b.saturated)
+
+
+@pytest.mark.parametrize("dtype", [np.uint16, np.uint8])
+def test_integer_frames_match_float32(dtype):
+    img, truth = _star_field()
+    if dtype == np.uint8:
+        img = np.clip(img // 16, 0, 255).astype(np.uint8)
+    a, b = extract_centroids(img), extract_centroids(img.astype(np.float32))
+    _same(a, b)
+    assert a.meta["saturation"] == b.meta["saturation"]
+    # and the stars are the real ones
+    d = np.hypot(*(a.xy[:, None, :] - truth[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+    assert np.median(d) < 0.1
+
+
+def test_background_on_lattice_matches_full_smoothing():
+    img = _star_field()[0].astype(np.float32)
+    lattice = estimate_background(img)
+    full = estimate_background(img, smoothed=smooth3(img))
+    for name in ("level", "noise", "level_smooth", "noise_smooth"):
+        np.testing.assert_allclose(getattr(lattice, name), getattr(full, name), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("where", ["on_lattice", "off_lattice"])
+def test_nan_pixel_same_as_replaced(where):
+    img = _star_field()[0].astype(np.float32)
+    bad = img.copy()
+    y, x = (60, 61) if where == "on_lattice" else (5, 3)
+    bad[y, x] = np.nan
+    fixed = img.copy()
+    fixed[y, x] = np.median(img[np.isfinite(bad)])  # what skyfix.io.as_image puts there
+    _same(extract_centroids(bad), extract_centroids(fixed))
+
+
+def test_all_nan_and_inf_frames_are_empty():
+    assert len(extract_centroids(np.full((50, 60), np.nan, np.float32))) == 0
+    img = _star_field()[0].astype(np.float32)
+    img[:200] = np.inf  # more than half non-finite: unusable
+    assert len(extract_centroids(img)) == 0
+
+
+@pytest.mark.parametrize("kind", ["normal", "ties", "constant", "two_values"])
+@pytest.mark.parametrize("n", [1, 2, 7, 100, 121])
+def test_median_inplace_matches_numpy(kind, n):
+    rng = np.random.default_rng(n)
+    v = {"normal": rng.normal(size=n), "ties": np.round(rng.normal(size=n) * 2) / 16,
+         "constant": np.full(n, 3.25), "two_values": rng.integers(0, 2, n).astype(float)}[kind]
+    for guess in (np.nan, 0.0, float(np.median(v)), 1e9, -1e9):
+        a = v.copy()
+        med = _median_inplace(a, n, guess)
+        assert med == np.median(v)
+        # below index n//2 lie values ≤ the median (the noise estimate relies on it)
+        assert np.all(a[: n // 2] <= med)
+        assert sorted(a) == sorted(v)
+
+
+def test_median_terminates_on_nan():
+    v = np.array([1.0, np.nan, 3.0, np.nan, 2.0])
+    _median_inplace(v.copy(), v.size)
+    _median_inplace(v.copy(), v.size, 2.0)
+
+
+def test_interp_weights_and_helpers_match_numpy():
+    for n, m in [(507, 16), (960, 16), (1280, 21), (5, 1), (100, 3), (7, 7)]:
+        edges = np.linspace(0, n, m + 1).round()
+        centers = 0.5 * (edges[:-1] + edges[1:]) - 0.5
+        pos = np.arange(n, dtype=np.float64)
+        if m == 1:
+            i0, f0 = np.zeros(n, np.int64), np.zeros(n, np.float32)
+        else:
+            i0 = np.clip(np.searchsorted(centers, pos, side="right") - 1, 0, m - 2)
+            f0 = ((pos - centers[i0]) / (centers[i0 + 1] - centers[i0])).astype(np.float32)
+        i1, f1 = interp_weights(centers, n)
+        np.testing.assert_array_equal(i0, i1)
+        np.testing.assert_array_equal(f0, f1)
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 3, 336):
+        v = rng.normal(size=(n,))
+        assert median_of(v) == np.median(v)
+    grid = np.arange(12.0).reshape(3, 4)
+    assert is_integer_valued(grid) and not is_integer_valued(grid + 0.5)
+    assert is_integer_valued(grid.astype(np.uint16))
+    grid[0, 0] = np.nan
+    assert not is_integer_valued(grid)
