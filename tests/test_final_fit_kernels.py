@@ -164,20 +164,27 @@ def test_pointing_equals_geometry():
         np.testing.assert_allclose(out[3:], q, rtol=0, atol=1e-15)
 
 
-def test_match_columns_equal_geometry():
+def test_solution_numbers_equal_geometry():
     rng = np.random.default_rng(8)
     v = rng.normal(size=(40, 3))
     v[0] = [0.0, 0.0, 1.0]
     v[1] = [-1.0, -0.0, 0.0]
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     resid = rng.uniform(0, 1e-4, 40)
-    ra, dec, res, rmse = pipeline._match_columns(v, resid)
+    xy = rng.uniform(0, 1000, (60, 2))
+    idx = rng.permutation(60)[:40]
+    mag = rng.uniform(2, 8, 40)
+    A = Rotation.random(random_state=rng).as_matrix()
+    pointing, table, rmse = pipeline._solution_numbers(A, xy, idx, v, mag, resid)
+    np.testing.assert_array_equal(pointing, pipeline._pointing(A))
     ra_ref, dec_ref = vector_to_radec(v)
-    np.testing.assert_allclose(ra, np.degrees(ra_ref), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(dec, np.degrees(dec_ref), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(res, resid / math.radians(1 / 3600), rtol=1e-15)
+    np.testing.assert_array_equal(table[:2], xy[idx].T)
+    np.testing.assert_allclose(table[2], np.degrees(ra_ref), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(table[3], np.degrees(dec_ref), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(table[4], mag)
+    np.testing.assert_allclose(table[5], resid / math.radians(1 / 3600), rtol=1e-15)
     assert rmse == pytest.approx(math.sqrt(np.mean(resid**2)), rel=1e-14)
-    assert np.all((ra >= 0) & (ra < 360))
+    assert np.all((table[2] >= 0) & (table[2] < 360))
 
 
 def test_covariance_equals_numpy():

@@ -155,48 +155,50 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
                    database, epoch: float | None) -> None:
     fit = final_fit(xy, ident, camera_given=camera_given, database=database, epoch=epoch,
                     method=attitude_method)
-    A, camera, idx, resid = fit.A_icrs_to_cam, fit.camera, fit.star_index, fit.residuals_rad
-    n = len(idx)
-    ra_deg, dec_deg, resid_arcsec, rmse = _match_columns(np.ascontiguousarray(fit.catalog_vectors,
-                                                                              dtype=np.float64),
-                                                         np.ascontiguousarray(resid, dtype=np.float64))
-    cov = fit.covariance_rad2 / _ARCSEC**2
-    pointing = _pointing(np.ascontiguousarray(A, dtype=np.float64)).tolist()
+    A, camera, idx = fit.A_icrs_to_cam, fit.camera, fit.star_index
+    f64 = np.float64
+    pointing, table, rmse = _solution_numbers(
+        np.ascontiguousarray(A, dtype=f64), np.ascontiguousarray(xy, dtype=f64),
+        np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(fit.catalog_vectors, dtype=f64),
+        np.ascontiguousarray(fit.catalog_mag, dtype=f64), np.ascontiguousarray(fit.residuals_rad, dtype=f64))
+    pointing = pointing.tolist()
     sol.status = "solved"
     sol.reason = ""
     sol.ra_deg, sol.dec_deg, sol.roll_deg = pointing[:3]
     sol.fov_deg = camera.fov_deg
     sol.quaternion_xyzw = pointing[3:]
-    sol.covariance_arcsec2 = cov.tolist()
-    sol.n_matched = n
+    sol.covariance_arcsec2 = (fit.covariance_rad2 / _ARCSEC**2).tolist()
+    sol.n_matched = len(idx)
     sol.prob_false = float(ident.prob_false)
     sol.rmse_arcsec = rmse / _ARCSEC
     sol.A_icrs_to_cam = A
     sol.camera = camera
-    star_xy = xy[idx]
-    columns = (star_xy[:, 0], star_xy[:, 1], fit.catalog_ids, ra_deg, dec_deg, fit.catalog_mag, resid_arcsec)
-    sol.matches = list(map(Match, *(c.tolist() for c in columns)))
+    x, y, ra, dec, mag, resid = table.tolist()
+    sol.matches = list(map(Match, x, y, np.asarray(fit.catalog_ids).tolist(), ra, dec, mag, resid))
 
 
 @numba.njit(cache=True)
-def _match_columns(v, resid):
-    """RA and Dec (degrees) of the catalogue vectors (:func:`skyfix.geometry.vector_to_radec`),
-    the residuals in arcseconds and their RMS (radians), in one pass."""
+def _solution_numbers(A, xy, idx, v, mag, resid):
+    """The numbers of a solved Solution in one call: (RA, Dec, roll in degrees and quaternion
+    ``[x, y, z, w]`` (7,) from :func:`_pointing`; the matches' table (6, M) of x, y, RA and Dec
+    (degrees, :func:`skyfix.geometry.vector_to_radec`), magnitude and residual (arcsec); the
+    residuals' RMS (radians))."""
     n = v.shape[0]
-    ra = np.empty(n)
-    dec = np.empty(n)
-    res = np.empty(n)
+    table = np.empty((6, n))
     ss = 0.0
     for i in range(n):
+        table[0, i] = xy[idx[i], 0]
+        table[1, i] = xy[idx[i], 1]
         norm = np.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
         a = np.arctan2(v[i, 1] / norm, v[i, 0] / norm)
         if a < 0.0:
             a += 2.0 * np.pi
-        ra[i] = np.degrees(a + 0.0)
-        dec[i] = np.degrees(np.arcsin(min(max(v[i, 2] / norm, -1.0), 1.0)))
-        res[i] = resid[i] / _ARCSEC
+        table[2, i] = np.degrees(a + 0.0)
+        table[3, i] = np.degrees(np.arcsin(min(max(v[i, 2] / norm, -1.0), 1.0)))
+        table[4, i] = mag[i]
+        table[5, i] = resid[i] / _ARCSEC
         ss += resid[i] * resid[i]
-    return ra, dec, res, np.sqrt(ss / n) if n else np.nan
+    return _pointing(A), table, np.sqrt(ss / n) if n else np.nan
 
 
 @numba.njit(cache=True)
