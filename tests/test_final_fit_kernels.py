@@ -197,3 +197,19 @@ def test_covariance_equals_numpy():
     np.testing.assert_allclose(attitude.attitude_covariance(np.eye(3), b, sig), P, rtol=1e-9)
     with pytest.raises(ValueError, match="unbounded"):
         attitude.attitude_covariance(np.eye(3), np.tile([0.0, 0.0, 1.0], (5, 1)), 1e-5)
+
+
+@pytest.mark.parametrize("params", [("f",), ("f", "k1"), ("aspect", "f", "k2"),
+                                    ("f", "aspect", "principal_point", "k1", "k2", "tangential")])
+def test_fit_residuals_equal_numpy(params):
+    camera = CAMERAS[1]
+    rng = np.random.default_rng(11)
+    xy = rng.uniform(0, 580, (50, 2))
+    rays0 = camera.pixel_to_ray(xy)
+    ps = rng.normal(0, 1e-3, (5, 3 + sum(calibrate.PARAMETERS[p] for p in params)))
+    ps[0] = 0.0
+    ps[1, :3] = 1e-14  # below Rodrigues' small-angle switch
+    ref = calibrate._residuals_batch(camera, params, ps, rays0, xy)
+    got = calibrate._residuals_fast(camera, params, ps, rays0, xy)
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11)
+    assert np.abs(ref[2:]).max() > 1.0  # the steps do move the stars

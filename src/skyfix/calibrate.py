@@ -118,7 +118,8 @@ _CAMERA_KEYS = ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "k3", "p1", "p2")
 
 def _residuals_batch(camera: Camera, params: tuple[str, ...], ps: np.ndarray, rays0: np.ndarray,
                      xy: np.ndarray) -> np.ndarray:
-    """Residuals (K, 2N) for K parameter vectors ``ps`` (K, P), projected in one batch."""
+    """Residuals (K, 2N) for K parameter vectors ``ps`` (K, P), projected in one batch (numpy:
+    the reference of :func:`_residuals_kernel`, which the fits use)."""
     rots, cams = [], []
     for p in ps:
         R, ch = _unpack(camera, params, p)
@@ -139,7 +140,73 @@ def _residuals_batch(camera: Camera, params: tuple[str, ...], ps: np.ndarray, ra
 
 def _residuals(camera: Camera, params: tuple[str, ...], p: np.ndarray, rays0: np.ndarray,
                xy: np.ndarray) -> np.ndarray:
-    return _residuals_batch(camera, params, p[None, :], rays0, xy)[0]
+    return _residuals_fast(camera, params, p[None, :], rays0, xy)[0]
+
+
+def _residuals_fast(camera: Camera, params: tuple[str, ...], ps: np.ndarray, rays0: np.ndarray,
+                    xy: np.ndarray) -> np.ndarray:
+    """:func:`_residuals_batch` (its reference) by :func:`_residuals_kernel`."""
+    cam = np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.skew, camera.k1, camera.k2, camera.k3,
+                    camera.p1, camera.p2], dtype=np.float64)
+    rmax = math.hypot(camera.width, camera.height) / 2.0 / camera.fx
+    codes = np.array([_PARAMETER_CODES[name] for name in params], dtype=np.int64)
+    return _residuals_kernel(cam, rmax, codes, np.ascontiguousarray(ps, dtype=np.float64),
+                             np.ascontiguousarray(rays0, dtype=np.float64),
+                             np.ascontiguousarray(xy, dtype=np.float64))
+
+
+@numba.njit(cache=True)
+def _residuals_kernel(cam, rmax, codes, ps, rays0, xy):
+    """Residuals (K, 2N) of :func:`_residuals_batch` for the camera ``cam`` (fx, fy, cx, cy,
+    skew, k1, k2, k3, p1, p2), parameters ``codes`` (:data:`_PARAMETER_CODES`) and vectors
+    ``ps`` (K, P): :func:`_unpack` and the projection, with the same arithmetic."""
+    n = xy.shape[0]
+    out = np.empty((ps.shape[0], 2 * n))
+    R = np.empty((3, 3))
+    for k in range(ps.shape[0]):
+        p = ps[k]
+        # Rodrigues, as _rotvec_matrix
+        theta = np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+        K = np.array([[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]])
+        a, b = 1.0, 0.0
+        if theta >= 1e-12:
+            a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta**2
+        for i in range(3):
+            for j in range(3):
+                KK = K[i, 0] * K[0, j] + K[i, 1] * K[1, j] + K[i, 2] * K[2, j]
+                R[i, j] = (1.0 if i == j else 0.0) + a * K[i, j] + b * KK
+        fx, fy, cx, cy, skew, k1, k2, k3, p1, p2 = (cam[0], cam[1], cam[2], cam[3], cam[4], cam[5],
+                                                    cam[6], cam[7], cam[8], cam[9])
+        j = 3
+        for c in codes:
+            if c == 0:  # f
+                fx, fy = cam[0] * (1.0 + p[j]), cam[1] * (1.0 + p[j])
+            elif c == 1:  # aspect
+                fy = fy * (1.0 + p[j])
+            elif c == 2:  # principal_point
+                cx, cy = cam[2] + p[j] * cam[0], cam[3] + p[j + 1] * cam[0]
+                j += 1
+            elif c == 3:  # k1
+                k1 = cam[5] + p[j] / rmax**2
+            elif c == 4:  # k2
+                k2 = cam[6] + p[j] / rmax**4
+            else:  # tangential
+                p1, p2 = cam[8] + p[j] / rmax, cam[9] + p[j + 1] / rmax
+                j += 1
+            j += 1
+        for i in range(n):
+            X = R[0, 0] * rays0[i, 0] + R[0, 1] * rays0[i, 1] + R[0, 2] * rays0[i, 2]
+            Y = R[1, 0] * rays0[i, 0] + R[1, 1] * rays0[i, 1] + R[1, 2] * rays0[i, 2]
+            Z = R[2, 0] * rays0[i, 0] + R[2, 1] * rays0[i, 1] + R[2, 2] * rays0[i, 2]
+            xn = X / Z
+            yn = Y / Z
+            r2 = xn * xn + yn * yn
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
+            yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
+            out[k, 2 * i] = fx * xd + skew * yd + cx - xy[i, 0]
+            out[k, 2 * i + 1] = fy * yd + cy - xy[i, 1]
+    return out
 
 
 def _jacobian(camera: Camera, params: tuple[str, ...], p: np.ndarray, rays0: np.ndarray, xy: np.ndarray,
@@ -148,7 +215,7 @@ def _jacobian(camera: Camera, params: tuple[str, ...], p: np.ndarray, rays0: np.
     is smooth and nearly linear at these scales, so a fixed step of 1e-7 is accurate to ~1e-7."""
     h = 1e-7
     steps = p[None, :] + h * np.eye(p.size)
-    return ((_residuals_batch(camera, params, steps, rays0, xy) - r0) / h).T
+    return ((_residuals_fast(camera, params, steps, rays0, xy) - r0) / h).T
 
 
 def _jacobian_at_start(camera: Camera, params: tuple[str, ...], rays0: np.ndarray) -> np.ndarray:

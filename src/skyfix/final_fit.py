@@ -166,15 +166,26 @@ def _camera_array(camera: Camera) -> np.ndarray:
 
 @numba.njit(cache=True)
 def _rays_and_inliers(xy, r, A, cam):
+    """``camera.pixel_to_ray(xy)`` for the camera ``cam`` (:func:`_pixel_rays`), and the
+    :func:`inliers` of their :func:`angles` to ``r`` rotated by ``A`` (σ floored at a tenth of
+    the plate scale), and how many those are."""
+    b = _pixel_rays(xy, cam)
+    keep = _inliers(_angles(b, r, A), 0.1 * (1.0 / np.sqrt(cam[0] * cam[1])))
+    n_kept = 0
+    for k in keep:
+        n_kept += k
+    return b, keep, n_kept
+
+
+@numba.njit(cache=True)
+def _pixel_rays(xy, cam):
     """``camera.pixel_to_ray(xy)`` for the camera ``cam`` (:func:`_camera_array`), with the same
-    arithmetic (Brown–Conrady inverted by the same fixed-point iteration, stopped when no star
-    moves by 1e-5 px), and the :func:`inliers` of their :func:`angles` to ``r`` rotated by ``A``
-    (σ floored at a tenth of the plate scale), and how many those are."""
+    arithmetic: Brown–Conrady inverted by the same fixed-point iteration, stopped when no
+    pixel moves by 1e-5 px."""
     fx, fy, cx, cy, skew, k1, k2, k3, p1, p2 = (cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6],
                                                 cam[7], cam[8], cam[9])
     distorted = k1 != 0.0 or k2 != 0.0 or k3 != 0.0 or p1 != 0.0 or p2 != 0.0
     tol = 1e-5 / max(fx, fy)
-    floor = 0.1 * (1.0 / np.sqrt(fx * fy))
     n = xy.shape[0]
     xd = np.empty(n)
     yd = np.empty(n)
@@ -207,11 +218,7 @@ def _rays_and_inliers(xy, r, A, cam):
         b[i, 0] = xn[i] / norm
         b[i, 1] = yn[i] / norm
         b[i, 2] = 1.0 / norm
-    keep = _inliers(_angles(b, r, A), floor)
-    n_kept = 0
-    for k in keep:
-        n_kept += k
-    return b, keep, n_kept
+    return b
 
 
 def _largest_shift_px(cam0: Camera, A0: np.ndarray, cam1: Camera, A1: np.ndarray) -> float:
@@ -219,7 +226,7 @@ def _largest_shift_px(cam0: Camera, A0: np.ndarray, cam1: Camera, A1: np.ndarray
     about half a pixel the old matches stand, as the match radius is larger."""
     gx, gy = np.meshgrid(np.linspace(0, cam0.width - 1, 5), np.linspace(0, cam0.height - 1, 5))
     grid = np.column_stack([gx.ravel(), gy.ravel()])
-    sky = cam0.pixel_to_ray(grid) @ A0  # rows: ICRS directions of the grid pixels
+    sky = _pixel_rays(grid, _camera_array(cam0)) @ A0  # rows: ICRS directions of the grid pixels
     moved, _ = cam1.ray_to_pixel(sky @ A1.T)
     return float(np.max(np.hypot(*(moved - grid).T)))
 
