@@ -704,19 +704,19 @@ def _label(sm, img, labels, mask, bg_grid, raw_bg_grid, iy, fy, ix, fx, max_comp
 
 
 @njit(cache=True)
-def _ascend(sm, labels, lab, first_new, y, x):
-    """Steepest ascent on ``sm`` inside one component (original or split labels) to a maximum."""
+def _ascent_step(sm, labels, lab, first_new, y, x):
+    """One step of steepest ascent on ``sm`` inside one component (original or split labels).
+
+    The highest neighbour (the first in scan order among equals), or (y, x) at a maximum.
+    """
     h, w = sm.shape
-    while True:
-        by, bx = y, x
-        for qy in range(max(y - 1, 0), min(y + 2, h)):
-            for qx in range(max(x - 1, 0), min(x + 2, w)):
-                lv = labels[qy, qx]
-                if (lv == lab or lv >= first_new) and sm[qy, qx] > sm[by, bx]:
-                    by, bx = qy, qx
-        if by == y and bx == x:
-            return y, x
-        y, x = by, bx
+    by, bx = y, x
+    for qy in range(max(y - 1, 0), min(y + 2, h)):
+        for qx in range(max(x - 1, 0), min(x + 2, w)):
+            lv = labels[qy, qx]
+            if (lv == lab or lv >= first_new) and sm[qy, qx] > sm[by, bx]:
+                by, bx = qy, qx
+    return by, bx
 
 
 @njit(cache=True)
@@ -736,19 +736,31 @@ def _deblend(sm, labels, ids, boxes, bg_grid, noise_grid, iy, fy, ix, fx, next_l
     """Split components with several prominent maxima; returns the new (ids, boxes, is_part).
 
     New labels are allocated from ``next_label`` upward; the component keeps its label for the
-    part around its highest maximum.
+    part around its highest maximum. Scratch arrays are allocated once, not per component.
     """
     h, w = sm.shape
-    out_ids = []
-    out_boxes = []
-    out_split = []
+    n_in = ids.size
+    cap = 1
+    for c in range(n_in):
+        cap = max(cap, (boxes[c, 1] - boxes[c, 0] + 1) * (boxes[c, 3] - boxes[c, 2] + 1))
+    my = np.empty(cap, np.int64)
+    mx = np.empty(cap, np.int64)
+    mv = np.empty(cap, sm.dtype)
+    ky = np.empty(cap, np.int64)
+    kx = np.empty(cap, np.int64)
+    kept = np.empty(cap, np.int64)
+    step = np.empty(cap, np.int64)
+    root = np.empty(cap, np.int64)
+    n_max_out = n_in * max(max_parts, 1)
+    ids_out = np.empty(n_max_out, np.int32)
+    boxes_out = np.empty((n_max_out, 4), np.int64)
+    split_out = np.zeros(n_max_out, np.bool_)
+    n = 0
     nxt = next_label
-    for c in range(ids.size):
+    for c in range(n_in):
         lab = ids[c]
         y0, y1, x0, x1 = boxes[c, 0], boxes[c, 1], boxes[c, 2], boxes[c, 3]
-        my = []
-        mx = []
-        mv = []
+        nm = 0
         for y in range(y0, y1 + 1):
             for x in range(x0, x1 + 1):
                 if labels[y, x] != lab:
@@ -762,30 +774,31 @@ def _deblend(sm, labels, ids, boxes, bg_grid, noise_grid, iy, fy, ix, fx, next_l
                             # ties: the first in scan order wins
                             if u > v or (u == v and (qy < y or (qy == y and qx < x))):
                                 is_max = False
+                                break
+                    if not is_max:
+                        break
                 if is_max:
                     # a hot pixel is no star to split off: the measurement leaves it out later
                     r = _residual(img, raw_bg_grid, iy, fy, ix, fx, y, x)
                     if _sharpness(img, raw_bg_grid, iy, fy, ix, fx, y, x, r) < min_sharpness:
                         continue
-                    my.append(y)
-                    mx.append(x)
-                    mv.append(v)
-        kept = [0]
-        if len(mv) == 0:
-            out_ids.append(lab)
-            out_boxes.append((y0, y1, x0, x1))
-            out_split.append(False)
-            continue
-        if len(mv) > 1:
-            order = np.argsort(-np.array(mv))
-            ky = [my[order[0]]]
-            kx = [mx[order[0]]]
+                    my[nm] = y
+                    mx[nm] = x
+                    mv[nm] = v
+                    nm += 1
+        nk = 1
+        kept[0] = 0
+        if nm > 1:
+            order = np.argsort(-mv[:nm])
+            ky[0] = my[order[0]]
+            kx[0] = mx[order[0]]
+            kept[0] = order[0]
             for r in range(1, order.size):
                 i = order[r]
                 yy, xx = my[i], mx[i]
                 near = False
                 col = -np.inf
-                for j in range(len(ky)):
+                for j in range(nk):
                     if (ky[j] - yy) ** 2 + (kx[j] - xx) ** 2 < min_sep**2:
                         near = True
                     col = max(col, _saddle(sm, yy, xx, ky[j], kx[j]))
@@ -794,30 +807,55 @@ def _deblend(sm, labels, ids, boxes, bg_grid, noise_grid, iy, fy, ix, fx, next_l
                 height = mv[i] - _grid_at(bg_grid, iy, fy, ix, fx, yy, xx)
                 prom = mv[i] - col
                 if prom >= contrast * height and prom >= 3.0 * _grid_at(noise_grid, iy, fy, ix, fx, yy, xx):
-                    ky.append(yy)
-                    kx.append(xx)
-                    kept.append(i)
-        # more than a few prominent maxima is texture (foliage, nebula), not a star group: the
-        # whole component is left for the diffuseness test
-        if len(kept) < 2 or len(kept) > max_parts:
-            out_ids.append(lab)
-            out_boxes.append((y0, y1, x0, x1))
-            out_split.append(False)
+                    ky[nk] = yy
+                    kx[nk] = xx
+                    kept[nk] = i
+                    nk += 1
+        # no maximum, one, or more than a few prominent ones (texture: foliage, nebula, left for
+        # the diffuseness test): the component stays whole
+        if nm == 0 or nk < 2 or nk > max_parts:
+            ids_out[n] = lab
+            boxes_out[n, 0], boxes_out[n, 1], boxes_out[n, 2], boxes_out[n, 3] = y0, y1, x0, x1
+            split_out[n] = False
+            n += 1
             continue
-        nk = len(kept)
         first_new = nxt
         part_label = np.empty(nk, np.int32)
         part_label[0] = lab
         for k in range(1, nk):
             part_label[k] = nxt
             nxt += 1
-        # assign every pixel to the kept maximum its ascent reaches (else the nearest one)
+        # assign every pixel to the kept maximum its ascent reaches (else the nearest one); the
+        # ascent graph is fixed while labels change (the eligible pixels stay eligible), so each
+        # pixel's step is found once and the paths are shared
+        bw = x1 - x0 + 1
         for y in range(y0, y1 + 1):
             for x in range(x0, x1 + 1):
+                li = (y - y0) * bw + (x - x0)
                 lv = labels[y, x]
+                root[li] = -2  # not in the component
                 if lv != lab and lv < first_new:
                     continue
-                ty, tx = _ascend(sm, labels, lab, first_new, y, x)
+                root[li] = -1
+                by, bx = _ascent_step(sm, labels, lab, first_new, y, x)
+                step[li] = (by - y0) * bw + (bx - x0)
+        for li in range(bw * (y1 - y0 + 1)):
+            if root[li] != -1:
+                continue
+            j = li
+            while root[j] == -1 and step[j] != j:
+                j = step[j]
+            end = root[j] if root[j] >= 0 else j
+            j = li
+            while root[j] == -1:
+                root[j] = end
+                j = step[j]
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
+                li = (y - y0) * bw + (x - x0)
+                if root[li] < 0:
+                    continue
+                ty, tx = y0 + root[li] // bw, x0 + root[li] % bw
                 best = -1
                 bd = np.inf
                 for k in range(nk):
@@ -833,18 +871,11 @@ def _deblend(sm, labels, ids, boxes, bg_grid, noise_grid, iy, fy, ix, fx, next_l
                         by0, by1 = min(by0, y), max(by1, y)
                         bx0, bx1 = min(bx0, x), max(bx1, x)
             if by1 >= 0:
-                out_ids.append(part_label[k])
-                out_boxes.append((by0, by1, bx0, bx1))
-                out_split.append(True)
-    n = len(out_ids)
-    ids_out = np.empty(n, np.int32)
-    boxes_out = np.empty((n, 4), np.int64)
-    split_out = np.empty(n, np.bool_)
-    for i in range(n):
-        ids_out[i] = out_ids[i]
-        split_out[i] = out_split[i]
-        boxes_out[i, 0], boxes_out[i, 1], boxes_out[i, 2], boxes_out[i, 3] = out_boxes[i]
-    return ids_out, boxes_out, split_out
+                ids_out[n] = part_label[k]
+                boxes_out[n, 0], boxes_out[n, 1], boxes_out[n, 2], boxes_out[n, 3] = by0, by1, bx0, bx1
+                split_out[n] = True
+                n += 1
+    return ids_out[:n].copy(), boxes_out[:n].copy(), split_out[:n].copy()
 
 
 @njit(cache=True)
@@ -913,6 +944,9 @@ def _measure(img, labels, ids, boxes, bg_grid, iy, fy, ix, fx, saturation, min_s
                             for qx in range(max(x - 1, 0), min(x + 2, w)):
                                 if labels[qy, qx] == lab:
                                     near = True
+                                    break
+                            if near:
+                                break
                         if not near:
                             continue
                     skipped = False
