@@ -62,6 +62,8 @@ def angles(b: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
 
 @numba.njit(cache=True)
 def _angles(b, r, A):
+    """:func:`angles` in one pass (the kernels of this module call only each other: numba's
+    cache checks a kernel's own file only)."""
     out = np.empty(b.shape[0])
     for i in range(b.shape[0]):
         chord2 = 0.0
@@ -97,6 +99,7 @@ def _sorted(a):
 
 @numba.njit(cache=True)
 def _inliers(resid, floor):
+    """:func:`inliers` in one pass."""
     n = resid.shape[0]
     if n == 0:
         return np.zeros(0, dtype=np.bool_)
@@ -160,6 +163,7 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
 
 
 def _camera_array(camera: Camera) -> np.ndarray:
+    """The camera's numbers for the kernels: (fx, fy, cx, cy, skew, k1, k2, k3, p1, p2)."""
     return np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.skew, camera.k1, camera.k2, camera.k3,
                      camera.p1, camera.p2], dtype=np.float64)
 
