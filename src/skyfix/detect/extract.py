@@ -237,7 +237,7 @@ def _components_pass(img, sigma, max_stars, min_area, max_area, max_extent, min_
     sm = ws.smooth
     is_float = img.dtype == np.float32
     total, vmax = _smooth_threshold(img, img.view(np.int32) if is_float else img, is_float, sm, ws.mask,
-                                    thr_grid, bg.level_smooth, iy, fy, ix, fx)
+                                    ws.blocks, thr_grid, bg.level_smooth, iy, fy, ix, fx)
     if check_finite and not math.isfinite(total):
         return None
     if saturation is None:
@@ -248,7 +248,8 @@ def _components_pass(img, sigma, max_stars, min_area, max_area, max_extent, min_
     else:  # clear only what the last call labelled
         _clear_boxes(labels, ws.dirty)
     ws.dirty = None
-    comps = _label(sm, img, labels, ws.mask, bg.level_smooth, bg.level, iy, fy, ix, fx, _MAX_COMPONENTS)
+    comps = _label(sm, img, labels, ws.mask, ws.blocks, bg.level_smooth, bg.level, iy, fy, ix, fx,
+                   _MAX_COMPONENTS)
     ws.dirty = comps[:, 1:5].astype(np.int64)
     n_comp = comps.shape[0]
     if n_comp == 0:
@@ -307,6 +308,7 @@ class _Workspace(threading.local):
     smooth: np.ndarray
     labels: np.ndarray
     mask: np.ndarray
+    blocks: np.ndarray
     dirty: np.ndarray | None = None  # bounding boxes of the labels left by the last call
 
 
@@ -317,7 +319,8 @@ def _workspace(h: int, w: int) -> _Workspace:
     if _WS.shape != (h, w):
         _WS.smooth = np.empty((h, w), np.float32)
         _WS.labels = np.empty((h, w), np.int32)
-        _WS.mask = np.zeros((h, (w + 7) // 8 * 8), np.uint8)  # padding columns stay 0
+        _WS.mask = np.zeros((h, (w + 63) // 64 * 64), np.uint8)  # padding columns stay 0
+        _WS.blocks = np.zeros((h, (w + 63) // 64), np.uint8)
         _WS.dirty = None
         _WS.shape = (h, w)
     return _WS
@@ -575,12 +578,14 @@ def _grid_rows(grid, ix, fx, w):
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
-def _smooth_threshold(img, bits, float_bits, sm, mask, thr_grid, bg_grid, iy, fy, ix, fx):
+def _smooth_threshold(img, bits, float_bits, sm, mask, blocks, thr_grid, bg_grid, iy, fy, ix, fx):
     """One pass over the frame: :func:`smooth3` into ``sm``, ``sm > threshold`` into ``mask``.
 
     ``bits`` is a float32 ``img`` viewed as int32 (``float_bits``), or an unsigned integer
-    ``img`` itself (its values are their own order); ``mask`` a (H, W rounded up to 8) uint8 frame. The
-    threshold grid is interpolated bilinearly (raised on the border, :func:`_threshold_at`).
+    ``img`` itself (its values are their own order); ``mask`` a (H, W rounded up to 64) uint8
+    frame and ``blocks`` (H, W/64 rounded up) flags whether each 64-pixel block of a mask row has
+    a pixel set (so the labelling skips empty sky without reading it). The threshold grid is
+    interpolated bilinearly (raised on the border, :func:`_threshold_at`).
     Returns the sum of the raw frame (non-finite if any pixel is) and its maximum.
     Reassociation lets the row loops vectorise; NaN and Inf still propagate (no "nnan"/"ninf").
     """
@@ -623,6 +628,12 @@ def _smooth_threshold(img, bits, float_bits, sm, mask, thr_grid, bg_grid, iy, fy
         else:
             m[0] = out[0] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, 0, h, w)
             m[w - 1] = out[w - 1] > _threshold_at(thr_grid, bg_grid, iy, fy, ix, fx, y, w - 1, h, w)
+        words = m.view(np.uint64)
+        for c in range(blocks.shape[1]):
+            any_set = np.uint64(0)
+            for wi in range(8 * c, 8 * c + 8):
+                any_set |= words[wi]
+            blocks[y, c] = any_set != 0
     if not float_bits:
         return total, float(top)
     top ^= (top >> 31) & np.int32(0x7FFFFFFF)
@@ -630,10 +641,10 @@ def _smooth_threshold(img, bits, float_bits, sm, mask, thr_grid, bg_grid, iy, fy
 
 
 @njit(cache=True)
-def _label(sm, img, labels, mask, bg_grid, raw_bg_grid, iy, fy, ix, fx, max_components):
+def _label(sm, img, labels, mask, blocks, bg_grid, raw_bg_grid, iy, fy, ix, fx, max_components):
     """8-connected flood fill of the pixels set in ``mask``; labels are 1-based.
 
-    ``mask`` is the (H, W rounded up to 8) uint8 frame of :func:`_smooth_threshold`. Returns
+    ``mask`` and ``blocks`` are the frames of :func:`_smooth_threshold`. Returns
     (K, 8) float64: area, ymin, ymax, xmin, xmax, summed excess of ``sm`` over the sky, and of
     the raw frame the highest pixel and the sum of positive pixels above the sky.
     """
@@ -643,63 +654,67 @@ def _label(sm, img, labels, mask, bg_grid, raw_bg_grid, iy, fy, ix, fx, max_comp
     stack = np.empty(1024, np.int64)
     b0, db = _grid_rows(bg_grid, ix, fx, w)
     q0, dq = _grid_rows(raw_bg_grid, ix, fx, w)
-    # pass 2: visit only non-zero 8-byte words; flood-fill from each unlabelled pixel
+    # visit only the non-empty 64-pixel blocks and their non-zero 8-byte words; flood-fill from
+    # each unlabelled pixel
     k = 0
     for y in range(h):
         words = mask[y].view(np.uint64)
-        for wi in range(words.size):
-            if words[wi] == 0:
+        for c in range(blocks.shape[1]):
+            if blocks[y, c] == 0:
                 continue
-            for x in range(8 * wi, min(8 * wi + 8, w)):
-                if mask[y, x] == 0 or labels[y, x] != 0:
+            for wi in range(8 * c, 8 * c + 8):
+                if words[wi] == 0:
                     continue
-                if k >= max_components:
-                    return comps[:k]
-                if k == comps.shape[0]:
-                    bigger = np.empty((min(2 * k, max_components), 8))
-                    bigger[:k] = comps
-                    comps = bigger
-                lab = k + 1
-                labels[y, x] = lab
-                stack[0] = y * w + x
-                top = 1
-                n = 0
-                ymin, ymax, xmin, xmax = y, y, x, x
-                excess = 0.0
-                raw_peak = -np.inf
-                raw_sum = 0.0
-                while top > 0:
-                    if top + 9 > stack.size:
-                        bigger_stack = np.empty(2 * stack.size, np.int64)
-                        bigger_stack[:top] = stack[:top]
-                        stack = bigger_stack
-                    top -= 1
-                    p = stack[top]
-                    py, px = p // w, p % w
-                    n += 1
-                    ymin, ymax = min(ymin, py), max(ymax, py)
-                    xmin, xmax = min(xmin, px), max(xmax, px)
-                    i = iy[py]
-                    f = fy[py]
-                    excess += sm[py, px] - (b0[i, px] + f * db[i, px])
-                    r = img[py, px] - (q0[i, px] + f * dq[i, px])
-                    raw_peak = max(raw_peak, r)
-                    raw_sum += max(r, 0.0)
-                    for qy in range(max(py - 1, 0), min(py + 2, h)):
-                        for qx in range(max(px - 1, 0), min(px + 2, w)):
-                            if mask[qy, qx] != 0 and labels[qy, qx] == 0:
-                                labels[qy, qx] = lab
-                                stack[top] = qy * w + qx
-                                top += 1
-                comps[k, 0] = n
-                comps[k, 1] = ymin
-                comps[k, 2] = ymax
-                comps[k, 3] = xmin
-                comps[k, 4] = xmax
-                comps[k, 5] = excess
-                comps[k, 6] = raw_peak
-                comps[k, 7] = raw_sum
-                k += 1
+                for x in range(8 * wi, min(8 * wi + 8, w)):
+                    if mask[y, x] == 0 or labels[y, x] != 0:
+                        continue
+                    if k >= max_components:
+                        return comps[:k]
+                    if k == comps.shape[0]:
+                        bigger = np.empty((min(2 * k, max_components), 8))
+                        bigger[:k] = comps
+                        comps = bigger
+                    lab = k + 1
+                    labels[y, x] = lab
+                    stack[0] = y * w + x
+                    top = 1
+                    n = 0
+                    ymin, ymax, xmin, xmax = y, y, x, x
+                    excess = 0.0
+                    raw_peak = -np.inf
+                    raw_sum = 0.0
+                    while top > 0:
+                        if top + 9 > stack.size:
+                            bigger_stack = np.empty(2 * stack.size, np.int64)
+                            bigger_stack[:top] = stack[:top]
+                            stack = bigger_stack
+                        top -= 1
+                        p = stack[top]
+                        py, px = p // w, p % w
+                        n += 1
+                        ymin, ymax = min(ymin, py), max(ymax, py)
+                        xmin, xmax = min(xmin, px), max(xmax, px)
+                        i = iy[py]
+                        f = fy[py]
+                        excess += sm[py, px] - (b0[i, px] + f * db[i, px])
+                        r = img[py, px] - (q0[i, px] + f * dq[i, px])
+                        raw_peak = max(raw_peak, r)
+                        raw_sum += max(r, 0.0)
+                        for qy in range(max(py - 1, 0), min(py + 2, h)):
+                            for qx in range(max(px - 1, 0), min(px + 2, w)):
+                                if mask[qy, qx] != 0 and labels[qy, qx] == 0:
+                                    labels[qy, qx] = lab
+                                    stack[top] = qy * w + qx
+                                    top += 1
+                    comps[k, 0] = n
+                    comps[k, 1] = ymin
+                    comps[k, 2] = ymax
+                    comps[k, 3] = xmin
+                    comps[k, 4] = xmax
+                    comps[k, 5] = excess
+                    comps[k, 6] = raw_peak
+                    comps[k, 7] = raw_sum
+                    k += 1
     return comps[:k]
 
 
