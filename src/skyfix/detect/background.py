@@ -361,10 +361,11 @@ def _robust_level_noise(v, quantum=0.0, lower=False):
     for _ in range(4):
         acc = 0.0
         m = 0
-        for i in range(dev.size):
-            if dev[i] <= cut:
-                acc += dev[i] * dev[i]
-                m += 1
+        for i in range(dev.size):  # branch-free: noise makes the test unpredictable
+            d = dev[i]
+            keep = d <= cut
+            acc += d * d if keep else 0.0
+            m += keep
         s = math.sqrt(acc / max(m, 1)) * _CLIP_CORRECTION
         new_cut = _CLIP * max(s, 0.5 * s0)
         if abs(new_cut - cut) < 1e-3 * cut:
