@@ -254,44 +254,33 @@ def _components_pass(img, sigma, max_stars, min_area, max_area, max_extent, min_
     n_comp = comps.shape[0]
     if n_comp == 0:
         return Centroids.empty((h, w), level, noise, n_components=0)
-    area = comps[:, 0]
-    extent = np.maximum(comps[:, 2] - comps[:, 1], comps[:, 4] - comps[:, 3]) + 1
-    keep = (area >= min_area) & (area <= max_area) & (extent <= max_extent)
-    # a lone hot pixel holds nearly all of its component's light: drop it before the cap on
-    # measured candidates, so that a frame with thousands of hot pixels still measures its stars
-    if min_sharpness > 0:
-        keep &= comps[:, 6] < _HOT_CONCENTRATION * np.maximum(comps[:, 7], 1e-30)
-    idx = np.flatnonzero(keep)
+    # a lone hot pixel holds nearly all of its component's light: dropped before the cap on
+    # measured candidates, so that a frame with thousands of hot pixels still measures its stars.
     # Measure only the brightest candidates, with room for the clusters of hot pixels, blobs and
     # noise that the tests below remove (measuring costs ~1 µs per small candidate).
-    order = np.argsort(-comps[idx, 5], kind="stable")
-    idx = idx[order[: max(4 * max_stars + 50, 200)]]
-    ids, boxes = (idx + 1).astype(np.int32), comps[idx, 1:5].astype(np.int64)
+    ids, boxes = _candidates(comps, float(min_area), float(max_area), float(max_extent), min_sharpness > 0,
+                             max(4 * int(max_stars) + 50, 200))
+    n_cand = ids.size
     n_split = 0
     is_part = np.zeros(ids.size, bool)
     if deblend is not None and ids.size:
         ids, boxes, is_part = _deblend(sm, labels, ids, boxes, bg.level_smooth, bg.noise_smooth,
                                        iy, fy, ix, fx, n_comp + 1, float(deblend), 2.0, 3,
                                        img, bg.level, float(min_sharpness))
-        n_split = ids.size - idx.size
+        n_split = ids.size - n_cand
     m = _measure(img, labels, ids, boxes, bg.level, iy, fy, ix, fx, float(saturation), float(min_sharpness))
-    flux, x, y, npix, peak, sharp, mxx, myy, mxy, sxx, syy, nsat, nhot = m.T
     # rejections (module docstring, step 6) in one kernel: dozens of small numpy calls cost more
     noise_px, elong, snr, good = _screen(
         m, is_part, bg.noise, bg.noise_smooth, bg.centers_y, bg.centers_x, iy, fy, ix, fx, float(sigma),
         float(min_sharpness), math.inf if max_elongation is None else float(max_elongation), reject_tracks,
         math.nan if max_diffuseness is None else float(max_diffuseness),
         math.nan if max_noise_ratio is None else float(max_noise_ratio))
-    sel = np.flatnonzero(good)
-    sel = sel[np.argsort(-flux[sel], kind="stable")][:max_stars]
+    x, y, flux, area, snr, elong, peak, sigma_x, sigma_y, angle, sat = _star_table(
+        m, noise_px, elong, snr, good, int(max_stars))
     return Centroids(
-        x=x[sel], y=y[sel], flux=flux[sel], area=npix[sel],
-        snr=snr[sel],
-        elongation=elong[sel], peak=peak[sel],
-        sigma_x=noise_px[sel] * np.sqrt(sxx[sel]) / flux[sel],
-        sigma_y=noise_px[sel] * np.sqrt(syy[sel]) / flux[sel],
-        saturated=nsat[sel] > 0, image_shape=(h, w), background_level=level, noise=noise,
-        angle=0.5 * np.arctan2(2.0 * mxy[sel], mxx[sel] - myy[sel]),
+        x=x, y=y, flux=flux, area=area, snr=snr, elongation=elong, peak=peak, sigma_x=sigma_x,
+        sigma_y=sigma_y, saturated=sat > 0, image_shape=(h, w), background_level=level, noise=noise,
+        angle=angle,
         meta={"n_components": int(n_comp), "n_deblended": int(n_split), "saturation": float(saturation),
               "tile": bg.tile},
     )
@@ -467,6 +456,53 @@ def _noise_at(grid, iy, fy, ix, fx, x, y):
 
 
 # --- numba kernels ------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _candidates(comps, min_area, max_area, max_extent, drop_hot, cap):
+    """Labels and boxes of the components worth measuring, by decreasing summed excess.
+
+    Size and extent limits; with ``drop_hot``, lone hot pixels (nearly all of the component's
+    light in one pixel); at most ``cap``, the brightest (ties keep label order).
+    """
+    n = comps.shape[0]
+    keep = np.empty(n, np.int64)
+    k = 0
+    for c in range(n):
+        area = comps[c, 0]
+        extent = max(comps[c, 2] - comps[c, 1], comps[c, 4] - comps[c, 3]) + 1
+        ok = area >= min_area and area <= max_area and extent <= max_extent
+        if drop_hot and not comps[c, 6] < _HOT_CONCENTRATION * max(comps[c, 7], 1e-30):
+            ok = False
+        if ok:
+            keep[k] = c
+            k += 1
+    idx = keep[:k]
+    order = np.argsort(-comps[idx, 5], kind="mergesort")  # stable
+    idx = idx[order[:cap]]
+    ids = (idx + 1).astype(np.int32)
+    boxes = np.empty((idx.size, 4), np.int64)
+    for i in range(idx.size):
+        for j in range(4):
+            boxes[i, j] = np.int64(comps[idx[i], 1 + j])
+    return ids, boxes
+
+
+@njit(cache=True)
+def _star_table(m, noise_px, elong, snr, good, max_stars):
+    """The kept stars by decreasing flux (ties keep candidate order), at most ``max_stars``.
+
+    Returns x, y, flux, area, snr, elongation, peak, sigma_x, sigma_y, angle, saturated pixels.
+    """
+    sel = np.flatnonzero(good)
+    sel = sel[np.argsort(-m[sel, 0], kind="mergesort")][:max_stars]
+    flux = m[sel, 0]
+    nz = noise_px[sel]
+    sigma_x = nz * np.sqrt(m[sel, 9]) / flux
+    sigma_y = nz * np.sqrt(m[sel, 10]) / flux
+    angle = 0.5 * np.arctan2(2.0 * m[sel, 8], m[sel, 6] - m[sel, 7])
+    return (m[sel, 1], m[sel, 2], flux, m[sel, 3], snr[sel], elong[sel], m[sel, 4], sigma_x, sigma_y, angle,
+            m[sel, 11])
 
 
 @njit(cache=True)
