@@ -164,7 +164,9 @@ def refine(p, A, f, fit_focal, fit_k1_min, frame, n_first, n_img, radius_px, sig
     out_fk[2] = radius_px
     A_cur = A.copy()
     use_k1 = -1  # undecided; decided once, on the first pass with all stars
-    nx, ny, gstart, gitems = grid_index(p, n_img, frame, radius_px)
+    # Cells of twice the match radius: a quarter of the cells to set up, the same matches.
+    cell = 2.0 * radius_px
+    nx, ny, gstart, gitems = grid_index(p, n_img, frame, cell)
     # The catalogue stars that can come into view while the fit moves (once, brightest first).
     ext = np.sqrt(max(frame[0] ** 2, frame[1] ** 2) + max(frame[2] ** 2, frame[3] ** 2))
     limit = star_limit(len(star_vectors), n_img, frame, f, 3.0)
@@ -174,7 +176,7 @@ def refine(p, A, f, fit_focal, fit_k1_min, frame, n_first, n_img, radius_px, sig
         # The first pass matches only the brightest stars, where chance neighbours are rare.
         n_use = min(n_img, n_first) if it == 0 else n_img
         n_cat = project_stars(near, A_cur, f, k1, frame, 2 * n_use, star_vectors, view_idx, view_x, view_y)
-        n_match = match_grid(view_x, view_y, n_cat, p, n_use, frame, radius_px, nx, ny, gstart,
+        n_match = match_grid(view_x, view_y, n_cat, p, n_use, frame, cell, nx, ny, gstart,
                               gitems, radius, used, match_img)
         if n_match < 3:
             return n_pairs

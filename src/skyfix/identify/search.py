@@ -58,14 +58,32 @@ def _pattern_edges(p: np.ndarray, combo: np.ndarray, f: float, out: np.ndarray) 
 
 
 @numba.njit(cache=True)
+def _det3(M: np.ndarray) -> float:
+    return (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
+            - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+            + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
+
+
+@numba.njit(cache=True)
 def _kabsch(b: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Proper rotation A minimising Σ|b − A r|² (SVD; det A = +1, so mirror images fit badly)."""
-    B = b.T @ r
+    """Proper rotation A minimising Σ|b − A r|² (SVD; det A = +1, so mirror images fit badly).
+
+    The small products are written out: BLAS/LAPACK calls cost more than the arithmetic here.
+    """
+    B = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for a in range(len(b)):
+                acc += b[a, i] * r[a, j]
+            B[i, j] = acc
     U, _, Vt = np.linalg.svd(B)
-    d = np.linalg.det(U) * np.linalg.det(Vt)
-    D = np.eye(3)
-    D[2, 2] = d
-    return U @ D @ Vt
+    d = 1.0 if _det3(U) * _det3(Vt) >= 0.0 else -1.0
+    A = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            A[i, j] = U[i, 0] * Vt[0, j] + U[i, 1] * Vt[1, j] + d * U[i, 2] * Vt[2, j]
+    return A
 
 
 @numba.njit(cache=True)
@@ -73,7 +91,10 @@ def _angle_matrix(v: np.ndarray, out: np.ndarray) -> None:
     for a in range(4):
         out[a, a] = 0.0
         for b in range(a + 1, 4):
-            d = np.sqrt(np.sum((v[a] - v[b]) ** 2))
+            dx = v[a, 0] - v[b, 0]
+            dy = v[a, 1] - v[b, 1]
+            dz = v[a, 2] - v[b, 2]
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
             out[a, b] = out[b, a] = 2.0 * np.arcsin(min(d / 2.0, 1.0))
 
 
@@ -220,7 +241,11 @@ def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px,
                 A = _kabsch(b, rp)
                 resid = 0.0
                 for a in range(4):
-                    resid = max(resid, np.sqrt(np.sum((b[a] - A @ rp[a]) ** 2)))
+                    d2 = 0.0
+                    for i in range(3):
+                        e = b[a, i] - (A[i, 0] * rp[a, 0] + A[i, 1] * rp[a, 1] + A[i, 2] * rp[a, 2])
+                        d2 += e * e
+                    resid = max(resid, np.sqrt(d2))
                 if resid * f1 > radius_px:
                     continue  # a mirror image or an inconsistent correspondence
                 # Verification: the brightest catalogue stars in the frame, matched to centroids.
