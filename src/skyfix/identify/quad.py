@@ -215,11 +215,9 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     f_db_lo = _focal_from_fov(width, db.fov_max_deg * _FOV_MARGIN)
     f_db_hi = _focal_from_fov(width, db.fov_min_deg / _FOV_MARGIN)
     if camera is not None:
-        cam0 = camera
         f0 = float(camera.fx)
         f_lo, f_hi = f0 / 1.03, f0 * 1.03
     else:
-        cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
         if fov_deg is not None:
             tol = 0.1 * fov_deg if fov_tolerance_deg is None else fov_tolerance_deg
             f0 = _focal_from_fov(width, fov_deg)
@@ -228,7 +226,6 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         else:
             f0 = math.sqrt(f_db_lo * f_db_hi)
             f_lo, f_hi = f_db_lo, f_db_hi
-        cam0 = Camera(width=int(width), height=int(height), fx=f0, fy=f0, cx=cx, cy=cy)
     if f_hi < f_db_lo or f_lo > f_db_hi:
         fov = 2 * math.degrees(math.atan(width / 2 / f0))
         return _failure(f"field of view {fov:.3g}° is outside the pattern database's range "
@@ -237,7 +234,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     # Image stars as undistorted offsets from the principal point, scaled by f0.
     n_pat = min(n, pattern_stars)
     n_p = max(n_pat, min(n, max(verify_stars, refine_stars)))
-    p = cam0.pixel_to_normalized(xy[:n_p]) * f0 if camera is not None else xy[:n_p] - [cam0.cx, cam0.cy]
+    cx, cy = (camera.cx, camera.cy) if camera is not None else ((width - 1) / 2.0, (height - 1) / 2.0)
+    p = camera.pixel_to_normalized(xy[:n_p]) * f0 if camera is not None else xy[:n_p] - np.array([cx, cy])
     combos = breadth_first_combinations(n_pat)
     n_verify = min(n, verify_stars)
     radius = match_radius * max(width, height)
@@ -251,9 +249,13 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         tiers = [(0.008, 0.002), (0.015 if free_fov else 0.010, 0.008 if camera is None else 0.004)]
     # The frame's extent in p (undistorted at its corners: a bounding box, good enough for
     # deciding which catalogue stars to expect).
-    corners = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [-0.5, height - 0.5], [width - 0.5, height - 0.5]])
-    c_p = cam0.pixel_to_normalized(corners) * f0 if camera is not None else corners - [cam0.cx, cam0.cy]
-    frame = np.array([c_p[:, 0].min(), c_p[:, 0].max(), c_p[:, 1].min(), c_p[:, 1].max()])
+    if camera is not None:
+        corners = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [-0.5, height - 0.5],
+                            [width - 0.5, height - 0.5]])
+        c_p = camera.pixel_to_normalized(corners) * f0
+        frame = np.array([c_p[:, 0].min(), c_p[:, 0].max(), c_p[:, 1].min(), c_p[:, 1].max()])
+    else:
+        frame = np.array([-0.5 - cx, width - 0.5 - cx, -0.5 - cy, height - 0.5 - cy])
     arrays = db.search_arrays()
     result_A = np.empty((3, 3))
     stats = np.empty(6)
@@ -283,9 +285,9 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 n_lookups += n_done
                 n_cand += n_c
                 if hit:
-                    res = _finish(xy, p, result_A, float(stats[0]), math.exp(stats[1]), cam0,
-                                  camera is None, frame, n_verify, min(n, refine_stars), radius,
-                                  centroid_sigma_px, db, arrays, epoch, max(pos), n_cand, t0, kept)
+                    res = _finish(xy, p, result_A, float(stats[0]), math.exp(stats[1]), camera,
+                                  (int(width), int(height), cx, cy), frame, n_verify, min(n, refine_stars),
+                                  radius, centroid_sigma_px, db, arrays, epoch, max(pos), n_cand, t0, kept)
                     if res is not None and f_lo * 0.97 <= res.camera.fx <= f_hi * 1.03:
                         return res
                     # A refit that fails or leaves the allowed range: search on.
@@ -296,9 +298,14 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                     n_tried, n_cand)
 
 
-def _finish(xy, p, A, f, prob, cam0, fit_focal, frame, n_first, n_img, radius, sigma_px, db, arrays, epoch,
+def _finish(xy, p, A, f, prob, camera, geometry, frame, n_first, n_img, radius, sigma_px, db, arrays, epoch,
             n_tried, n_cand, t0, kept):
-    """Refit on all matched stars (compiled :func:`refine`) and package the result."""
+    """Refit on all matched stars (compiled :func:`refine`) and package the result.
+
+    ``camera`` is the calibrated camera, or None: then the focal length (and k1) are fitted and
+    the camera is built from ``geometry`` = (width, height, cx, cy).
+    """
+    fit_focal = camera is None
     A = A.copy()
     out_img = np.empty(16384, np.int64)
     out_star = np.empty(16384, np.int64)
@@ -310,10 +317,13 @@ def _finish(xy, p, A, f, prob, cam0, fit_focal, frame, n_first, n_img, radius, s
     star_index, cat_index = out_img[:n_pairs], out_star[:n_pairs]
     order = np.argsort(star_index)
     star_index, cat_index = star_index[order], cat_index[order]
-    cam = cam0.replace(fx=float(fk[0]), fy=float(fk[0]), k1=float(fk[1])) if fit_focal else cam0
+    if fit_focal:
+        width, height, cx, cy = geometry
+        f_fit = float(fk[0])
+        camera = Camera(width=width, height=height, fx=f_fit, fy=f_fit, cx=cx, cy=cy, k1=float(fk[1]))
     if kept is not None:
         star_index = kept[star_index]
+    star_ids, star_mag, _ = db.star_arrays()
     return Identification(
-        True, "", star_index, np.asarray(db.star_ids[cat_index]), db.vectors_at(cat_index, epoch),
-        np.asarray(db.star_mag[cat_index]), A, cam, float(min(prob, 1.0)), n_tried, n_cand, METHOD,
-        time.perf_counter() - t0)
+        True, "", star_index, star_ids[cat_index], db.vectors_at(cat_index, epoch), star_mag[cat_index], A,
+        camera, float(min(prob, 1.0)), n_tried, n_cand, METHOD, time.perf_counter() - t0)
