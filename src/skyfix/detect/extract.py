@@ -32,7 +32,15 @@ import threading
 import numpy as np
 from numba import njit
 
-from skyfix.detect.background import Background, _median_of, estimate_background, interp_weights
+from skyfix.detect.background import (
+    _F2,
+    _F3,
+    _F16,
+    Background,
+    _median_of,
+    estimate_background,
+    interp_weights,
+)
 from skyfix.detect.centroid import CENTROIDERS, refine_centroids
 from skyfix.detect.centroids import Centroids
 from skyfix.errors import ImageReadError
@@ -624,6 +632,7 @@ def _smooth_threshold(img, bits, float_bits, sm, mask, blocks, thr_grid, bg_grid
     interpolated bilinearly (raised on the border, :func:`_threshold_at`).
     Returns the sum of the raw frame (non-finite if any pixel is) and its maximum.
     Reassociation lets the row loops vectorise; NaN and Inf still propagate (no "nnan"/"ninf").
+    The arithmetic is float32, as :func:`smooth3`'s (exact on 8- to 16-bit data).
     """
     h, w = img.shape
     # the threshold grid interpolated along x at the tile-centre rows: any pixel row is then
@@ -637,7 +646,7 @@ def _smooth_threshold(img, bits, float_bits, sm, mask, blocks, thr_grid, bg_grid
         acc = np.float32(0.0)
         for x in range(w):
             v = img[y, x]
-            tmp[x] = img[ya, x] + 2.0 * v + img[yb, x]
+            tmp[x] = img[ya, x] + _F2 * v + img[yb, x]
             acc += v
             # the maximum on the float's bits made monotonic as int32: a float max reduction
             # does not vectorise without "nnan", an integer one does
@@ -646,12 +655,12 @@ def _smooth_threshold(img, bits, float_bits, sm, mask, blocks, thr_grid, bg_grid
         total += acc
         out = sm[y]
         if w == 1:
-            out[0] = tmp[0] * 0.25
+            out[0] = tmp[0] * np.float32(0.25)
         else:
-            out[0] = (3.0 * tmp[0] + tmp[1]) * 0.0625
+            out[0] = (_F3 * tmp[0] + tmp[1]) * _F16
             for x in range(1, w - 1):
-                out[x] = (tmp[x - 1] + 2.0 * tmp[x] + tmp[x + 1]) * 0.0625
-            out[w - 1] = (tmp[w - 2] + 3.0 * tmp[w - 1]) * 0.0625
+                out[x] = (tmp[x - 1] + _F2 * tmp[x] + tmp[x + 1]) * _F16
+            out[w - 1] = (tmp[w - 2] + _F3 * tmp[w - 1]) * _F16
         i = iy[y]
         f = np.float32(fy[y])
         m = mask[y]
