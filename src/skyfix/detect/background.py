@@ -592,6 +592,22 @@ def _tile_noise(smp, rawp, cnt, level, level_raw, edges_y, edges_x, sy, sx, iy, 
     for t in range(ny * nx):
         start[t + 1] = start[t] + (cnt[t] if t % pool_every == 0 else 0)
     pooled = np.empty(start[-1], np.float64)
+    # the level interpolated along x at every tile-centre row, on the lattice columns: each
+    # sample's model is then one interpolation along y (the same arithmetic as in full)
+    col_start = np.zeros(nx + 1, np.int64)
+    for tx in range(nx):
+        x_first = _lattice_start(edges_x[tx], edges_x[tx + 1], sx)
+        col_start[tx + 1] = col_start[tx] + (edges_x[tx + 1] - 1 - x_first) // sx + 1
+    along_x = np.empty((ny, col_start[nx]))
+    for tx in range(nx):
+        c = col_start[tx]
+        for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], sx), edges_x[tx + 1], sx):
+            j = ix[x]
+            j1 = min(j + 1, nx - 1)
+            g = fx[x]
+            for i in range(ny):
+                along_x[i, c] = (1.0 - g) * level[i, j] + g * level[i, j1]
+            c += 1
     res = np.empty(cap, np.float64)
     lower_offset = np.nan
     for ty in range(ny):
@@ -603,16 +619,16 @@ def _tile_noise(smp, rawp, cnt, level, level_raw, edges_y, edges_x, sy, sx, iy, 
                 i = iy[y]
                 i1 = min(i + 1, ny - 1)
                 f = fy[y]
+                c = col_start[tx]
                 for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], sx), edges_x[tx + 1], sx):
-                    j = ix[x]
-                    j1 = min(j + 1, nx - 1)
-                    g = fx[x]
-                    top = (1.0 - g) * level[i, j] + g * level[i, j1]
-                    bot = (1.0 - g) * level[i1, j] + g * level[i1, j1]
-                    model = (1.0 - f) * top + f * bot
+                    model = (1.0 - f) * along_x[i, c] + f * along_x[i1, c]
+                    c += 1
                     res[k] = smp[t, k] - model
                     if pool:  # the raw residuals of the pooled tiles only
                         if not same_level:
+                            j = ix[x]
+                            j1 = min(j + 1, nx - 1)
+                            g = fx[x]
                             top = (1.0 - g) * level_raw[i, j] + g * level_raw[i, j1]
                             bot = (1.0 - g) * level_raw[i1, j] + g * level_raw[i1, j1]
                             model = (1.0 - f) * top + f * bot
