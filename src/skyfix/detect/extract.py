@@ -51,7 +51,7 @@ __all__ = ["METHODS", "extract_centroids", "saturation_level"]
 METHODS = ("components", "threshold_hillclimb", "region_grow", "regionprops")
 
 # Full-scale values of common integer sensors and of normalised float images.
-_FULL_SCALES = np.array([1.0, 255.0, 1023.0, 4095.0, 16383.0, 65535.0])
+_FULL_SCALES = (1.0, 255.0, 1023.0, 4095.0, 16383.0, 65535.0)
 _MAX_COMPONENTS = 1 << 16
 # A diffuse object must have a faint peak, below this many σ, to be dropped at the lower ratio.
 _DIFFUSE_MAX_PEAK_SNR = 15.0
@@ -363,8 +363,8 @@ def saturation_level(image: np.ndarray) -> float:
 
 
 def _full_scale(vmax: float) -> float:
-    near = np.abs(_FULL_SCALES - vmax) <= 0.005 * _FULL_SCALES
-    return vmax if near.any() else math.inf
+    near = any(abs(f - vmax) <= 0.005 * f for f in _FULL_SCALES)  # six floats: no numpy call
+    return vmax if near else math.inf
 
 
 @njit(cache=True)
