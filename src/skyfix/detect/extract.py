@@ -22,6 +22,14 @@ Pipeline of :func:`extract_centroids` (``method="components"``):
    ``max_stars``.
 
 Bad frames (constant, black, saturated, 1×1, too many non-finite pixels) give an empty list.
+
+Speed (about 2–3 ms per megapixel on one core): the background needs the smoothed frame only on
+its sampling lattice, so it comes first; smoothing, threshold, the frame's sum (non-finite
+pixels) and maximum (saturation) then share one pass over the frame, which also flags the
+64-pixel blocks holding detections so that the labelling skips empty sky. Steps 3 and 6 run
+in numba, not as dozens of small numpy calls, and 8/16-bit frames are not converted to float.
+Everything is serial: on a shared 2-core machine a parallel kernel waits for a descheduled
+thread (measured: 40× slower under load with OpenMP's default spinning).
 """
 
 from __future__ import annotations
