@@ -255,6 +255,10 @@ class PatternDatabase:
                 or len(db.pattern_largest) != p or len(db.key_start) != len(db.key_codes) + 1
                 or db.star_vectors.shape != (s, 3) or len(db.table) & (len(db.table) - 1)):
             raise DatabaseError(f"pattern database {path} is inconsistent (array shapes)")
+        z = np.asarray(db.cell_centres)[:, 2] if db.cell_centres.ndim == 2 else None
+        if z is None or db.cell_centres.shape[1] != 3 or np.any(np.diff(z) > 0):
+            # The verification scans only a z band of cells (verify.cell_band).
+            raise DatabaseError(f"pattern database {path} is inconsistent (sky cells not ordered by z)")
         return db
 
 

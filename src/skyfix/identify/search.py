@@ -99,6 +99,39 @@ def _angle_matrix(v: np.ndarray, out: np.ndarray) -> None:
 
 
 @numba.njit(cache=True)
+def _cross_norm(u: np.ndarray, v: np.ndarray) -> float:
+    cx = u[1] * v[2] - u[2] * v[1]
+    cy = u[2] * v[0] - u[0] * v[2]
+    cz = u[0] * v[1] - u[1] * v[0]
+    return np.sqrt(cx * cx + cy * cy + cz * cz)
+
+
+@numba.njit(cache=True)
+def _triple(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> float:
+    return (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
+            + u[2] * (v[0] * w[1] - v[1] * w[0]))
+
+
+@numba.njit(cache=True)
+def _no_rotation_fits(b: np.ndarray, r: np.ndarray, eps: float) -> bool:
+    """True if no proper rotation A brings every ``r[a]`` within ``eps`` (chord) of ``b[a]``.
+
+    A rotation keeps each triangle's triple product ``det[v_i, v_j, v_k]``; moving the vectors
+    by at most ``eps`` changes it by at most ``eps·Σ|v×v'| + 3eps² + eps³``. A mirror image
+    flips the sign of every triple product, so it fails this test without an SVD.
+    """
+    for t in range(4):
+        i, j, k = (1, 2, 3) if t == 0 else ((0, 2, 3) if t == 1 else ((0, 1, 3) if t == 2 else (0, 1, 2)))
+        det_b = _triple(b[i], b[j], b[k])
+        det_r = _triple(r[i], r[j], r[k])
+        bound = (eps * (_cross_norm(r[j], r[k]) + _cross_norm(r[i], r[k]) + _cross_norm(r[i], r[j]))
+                 + 3.0 * eps * eps + eps * eps * eps)
+        if abs(det_b - det_r) > bound * (1.0 + 1e-9) + 1e-12:
+            return True
+    return False
+
+
+@numba.njit(cache=True)
 def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px, model_err, n_bins,
            table, key_codes, key_start, pattern_ratios, pattern_largest, pattern_stars, star_vectors,
            cell_centres, cell_start, cell_stars, cell_radius, frame, n_verify, radius_px,
@@ -132,6 +165,7 @@ def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px,
     """
     edges = np.empty(6)
     edges1 = np.empty(6)
+    ratios = np.empty(5)
     runs = np.empty((1024, 2), dtype=np.int64)
     lo = np.empty(5, dtype=np.int64)
     hi = np.empty(5, dtype=np.int64)
@@ -161,6 +195,7 @@ def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px,
             continue
         for i in range(5):
             rr = edges[i] / largest
+            ratios[i] = rr
             lo[i] = max(0, min(n_bins - 1, np.int64((rr - eps_key) * n_bins)))
             hi[i] = max(0, min(n_bins - 1, np.int64((rr + eps_key) * n_bins)))
             cur[i] = lo[i]
@@ -189,14 +224,15 @@ def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px,
                 i += 1
             if i == 5:
                 break
+        x0, x1, x2, x3, x4 = ratios[0], ratios[1], ratios[2], ratios[3], ratios[4]
         for k in range(n_runs):
             for q in range(runs[k, 0], runs[k, 1]):
-                bad = False
-                for i in range(5):
-                    if abs(edges[i] / largest - pattern_ratios[q, i]) > eps_key:
-                        bad = True
-                        break
-                if bad:
+                # Branch-free: about 40 % of patterns pass each ratio, so an early exit per ratio
+                # mispredicts; the five differences and their maximum cost less.
+                dev = max(max(max(abs(x0 - pattern_ratios[q, 0]), abs(x1 - pattern_ratios[q, 1])),
+                              max(abs(x2 - pattern_ratios[q, 2]), abs(x3 - pattern_ratios[q, 3]))),
+                          abs(x4 - pattern_ratios[q, 4]))
+                if dev > eps_key:
                     continue
                 # Focal length from the largest edges (angles scale ~ 1/f), refined once.
                 if fix_focal:
@@ -217,6 +253,7 @@ def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px,
                 if bad:
                     continue
                 n_cand += 1
+                theta_max = 2.0 * np.arcsin(min(1.0, radius_px / f1 / 2.0))  # allowed star error, rad
                 # Vertex correspondence: the permutation whose six edges agree best.
                 for a in range(4):
                     x = p[combo[a], 0] / f1
@@ -236,8 +273,15 @@ def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px,
                     if err < best_err:
                         best_err = err
                         best = m
+                # Each edge is off by at most the sum of its two stars' errors after any rotation,
+                # so an edge mismatch above twice the allowed star error (the residual test below)
+                # rejects the candidate without the SVD.
+                if best_err > 2.0 * theta_max + 1e-9:
+                    continue
                 for a in range(4):
                     rp[a] = r[perms[best, a]]
+                if _no_rotation_fits(b, rp, radius_px / f1):
+                    continue  # a mirror image: the residual test below would reject it
                 A = _kabsch(b, rp)
                 resid = 0.0
                 for a in range(4):

@@ -20,8 +20,8 @@ import numpy as np
 
 _N_RADII = 5  # verification radii R, R/2, ..., R/16
 
-__all__ = ["log_binom_sf", "star_limit", "stars_in_view", "gather_stars", "project_stars", "match_greedy",
-           "grid_index", "match_grid", "verify_attitude"]
+__all__ = ["cell_band", "log_binom_sf", "star_limit", "stars_in_view", "gather_stars", "project_stars",
+           "match_greedy", "grid_index", "match_grid", "verify_attitude"]
 
 
 # log n! for the binomial tails (the same ``math.lgamma`` values, looked up instead of recomputed).
@@ -64,6 +64,36 @@ def star_limit(n_stars, n_img, frame, f, depth):
 
 
 @numba.njit(cache=True)
+def cell_band(cell_centres, u, cone):
+    """Index range ``lo:hi`` of the cells whose centres can lie within ``cone`` radians of ``u``.
+
+    The cell centres are ordered by decreasing z (a Fibonacci lattice; checked on load), so the
+    cells within the cone lie in the z band of the polar angles ``θ_u ± cone``: the scans test
+    only those (a fifth of the sky or less instead of all of it).
+    """
+    theta = np.arccos(min(1.0, max(-1.0, u[2])))
+    z_hi = np.cos(max(0.0, theta - cone)) + 1e-9
+    z_lo = np.cos(min(np.pi, theta + cone)) - 1e-9
+    n = len(cell_centres)
+    a, b = 0, n  # first index with z <= z_hi
+    while a < b:
+        m = (a + b) // 2
+        if cell_centres[m, 2] > z_hi:
+            a = m + 1
+        else:
+            b = m
+    lo = a
+    a, b = lo, n  # first index with z < z_lo
+    while a < b:
+        m = (a + b) // 2
+        if cell_centres[m, 2] >= z_lo:
+            a = m + 1
+        else:
+            b = m
+    return lo, a
+
+
+@numba.njit(cache=True)
 def stars_in_view(A, f, k1, frame, limit, star_vectors, cell_centres, cell_start, cell_stars,
                    cell_radius, out_idx, out_x, out_y):
     """Catalogue stars (index < ``limit``) that project into the frame, brightest first.
@@ -76,9 +106,10 @@ def stars_in_view(A, f, k1, frame, limit, star_vectors, cell_centres, cell_start
     half_diag = np.arctan(ext / f) * (1.0 + 2.0 * abs(k1)) + 0.01
     cos_cell = np.cos(min(half_diag + cell_radius, np.pi))
     n = 0
-    for cell in range(len(cell_centres)):
-        cc = cell_centres[cell]
-        if cc[0] * A[2, 0] + cc[1] * A[2, 1] + cc[2] * A[2, 2] < cos_cell:
+    band_lo, band_hi = cell_band(cell_centres, A[2], half_diag + cell_radius)
+    for cell in range(band_lo, band_hi):
+        if (cell_centres[cell, 0] * A[2, 0] + cell_centres[cell, 1] * A[2, 1]
+                + cell_centres[cell, 2] * A[2, 2] < cos_cell):
             continue
         for t in range(cell_start[cell], cell_start[cell + 1]):
             s = cell_stars[t]
@@ -142,7 +173,8 @@ def gather_stars(z, cone, limit, star_vectors, cell_centres, cell_start, cell_st
     near_cells = np.empty(len(cell_centres), dtype=np.int64)
     n_cells = 0
     n_max = 0
-    for cell in range(len(cell_centres)):
+    band_lo, band_hi = cell_band(cell_centres, z, cone + cell_radius)
+    for cell in range(band_lo, band_hi):
         cc = cell_centres[cell]
         if cc[0] * z[0] + cc[1] * z[1] + cc[2] * z[2] < cos_cell:
             continue
