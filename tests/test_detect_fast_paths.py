@@ -122,3 +122,38 @@ def test_interp_weights_and_helpers_match_numpy():
     assert is_integer_valued(grid.astype(np.uint16))
     grid[0, 0] = np.nan
     assert not is_integer_valued(grid)
+
+
+@pytest.mark.parametrize("density", [0.05, 0.3, 0.6])
+def test_run_labelling_matches_scipy(density):
+    """Labels of the run-based labelling equal scipy's 8-connected ones (raster-order numbering)."""
+    from scipy import ndimage
+
+    from skyfix.detect.extract import _label
+
+    rng = np.random.default_rng(int(density * 100))
+    h, w = 61, 150  # not a multiple of the 64-pixel blocks
+    on = rng.random((h, w)) < density
+    mask = np.zeros((h, 192), np.uint8)
+    mask[:, :w] = on
+    blocks = mask.reshape(h, 3, 64).any(axis=2).astype(np.uint8)
+    sm = rng.normal(size=(h, w)).astype(np.float32)
+    img = rng.normal(size=(h, w)).astype(np.float32)
+    grid = np.zeros((2, 3))
+    iy, fy = interp_weights(np.array([15.0, 45.0]), h)
+    ix, fx = interp_weights(np.array([25.0, 75.0, 125.0]), w)
+    ref, n = ndimage.label(on, structure=np.ones((3, 3), int))
+    for cap in (1 << 16, max(n // 3, 1)):
+        labels = np.zeros((h, w), np.int32)
+        comps = _label(sm, img, labels, mask, blocks, grid, grid, iy, fy, ix, fx, cap)
+        expect = np.where(ref <= cap, ref, 0)
+        np.testing.assert_array_equal(labels, expect)
+        assert comps.shape[0] == min(n, cap)
+        for k in range(comps.shape[0]):
+            ys, xs = np.nonzero(ref == k + 1)
+            assert comps[k, 0] == ys.size
+            box = (ys.min(), ys.max(), xs.min(), xs.max())
+            assert (comps[k, 1], comps[k, 2], comps[k, 3], comps[k, 4]) == box
+            excess = float(sm[ys, xs].astype(np.float64).sum())
+            assert comps[k, 5] == pytest.approx(excess, rel=1e-9, abs=1e-9)
+            assert comps[k, 6] == img[ys, xs].max()

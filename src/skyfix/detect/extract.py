@@ -695,23 +695,38 @@ def _smooth_threshold(img, bits, float_bits, sm, mask, blocks, thr_grid, bg_grid
 
 @njit(cache=True)
 def _label(sm, img, labels, mask, blocks, bg_grid, raw_bg_grid, iy, fy, ix, fx, max_components):
-    """8-connected flood fill of the pixels set in ``mask``; labels are 1-based.
+    """8-connected components of the pixels set in ``mask``; labels are 1-based.
 
-    ``mask`` and ``blocks`` are the frames of :func:`_smooth_threshold`. Returns
-    (K, 8) float64: area, ymin, ymax, xmin, xmax, summed excess of ``sm`` over the sky, and of
-    the raw frame the highest pixel and the sum of positive pixels above the sky.
+    ``mask`` and ``blocks`` are the frames of :func:`_smooth_threshold`. Components are numbered
+    in the raster order of their first pixel (as a flood fill from a raster scan numbers them);
+    those beyond ``max_components`` stay unlabelled. Works on runs of set pixels along rows,
+    joined to the touching runs of the row above by union-find: the frame is read row by row
+    (a flood fill's scattered reads wait on memory). Returns (K, 8) float64: area, ymin, ymax,
+    xmin, xmax, summed excess of ``sm`` over the sky, and of the raw frame the highest pixel and
+    the sum of positive pixels above the sky.
     """
     h, w = sm.shape
-    # both grow on demand: multi-megabyte worst-case buffers cost more to map than to fill
-    comps = np.empty((min(max_components, 1024), 8))
-    stack = np.empty(1024, np.int64)
     b0, db = _grid_rows(bg_grid, ix, fx, w)
     q0, dq = _grid_rows(raw_bg_grid, ix, fx, w)
-    # visit only the non-empty 64-pixel blocks and their non-zero 8-byte words; flood-fill from
-    # each unlabelled pixel
-    k = 0
+    n_blocks = 0
+    for y in range(h):
+        for c in range(blocks.shape[1]):
+            n_blocks += blocks[y, c] != 0
+    cap = 32 * n_blocks + 1  # a 64-pixel block holds at most 32 runs
+    run_y = np.empty(cap, np.int64)
+    run_x0 = np.empty(cap, np.int64)
+    run_x1 = np.empty(cap, np.int64)
+    parent = np.empty(cap, np.int64)
+    run_excess = np.empty(cap)
+    run_peak = np.empty(cap)
+    run_sum = np.empty(cap)
+    nr = 0
+    prev_start = prev_end = 0
     for y in range(h):
         words = mask[y].view(np.uint64)
+        cur_start = nr
+        i = iy[y]
+        f = fy[y]
         for c in range(blocks.shape[1]):
             if blocks[y, c] == 0:
                 continue
@@ -719,56 +734,77 @@ def _label(sm, img, labels, mask, blocks, bg_grid, raw_bg_grid, iy, fy, ix, fx, 
                 if words[wi] == 0:
                     continue
                 for x in range(8 * wi, min(8 * wi + 8, w)):
-                    if mask[y, x] == 0 or labels[y, x] != 0:
+                    if mask[y, x] == 0:
                         continue
-                    if k >= max_components:
-                        return comps[:k]
-                    if k == comps.shape[0]:
-                        bigger = np.empty((min(2 * k, max_components), 8))
-                        bigger[:k] = comps
-                        comps = bigger
-                    lab = k + 1
-                    labels[y, x] = lab
-                    stack[0] = y * w + x
-                    top = 1
-                    n = 0
-                    ymin, ymax, xmin, xmax = y, y, x, x
-                    excess = 0.0
-                    raw_peak = -np.inf
-                    raw_sum = 0.0
-                    while top > 0:
-                        if top + 9 > stack.size:
-                            bigger_stack = np.empty(2 * stack.size, np.int64)
-                            bigger_stack[:top] = stack[:top]
-                            stack = bigger_stack
-                        top -= 1
-                        p = stack[top]
-                        py, px = p // w, p % w
-                        n += 1
-                        ymin, ymax = min(ymin, py), max(ymax, py)
-                        xmin, xmax = min(xmin, px), max(xmax, px)
-                        i = iy[py]
-                        f = fy[py]
-                        excess += sm[py, px] - (b0[i, px] + f * db[i, px])
-                        r = img[py, px] - (q0[i, px] + f * dq[i, px])
-                        raw_peak = max(raw_peak, r)
-                        raw_sum += max(r, 0.0)
-                        for qy in range(max(py - 1, 0), min(py + 2, h)):
-                            for qx in range(max(px - 1, 0), min(px + 2, w)):
-                                if mask[qy, qx] != 0 and labels[qy, qx] == 0:
-                                    labels[qy, qx] = lab
-                                    stack[top] = qy * w + qx
-                                    top += 1
-                    comps[k, 0] = n
-                    comps[k, 1] = ymin
-                    comps[k, 2] = ymax
-                    comps[k, 3] = xmin
-                    comps[k, 4] = xmax
-                    comps[k, 5] = excess
-                    comps[k, 6] = raw_peak
-                    comps[k, 7] = raw_sum
-                    k += 1
-    return comps[:k]
+                    if nr == cur_start or run_x1[nr - 1] != x - 1:
+                        run_y[nr] = y
+                        run_x0[nr] = x
+                        parent[nr] = nr
+                        run_excess[nr] = 0.0
+                        run_peak[nr] = -np.inf
+                        run_sum[nr] = 0.0
+                        nr += 1
+                    run_x1[nr - 1] = x
+                    run_excess[nr - 1] += sm[y, x] - (b0[i, x] + f * db[i, x])
+                    r = img[y, x] - (q0[i, x] + f * dq[i, x])
+                    run_peak[nr - 1] = max(run_peak[nr - 1], r)
+                    run_sum[nr - 1] += max(r, 0.0)
+        # join each run to the runs of the row above that touch it (8-connected), both in x order
+        k0 = prev_start
+        for j in range(cur_start, nr):
+            while k0 < prev_end and run_x1[k0] < run_x0[j] - 1:
+                k0 += 1
+            k = k0
+            while k < prev_end and run_x0[k] <= run_x1[j] + 1:
+                # union, the earlier run (in raster order) becoming the root
+                a = k
+                while parent[a] != a:
+                    parent[a] = parent[parent[a]]
+                    a = parent[a]
+                bb = j
+                while parent[bb] != bb:
+                    parent[bb] = parent[parent[bb]]
+                    bb = parent[bb]
+                if a < bb:
+                    parent[bb] = a
+                elif bb < a:
+                    parent[a] = bb
+                k += 1
+        prev_start, prev_end = cur_start, nr
+    # component numbers: roots in raster order (each root is its component's first run)
+    rank = np.empty(nr, np.int64)
+    k = 0
+    for r in range(nr):
+        a = r
+        while parent[a] != a:
+            a = parent[a]
+        parent[r] = a
+        if a == r:
+            rank[r] = k
+            k += 1
+    n_comp = min(k, max_components)
+    comps = np.zeros((n_comp, 8))
+    for c in range(n_comp):
+        comps[c, 1] = h
+        comps[c, 3] = w
+        comps[c, 2] = comps[c, 4] = -1.0
+        comps[c, 6] = -np.inf
+    for r in range(nr):
+        c = rank[parent[r]]
+        if c >= n_comp:
+            continue
+        y, x0, x1 = run_y[r], run_x0[r], run_x1[r]
+        comps[c, 0] += x1 - x0 + 1
+        comps[c, 1] = min(comps[c, 1], y)
+        comps[c, 2] = max(comps[c, 2], y)
+        comps[c, 3] = min(comps[c, 3], x0)
+        comps[c, 4] = max(comps[c, 4], x1)
+        comps[c, 5] += run_excess[r]
+        comps[c, 6] = max(comps[c, 6], run_peak[r])
+        comps[c, 7] += run_sum[r]
+        for x in range(x0, x1 + 1):
+            labels[y, x] = c + 1
+    return comps
 
 
 @njit(cache=True)
