@@ -5,8 +5,9 @@ Pipeline of :func:`extract_centroids` (``method="components"``):
 1. Tiled robust background and noise (:mod:`skyfix.detect.background`) of the raw frame and of
    the frame smoothed by a 3×3 binomial kernel (a cheap matched filter for a PSF of σ ≈ 1 px).
 2. Pixels whose smoothed value exceeds the smoothed sky by ``sigma``·σ (more on the frame
-   border, where smoothing averages fewer pixels) are grouped into 8-connected components by a
-   flood fill (numba), which also records each component's size, box and summed excess.
+   border, where smoothing averages fewer pixels) are grouped into 8-connected components
+   (runs along rows joined by union-find, numba), which also records each component's size,
+   box and summed excess.
 3. Components that are too small, too large or too extended (Moon, roof edges) are dropped, and
    lone hot pixels (nearly all the light in one pixel) before the cap on measured candidates.
 4. Touching stars are split at the saddle between prominent maxima (``deblend``).
