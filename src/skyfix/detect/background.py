@@ -172,7 +172,8 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     if grid_filter > 1 and min(ny, nx) > 1:
         noise_s = ndimage.median_filter(noise_s, size=grid_filter, mode="nearest")
     # raw-pixel noise: one pooled robust estimate, spread over the tiles like the smoothed noise
-    raw_med, raw_sigma = _robust_level_noise(raw_res, 1.0 if is_int else 0.0)
+    # residuals about the sky model: their median is near 0, a good first pivot
+    raw_med, raw_sigma = _robust_level_noise(raw_res, 1.0 if is_int else 0.0, False, 0.0)
     if is_int and raw_sigma < _QUANTISED_SIGMA and raw_res.size:
         # Noise below one level: most pixels share a value, so medians sit on the integer grid
         # while the sky's mean does not (a few tenths of a level, times hundreds of pixels in a
@@ -325,19 +326,20 @@ def _smooth3(img, out):
 
 
 @njit(cache=True)
-def _robust_level_noise(v, quantum=0.0, lower=False):
+def _robust_level_noise(v, quantum=0.0, lower=False, guess=np.nan):
     """Median and clipped RMS (about the median, ±3σ, corrected) of a 1-D sample.
 
     ``quantum`` is the data's quantisation step (0 for continuous data): the clip starts no
     narrower than ±3 steps, since a MAD below one step only says the noise is unresolved.
     With ``lower`` only values below the median count: stars add light, so the lower half of
     a tile's distribution is noise alone even when a bright star covers much of the tile.
+    ``guess``: a likely value of the median, the selection's first pivot (NaN: none).
     """
     n = v.size
     if n == 0:
         return 0.0, 0.0
     scratch = v.astype(np.float64)  # a copy: the selection reorders it
-    med = _median_inplace(scratch, n)
+    med = _median_inplace(scratch, n, guess)
     if lower:
         m = 0
         dev = np.empty(n)
