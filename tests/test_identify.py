@@ -163,7 +163,13 @@ def test_small_database_solves_in_its_range(small_db, catalog):
     assert attitude_errors(res.A_icrs_to_cam, A)[0] < 10
 
 
-@pytest.mark.parametrize("damage", ["truncate", "garbage", "empty", "version"])
+def _fields(db):
+    import dataclasses
+
+    return {f.name: getattr(db, f.name) for f in dataclasses.fields(db)}
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "empty", "version", "cell order"])
 def test_corrupt_database_raises_one_line(small_db, tmp_path, damage):
     db, path = small_db
     bad = tmp_path / "bad.npz"
@@ -174,9 +180,11 @@ def test_corrupt_database_raises_one_line(small_db, tmp_path, damage):
         bad.write_bytes(b"not a database at all" * 100)
     elif damage == "empty":
         bad.write_bytes(b"")
-    else:
-        old = PatternDatabase(**{**db.__dict__, "meta": {**db.meta, "version": -1}})
+    elif damage == "version":
+        old = PatternDatabase(**{**_fields(db), "meta": {**db.meta, "version": -1}})
         old.save(bad)
+    else:  # the verification scans a z band of cells: they must stay ordered by z
+        PatternDatabase(**{**_fields(db), "cell_centres": db.cell_centres[::-1].copy()}).save(bad)
     with pytest.raises(DatabaseError) as info:
         PatternDatabase.load(bad)
     assert "\n" not in str(info.value)
@@ -254,3 +262,52 @@ def test_catalog_vectors_at_the_requested_epoch(database, fields):
     moved = np.max(angle_between(res.catalog_vectors, np.asarray(database.star_vectors)[
         [int(np.flatnonzero(np.asarray(database.star_ids) == h)[0]) for h in res.catalog_ids]])) / ARCSEC
     assert moved > 0.1  # some matched star has a proper motion worth > 0.1″ over 35 years
+
+
+def test_radix_sort_matches_numpy():
+    from skyfix.identify.verify import _radix_sort
+
+    rng = np.random.default_rng(3)
+    for n, top in ((0, 10), (1, 10), (7, 3), (1000, 120_000), (3000, 5_000_000)):
+        a = rng.integers(0, top, n).astype(np.int64)
+        assert np.array_equal(_radix_sort(a), np.sort(a))
+
+
+@pytest.mark.parametrize("cone_deg", [1.0, 12.0, 40.0, 200.0])
+def test_cell_band_holds_every_cell_within_the_cone(database, cone_deg):
+    from skyfix.identify.verify import cell_band
+
+    centres = np.asarray(database.cell_centres)
+    cone = np.radians(cone_deg)
+    for u in random_attitudes(40, rng=5)[:, 2]:
+        lo, hi = cell_band(centres, u, cone)
+        inside = np.flatnonzero(centres @ u >= np.cos(min(cone, np.pi)))
+        assert inside.size == 0 or (lo <= inside.min() and inside.max() < hi)
+        # and the band is narrow: about the fraction of cells its z range holds
+        assert hi - lo <= len(centres) * min(1.0, 2 * np.sin(min(cone, np.pi / 2)) / 2 + 0.01) + 2
+
+
+def test_rotation_bound_rejects_mirror_images_only():
+    from skyfix.geometry import attitude_from_radec_roll
+    from skyfix.identify.search import _kabsch, _no_rotation_fits
+
+    rng = np.random.default_rng(11)
+    eps = 12.8 / 4861.0  # the verification radius of a 1280 px wide 15° frame, as a chord
+    n_rejected = 0
+    for _ in range(200):
+        # Four stars within ~7° of the boresight, a random rotation, noise within eps.
+        xy = rng.uniform(-0.12, 0.12, (4, 2))
+        r = np.column_stack([xy, np.ones(4)])
+        r /= np.linalg.norm(r, axis=1, keepdims=True)
+        A = attitude_from_radec_roll(*rng.uniform(0, 1, 3))
+        noise = rng.normal(size=(4, 3))
+        noise *= rng.uniform(0, 0.99 * eps, (4, 1)) / np.linalg.norm(noise, axis=1, keepdims=True)
+        b = (A @ r.T).T + noise
+        assert not _no_rotation_fits(b, r, eps)  # a true match is never rejected
+        mirror = b * [1.0, -1.0, 1.0]
+        if _no_rotation_fits(mirror, r, eps):
+            n_rejected += 1
+            # whenever the bound rejects, the SVD fit really is off by more than eps
+            A_m = _kabsch(mirror, r)
+            assert np.linalg.norm(mirror - (A_m @ r.T).T, axis=1).max() > eps
+    assert n_rejected > 100, n_rejected  # most mirror images need no SVD

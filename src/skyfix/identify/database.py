@@ -120,13 +120,16 @@ class PatternDatabase:
         return self._plain_views(("star_ids", "star_mag", "star_vectors"))
 
     def _plain_views(self, names: tuple[str, ...]) -> tuple[np.ndarray, ...]:
-        key = tuple(id(getattr(self, k)) for k in names)
         cache = self.__dict__.setdefault("_views", {})
-        cached = cache.get(names)
-        if cached is None or cached[0] != key:
-            cached = (key, tuple(readonly_view(getattr(self, k)) for k in names))
-            cache[names] = cached
-        return cached[1]
+        views = cache.get(names)
+        if views is None:
+            views = cache[names] = tuple(readonly_view(getattr(self, k)) for k in names)
+        return views
+
+    def __setattr__(self, name: str, value) -> None:
+        # A replaced array invalidates the cached views.
+        self.__dict__.pop("_views", None)
+        super().__setattr__(name, value)
 
     def vectors_at(self, index: np.ndarray, epoch: float | None) -> np.ndarray:
         """ICRS unit vectors of stars ``index`` moved by proper motion to ``epoch`` (default: as built)."""
