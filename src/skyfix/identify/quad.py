@@ -34,6 +34,7 @@ from skyfix.errors import CameraError
 from skyfix.identify.database import PatternDatabase, default_database, readonly_view
 from skyfix.identify.refine import refine
 from skyfix.identify.search import breadth_first_combinations, search
+from skyfix.identify.verify import log_binom_sf
 
 __all__ = ["Identification", "identify"]
 
@@ -287,7 +288,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 if hit:
                     res = _finish(xy, p, result_A, float(stats[0]), math.exp(stats[1]), camera,
                                   (int(width), int(height), cx, cy), frame, n_verify, min(n, refine_stars),
-                                  radius, centroid_sigma_px, db, arrays, epoch, max(pos), n_cand, t0, kept)
+                                  radius, centroid_sigma_px, db, arrays, epoch, max(pos), n_cand, t0, kept,
+                                  log_threshold)
                     if res is not None and f_lo * 0.97 <= res.camera.fx <= f_hi * 1.03:
                         return res
                     # A refit that fails or leaves the allowed range: search on.
@@ -299,7 +301,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
 
 
 def _finish(xy, p, A, f, prob, camera, geometry, frame, n_first, n_img, radius, sigma_px, db, arrays, epoch,
-            n_tried, n_cand, t0, kept):
+            n_tried, n_cand, t0, kept, log_threshold):
     """Refit on all matched stars (compiled :func:`refine`) and package the result.
 
     ``camera`` is the calibrated camera, or None: then the focal length (and k1) are fitted and
@@ -309,10 +311,18 @@ def _finish(xy, p, A, f, prob, camera, geometry, frame, n_first, n_img, radius, 
     A = A.copy()
     out_img = np.empty(16384, np.int64)
     out_star = np.empty(16384, np.int64)
-    fk = np.empty(3)
+    fk = np.empty(5)
     n_pairs = refine(p, A, f, fit_focal, 12, frame, n_first, n_img, radius, sigma_px, *arrays[-4:],
                      db.cell_radius, 3, out_img, out_star, fk)
     if n_pairs < 4:
+        return None
+    # The refitted solution must itself be far beyond chance at its final match radius: a pattern
+    # that is right only locally (three stars of a dense cluster and a false star) passes the
+    # verification on the cluster's stars, but its refit matches barely more stars than a random
+    # attitude would at the radius its scatter needs.
+    r_final, n_cat = float(fk[3]), int(fk[4])
+    p_chance = min(1.0, n_img * math.pi * r_final**2 / ((frame[1] - frame[0]) * (frame[3] - frame[2])))
+    if log_binom_sf(n_pairs, n_cat, p_chance) > log_threshold:
         return None
     star_index, cat_index = out_img[:n_pairs], out_star[:n_pairs]
     order = np.argsort(star_index)

@@ -149,7 +149,8 @@ def refine(p, A, f, fit_focal, fit_k1_min, frame, n_first, n_img, radius_px, sig
     shrinks to 3.5 robust σ of the residuals (not below 1.5σ of the centroid noise).
 
     Returns the number of matched pairs written to ``out_img`` (centroid) and ``out_star``
-    (catalogue index); ``A`` is updated in place; ``out_fk`` = (f, k1, rms px).
+    (catalogue index); ``A`` is updated in place; ``out_fk`` = (f, k1, rms px) and, when it has
+    room, (…, match radius px, catalogue stars projected) of the last matching pass.
     """
     view_idx = np.empty(16384, dtype=np.int64)
     view_x = np.empty(16384)
@@ -186,6 +187,9 @@ def refine(p, A, f, fit_focal, fit_k1_min, frame, n_first, n_img, radius_px, sig
                 out_img[n_pairs] = match_img[j]
                 out_star[n_pairs] = view_idx[j]
                 n_pairs += 1
+        if len(out_fk) >= 5:
+            out_fk[3] = radius
+            out_fk[4] = n_cat
         if it == iterations:
             break
         v = np.empty((n_pairs, 3))
