@@ -21,7 +21,7 @@ def visible_stars(frame, sensor: Sensor, optics: Optics, exposure_s: float, snr:
     return sum(s["electrons"] * peak > snr * noise for s in frame.truth["stars"])
 
 
-def boresight_errors(camera, setup, database, n=10, seed=7):
+def boresight_errors(camera, setup, database, n=10, seed=7, min_visible=5):
     """Boresight errors (arcsec) of solved frames and the number of failures, over frames that
     show at least 5 clearly visible stars (the others are counted in ``skipped``)."""
     rng = np.random.default_rng(seed)
@@ -31,7 +31,7 @@ def boresight_errors(camera, setup, database, n=10, seed=7):
         A = attitude_from_radec_roll(rng.uniform(0, 2 * np.pi), np.arcsin(rng.uniform(-1, 1)),
                                      rng.uniform(0, 2 * np.pi))
         frame = render(A, setup, epoch=2025.0, seed=i)
-        if visible_stars(frame, sensor, optics, exposure_s) < 5:
+        if visible_stars(frame, sensor, optics, exposure_s) < min_visible:
             skipped += 1
             continue
         sol = pipeline.solve(frame.image, camera=camera, epoch=2025.0, database=database)
@@ -67,3 +67,17 @@ def test_round_trip_sunsat_6_bit(database):
     errors, failed = boresight_errors(camera, "sunsat", database)
     assert failed <= 1
     assert np.median(errors) < 0.15 * math.degrees(camera.plate_scale_rad) * 3600  # measured 4.8″
+
+
+
+def test_round_trip_mt9v022_30_degrees(database):
+    # Thesis 000's camera: 29.7° × 19.2°, 6 µm pixels behind 8.5 mm, at the wide end of the
+    # default database (10–30°, which serves fields up to ~40°). Its frames often show only
+    # 3–5 stars, too few to beat the 1e-9 false-match bound: those fail (by design) and are
+    # left out here. Of the 9 frames with 8 or more visible stars, 7 solve (measured): the other
+    # two yield only 5–6 detections.
+    camera = camera_from_preset("mt9v022")
+    errors, failed = boresight_errors(camera, "mt9v022", database, n=16, min_visible=8)
+    assert len(errors) >= 6
+    assert failed <= 3
+    assert np.median(errors) < 0.25 * math.degrees(camera.plate_scale_rad) * 3600

@@ -5,15 +5,15 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import asdict, dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 __all__ = ["Match", "Solution"]
 
 
-@dataclass(slots=True)
-class Match:
-    """One image star matched to a catalogue star."""
+class Match(NamedTuple):
+    """One image star matched to a catalogue star (a named tuple: a solve builds hundreds)."""
 
     x: float
     y: float
@@ -53,9 +53,11 @@ class Solution:
         return self.status == "solved"
 
     def to_dict(self) -> dict:
+        matches = [m._asdict() for m in self.matches]
         d = asdict(self)
         d.pop("A_icrs_to_cam")
         d.pop("camera")
+        d["matches"] = matches
         if not self.reason:
             d.pop("reason")
         return _clean(d)
