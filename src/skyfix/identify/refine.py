@@ -79,7 +79,7 @@ def _residuals(A, f, k1, v, q, out):
         out[2 * t + 1] = yn * radial - q[t, 1]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
     """Robust least-squares fit of attitude (3), focal length and k1 (``n_params`` = 3, 4 or 5)
     to pixel offsets ``q`` of catalogue vectors ``v``.
@@ -92,30 +92,42 @@ def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
     N = np.empty((n_params, n_params))
     g = np.empty(n_params)
     c2 = cauchy_px * cauchy_px
+    # Per star: residuals (u, v), weight, and the Jacobian rows of u (5) and v (5).
+    J = np.empty((13, m))
     for _ in range(iterations):
-        # The 15 sums of the 5-parameter normal matrix and 5 of the gradient as scalars (the
-        # loop stays in registers); a smaller fit uses the leading block.
-        n00 = n01 = n02 = n03 = n04 = n11 = n12 = n13 = n14 = n22 = n23 = n24 = n33 = n34 = n44 = 0.0
-        g0 = g1 = g2 = g3 = g4 = 0.0
+        # First every star's terms (independent: the divisions overlap), then the sums in order.
+        a00, a01, a02 = A[0, 0], A[0, 1], A[0, 2]
+        a10, a11, a12 = A[1, 0], A[1, 1], A[1, 2]
+        a20, a21, a22 = A[2, 0], A[2, 1], A[2, 2]
         for t in range(m):
-            bx = A[0, 0] * v[t, 0] + A[0, 1] * v[t, 1] + A[0, 2] * v[t, 2]
-            by = A[1, 0] * v[t, 0] + A[1, 1] * v[t, 1] + A[1, 2] * v[t, 2]
-            bz = A[2, 0] * v[t, 0] + A[2, 1] * v[t, 1] + A[2, 2] * v[t, 2]
+            bx = a00 * v[t, 0] + a01 * v[t, 1] + a02 * v[t, 2]
+            by = a10 * v[t, 0] + a11 * v[t, 1] + a12 * v[t, 2]
+            bz = a20 * v[t, 0] + a21 * v[t, 1] + a22 * v[t, 2]
             xn, yn = bx / bz, by / bz
             r2 = xn * xn + yn * yn
             gr = 1.0 + k1 * r2
             ru = f * xn * gr - q[t, 0]
             rv = f * yn * gr - q[t, 1]
-            w = 1.0 / (1.0 + (ru * ru + rv * rv) / c2)
             dudx, dudy = f * (gr + 2.0 * k1 * xn * xn), f * 2.0 * k1 * xn * yn
             dvdx, dvdy = dudy, f * (gr + 2.0 * k1 * yn * yn)
             # d(xn)/dδ and d(yn)/dδ from db/dδ = -[b×].
             dx0, dx1, dx2 = (0.0 - xn * by) / bz, (bz + xn * bx) / bz, (-by) / bz
             dy0, dy1, dy2 = (-bz - yn * by) / bz, (0.0 + yn * bx) / bz, bx / bz
-            u0, u1, u2 = dudx * dx0 + dudy * dy0, dudx * dx1 + dudy * dy1, dudx * dx2 + dudy * dy2
-            v0, v1, v2 = dvdx * dx0 + dvdy * dy0, dvdx * dx1 + dvdy * dy1, dvdx * dx2 + dvdy * dy2
-            u3, v3 = xn * gr, yn * gr
-            u4, v4 = f * xn * r2, f * yn * r2
+            J[0, t], J[1, t], J[2, t] = ru, rv, 1.0 / (1.0 + (ru * ru + rv * rv) / c2)
+            J[3, t], J[4, t] = dudx * dx0 + dudy * dy0, dudx * dx1 + dudy * dy1
+            J[5, t] = dudx * dx2 + dudy * dy2
+            J[8, t], J[9, t] = dvdx * dx0 + dvdy * dy0, dvdx * dx1 + dvdy * dy1
+            J[10, t] = dvdx * dx2 + dvdy * dy2
+            J[6, t], J[11, t] = xn * gr, yn * gr
+            J[7, t], J[12, t] = f * xn * r2, f * yn * r2
+        # The 15 sums of the 5-parameter normal matrix and 5 of the gradient as scalars; a
+        # smaller fit uses the leading block.
+        n00 = n01 = n02 = n03 = n04 = n11 = n12 = n13 = n14 = n22 = n23 = n24 = n33 = n34 = n44 = 0.0
+        g0 = g1 = g2 = g3 = g4 = 0.0
+        for t in range(m):
+            ru, rv, w = J[0, t], J[1, t], J[2, t]
+            u0, u1, u2, u3, u4 = J[3, t], J[4, t], J[5, t], J[6, t], J[7, t]
+            v0, v1, v2, v3, v4 = J[8, t], J[9, t], J[10, t], J[11, t], J[12, t]
             g0 += w * (u0 * ru + v0 * rv)
             g1 += w * (u1 * ru + v1 * rv)
             g2 += w * (u2 * ru + v2 * rv)
