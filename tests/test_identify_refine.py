@@ -1,8 +1,10 @@
-"""Refine's own kernels give exactly what the verification kernels they replace give."""
+"""Refine: its own kernels give exactly what the verification kernels they replace give, and k1 is
+freed for a distorted camera only."""
 
 import numpy as np
 import pytest
 
+from skyfix.camera import Camera
 from skyfix.identify.refine import _gather_near, _match_quadrant, _project_near, _sorted_indices
 from skyfix.identify.verify import gather_stars, grid_index, match_grid, project_stars
 
@@ -73,3 +75,25 @@ def test_project_and_match_equal_verify_kernels(sky):
             k_got = _match_quadrant(x, y, len(x), p, n_use, frame, 2 * r, *grid, r, used, m_got)
             assert k_want == k_got > 0
             assert np.array_equal(m_want, m_got)
+
+
+def test_k1_freed_only_for_a_distorted_camera(database):
+    from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+    from skyfix.catalog import load_hipparcos
+    from skyfix.identify import identify
+
+    catalog = load_hipparcos(mag_limit=8.0)
+    w, h = 1280, 960
+    k1s = {}
+    for k1 in (0.0, -0.3):
+        cam = Camera.from_fov(w, h, 20.0).replace(k1=k1)
+        fitted = []
+        for i, A in enumerate(random_attitudes(4, rng=7)):
+            field = synthetic_centroids(cam, A, catalog, sigma_px=0.5, n_false=3, rng=i)
+            res = identify(field.xy, w, h, database=database)
+            assert res.success
+            fitted.append(res.camera.k1)
+        k1s[k1] = np.array(fitted)
+    # The step test must not keep k1 from a camera that has it, nor free it for one that has not.
+    assert np.all(k1s[0.0] == 0.0)
+    assert np.all(np.abs(k1s[-0.3] + 0.3) < 0.06)
