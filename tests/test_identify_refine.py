@@ -1,12 +1,11 @@
-"""Refine: its own kernels give exactly what the verification kernels they replace give, and k1 is
-freed for a distorted camera only."""
+"""The star gather, projection and grid matcher that refine and verification share, against
+brute-force references; and refine frees k1 for a distorted camera only."""
 
 import numpy as np
 import pytest
 
 from skyfix.camera import Camera
-from skyfix.identify.refine import _gather_near, _match_quadrant, _project_near, _sorted_indices
-from skyfix.identify.verify import gather_stars, grid_index, match_grid, project_stars
+from skyfix.identify.verify import gather_stars, grid_index, match_greedy, match_grid, project_stars
 
 
 @pytest.fixture(scope="module")
@@ -27,52 +26,54 @@ def sky():
     return v, c, start, order.astype(np.int32), radius, rng
 
 
-def test_sorted_indices_sorts(sky):
-    rng = sky[-1]
-    for n, top in ((0, 0), (1, 5), (937, 117954), (3000, 2**20 - 1)):
-        a = rng.integers(0, top + 1, n).astype(np.int64)
-        assert np.array_equal(_sorted_indices(a, max(top, int(a.max(initial=0)))), np.sort(a))
-
-
 @pytest.mark.parametrize("cone", [0.05, 0.2, 0.6])
-def test_gather_near_equals_gather_stars(sky, cone):
+def test_gather_stars_is_a_cone_search(sky, cone):
     v, c, start, stars, radius, rng = sky
+    found = 0
     for _ in range(20):
         z = rng.normal(size=3)
         z /= np.linalg.norm(z)
         limit = int(rng.integers(100, len(v) + 1))
-        want = gather_stars(z, cone, limit, v, c, start, stars, radius)
-        got = _gather_near(z, cone, limit, v, c, start, stars, radius)
-        assert len(want) > 0
+        want = np.flatnonzero((v[:limit] @ z) >= np.cos(cone))
+        got = gather_stars(z, cone, limit, v, c, start, stars, radius)
         assert np.array_equal(got, want)
+        found += len(want)
+    assert found > 20
 
 
-def test_project_and_match_equal_verify_kernels(sky):
+def test_project_and_match_against_brute_force(sky):
     v, c, start, stars, radius, rng = sky
     frame = np.array([-640.0, 639.0, -480.0, 479.0])
-    f = 1500.0
+    f, k1 = 1500.0, 1e-3
     for _ in range(20):
         A = np.linalg.qr(rng.normal(size=(3, 3)))[0]
         near = gather_stars(A[2], 0.6, len(v), v, c, start, stars, radius)
-        outs = []
-        for fn in (project_stars, _project_near):
-            idx, x, y = np.empty(16384, np.int64), np.empty(16384), np.empty(16384)
-            n = fn(near, A, f, 1e-3, frame, 60, v, idx, x, y)
-            outs.append((idx[:n].copy(), x[:n].copy(), y[:n].copy()))
-        assert len(outs[0][0]) > 10
-        for a, b in zip(*outs, strict=True):
-            assert np.array_equal(a, b)
-        idx, x, y = outs[0]
-        # Centroids: the projections jittered, some dropped, plus false ones, in a random order.
-        p = np.column_stack([x, y]) + rng.normal(0.0, 1.5, (len(x), 2))
-        p = np.vstack([p, rng.uniform(frame[[0, 2]], frame[[1, 3]], (15, 2))])[rng.permutation(len(x) + 15)]
+        idx, x, y = np.empty(16384, np.int64), np.empty(16384), np.empty(16384)
+        n = project_stars(near, A, f, k1, frame, 60, v, idx, x, y)
+        # Reference: pinhole + k1 projection in numpy, brightest first, the first 60 in frame.
+        b = v[near] @ A.T
+        front = b[:, 2] > 1e-6
+        xn, yn = b[:, 0] / np.where(front, b[:, 2], 1), b[:, 1] / np.where(front, b[:, 2], 1)
+        rad = f * (1 + k1 * (xn**2 + yn**2))
+        px, py = xn * rad, yn * rad
+        inside = front & (px >= frame[0]) & (px <= frame[1]) & (py >= frame[2]) & (py <= frame[3])
+        keep = np.flatnonzero(inside)[:60]
+        assert n == len(keep) > 10
+        assert np.array_equal(idx[:n], near[keep])
+        np.testing.assert_allclose(x[:n], px[keep], rtol=1e-12)
+        np.testing.assert_allclose(y[:n], py[keep], rtol=1e-12)
+        x, y = x[:n].copy(), y[:n].copy()
+        # Centroids: the projections jittered, plus false ones, in a random order (sorted by index
+        # = brightness, as the grid assumes).
+        p = np.column_stack([x, y]) + rng.normal(0.0, 1.5, (n, 2))
+        p = np.vstack([p, rng.uniform(frame[[0, 2]], frame[[1, 3]], (15, 2))])[rng.permutation(n + 15)]
         r = 4.0
         grid = grid_index(p, len(p), frame, 2 * r)
         for n_use in (len(p) // 2, len(p)):
-            m_want, m_got = np.empty(len(x), np.int64), np.empty(len(x), np.int64)
+            m_want, m_got = np.empty(n, np.int64), np.empty(n, np.int64)
             used = np.zeros(len(p), np.bool_)
-            k_want = match_grid(x, y, len(x), p, n_use, frame, 2 * r, *grid, r, used, m_want)
-            k_got = _match_quadrant(x, y, len(x), p, n_use, frame, 2 * r, *grid, r, used, m_got)
+            k_want = match_greedy(x, y, n, p, n_use, r, used, m_want)
+            k_got = match_grid(x, y, n, p, n_use, frame, 2 * r, *grid, r, used, m_got)
             assert k_want == k_got > 0
             assert np.array_equal(m_want, m_got)
 

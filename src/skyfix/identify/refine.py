@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from skyfix.identify.verify import cell_band, grid_index, star_limit
+from skyfix.identify.verify import gather_stars, grid_index, match_grid, project_stars, star_limit
 
 __all__ = ["refine"]
 
@@ -173,142 +173,6 @@ def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
 
 
 @numba.njit(cache=True)
-def _sorted_indices(a, top):
-    """Non-negative integers ``a`` (all ``<= top``) sorted ascending: LSD radix in two passes of
-    half the bits of ``top`` each (small count tables for the thousand-odd stars of a field)."""
-    n = len(a)
-    bits = 1
-    while top >> bits > 0:
-        bits += 1
-    d_bits = (bits + 1) // 2
-    mask = (1 << d_bits) - 1
-    src = a
-    dst = np.empty(n, dtype=a.dtype)
-    out = np.empty(n, dtype=a.dtype)
-    count = np.empty(mask + 2, dtype=np.int64)
-    for shift in (0, d_bits):
-        count[:] = 0
-        for i in range(n):
-            count[((src[i] >> shift) & mask) + 1] += 1
-        for d in range(mask + 1):
-            count[d + 1] += count[d]
-        for i in range(n):
-            d = (src[i] >> shift) & mask
-            dst[count[d]] = src[i]
-            count[d] += 1
-        src, dst = dst, out
-    return src
-
-
-@numba.njit(cache=True)
-def _gather_near(z, cone, limit, star_vectors, cell_centres, cell_start, cell_stars, cell_radius):
-    """Indices (sorted: brightest first) of stars ``< limit`` within ``cone`` radians of ``z``:
-    :func:`skyfix.identify.verify.gather_stars`, the same stars, reading no star vector in cells
-    that lie wholly inside the cone (a third of them; the reads are cache misses)."""
-    cos_cell = np.cos(min(cone + cell_radius, np.pi))
-    cos_cone = np.cos(min(cone, np.pi))
-    # Cells whose every star is inside the cone (margin far beyond rounding).
-    cos_inner = np.cos(cone - cell_radius - 1e-6) if cone > cell_radius + 1e-6 else 2.0
-    near_cells = np.empty(len(cell_centres), dtype=np.int64)
-    inner = np.empty(len(cell_centres), dtype=np.bool_)
-    n_cells = 0
-    n_max = 0
-    band_lo, band_hi = cell_band(cell_centres, z, cone + cell_radius)
-    for cell in range(band_lo, band_hi):
-        cc = cell_centres[cell]
-        dot = cc[0] * z[0] + cc[1] * z[1] + cc[2] * z[2]
-        if dot < cos_cell:
-            continue
-        near_cells[n_cells] = cell
-        inner[n_cells] = dot >= cos_inner
-        n_cells += 1
-        n_max += cell_start[cell + 1] - cell_start[cell]
-    out = np.empty(min(n_max, limit), dtype=np.int64)
-    n = 0
-    top = 0
-    for c in range(n_cells):
-        cell = near_cells[c]
-        for t in range(cell_start[cell], cell_start[cell + 1]):
-            s = cell_stars[t]
-            if s >= limit:
-                break  # cells list their stars brightest first
-            # Branch-free keep, so that the (cold) vector reads of the next stars need not wait.
-            keep = inner[c]
-            if not keep:
-                v = star_vectors[s]
-                keep = v[0] * z[0] + v[1] * z[1] + v[2] * z[2] >= cos_cone
-            out[n] = s
-            n += keep
-            top = max(top, s)
-    return _sorted_indices(out[:n], top)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _project_near(near, A, f, k1, frame, n_max, star_vectors, out_idx, out_x, out_y):
-    """:func:`skyfix.identify.verify.project_stars` (the same stars, the same numbers) written
-    branch-free, so that the cold vector reads of successive stars overlap. ``out_*`` need one
-    slot of room beyond what is returned."""
-    n = 0
-    n_room = min(n_max, len(out_idx) - 1)
-    for s in near:
-        v = star_vectors[s]
-        bz = A[2, 0] * v[0] + A[2, 1] * v[1] + A[2, 2] * v[2]
-        front = bz > 1e-6
-        bz = bz if front else 1.0  # a select, not a branch; the star is dropped anyway
-        xn = (A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2]) / bz
-        yn = (A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2]) / bz
-        radial = f * (1.0 + k1 * (xn * xn + yn * yn))
-        x = xn * radial
-        y = yn * radial
-        inside = front & (x >= frame[0]) & (x <= frame[1]) & (y >= frame[2]) & (y <= frame[3])
-        out_idx[n] = s
-        out_x[n] = x
-        out_y[n] = y
-        n += inside
-        if n >= n_room:
-            break
-    return n
-
-
-@numba.njit(cache=True)
-def _match_quadrant(view_x, view_y, n_cat, p, n_use, frame, cell, nx, ny, start, items, radius_px, used,
-                    match_img):
-    """:func:`skyfix.identify.verify.match_grid` (the same pairs) visiting 2×2 cells instead of
-    3×3: with ``radius_px <= cell / 2`` a match circle reaches only the neighbours on the side of
-    its cell that its centre lies in."""
-    used[:] = False
-    r2 = radius_px * radius_px
-    n_match = 0
-    for j in range(n_cat):
-        ux = (view_x[j] - frame[0]) / cell
-        uy = (view_y[j] - frame[2]) / cell
-        gx = int(ux)
-        gy = int(uy)
-        x0 = gx - 1 if ux - gx < 0.5 else gx
-        y0 = gy - 1 if uy - gy < 0.5 else gy
-        best_d = r2
-        best_i = -1
-        for yy in range(max(0, y0), min(ny, y0 + 2)):
-            for xx in range(max(0, x0), min(nx, x0 + 2)):
-                cid = yy * nx + xx
-                for t in range(start[cid], start[cid + 1]):
-                    i = items[t]
-                    if i >= n_use:
-                        break  # cells list their centroids brightest first
-                    if used[i]:
-                        continue
-                    d = (p[i, 0] - view_x[j]) ** 2 + (p[i, 1] - view_y[j]) ** 2
-                    if d <= best_d:
-                        best_d = d
-                        best_i = i
-        match_img[j] = best_i
-        if best_i >= 0:
-            used[best_i] = True
-            n_match += 1
-    return n_match
-
-
-@numba.njit(cache=True)
 def refine(p, A, f, fit_focal, fit_k1_min, frame, n_first, n_img, radius_px, sigma_px, star_vectors,
            cell_centres, cell_start, cell_stars, cell_radius, iterations, out_img, out_star, out_fk):
     """Match all stars with the accepted attitude, refit, re-match (``iterations`` times).
@@ -343,13 +207,13 @@ def refine(p, A, f, fit_focal, fit_k1_min, frame, n_first, n_img, radius_px, sig
     # The catalogue stars that can come into view while the fit moves (once, brightest first).
     ext = np.sqrt(max(frame[0] ** 2, frame[1] ** 2) + max(frame[2] ** 2, frame[3] ** 2))
     limit = star_limit(len(star_vectors), n_img, frame, f, 3.0)
-    near = _gather_near(A[2], np.arctan(ext / f) * 1.1 + 0.02, limit, star_vectors, cell_centres,
+    near = gather_stars(A[2], np.arctan(ext / f) * 1.1 + 0.02, limit, star_vectors, cell_centres,
                         cell_start, cell_stars, cell_radius)
     for it in range(iterations + 1):
         # The first pass matches only the brightest stars, where chance neighbours are rare.
         n_use = min(n_img, n_first) if it == 0 else n_img
-        n_cat = _project_near(near, A_cur, f, k1, frame, 2 * n_use, star_vectors, view_idx, view_x, view_y)
-        n_match = _match_quadrant(view_x, view_y, n_cat, p, n_use, frame, cell, nx, ny, gstart,
+        n_cat = project_stars(near, A_cur, f, k1, frame, 2 * n_use, star_vectors, view_idx, view_x, view_y)
+        n_match = match_grid(view_x, view_y, n_cat, p, n_use, frame, cell, nx, ny, gstart,
                                   gitems, radius, used, match_img)
         if n_match < 3:
             return n_pairs
