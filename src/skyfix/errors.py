@@ -23,3 +23,8 @@ class CatalogError(SkyfixError):
 
 class SimulationError(SkyfixError):
     """Simulator settings are invalid (unknown preset, negative exposure, bad sensor value, ...)."""
+
+
+class InputError(SkyfixError, ValueError):
+    """An argument or option is out of range or of the wrong kind (a bad FOV, epoch, threshold,
+    frame size, method name, ...); raised before any work is done."""

@@ -6,8 +6,10 @@ of its own module; this one only composes them, times them and fills in the Solu
 
 from __future__ import annotations
 
+import inspect
 import logging
 import math
+import os
 import time
 from pathlib import Path
 
@@ -15,9 +17,18 @@ import numba
 import numpy as np
 
 from skyfix.camera import Camera
-from skyfix.errors import CameraError
+from skyfix.errors import CameraError, InputError
 from skyfix.final_fit import final_fit
 from skyfix.solution import Match, Solution
+from skyfix.validate import (
+    check_attitude_method,
+    check_count,
+    check_epoch,
+    check_fov,
+    check_frame_size,
+    check_positive,
+    check_xy,
+)
 
 __all__ = ["solve", "solve_centroids"]
 
@@ -76,13 +87,21 @@ def solve(
     ------
     skyfix.errors.ImageReadError
         The file cannot be read as an image.
+    skyfix.errors.InputError
+        An argument is out of range or of the wrong kind (checked before any work).
     """
-    from skyfix.detect import extract_centroids
+    from skyfix.detect import extract_centroids, frame_problem
     from skyfix.io import read_image
 
+    if not isinstance(image, (str, os.PathLike, np.ndarray)):
+        raise InputError(f"solve() takes one image (a file path or a 2-D array), got a "
+                         f"{type(image).__name__}" + ("; call it once per image"
+                                                      if isinstance(image, (list, tuple)) else ""))
+    max_stars = check_count(max_stars, "max_stars")
+    _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_options)
     t0 = time.perf_counter()
     label = name if name is not None else (str(image) if isinstance(image, (str, Path)) else "<array>")
-    data = read_image(image)
+    data = raw = read_image(image)
     if dark is not None or flat is not None or bad_pixels is not None:
         from skyfix.detect import calibrate_frame
 
@@ -97,6 +116,8 @@ def solve(
         camera=camera, database=database, epoch=epoch, attitude_method=attitude_method,
         name=label, **identify_options,
     )
+    if not sol.solved and (problem := frame_problem(raw)):  # blank, saturated, too small: say which
+        sol.reason = f"{sol.reason}: {problem}"
     t_end = time.perf_counter()
     sol.time_ms = {
         "read": 1e3 * (t_read - t0),
@@ -122,10 +143,16 @@ def solve_centroids(
     name: str = "",
     **identify_options,
 ) -> Solution:
-    """Identify centroids (N, 2) (pixels, brightest first) and fit the attitude."""
+    """Identify centroids (N, 2) (pixels, brightest first) and fit the attitude.
+
+    The keywords are those of :func:`solve`; ``width`` and ``height`` are the frame's size in
+    pixels. Raises :class:`~skyfix.errors.InputError` for a bad argument, before any work.
+    """
     from skyfix.identify import identify
 
-    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    xy = check_xy(xy)
+    width, height = check_frame_size(width, height)
+    _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_options)
     sol = Solution(image=name, n_detected=len(xy))
     if camera is not None and (camera.width, camera.height) != (width, height):
         raise CameraError(f"camera is {camera.width}×{camera.height} but the image is {width}×{height}")
@@ -149,6 +176,33 @@ def solve_centroids(
     log.info("%s: solved with %d stars, P(false) %.2g, rmse %.2f″", name, sol.n_matched,
              sol.prob_false, sol.rmse_arcsec)
     return sol
+
+
+def _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method,
+                   identify_options: dict) -> None:
+    """The checks :func:`solve` and :func:`solve_centroids` share (:mod:`skyfix.validate`)."""
+    from skyfix.identify import PatternDatabase, identify
+
+    if fov_deg is not None:
+        check_fov(fov_deg, "fov_deg")
+    if fov_tolerance_deg is not None:
+        check_positive(fov_tolerance_deg, "fov_tolerance_deg")
+    check_epoch(epoch, "epoch")
+    check_attitude_method(attitude_method, "attitude_method")
+    if camera is not None and not isinstance(camera, Camera):
+        raise InputError(f"camera must be a Camera (Camera.load(path)), got {type(camera).__name__}")
+    if database is not None and not isinstance(database, PatternDatabase):
+        raise InputError(f"database must be a PatternDatabase (PatternDatabase.load(path)), "
+                         f"got {type(database).__name__}")
+    known = inspect.signature(identify).parameters
+    unknown = [k for k in identify_options if k not in known or k in _OWN_OPTIONS]
+    if unknown:
+        extra = [k for k in known if k not in _OWN_OPTIONS]
+        raise InputError(f"unknown option {', '.join(unknown)}; known: {', '.join(extra)}")
+
+
+# identify()'s parameters that solve_centroids sets itself (not **identify_options)
+_OWN_OPTIONS = ("xy", "width", "height", "fov_deg", "fov_tolerance_deg", "camera", "database", "epoch")
 
 
 def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *, camera_given: bool,

@@ -13,6 +13,7 @@ Typical use::
   ``centroid=`` "com" (default), "iwcog", "gaussian".
 - :func:`centroid_windows` — tracking: one star per predicted position, O(N·window²).
 - :func:`estimate_background` — tiled (default), global or per-row sky and noise.
+- :func:`frame_problem` — why a frame holds no usable stars (blank, saturated, too small).
 - :func:`cramer_rao_centroid`, :func:`measure_psf` — bounds and PSF shape (the study of every
   centroider against the bound is :mod:`skyfix.analysis.centroid_study`).
 - Frame calibration: :func:`master_dark`, :func:`master_flat`, :func:`hot_pixel_map`,
@@ -39,6 +40,7 @@ from skyfix.detect.centroid import (
     refine_centroids,
 )
 from skyfix.detect.centroids import Centroids
+from skyfix.detect.diagnose import frame_problem
 from skyfix.detect.extract import METHODS, extract_centroids, saturation_level
 
 __all__ = [
@@ -59,6 +61,7 @@ __all__ = [
     "cramer_rao_centroid",
     "estimate_background",
     "extract_centroids",
+    "frame_problem",
     "refine_centroids",
     "saturation_level",
 ]

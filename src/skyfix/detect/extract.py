@@ -52,8 +52,9 @@ from skyfix.detect.background import (
 )
 from skyfix.detect.centroid import CENTROIDERS, refine_centroids
 from skyfix.detect.centroids import Centroids
-from skyfix.errors import ImageReadError
+from skyfix.errors import ImageReadError, InputError
 from skyfix.io import as_image
+from skyfix.validate import check_count, check_positive
 
 __all__ = ["METHODS", "extract_centroids", "saturation_level"]
 
@@ -170,11 +171,19 @@ def extract_centroids(
     -------
     Centroids
         Empty for blank, constant, saturated or unreadable frames.
+
+    Raises
+    ------
+    skyfix.errors.InputError
+        An unknown method or centroider, ``sigma`` not a positive number, ``max_stars`` not a
+        whole number >= 1.
     """
     if method not in METHODS:
-        raise ValueError(f"unknown detection method {method!r}; choose one of {', '.join(METHODS)}")
+        raise InputError(f"unknown detection method {method!r}; choose one of {', '.join(METHODS)}")
     if centroid not in CENTROIDERS:
-        raise ValueError(f"unknown centroider {centroid!r}; choose one of {', '.join(CENTROIDERS)}")
+        raise InputError(f"unknown centroider {centroid!r}; choose one of {', '.join(CENTROIDERS)}")
+    sigma = check_positive(sigma, "sigma")
+    max_stars = check_count(max_stars, "max_stars")
     try:
         raw = np.asarray(image)
         if method == "components" and centroid == "com" and raw.ndim == 2 and raw.size and raw.dtype in (

@@ -179,6 +179,9 @@ class PatternDatabase:
         progress : bool
             Show a progress bar.
         """
+        from skyfix.validate import check_fov_range  # the range solve and the CLI accept too
+
+        check_fov_range(fov_min_deg, fov_max_deg)
         if not (0 < fov_min_deg <= fov_max_deg < 120):
             raise DatabaseError(f"bad FOV range {fov_min_deg}–{fov_max_deg}°")
         if not 4 <= stars_per_field <= 16:

@@ -151,7 +151,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              verify_stars: int = 60, refine_stars: int = 200, match_radius: float = 0.01,
              prob_threshold: float = 1e-9,
              centroid_sigma_px: float = 1.0, ratio_tolerance: float | None = None,
-             key_tolerance: float | None = None) -> Identification:
+             key_tolerance: float | None = None, check_mirror: bool = True) -> Identification:
     """Identify the stars of one frame, lost in space, and fit the attitude.
 
     Parameters
@@ -192,6 +192,9 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         noise term (default 0.006 without a camera, 0.003 with one).
     key_tolerance : float, optional
         Edge-ratio tolerance of the key lookup (default 0.012 with the FOV free, else 0.008).
+    check_mirror : bool
+        On failure, try the frame flipped left-right briefly, so that the reason can say that
+        it is a mirror image.
 
     Returns
     -------
@@ -228,9 +231,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
             f0 = math.sqrt(f_db_lo * f_db_hi)
             f_lo, f_hi = f_db_lo, f_db_hi
     if f_hi < f_db_lo or f_lo > f_db_hi:
-        fov = 2 * math.degrees(math.atan(width / 2 / f0))
-        return _failure(f"field of view {fov:.3g}° is outside the pattern database's range "
-                        f"{db.fov_min_deg:g}–{db.fov_max_deg:g}°", t0)
+        fovs = [2 * math.degrees(math.atan(width / 2 / f)) for f in (f0, f_hi, f_lo)]
+        return _failure(_outside_database_reason(*fovs, db), t0)
     free_fov = camera is None and fov_deg is None
     # Image stars as undistorted offsets from the principal point, scaled by f0.
     n_pat = min(n, pattern_stars)
@@ -257,6 +259,13 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         frame = np.array([c_p[:, 0].min(), c_p[:, 0].max(), c_p[:, 1].min(), c_p[:, 1].max()])
     else:
         frame = np.array([-0.5 - cx, width - 0.5 - cx, -0.5 - cy, height - 0.5 - cy])
+    # on failure the frame is tried mirrored, briefly, with these options (see check_mirror)
+    retry = dict(fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=db,
+                 max_patterns=min(max_patterns, 200), time_limit_s=min(time_limit_s, 0.25), epoch=epoch,
+                 pattern_stars=pattern_stars, verify_stars=verify_stars, refine_stars=refine_stars,
+                 match_radius=match_radius, prob_threshold=prob_threshold,
+                 centroid_sigma_px=centroid_sigma_px, ratio_tolerance=ratio_tolerance,
+                 key_tolerance=key_tolerance, check_mirror=False) if check_mirror else None
     arrays = db.search_arrays()
     result_A = np.empty((3, 3))
     stats = np.empty(6)
@@ -274,8 +283,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 target = total if pos[0] >= total else pos[0] // 4
             while pos[tier] < target:
                 if n_lookups and time.perf_counter() - t0 > time_limit_s:
-                    return _failure(f"time limit {time_limit_s:g} s reached after {max(pos)} patterns",
-                                    t0, max(pos), n_cand)
+                    return _failure(f"time limit {time_limit_s:g} s reached after {max(pos)} patterns"
+                                    + _mirror_note(xy, width, height, cx, retry), t0, max(pos), n_cand)
                 start = pos[tier]
                 stop = min(target, start + 512)
                 hit, n_done, n_c = search(p, combos, start, stop, f0, f_lo, f_hi, camera is not None,
@@ -296,8 +305,37 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         if all(q >= total for q in pos):
             break
     n_tried = max(pos)
-    return _failure(f"no match after {n_tried} patterns ({n_cand} candidates verified)", t0,
-                    n_tried, n_cand)
+    return _failure(f"no match after {n_tried} patterns ({n_cand} candidates verified)"
+                    + _mirror_note(xy, width, height, cx, retry), t0, n_tried, n_cand)
+
+
+def _outside_database_reason(fov: float, fov_lo: float, fov_hi: float, db: PatternDatabase) -> str:
+    """The failure reason for a FOV (allowed ``fov_lo``–``fov_hi``) the database cannot serve, with
+    the commands that build and use one that can."""
+    from skyfix.validate import FOV_RANGE_DEG
+
+    lo = max(FOV_RANGE_DEG[0], math.floor(fov_lo + 1e-9))
+    hi = min(FOV_RANGE_DEG[1], math.ceil(fov_hi - 1e-9))
+    out = f"patterns-{lo:g}-{hi:g}deg.npz"
+    return (f"field of view {fov:.3g}° is outside the pattern database's range "
+            f"{db.fov_min_deg:g}–{db.fov_max_deg:g}° (it serves {db.fov_min_deg / _FOV_MARGIN:.3g}–"
+            f"{db.fov_max_deg * _FOV_MARGIN:.3g}°); build one that covers it: "
+            f"`skyfix database build --fov-min {lo:g} --fov-max {hi:g} -o {out}`, "
+            f"then `skyfix solve --database {out} ...`")
+
+
+_MIRROR_NOTE = "; but the stars match the sky mirrored left-right: a mirror image (flip it before solving)"
+
+
+def _mirror_note(xy: np.ndarray, width: int, height: int, cx: float, retry: dict | None) -> str:
+    """:data:`_MIRROR_NOTE` if the frame flipped left-right (about the principal point) is
+    identified with :func:`identify`'s options ``retry`` (a short budget: a real frame's first
+    patterns match), else ``""`` (also when ``retry`` is None: no check)."""
+    if retry is None:
+        return ""
+    flipped = xy.copy()
+    flipped[:, 0] = 2.0 * cx - flipped[:, 0]
+    return _MIRROR_NOTE if identify(flipped, width, height, **retry).success else ""
 
 
 def _finish(xy, p, A, f, prob, camera, geometry, frame, n_first, n_img, radius, sigma_px, db, arrays, epoch,
