@@ -7,7 +7,9 @@ text is parsed once and cached as a compact ``.npz`` in the user cache directory
 
 from __future__ import annotations
 
-import os
+import contextlib
+import logging
+import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -15,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from skyfix.cache import CorruptFileError, cache_dir, exclusive_lock, notice, verify, write_npz
 from skyfix.errors import CatalogError
 from skyfix.geometry import normalize, radec_to_vector, vector_to_radec
 
@@ -23,19 +26,9 @@ __all__ = ["Catalog", "load_hipparcos", "cache_dir", "epoch_now", "fibonacci_sph
 HIPPARCOS_EPOCH_JYEAR = 1991.25
 _MAS_TO_RAD = np.pi / (180.0 * 3600.0 * 1000.0)
 _CACHE_VERSION = 1
+_RAW_KEYS = ("ids", "ra", "dec", "pm_ra", "pm_dec", "mag")
 
-
-def cache_dir() -> Path:
-    """skyfix's user cache directory (``$SKYFIX_CACHE`` overrides it); created on demand."""
-    env = os.environ.get("SKYFIX_CACHE")
-    if env:
-        path = Path(env)
-    else:
-        import platformdirs
-
-        path = Path(platformdirs.user_cache_dir("skyfix"))
-    path.mkdir(parents=True, exist_ok=True)
-    return path
+log = logging.getLogger(__name__)
 
 
 def epoch_now() -> float:
@@ -117,9 +110,10 @@ class Catalog:
         return self.subset(keep)
 
 
-def fibonacci_sphere(n: int) -> np.ndarray:
-    """``n`` nearly evenly spaced unit vectors (Fibonacci lattice)."""
-    i = np.arange(n, dtype=np.float64) + 0.5
+def fibonacci_sphere(n: int, start: int = 0, stop: int | None = None) -> np.ndarray:
+    """``n`` nearly evenly spaced unit vectors (Fibonacci lattice); with ``start``/``stop``,
+    only points ``start:stop`` of them (the same values, for building in chunks)."""
+    i = np.arange(start, n if stop is None else min(stop, n), dtype=np.float64) + 0.5
     z = 1.0 - 2.0 * i / n
     phi = np.pi * (1.0 + 5.0**0.5) * i
     r = np.sqrt(1.0 - z * z)
@@ -156,20 +150,49 @@ def _parse_hip2(path: Path) -> dict[str, np.ndarray]:
 
 
 def _load_raw() -> dict[str, np.ndarray]:
+    """The parsed catalogue, brightest first, from the cache (parsed and cached if absent).
+
+    A corrupt cache is removed and rebuilt; concurrent processes parse it once (a lock) and
+    each writes under its own temporary name (:func:`skyfix.cache.write_npz`).
+    """
     cache = cache_dir() / f"hip2_v{_CACHE_VERSION}.npz"
-    if cache.exists():
+    raw = _read_cache(cache, remove_bad=False)
+    if raw is not None:
+        return raw
+    with exclusive_lock(cache, lambda: notice("waiting for another skyfix process to read the catalogue")):
+        raw = _read_cache(cache, remove_bad=True)  # another process may have written it
+        if raw is not None:
+            return raw
+        notice(f"reading the Hipparcos catalogue (first use; cached in {cache.parent})")
+        raw = _parse_hip2(_hip2_path())
+        order = np.argsort(raw["mag"], kind="stable")
+        raw = {k: raw[k][order] for k in _RAW_KEYS}
         try:
-            with np.load(cache) as npz:
-                return {k: npz[k] for k in npz.files}
-        except Exception:  # a corrupt cache is rebuilt, not fatal
-            cache.unlink(missing_ok=True)
-    raw = _parse_hip2(_hip2_path())
-    order = np.argsort(raw["mag"], kind="stable")
-    raw = {k: v[order] for k, v in raw.items()}
-    tmp = cache.with_suffix(".tmp.npz")
-    np.savez(tmp, **raw)
-    os.replace(tmp, cache)
+            write_npz(cache, raw)
+        except OSError as exc:  # an unwritable cache costs a parse per process, nothing else
+            log.warning("cannot cache the catalogue in %s: %s", cache, exc)
     return raw
+
+
+def _read_cache(cache: Path, *, remove_bad: bool) -> dict[str, np.ndarray] | None:
+    """The cached catalogue arrays, or None if absent or unusable (then removed if ``remove_bad``)."""
+    try:
+        with open(cache, "rb") as fh:
+            verify(fh)
+            with np.load(fh, allow_pickle=False) as npz:
+                raw = {k: npz[k] for k in _RAW_KEYS}
+        n = len(raw["ids"])
+        if any(v.shape != (n,) for v in raw.values()):
+            raise ValueError("arrays of different lengths")
+        return raw
+    except FileNotFoundError:
+        return None
+    except (CorruptFileError, OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        if remove_bad:
+            log.warning("the catalogue cache %s is unusable (%s); rebuilding it", cache, exc)
+            with contextlib.suppress(OSError):  # then the new file is renamed over it
+                cache.unlink(missing_ok=True)
+        return None
 
 
 _RAW: dict[str, np.ndarray] | None = None

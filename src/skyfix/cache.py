@@ -1,0 +1,215 @@
+"""Cache files that are written atomically and carry a checksum.
+
+Every file skyfix keeps in its cache (the parsed catalogue, pattern databases) is an
+uncompressed ``.npz`` written by :func:`write_npz`: under a temporary name unique to the
+writer, in the destination's folder, then renamed over the destination, so a reader sees
+either the old file or the complete new one, and concurrent writers never share a file. The
+zip archive comment at the very end of the file holds the SHA-256 of every byte before
+the digest (``skyfix-sha256:<64 hex digits>``); the file stays an ordinary ``.npz``.
+
+:func:`verify` checks it. Hashing runs at 0.1–2 GB/s, so a verified file's identity (device,
+inode, size, modification and change times) is remembered in a small stamp in the cache;
+while the file is unchanged, later checks read only the stamp. A file modified within
+:data:`STAMP_MIN_AGE_S` of its check gets no stamp (timestamps are coarse: a write right
+after the check could leave them unchanged).
+
+:func:`exclusive_lock` serialises the processes that would rebuild the same file, and
+:func:`notice` tells the user about the slow first-use steps.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import secrets
+import sys
+import time
+import zipfile
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO, BinaryIO
+
+import numpy as np
+
+from skyfix.errors import SkyfixError
+
+__all__ = ["CorruptFileError", "STAMP_MIN_AGE_S", "atomic_file", "cache_dir", "exclusive_lock", "notice",
+           "verify", "write_npz"]
+
+log = logging.getLogger(__name__)
+
+_PREFIX = b"skyfix-sha256:"
+_HEX = 64  # hex digits of a SHA-256 digest
+_TRAILER = len(_PREFIX) + _HEX
+_READ_BLOCK = 1 << 20
+STAMP_MIN_AGE_S = 2.0
+
+
+class CorruptFileError(SkyfixError):
+    """A cache or database file fails its checksum (corrupt, truncated or written without one)."""
+
+
+def cache_dir() -> Path:
+    """skyfix's user cache directory (``$SKYFIX_CACHE`` overrides it); created on demand."""
+    env = os.environ.get("SKYFIX_CACHE")
+    if env:
+        path = Path(env)
+    else:
+        import platformdirs
+
+        path = Path(platformdirs.user_cache_dir("skyfix"))
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+@contextmanager
+def atomic_file(path: str | Path, mode: str = "wb") -> Iterator[IO]:
+    """Open a new file to be renamed over ``path`` when the block ends without an error.
+
+    The file is created (exclusively) next to ``path`` under a name unique to this writer
+    (process id and a random token), flushed to disk, then renamed over ``path``; on any
+    error it is removed and ``path`` is left as it was.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(6)}.tmp")
+    try:
+        with open(tmp, mode.replace("w", "x")) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_npz(path: str | Path, arrays: Mapping[str, np.ndarray]) -> None:
+    """Write ``arrays`` as an uncompressed ``.npz`` with a SHA-256 trailer, atomically
+    (:func:`atomic_file`)."""
+    with atomic_file(path, "wb+") as fh:
+        with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+            for name, value in arrays.items():
+                with zf.open(f"{name}.npy", "w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+            zf.comment = _PREFIX + b"0" * _HEX  # a placeholder, outside what is hashed
+        fh.flush()
+        size = fh.seek(0, os.SEEK_END)
+        digest = _sha256(fh, size - _HEX)
+        fh.seek(size - _HEX)
+        fh.write(digest.encode())
+
+
+def verify(fh: BinaryIO, *, remember: bool = True) -> None:
+    """Check the SHA-256 trailer of the open file ``fh`` (as written by :func:`write_npz`); on
+    success ``fh`` is left at its start.
+
+    With ``remember``, a file that passes is stamped in the cache (see the module notes), and
+    an unchanged stamped file is not hashed again.
+
+    Raises
+    ------
+    CorruptFileError
+        No trailer (truncated, or not written by :func:`write_npz`) or a digest mismatch.
+    """
+    st = os.fstat(fh.fileno())
+    if st.st_size < _TRAILER:
+        raise CorruptFileError(f"too short ({st.st_size} bytes) to hold a checksum")
+    fh.seek(st.st_size - _TRAILER)
+    trailer = fh.read(_TRAILER)
+    if not trailer.startswith(_PREFIX):
+        raise CorruptFileError("no checksum at its end (truncated, or written by an older skyfix)")
+    stored = trailer[len(_PREFIX):].decode("ascii", "replace")
+    identity = f"{st.st_dev} {st.st_ino} {st.st_size} {st.st_mtime_ns} {st.st_ctime_ns} {stored}"
+    stamp = _stamp_path(fh) if remember else None
+    if stamp is None or _read_text(stamp) != identity:
+        if _sha256(fh, st.st_size - _HEX) != stored:
+            raise CorruptFileError("checksum mismatch (the file is corrupt)")
+        age_s = time.time() - max(st.st_mtime_ns, st.st_ctime_ns) / 1e9
+        if stamp is not None and age_s > STAMP_MIN_AGE_S:
+            try:
+                _write_text(stamp, identity)
+            except OSError as exc:  # a read-only cache costs a hash per load, nothing else
+                log.debug("cannot write %s: %s", stamp, exc)
+    fh.seek(0)
+
+
+@contextmanager
+def exclusive_lock(path: str | Path, on_wait: Callable[[], None] | None = None) -> Iterator[None]:
+    """Hold an exclusive advisory lock on ``<path>.lock`` while rebuilding ``path``; if another
+    process holds it, call ``on_wait()`` and wait for it.
+
+    Where locks are unavailable (no ``fcntl``, read-only folder) this only yields: concurrent
+    rebuilds then duplicate work but, written by :func:`write_npz`, never corrupt the file.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        yield
+        return
+    lock = Path(path).with_name(Path(path).name + ".lock")
+    try:
+        fh = open(lock, "a+b")
+    except OSError:
+        yield
+        return
+    with fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            if on_wait is not None:
+                on_wait()
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+
+def notice(message: str) -> None:
+    """Tell the user what a long first-use step is doing: one line on stderr if it is a
+    terminal (else only an INFO log record)."""
+    log.info("%s", message)
+    if sys.stderr is not None and sys.stderr.isatty():
+        print(f"skyfix: {message}", file=sys.stderr, flush=True)
+
+
+def _sha256(fh: BinaryIO, length: int) -> str:
+    """Hex SHA-256 of the first ``length`` bytes of ``fh``."""
+    h = hashlib.sha256()
+    fh.seek(0)
+    buf = bytearray(_READ_BLOCK)
+    view = memoryview(buf)
+    left = length
+    while left > 0:
+        n = fh.readinto(view[:min(left, _READ_BLOCK)])
+        if not n:
+            raise CorruptFileError("shorter than its own size (changed while read)")
+        h.update(view[:n])
+        left -= n
+    return h.hexdigest()
+
+
+def _stamp_path(fh: BinaryIO) -> Path | None:
+    name = getattr(fh, "name", None)
+    if not isinstance(name, (str, bytes, os.PathLike)):
+        return None
+    try:
+        key = hashlib.sha256(os.fsencode(os.path.realpath(name))).hexdigest()[:32]
+        return cache_dir() / "verified" / key
+    except OSError:
+        return None
+
+
+def _read_text(path: Path) -> str | None:
+    try:
+        return path.read_text()
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
+def _write_text(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_file(path, "w") as fh:
+        fh.write(text)
