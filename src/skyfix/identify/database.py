@@ -1,40 +1,57 @@
 """The pattern database: 4-star patterns of catalogue stars, indexed by their edge-ratio key.
 
-Build (vectorised, a few seconds for 10–30°): the field-of-view range is split into bands
-spaced geometrically (``band_ratio``). For each band, *lattice fields* — circles of radius
+Build (vectorised in chunks: a few seconds and ~0.3 GB for 10–30°): the field-of-view range is
+split into bands spaced geometrically (``band_ratio``). For each band, *lattice fields* — circles of radius
 ``field_radius`` × band FOV centred on a Fibonacci lattice that oversamples the sphere — each
 contribute every 4-combination of their ``stars_per_field`` brightest stars. Whatever way
 a camera of that FOV points, some lattice field nearly coincides with its view, so the
 image's brightest stars form patterns that are in the database. Close doubles (which a
 detector merges) are dropped per band. Patterns found by several fields or bands are kept once.
 
-The file is an uncompressed ``.npz`` whose members are memory-mapped on load.
+The file is an uncompressed ``.npz`` whose members are memory-mapped on load, written atomically
+with a checksum that is checked on load (:mod:`skyfix.cache`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import math
-import os
 import zipfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from skyfix.catalog import Catalog, cache_dir, epoch_now, fibonacci_sphere, load_hipparcos
+from skyfix.cache import CorruptFileError, cache_dir, exclusive_lock, notice, verify, write_npz
+from skyfix.catalog import Catalog, epoch_now, fibonacci_sphere, load_hipparcos
 from skyfix.errors import DatabaseError
 from skyfix.identify.hashing import build_table, edge_ratios, key_codes
 
-__all__ = ["PatternDatabase", "default_database", "DATABASE_VERSION"]
+__all__ = ["PatternDatabase", "default_database", "default_database_path", "DATABASE_VERSION",
+           "ProgressCallback"]
 
 DATABASE_VERSION = 3
 _ARRAYS = ("star_ids", "star_vectors", "star_mag", "star_pm", "pattern_stars", "pattern_ratios",
            "pattern_largest", "key_codes", "key_start", "table", "cell_centres", "cell_start",
            "cell_stars")
 _N_CELLS = 3072  # sky cells of the star index used in verification (~3.7° apart)
+# Build in chunks, so the peak memory is a few times the database's own size: lattice fields
+# per chunk ((fields, 70, 4) int32 combinations, ~18 MB at 8 stars per field) and patterns per
+# chunk of the edge-ratio computation (~200 bytes of float64 temporaries per pattern).
+_CHUNK_FIELDS = 16384
+_CHUNK_PATTERNS = 1 << 17
+
+ProgressCallback = Callable[[str, float], None]
+"""Called as ``progress(what, fraction_done)`` while a database is built."""
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -151,7 +168,7 @@ class PatternDatabase:
               catalog: Catalog | None = None, band_ratio: float = 1.35, stars_per_field: int = 8,
               field_radius: float = 0.4, lattice_step: float = 0.5, double_star_sep: float = 1 / 150,
               pattern_mag_limit: float = 8.5, n_bins: int = 25, epoch: float | None = None,
-              progress: bool = False) -> PatternDatabase:
+              progress: bool | ProgressCallback = False) -> PatternDatabase:
         """Build the database for cameras whose horizontal FOV is ``fov_min_deg``–``fov_max_deg``.
 
         Parameters
@@ -176,8 +193,9 @@ class PatternDatabase:
             Quantisation bins per edge ratio.
         epoch : float, optional
             Julian year of the star positions (default: now).
-        progress : bool
-            Show a progress bar.
+        progress : bool or callable
+            True: a progress bar on stderr when it is a terminal (else log messages);
+            a callable: called as ``progress(what, fraction_done)``.
         """
         from skyfix.validate import check_fov_range  # the range solve and the CLI accept too
 
@@ -186,26 +204,64 @@ class PatternDatabase:
             raise DatabaseError(f"bad FOV range {fov_min_deg}–{fov_max_deg}°")
         if not 4 <= stars_per_field <= 16:
             raise DatabaseError("stars_per_field must be 4–16")
+        with _reporter(progress, "building the pattern database") as report:
+            return cls._build(fov_min_deg, fov_max_deg, catalog, band_ratio, stars_per_field,
+                              field_radius, lattice_step, double_star_sep, pattern_mag_limit, n_bins,
+                              epoch, report)
+
+    @classmethod
+    def _build(cls, fov_min_deg: float, fov_max_deg: float, catalog: Catalog | None, band_ratio: float,
+               stars_per_field: int, field_radius: float, lattice_step: float, double_star_sep: float,
+               pattern_mag_limit: float, n_bins: int, epoch: float | None,
+               report: ProgressCallback) -> PatternDatabase:
+        report("reading the star catalogue", 0.0)
         epoch = epoch_now() if epoch is None else float(epoch)
         cat = load_hipparcos(epoch=epoch) if catalog is None else catalog
         n_bands = max(1, math.ceil(math.log(fov_max_deg / fov_min_deg) / math.log(band_ratio) - 1e-9) + 1)
         fovs = (np.geomspace(fov_min_deg, fov_max_deg, n_bands) if n_bands > 1
                 else np.array([fov_min_deg]))
         bright = np.flatnonzero(cat.mag <= pattern_mag_limit)
-        combos = np.array(list(combinations(range(stars_per_field), 4)), dtype=np.int64)
+        bright_vectors = cat.vectors[bright]
+        combos = np.array(list(combinations(range(stars_per_field), 4)), dtype=np.int32)
+        quad_set = _QuadSet(len(bright))
 
-        quads = []
-        bands = _progress(progress, "building pattern database", len(fovs))
-        for fov_deg in fovs:
-            fov = math.radians(fov_deg)
-            quads.append(_band_patterns(cat.vectors[bright], fov * field_radius, lattice_step,
-                                        fov * double_star_sep, stars_per_field, combos, bright))
-            bands.advance()
-        bands.close()
-        quads = np.unique(np.concatenate(quads), axis=0)
-        ratios, largest = edge_ratios(cat.vectors[quads])
-        order, unique, start, table = build_table(key_codes(ratios, n_bins))
-        quads, ratios, largest = quads[order], ratios[order], largest[order]
+        # Patterns of each band, a chunk of lattice fields at a time, kept once (as packed codes).
+        # Their count is what takes the time (it grows as 1 / FOV^2): progress is counted in fields.
+        radii = [math.radians(f) * field_radius for f in fovs]
+        field_counts = [_n_fields(r, lattice_step) for r in radii]
+        total, done = sum(field_counts), 0
+        bands = []
+        for fov_deg, radius in zip(fovs, radii, strict=True):
+            chunks = []
+            for quads, n in _band_patterns(bright_vectors, radius, lattice_step,
+                                           math.radians(fov_deg) * double_star_sep, stars_per_field,
+                                           combos):
+                chunks.append(quad_set.unique(quads))
+                done += n
+                report(f"patterns of {fov_deg:.3g}° fields", 0.8 * done / total)
+            bands.append(quad_set.merge(chunks))
+            del chunks
+        report("merging the patterns", 0.8)
+        quads = quad_set.unpack(quad_set.merge(bands), bright)  # sorted rows of catalogue indices
+        del bands
+
+        # Sort by key code: codes from the float64 ratios, then the ratios again in the new order
+        # (computed in chunks, they are never all held in float64).
+        codes = np.empty(len(quads), dtype=np.int64)
+        for part in _chunks(len(quads)):
+            codes[part] = key_codes(edge_ratios(cat.vectors[quads[part]])[0], n_bins)
+            report("key codes of the patterns", 0.8 + 0.06 * part.stop / len(quads))
+        report("sorting the patterns by key", 0.86)
+        order, unique, start, table = build_table(codes)
+        del codes
+        quads = quads[order]
+        del order
+        ratios = np.empty((len(quads), 5), dtype=np.float32)
+        largest = np.empty(len(quads), dtype=np.float32)
+        for part in _chunks(len(quads)):
+            ratios[part], largest[part] = edge_ratios(cat.vectors[quads[part]])
+            report("edge ratios of the patterns", 0.92 + 0.06 * part.stop / len(quads))
+        report("star index", 0.98)
         cell_centres, cell_start, cell_stars, cell_radius = _cell_index(cat.vectors, _N_CELLS)
         meta = dict(version=DATABASE_VERSION, cell_radius=cell_radius, fov_min_deg=float(fov_min_deg),
                     fov_max_deg=float(fov_max_deg), band_fovs_deg=[float(f) for f in fovs],
@@ -213,27 +269,25 @@ class PatternDatabase:
                     field_radius=field_radius, lattice_step=lattice_step,
                     double_star_sep=double_star_sep, pattern_mag_limit=pattern_mag_limit,
                     catalog=cat.name)
+        report("done", 1.0)
         return cls(star_ids=np.asarray(cat.ids, np.int64), star_vectors=np.asarray(cat.vectors, np.float64),
                    star_mag=np.asarray(cat.mag, np.float32),
                    star_pm=np.stack([cat.pm_ra, cat.pm_dec], axis=-1).astype(np.float64),
-                   pattern_stars=quads.astype(np.int32), pattern_ratios=ratios.astype(np.float32),
-                   pattern_largest=largest.astype(np.float32), key_codes=unique, key_start=start,
-                   table=table, cell_centres=cell_centres, cell_start=cell_start,
-                   cell_stars=cell_stars, meta=meta)
+                   pattern_stars=quads, pattern_ratios=ratios, pattern_largest=largest,
+                   key_codes=unique, key_start=start, table=table, cell_centres=cell_centres,
+                   cell_start=cell_start, cell_stars=cell_stars, meta=meta)
 
     # --- I/O ------------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
-        """Write an uncompressed ``.npz`` (atomically: a temporary file, then rename)."""
-        path = Path(path)
-        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # concurrent builders don't collide
-        with open(tmp, "wb") as fh:
-            np.savez(fh, meta=np.array(json.dumps(self.meta)),
-                     **{k: np.ascontiguousarray(getattr(self, k)) for k in _ARRAYS})
-        os.replace(tmp, path)
+        """Write an uncompressed ``.npz`` with a checksum, atomically (a temporary file unique to
+        this writer, then rename: :func:`skyfix.cache.write_npz`)."""
+        write_npz(path, {"meta": np.array(json.dumps(self.meta)),
+                         **{k: np.ascontiguousarray(getattr(self, k)) for k in _ARRAYS}})
 
     @classmethod
     def load(cls, path: str | Path) -> PatternDatabase:
-        """Memory-map a database written by :meth:`save`.
+        """Memory-map a database written by :meth:`save`, after checking its checksum (hashed
+        once; while the file is unchanged later loads only compare a stamp: :func:`skyfix.cache.verify`).
 
         Raises
         ------
@@ -242,7 +296,12 @@ class PatternDatabase:
         """
         path = Path(path)
         try:
-            arrays, meta = _mmap_npz(path)
+            with open(path, "rb") as fh:
+                verify(fh)
+                arrays, meta = _mmap_npz(fh, path)
+        except CorruptFileError as exc:
+            raise DatabaseError(f"pattern database {path} is unusable: {exc}; rebuild it "
+                                "(skyfix database build)") from None
         except DatabaseError:
             raise
         except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError, json.JSONDecodeError) as exc:
@@ -285,62 +344,124 @@ def _cell_index(vectors: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarr
     return centres, start, order.astype(np.int32), radius
 
 
+def _n_fields(radius: float, lattice_step: float) -> int:
+    """Lattice fields of a band whose fields have angular ``radius``."""
+    return int(math.ceil(4 * math.pi / (lattice_step * radius) ** 2))
+
+
 def _band_patterns(vectors: np.ndarray, radius: float, lattice_step: float, double_sep: float,
-                   per_field: int, combos: np.ndarray, index: np.ndarray) -> np.ndarray:
-    """(Q, 4) sorted star-index quads of one FOV band (indices mapped through ``index``)."""
+                   per_field: int, combos: np.ndarray) -> Iterator[tuple[np.ndarray, int]]:
+    """The patterns of one FOV band, a chunk of lattice fields at a time: ``(quads, n_fields)``,
+    quads (Q, 4) int32 indices into ``vectors``, each row ascending, rows possibly repeated."""
     tree = cKDTree(vectors)
     # Drop the fainter member of close pairs (vectors are brightest first).
     pairs = tree.query_pairs(2 * math.sin(double_sep / 2), output_type="ndarray")
     keep = np.ones(len(vectors), bool)
     keep[pairs.max(axis=1)] = False
-    kept = np.flatnonzero(keep)
+    kept = np.flatnonzero(keep).astype(np.int32)
     tree = cKDTree(vectors[kept])
-    n_fields = int(math.ceil(4 * math.pi / (lattice_step * radius) ** 2))
-    centres = fibonacci_sphere(n_fields)
-    members = tree.query_ball_point(centres, 2 * math.sin(radius / 2), return_sorted=True)
-    top = np.full((n_fields, per_field), -1, dtype=np.int64)
-    for i, m in enumerate(members):  # one cheap slice per field; the rest is vectorised
-        m = m[:per_field]
-        top[i, :len(m)] = m
-    quads = top[:, combos].reshape(-1, 4)
-    quads = quads[(quads >= 0).all(axis=1)]
-    quads = index[kept[quads]]
-    return np.unique(np.sort(quads, axis=1), axis=0)
+    n_fields = _n_fields(radius, lattice_step)
+    for first in range(0, n_fields, _CHUNK_FIELDS):
+        centres = fibonacci_sphere(n_fields, first, first + _CHUNK_FIELDS)
+        members = tree.query_ball_point(centres, 2 * math.sin(radius / 2), return_sorted=True)
+        top = np.full((len(centres), per_field), -1, dtype=np.int32)
+        for i, m in enumerate(members):  # one cheap slice per field; the rest is vectorised
+            m = m[:per_field]
+            top[i, :len(m)] = m
+        quads = top[:, combos].reshape(-1, 4)
+        # Members ascending and combinations ascending: each row is ascending already.
+        yield kept[quads[(quads >= 0).all(axis=1)]], len(centres)
 
 
-class _NoProgress:
-    def advance(self) -> None:
-        pass
+class _QuadSet:
+    """Sets of patterns (rows of 4 ascending star indices) as sorted unique arrays.
 
-    def close(self) -> None:
-        pass
+    With fewer than 2^16 stars a row is packed into one uint64 (index i in bits 48-16i..63-16i),
+    whose order is the rows' lexicographic order; 4× less memory and a plain sort. Otherwise
+    the rows themselves (np.unique along axis 0). Either way, :meth:`unpack` of a merge gives
+    the same sorted unique rows.
+    """
+
+    _BITS = 16
+
+    def __init__(self, n_stars: int) -> None:
+        self.packed = n_stars <= 1 << self._BITS
+
+    def unique(self, quads: np.ndarray) -> np.ndarray:
+        """The distinct patterns of ``quads`` (Q, 4), sorted."""
+        if not self.packed:
+            return np.unique(quads, axis=0)
+        q = quads.astype(np.uint64)
+        code = q[:, 0] << np.uint64(3 * self._BITS)
+        for j in (1, 2, 3):
+            code |= q[:, j] << np.uint64((3 - j) * self._BITS)
+        return np.unique(code)
+
+    def merge(self, parts: list[np.ndarray]) -> np.ndarray:
+        """The union of sets from :meth:`unique` / :meth:`merge`."""
+        if not parts:
+            return np.empty((0,) if self.packed else (0, 4), np.uint64 if self.packed else np.int32)
+        return np.unique(np.concatenate(parts), axis=None if self.packed else 0)
+
+    def unpack(self, codes: np.ndarray, index: np.ndarray) -> np.ndarray:
+        """(P, 4) int32 rows of a set, each star number ``i`` replaced by ``index[i]`` (an
+        increasing map keeps the order)."""
+        index = np.asarray(index).astype(np.int32)
+        if not self.packed:
+            return index[codes]
+        rows = np.empty((len(codes), 4), dtype=np.int32)
+        mask = np.uint64((1 << self._BITS) - 1)
+        for part in _chunks(len(codes)):
+            for j in range(4):
+                rows[part, j] = index[(codes[part] >> np.uint64((3 - j) * self._BITS)) & mask]
+        return rows
 
 
-class _RichProgress:
-    def __init__(self, description: str, total: int) -> None:
-        from rich.progress import Progress
-
-        self._p = Progress(transient=True)
-        self._p.start()
-        self._task = self._p.add_task(description, total=total)
-
-    def advance(self) -> None:
-        self._p.advance(self._task)
-
-    def close(self) -> None:
-        self._p.stop()
+def _chunks(n: int) -> Iterator[slice]:
+    """Slices of ``range(n)`` of :data:`_CHUNK_PATTERNS` patterns."""
+    for first in range(0, n, _CHUNK_PATTERNS):
+        yield slice(first, min(first + _CHUNK_PATTERNS, n))
 
 
-def _progress(show: bool, description: str, total: int):
-    return _RichProgress(description, total) if show else _NoProgress()
+@contextmanager
+def _reporter(progress: bool | ProgressCallback, title: str) -> Iterator[ProgressCallback]:
+    """A ``report(what, fraction)`` callable for ``progress`` (see :meth:`PatternDatabase.build`):
+    the callable itself; for True a transient rich bar on stderr if it is a terminal, else
+    one log line per stage; for False nothing."""
+    if callable(progress):
+        yield progress
+        return
+    if not progress:
+        yield lambda what, fraction: None
+        return
+    from rich.console import Console
+
+    console = Console(stderr=True)
+    if not console.is_terminal:
+        last = [None]
+
+        def log_stage(what: str, fraction: float) -> None:
+            if what != last[0]:
+                last[0] = what
+                log.info("%s: %s", title, what)
+
+        yield log_stage
+        return
+    from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn
+
+    bar = Progress(TextColumn(title), BarColumn(), TaskProgressColumn(), TimeElapsedColumn(),
+                   TextColumn("{task.description}"), console=console, transient=True)
+    task = bar.add_task("starting", total=1.0)
+    with bar:
+        yield lambda what, fraction: bar.update(task, description=what, completed=fraction)
 
 
-def _mmap_npz(path: Path) -> tuple[dict[str, np.ndarray], dict]:
-    """Memory-map the members of an uncompressed ``.npz``; returns (arrays, meta)."""
+def _mmap_npz(fh: BinaryIO, path: Path) -> tuple[dict[str, np.ndarray], dict]:
+    """Memory-map the members of the uncompressed ``.npz`` open as ``fh``; returns (arrays, meta)."""
     arrays: dict[str, np.ndarray] = {}
     meta: dict = {}
-    size = path.stat().st_size
-    with zipfile.ZipFile(path) as zf, open(path, "rb") as fh:
+    size = fh.seek(0, 2)
+    with zipfile.ZipFile(fh) as zf:
         for info in zf.infolist():
             name = info.filename.removesuffix(".npy")
             if info.compress_type != zipfile.ZIP_STORED:
@@ -365,7 +486,7 @@ def _mmap_npz(path: Path) -> tuple[dict[str, np.ndarray], dict]:
                 continue
             if dtype.hasobject:
                 raise DatabaseError(f"pattern database {path} holds object arrays")
-            arrays[name] = (np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=shape,
+            arrays[name] = (np.memmap(fh, dtype=dtype, mode="r", offset=offset, shape=shape,
                                       order="F" if fortran else "C") if nbytes else
                             np.zeros(shape, dtype))
     return arrays, meta
@@ -380,23 +501,52 @@ _DEFAULT: dict[Path, PatternDatabase] = {}
 
 
 def default_database(fov_min_deg: float = 10.0, fov_max_deg: float = 30.0, *,
-                     progress: bool = True) -> PatternDatabase:
+                     progress: bool | ProgressCallback = True) -> PatternDatabase:
     """The cached default database (built, with a progress bar, and saved if absent).
 
-    A corrupt cached file raises :class:`~skyfix.errors.DatabaseError`; delete it (or run
-    ``skyfix database build``) to rebuild.
+    A cached file that is corrupt, truncated or unreadable is removed and rebuilt. Processes
+    that need the same missing database build it once: the others wait for it (a lock).
+    ``progress`` is as for :meth:`PatternDatabase.build`.
     """
     path = default_database_path(fov_min_deg, fov_max_deg)
     if path in _DEFAULT:
         return _DEFAULT[path]
-    if path.exists():
-        try:
-            db = PatternDatabase.load(path)
-        except DatabaseError as exc:
-            raise DatabaseError(f"{exc} (delete it, or rebuild with `skyfix database build`)") from None
-    else:
-        db = PatternDatabase.build(fov_min_deg, fov_max_deg, progress=progress)
-        db.save(path)
-        db = PatternDatabase.load(path)
+    db = _load_cached(path, remove_bad=False)
+    if db is None:
+        with exclusive_lock(path, lambda: _tell(progress, "waiting for another skyfix process to build "
+                                                          f"the pattern database {path.name}")):
+            db = _load_cached(path, remove_bad=True)  # another process may have built it
+            if db is None:
+                log.info("building the pattern database %s (first use)", path)  # the bar says so too
+                db = PatternDatabase.build(fov_min_deg, fov_max_deg, progress=progress)
+                try:
+                    db.save(path)
+                    db = PatternDatabase.load(path)
+                except (OSError, DatabaseError) as exc:  # unwritable cache: use the one in memory
+                    log.warning("cannot cache the pattern database in %s: %s", path, exc)
     _DEFAULT[path] = db
     return db
+
+
+def _tell(progress: bool | ProgressCallback, message: str) -> None:
+    """A message while waiting: to the progress callable, or a notice if ``progress`` is True."""
+    if callable(progress):
+        progress(message, 0.0)
+    elif progress:
+        notice(message)
+    else:
+        log.info("%s", message)
+
+
+def _load_cached(path: Path, *, remove_bad: bool) -> PatternDatabase | None:
+    """The database cached at ``path``, or None if absent or unusable (then removed if ``remove_bad``)."""
+    if not path.exists():
+        return None
+    try:
+        return PatternDatabase.load(path)
+    except DatabaseError as exc:
+        if remove_bad:
+            log.warning("rebuilding the cached pattern database: %s", exc)
+            with contextlib.suppress(OSError):  # then the new file is renamed over it
+                path.unlink(missing_ok=True)
+        return None
