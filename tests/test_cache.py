@@ -1,0 +1,246 @@
+"""Cache files: atomic writes with unique temporary names, checksums, rebuilds, concurrency.
+
+Every test runs on its own empty cache (``SKYFIX_CACHE``), so it is cold: the catalogue is
+parsed and a one-band database (FOV 20°, a few seconds) is built there.
+"""
+
+import dataclasses
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import skyfix.cache
+import skyfix.catalog
+import skyfix.identify.database as database_module
+from skyfix.cache import CorruptFileError, verify, write_npz
+from skyfix.catalog import load_hipparcos
+from skyfix.errors import DatabaseError
+from skyfix.identify import PatternDatabase, default_database, default_database_path
+
+FOV = 20.0  # a one-band database: quick to build
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "sky.png"
+EPOCH = 2025.0
+
+
+@pytest.fixture
+def cold_cache(tmp_path, monkeypatch):
+    """An empty cache, nothing loaded in this process, and a fixed epoch for default builds."""
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("SKYFIX_CACHE", str(cache))
+    monkeypatch.setattr(skyfix.catalog, "_RAW", None)
+    monkeypatch.setattr(database_module, "_DEFAULT", {})
+    monkeypatch.setattr(database_module, "epoch_now", lambda: EPOCH)
+    return cache
+
+
+def _corrupt_middle(path: Path, n: int = 4096, seed: int = 0) -> None:
+    """Overwrite ``n`` random bytes in the middle of ``path``, in place (size unchanged)."""
+    size = path.stat().st_size
+    with open(path, "r+b") as fh:
+        fh.seek(size // 2 - n // 2)
+        fh.write(np.random.default_rng(seed).bytes(n))
+
+
+def _truncate(path: Path) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) * 2 // 3])
+
+
+def _arrays(db: PatternDatabase) -> dict[str, np.ndarray]:
+    return {f.name: np.asarray(getattr(db, f.name)) for f in dataclasses.fields(db) if f.name != "meta"}
+
+
+def _no_temporaries(folder: Path) -> None:
+    left = [p.name for p in folder.rglob("*") if p.name.endswith(".tmp")]
+    assert not left, left
+
+
+# --- write_npz / verify ------------------------------------------------------------------------
+def test_write_npz_is_a_plain_npz_with_a_checksum(tmp_path):
+    path = tmp_path / "a.npz"
+    write_npz(path, {"x": np.arange(1000), "y": np.eye(3)})
+    with np.load(path) as npz:
+        assert np.array_equal(npz["x"], np.arange(1000)) and np.array_equal(npz["y"], np.eye(3))
+    with open(path, "rb") as fh:
+        verify(fh, remember=False)
+    _no_temporaries(tmp_path)
+
+
+@pytest.mark.parametrize("damage", ["middle", "truncate", "last byte", "no trailer"])
+def test_verify_detects_damage(tmp_path, damage):
+    path = tmp_path / "a.npz"
+    write_npz(path, {"x": np.arange(100_000)})
+    if damage == "middle":
+        _corrupt_middle(path)
+    elif damage == "truncate":
+        _truncate(path)
+    elif damage == "last byte":  # the end of the zip directory, just before the digest
+        data = bytearray(path.read_bytes())
+        data[-80] ^= 1
+        path.write_bytes(bytes(data))
+    else:
+        np.savez(path, x=np.arange(100_000))  # numpy's own writer: no checksum
+    with open(path, "rb") as fh, pytest.raises(CorruptFileError):
+        verify(fh, remember=False)
+
+
+def test_temporary_names_are_unique_per_writer(tmp_path, monkeypatch):
+    """Each write goes through its own temporary file beside the target, renamed over it."""
+    renamed = []
+    real_replace = os.replace
+
+    def spy(src, dst):
+        renamed.append((Path(src), Path(dst)))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", spy)
+    path = tmp_path / "a.npz"
+    for i in range(3):
+        write_npz(path, {"x": np.arange(i + 1)})
+    sources = [src for src, dst in renamed if dst == path]
+    assert len(sources) == 3 and len(set(sources)) == 3
+    assert all(src.parent == path.parent and src.name.endswith(".tmp") for src in sources)
+    _no_temporaries(tmp_path)
+
+
+def test_failed_write_leaves_the_old_file_and_no_temporary(tmp_path):
+    path = tmp_path / "a.npz"
+    write_npz(path, {"x": np.arange(10)})
+    with pytest.raises(ValueError):  # object arrays are refused mid-write
+        write_npz(path, {"x": np.arange(5), "bad": np.array([{}, []], dtype=object)})
+    with np.load(path) as npz:
+        assert np.array_equal(npz["x"], np.arange(10))
+    _no_temporaries(tmp_path)
+
+
+def test_verified_file_is_stamped_and_a_changed_one_hashed_again(cold_cache, tmp_path, monkeypatch):
+    monkeypatch.setattr(skyfix.cache, "STAMP_MIN_AGE_S", -1.0)  # stamp even a brand-new file
+    path = tmp_path / "a.npz"
+    write_npz(path, {"x": np.arange(100_000)})
+    with open(path, "rb") as fh:
+        verify(fh)
+    assert len(list((cold_cache / "verified").iterdir())) == 1
+    hashed = []
+    real = skyfix.cache._sha256
+    monkeypatch.setattr(skyfix.cache, "_sha256", lambda fh, n: hashed.append(n) or real(fh, n))
+    with open(path, "rb") as fh:
+        verify(fh)
+    assert hashed == []  # unchanged: the stamp answers
+    time.sleep(0.05)  # past the file system's timestamp granularity
+    _corrupt_middle(path)
+    with open(path, "rb") as fh, pytest.raises(CorruptFileError):
+        verify(fh)
+    assert len(hashed) == 1
+
+
+# --- the catalogue cache -----------------------------------------------------------------------
+def test_catalogue_is_parsed_once_then_read_from_the_cache(cold_cache, monkeypatch):
+    fresh = load_hipparcos(epoch=EPOCH)
+    monkeypatch.setattr(skyfix.catalog, "_RAW", None)
+    monkeypatch.setattr(skyfix.catalog, "_parse_hip2", lambda path: pytest.fail("parsed again"))
+    again = load_hipparcos(epoch=EPOCH)
+    assert np.array_equal(again.vectors, fresh.vectors) and np.array_equal(again.ids, fresh.ids)
+
+
+@pytest.mark.parametrize("damage", [_corrupt_middle, _truncate])
+def test_damaged_catalogue_cache_is_rebuilt(cold_cache, monkeypatch, damage):
+    fresh = load_hipparcos(epoch=EPOCH)
+    cache = cold_cache / "hip2_v1.npz"
+    damage(cache)
+    monkeypatch.setattr(skyfix.catalog, "_RAW", None)
+    again = load_hipparcos(epoch=EPOCH)
+    for name in ("ids", "vectors", "mag", "pm_ra", "pm_dec"):
+        assert np.array_equal(getattr(again, name), getattr(fresh, name))
+    with open(cache, "rb") as fh:
+        verify(fh, remember=False)  # rewritten whole
+    _no_temporaries(cold_cache)
+
+
+# --- database caches and files -----------------------------------------------------------------
+@pytest.fixture
+def cached_db(cold_cache) -> tuple[PatternDatabase, Path]:
+    db = default_database(FOV, FOV, progress=False)
+    return db, default_database_path(FOV, FOV)
+
+
+@pytest.mark.parametrize("damage", [_corrupt_middle, _truncate])
+def test_damaged_database_cache_is_rebuilt(cached_db, monkeypatch, damage):
+    db, path = cached_db
+    fresh = {k: v.copy() for k, v in _arrays(db).items()}
+    del db
+    damage(path)
+    monkeypatch.setattr(database_module, "_DEFAULT", {})
+    again = default_database(FOV, FOV, progress=False)
+    for name, value in fresh.items():
+        assert np.array_equal(np.asarray(getattr(again, name)), value), name
+    PatternDatabase.load(path)  # the cache holds a good file again
+    _no_temporaries(path.parent)
+
+
+@pytest.mark.parametrize("damage", [_corrupt_middle, _truncate])
+def test_damaged_user_database_is_a_one_line_error(cached_db, tmp_path, damage):
+    _, path = cached_db
+    mine = tmp_path / "mine.npz"
+    mine.write_bytes(path.read_bytes())
+    PatternDatabase.load(mine)
+    damage(mine)
+    with pytest.raises(DatabaseError) as info:
+        PatternDatabase.load(mine)
+    message = str(info.value)
+    assert "\n" not in message and str(mine) in message
+    assert mine.exists()  # the user's file: reported, never removed or rebuilt
+
+
+def test_damaged_user_database_in_the_cli(cached_db, tmp_path):
+    from typer.testing import CliRunner
+
+    from skyfix.cli import app
+
+    _, path = cached_db
+    mine = tmp_path / "mine.npz"
+    mine.write_bytes(path.read_bytes())
+    _corrupt_middle(mine)
+    result = CliRunner().invoke(app, ["solve", "--database", str(mine), str(EXAMPLE)])
+    assert result.exit_code == 2 and isinstance(result.exception, SystemExit)
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "corrupt" in lines[0] and str(mine) in lines[0], result.output
+
+
+# --- concurrency -------------------------------------------------------------------------------
+_WORKER = """
+import sys, time
+from pathlib import Path
+go = Path(sys.argv[1])
+from skyfix.catalog import load_hipparcos
+from skyfix.identify import default_database
+while not go.exists():
+    time.sleep(0.005)
+n = len(load_hipparcos())
+db = default_database({fov}, {fov}, progress=False)
+print(n, len(db), db.meta["epoch"])
+"""
+
+
+def test_processes_on_a_cold_cache_all_succeed(tmp_path):
+    """Four processes start at once on an empty cache: all load the catalogue and the database;
+    one parses and builds, the others wait for its files (the same database for all four)."""
+    cache = tmp_path / "cache"
+    go = tmp_path / "go"
+    env = {**os.environ, "SKYFIX_CACHE": str(cache)}
+    procs = [subprocess.Popen([sys.executable, "-c", _WORKER.format(fov=FOV), str(go)], env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for _ in range(4)]
+    time.sleep(0.5)
+    go.touch()
+    results = [p.communicate(timeout=300) for p in procs]
+    for p, (_, err) in zip(procs, results, strict=True):
+        assert p.returncode == 0, err[-2000:]
+    lines = {out.strip() for out, _ in results}
+    assert len(lines) == 1, lines  # built once: one epoch, one pattern count
+    assert PatternDatabase.load(cache / default_database_path(FOV, FOV).name)
+    _no_temporaries(cache)
