@@ -12,13 +12,16 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
 
 from skyfix.camera import Camera
 
-__all__ = ["CameraFit", "ModelScore", "fit_camera", "score_camera_models", "select_camera_model",
+__all__ = ["CameraFit", "CameraPrior", "ModelScore", "PriorFit", "fit_camera", "fit_camera_with_prior",
+           "frame_rotation_at_pixel",
+           "score_camera_models", "select_camera_model", "PRIOR_PARAMETERS",
            "PARAMETERS", "MODEL_LADDER"]
 
 # Free parameters a fit may take, and how many numbers each is.
@@ -465,21 +468,19 @@ def _score_models(xy, r, A, cam, rmax, codes, cols, n_cols, min_stars_per_number
 
 
 @numba.njit(cache=True)
-def _normal_equations_at_start(xy, rays0, cam, rmax, codes):
-    """``JᵀJ`` (P, P), ``Jᵀr`` (P,) and ``rᵀr`` at ``p = 0`` for the parameters ``codes``
-    (:data:`_PARAMETER_CODES`): the residuals of :func:`_residuals_batch` and the Jacobian of
-    :func:`_jacobian_at_start`, star by star, without forming ``J``."""
+def _jacobian_rows(xy, rays0, cam, rmax, codes):
+    """The Jacobian ``J`` (N, 2, P) and residuals (N, 2) at ``p = 0`` (the camera ``cam`` and the
+    rays ``rays0``) for the parameters ``codes`` (:data:`_PARAMETER_CODES`), in the scaled units
+    of :func:`_unpack`: the arithmetic of :func:`_residuals_batch` and :func:`_jacobian_at_start`
+    (their numpy references)."""
     fx, fy, cx, cy, s, k1, k2, k3, p1, p2 = (cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6],
                                              cam[7], cam[8], cam[9])
     P = 3
     for c in codes:
         P += 2 if (c == 2 or c == 5) else 1
     c1, c2, c4 = 1.0 / rmax, 1.0 / rmax**2, 1.0 / rmax**4
-    JtJ = np.zeros((P, P))
-    Jtr = np.zeros(P)
-    rr = 0.0
-    ju = np.empty(P)
-    jv = np.empty(P)
+    J = np.empty((xy.shape[0], 2, P))
+    res = np.empty((xy.shape[0], 2))
     for i in range(xy.shape[0]):
         X, Y, Z = rays0[i, 0], rays0[i, 1], rays0[i, 2]
         iz = 1.0 / Z
@@ -490,8 +491,10 @@ def _normal_equations_at_start(xy, rays0, cam, rmax, codes):
         drad = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
         xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
         yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
-        u = fx * xd + s * yd + cx - xy[i, 0]
-        v = fy * yd + cy - xy[i, 1]
+        res[i, 0] = fx * xd + s * yd + cx - xy[i, 0]
+        res[i, 1] = fy * yd + cy - xy[i, 1]
+        ju = J[i, 0]
+        jv = J[i, 1]
         # d(xd, yd) / d(xn, yn)
         dxx = radial + 2.0 * xn * xn * drad + 2.0 * p1 * yn + 6.0 * p2 * xn
         dxy = 2.0 * xn * yn * drad + 2.0 * p1 * xn + 2.0 * p2 * yn
@@ -529,10 +532,24 @@ def _normal_equations_at_start(xy, rays0, cam, rmax, codes):
                 ta, tb = r2 + 2.0 * xn * xn, 2.0 * xn * yn
                 ju[j], jv[j] = (fx * ta + s * tb) * c1, fy * tb * c1
             j += 1
+    return J, res
+
+
+@numba.njit(cache=True)
+def _normal_equations_at_start(xy, rays0, cam, rmax, codes):
+    """``JᵀJ`` (P, P), ``Jᵀr`` (P,) and ``rᵀr`` at ``p = 0`` for the parameters ``codes``
+    (:data:`_PARAMETER_CODES`), from :func:`_jacobian_rows`."""
+    J, res = _jacobian_rows(xy, rays0, cam, rmax, codes)
+    P = J.shape[2]
+    JtJ = np.zeros((P, P))
+    Jtr = np.zeros(P)
+    rr = 0.0
+    for i in range(J.shape[0]):
+        u, v = res[i, 0], res[i, 1]
         for a in range(P):
-            Jtr[a] += ju[a] * u + jv[a] * v
+            Jtr[a] += J[i, 0, a] * u + J[i, 1, a] * v
             for b in range(a, P):
-                JtJ[a, b] += ju[a] * ju[b] + jv[a] * jv[b]
+                JtJ[a, b] += J[i, 0, a] * J[i, 0, b] + J[i, 1, a] * J[i, 1, b]
         rr += u * u + v * v
     for a in range(P):
         for b in range(a):
@@ -623,3 +640,344 @@ def select_camera_model(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_ic
                                  min_stars_per_number=min_stars_per_number)
     best = min(scores, key=lambda sc: sc.bic)
     return fit_camera(xy, r_icrs, camera, A_icrs_to_cam, best.params)
+
+
+# --- an uncalibrated camera: every parameter free, each with a Gaussian prior ------------------
+
+# The parameters of an uncalibrated camera, in the order of :func:`fit_camera_with_prior`'s
+# parameter vector (after the three rotations).
+PRIOR_PARAMETERS: tuple[str, ...] = ("f", "aspect", "principal_point", "k1", "k2")
+
+
+class CameraPrior(NamedTuple):
+    """What is known of a camera before its image is solved: a Gaussian prior on each parameter
+    but the focal length (free) — the principal point about ``(cx, cy)``, the pixel aspect
+    ``fy/fx`` about 1, radial distortion about 0 (``k1``, ``k2`` in OpenCV's normalised units).
+
+    The prior keeps a sparse field from fitting an absurd lens (``k2 = 400``) and lets the
+    attitude's covariance include what the stars leave unknown; many stars overrule it.
+    """
+
+    cx: float
+    cy: float
+    sigma_principal_point_px: float
+    sigma_aspect: float = 0.05
+    sigma_k1: float = 0.3
+    sigma_k2: float = 0.3
+
+    @classmethod
+    def uncalibrated(cls, width: int, height: int) -> CameraPrior:
+        """The prior for an unknown camera of this frame size: principal point at the image
+        centre within 5% of the half-diagonal (lens mounting; not an arbitrary crop), aspect
+        within 5%, |k1|, |k2| ≲ 0.3 (most lenses narrower than 60°)."""
+        return cls(cx=(width - 1) / 2.0, cy=(height - 1) / 2.0,
+                   sigma_principal_point_px=0.05 * math.hypot(width, height) / 2.0)
+
+
+class PriorFit(NamedTuple):
+    """The result of :func:`fit_camera_with_prior`.
+
+    Attributes
+    ----------
+    camera : Camera — the fitted model (maximum a posteriori).
+    A_icrs_to_cam : (3, 3) — the fitted attitude.
+    residuals_px : (N, 2) — reprojection residuals, px.
+    sigma_px : float — centroid noise per axis estimated from the residuals, px.
+    covariance_rad2 : (3, 3) — attitude error about the camera axes (x, y, roll), rad², at the
+        principal point, with every camera parameter marginalised over its posterior.
+    n_effective : float — effective number of fitted numbers (3 rotations + the camera's
+        share: ``trace`` of the hat matrix); the camera's part is what the stars paid for it.
+    outlier_chi2 : (N,) — each star's residual against what the others predict for it
+        (studentised: ``rᵀ (σ² (I − H))⁻¹ r`` with ``H`` its 2×2 block of the hat matrix, and
+        σ from the other stars' residuals unless ``robust``): for a star that fits the model,
+        twice an F(2, dof − 2) variable, dof = ``2N − n_effective``.
+    parameter_covariance : (P, P) — posterior covariance of the parameter step (rotations,
+        then :data:`PRIOR_PARAMETERS` in :func:`_unpack`'s scaled units).
+    """
+
+    camera: Camera
+    A_icrs_to_cam: np.ndarray
+    residuals_px: np.ndarray
+    sigma_px: float
+    covariance_rad2: np.ndarray
+    n_effective: float
+    outlier_chi2: np.ndarray
+    parameter_covariance: np.ndarray
+
+    def prediction_sigma_px(self, r_icrs: np.ndarray) -> np.ndarray:
+        """How uncertain (px, the larger axis's σ) the fitted model's pixel position of each
+        catalogue direction ``r_icrs`` (M, 3) is, from :attr:`parameter_covariance`."""
+        cam = self.camera
+        rays = np.ascontiguousarray(np.asarray(r_icrs, dtype=np.float64) @ self.A_icrs_to_cam.T)
+        rmax = math.hypot(cam.width, cam.height) / 2.0 / cam.fx
+        Js, _ = _jacobian_rows(np.zeros((len(rays), 2)), rays, _camera_numbers(cam), rmax, _PRIOR_CODES)
+        C = (Js @ self.parameter_covariance) @ Js.transpose(0, 2, 1)
+        half_tr = (C[:, 0, 0] + C[:, 1, 1]) / 2.0
+        return np.sqrt(half_tr + np.sqrt(np.maximum(half_tr**2 - (C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] ** 2),
+                                                    0.0)))
+
+
+_PRIOR_CODES = np.array([_PARAMETER_CODES[p] for p in PRIOR_PARAMETERS], dtype=np.int64)
+
+
+def _camera_numbers(camera: Camera) -> np.ndarray:
+    """The camera's numbers for the kernels: (fx, fy, cx, cy, skew, k1, k2, k3, p1, p2)."""
+    return np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.skew, camera.k1, camera.k2,
+                     camera.k3, camera.p1, camera.p2], dtype=np.float64)
+
+
+@numba.njit(cache=True)
+def _apply_step(cam, rmax, codes, p):
+    """The camera numbers (fx, fy, cx, cy, skew, k1, k2, k3, p1, p2) after the parameter step
+    ``p`` (rotations first, then ``codes``, in :func:`_unpack`'s scaled units)."""
+    out = cam.copy()
+    j = 3
+    for c in codes:
+        if c == 0:  # f
+            out[0], out[1] = cam[0] * (1.0 + p[j]), cam[1] * (1.0 + p[j])
+        elif c == 1:  # aspect
+            out[1] = out[1] * (1.0 + p[j])
+        elif c == 2:  # principal_point
+            out[2], out[3] = cam[2] + p[j] * cam[0], cam[3] + p[j + 1] * cam[0]
+            j += 1
+        elif c == 3:  # k1
+            out[5] = cam[5] + p[j] / rmax**2
+        elif c == 4:  # k2
+            out[6] = cam[6] + p[j] / rmax**4
+        else:  # tangential
+            out[8], out[9] = cam[8] + p[j] / rmax, cam[9] + p[j + 1] / rmax
+            j += 1
+        j += 1
+    return out
+
+
+@numba.njit(cache=True)
+def _rodrigues(p):
+    """Rotation matrix of the rotation vector ``p[:3]``: ``I + sin θ/θ K + (1 − cos θ)/θ² K²``."""
+    theta = np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+    K = np.array([[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]])
+    a, b = 1.0, 0.0
+    if theta >= 1e-12:
+        a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta**2
+    R = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            KK = K[i, 0] * K[0, j] + K[i, 1] * K[1, j] + K[i, 2] * K[2, j]
+            R[i, j] = (1.0 if i == j else 0.0) + a * K[i, j] + b * KK
+    return R
+
+
+@numba.njit(cache=True)
+def _prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, sigma_floor):
+    """The iterations of :func:`fit_camera_with_prior` for :data:`PRIOR_PARAMETERS`; ``prior``
+    = (cx, cy, σ principal point px, σ aspect, σ k1, σ k2). Returns the attitude, camera
+    numbers, σ², the posterior covariance of the last step, n_eff, the weights (2N,), and the
+    Jacobian (N, 2, P) and residuals (N, 2) at the result."""
+    codes = np.array([0, 1, 2, 3, 4], dtype=np.int64)  # PRIOR_PARAMETERS in _PARAMETER_CODES
+    n = xy.shape[0]
+    n_obs = 2 * n
+    P = 9
+    n_eff = 4.0
+    rays0 = np.empty((n, 3))
+    lam = np.zeros(P)
+    dev = np.zeros(P)
+    w = np.ones(n_obs)
+    sigma2 = 1.0
+    inv = np.zeros((P, P))
+    J = np.empty((n, 2, P))
+    res = np.empty((n, 2))
+    for it in range(iterations + 1):
+        for i in range(n):
+            for k in range(3):
+                rays0[i, k] = A[k, 0] * r[i, 0] + A[k, 1] * r[i, 1] + A[k, 2] * r[i, 2]
+        rmax = half_diag_px / cam[0]
+        J, res = _jacobian_rows(xy, rays0, cam, rmax, codes)
+        d = np.empty(n)
+        ss = 0.0
+        for i in range(n):
+            d[i] = np.sqrt(res[i, 0] ** 2 + res[i, 1] ** 2)
+            ss += d[i] * d[i]
+        if robust:
+            sigma2 = max((np.median(d) / 1.1774) ** 2, sigma_floor**2)
+            for i in range(n):
+                w[2 * i] = w[2 * i + 1] = 1.0 / (1.0 + d[i] * d[i] / (9.0 * sigma2))
+        else:
+            sigma2 = max(ss / max(n_obs - n_eff, 1.0), sigma_floor**2)
+        JtJ = np.zeros((P, P))
+        g = np.zeros(P)
+        for i in range(n):
+            for c in range(2):
+                wi = w[2 * i + c]
+                for a in range(P):
+                    g[a] += wi * J[i, c, a] * res[i, c]
+                    for b in range(a, P):
+                        JtJ[a, b] += wi * J[i, c, a] * J[i, c, b]
+        for a in range(P):
+            for b in range(a):
+                JtJ[a, b] = JtJ[b, a]
+        lam[4] = 1.0 / prior[3] ** 2
+        lam[5] = lam[6] = (cam[0] / prior[2]) ** 2
+        lam[7] = 1.0 / (prior[4] * rmax**2) ** 2
+        lam[8] = 1.0 / (prior[5] * rmax**4) ** 2
+        dev[4] = cam[1] / cam[0] - 1.0
+        dev[5] = (cam[2] - prior[0]) / cam[0]
+        dev[6] = (cam[3] - prior[1]) / cam[0]
+        dev[7] = cam[5] * rmax**2
+        dev[8] = cam[6] * rmax**4
+        N = JtJ / sigma2
+        for a in range(P):
+            N[a, a] += lam[a]
+        inv, ok = _spd_inverse(N)
+        if not ok:
+            inv = np.linalg.pinv(N)
+        n_eff = 0.0
+        for a in range(P):
+            for b in range(P):
+                n_eff += inv[a, b] * JtJ[b, a]
+        n_eff /= sigma2
+        if it == iterations:
+            break
+        step = np.zeros(P)
+        for a in range(P):
+            for b in range(P):
+                step[a] -= inv[a, b] * (g[b] / sigma2 + lam[b] * dev[b])
+        A = _rodrigues(step) @ A
+        cam = _apply_step(cam, rmax, codes, step)
+        moved = 0.0
+        for a in range(P):
+            for b in range(P):
+                moved += step[a] * JtJ[a, b] * step[b]
+        if moved < 4e-6 * n_obs:  # stars moved by ~2e-3 px: converged
+            iterations = it + 1
+    # Studentised residuals: each star's 2×2 block of the hat matrix J (JᵀWJ/σ² + Λ)⁻¹ JᵀW / σ²,
+    # and rᵀ (σ² (I − H))⁻¹ r; without ``robust`` externally studentised: σ re-estimated without
+    # the star (a wrong star inflates σ and so hides itself from the internal statistic).
+    chi2 = np.empty(n)
+    rss = 0.0
+    for i in range(n):
+        rss += res[i, 0] ** 2 + res[i, 1] ** 2
+    for i in range(n):
+        H = np.zeros((2, 2))
+        for c in range(2):
+            for e in range(2):
+                acc = 0.0
+                for a in range(P):
+                    t = 0.0
+                    for b in range(P):
+                        t += inv[a, b] * J[i, e, b]
+                    acc += J[i, c, a] * t
+                H[c, e] = acc * w[2 * i + c] / sigma2
+        m00, m01 = sigma2 * (1.0 - H[0, 0]), -sigma2 * H[0, 1]
+        m10, m11 = -sigma2 * H[1, 0], sigma2 * (1.0 - H[1, 1])
+        det = max(m00 * m11 - m01 * m10, 1e-12 * sigma2 * sigma2)  # a star the fit rests on alone
+        q = (m11 * res[i, 0] ** 2 - (m01 + m10) * res[i, 0] * res[i, 1] + m00 * res[i, 1] ** 2) / det
+        if not robust:
+            rss_without = max(rss - q * sigma2, 1e-12 * sigma2)
+            q = q * sigma2 / max(rss_without / max(n_obs - n_eff - 2.0, 1.0), sigma_floor**2)
+        chi2[i] = q
+    return A, cam, sigma2, inv, n_eff, res, chi2
+
+
+def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_cam: np.ndarray,
+                          prior: CameraPrior, *, robust: bool = False, iterations: int = 12,
+                          sigma_floor_px: float = 0.05, principal_point: str = "auto") -> PriorFit:
+    """Fit attitude, focal length, aspect, principal point, k1 and k2 to matched stars, each
+    camera parameter but the focal length held by its ``prior`` (maximum a posteriori).
+
+    Gauss–Newton on ``Σ w |residual|²/σ² + Σ ((θ − θ₀)/τ)²`` with the analytic Jacobian of
+    :func:`_jacobian_at_start`. σ, the centroid noise, is re-estimated at every step: from the
+    residuals (``σ² = RSS / (2N − n_eff)``), or with ``robust`` from their median (a
+    2-D Gaussian's residual length has median 1.1774 σ) and with Cauchy weights
+    ``w = 1 / (1 + (|residual| / 3σ)²)``, so that a few wrong stars cannot hold the model away
+    from the many right ones; floored at ``sigma_floor_px``. The covariance is the
+    posterior's, ``(JᵀWJ/σ² + Λ)⁻¹``. Its attitude block is taken for the frame at the
+    principal point *as a pixel*: a principal-point shift moves the optical axis but not the sky
+    position of that pixel, so only what the principal point does beyond a shift (the field's
+    perspective and the distortion centre) enters the attitude's error bar.
+
+    ``principal_point``: ``"fit"`` moves the principal point from the prior's as the stars
+    ask; ``"hold"`` keeps it at the prior's (the image centre), so that the attitude refers to
+    that pixel, with its uncertainty in the covariance — and what holding it did to the attitude
+    there (the difference from the ``"fit"`` solution: a misplaced distortion centre is a bias,
+    not noise the posterior knows of) added to the covariance as ``b bᵀ``; ``"auto"`` fits it
+    where the stars pin it down (posterior σ below a third of the prior's, the move beyond 3
+    posterior σ: a wide or distorted field) and holds it elsewhere.
+
+    Parameters
+    ----------
+    xy : (N, 2) — star positions, px.
+    r_icrs : (N, 3) — their catalogue unit vectors.
+    camera, A_icrs_to_cam : the starting model and attitude.
+    prior : CameraPrior
+    robust : bool — Cauchy weights and a median σ (for matches that may hold wrong stars).
+    iterations : int — most Gauss–Newton steps.
+    sigma_floor_px : float — smallest centroid noise believed, px.
+    principal_point : str — ``"auto"``, ``"fit"`` or ``"hold"`` (above).
+    """
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
+    r = np.ascontiguousarray(r_icrs, dtype=np.float64)
+    A0 = np.ascontiguousarray(A_icrs_to_cam, dtype=np.float64)
+    prior_numbers = np.array([prior.cx, prior.cy, prior.sigma_principal_point_px, prior.sigma_aspect,
+                              prior.sigma_k1, prior.sigma_k2], dtype=np.float64)
+    half_diag = float(math.hypot(camera.width, camera.height) / 2.0)
+    cam0 = _camera_numbers(camera)
+    if principal_point not in ("auto", "fit", "hold"):
+        raise ValueError(f"principal_point must be 'auto', 'fit' or 'hold', not {principal_point!r}")
+    A, cam, sigma2, inv, n_eff, res, chi2 = _prior_gauss_newton(
+        xy, r, A0, cam0, half_diag, prior_numbers, bool(robust), int(iterations), float(sigma_floor_px))
+    free = (A, cam)
+    if principal_point == "auto":
+        sigma_pp = math.sqrt(max(inv[5, 5], inv[6, 6])) * cam[0]
+        moved = math.hypot(cam[2] - prior.cx, cam[3] - prior.cy)
+        observable = 3.0 * sigma_pp < prior.sigma_principal_point_px and moved > 3.0 * sigma_pp
+        principal_point = "fit" if observable else "hold"
+    if principal_point == "hold":
+        # Fit with it fixed at the prior's, then take the posterior with it free there.
+        cam0 = cam0.copy()
+        cam0[2], cam0[3] = prior.cx, prior.cy
+        fixed = prior_numbers.copy()
+        fixed[2] = 1e-9 * prior.sigma_principal_point_px
+        A, cam, sigma2, _, n_eff, res, chi2 = _prior_gauss_newton(
+            xy, r, A0, cam0, half_diag, fixed, bool(robust), int(iterations), float(sigma_floor_px))
+        inv = _prior_gauss_newton(xy, r, A, cam, half_diag, prior_numbers, bool(robust), 0,
+                                  float(sigma_floor_px))[3]
+    camera = camera.replace(**dict(zip(_CAMERA_KEYS, cam.tolist(), strict=True)))
+    # Attitude of the frame at the principal point's pixel: a shift (δcx, δcy) of the principal
+    # point (scaled by fx) with no change of that pixel's sky direction is the rotation
+    # (−δcy·fx/fy, δcx, 0) — take the covariance of rotation + that share of the shift.
+    T = np.zeros((3, len(inv)))
+    T[:, :3] = np.eye(3)
+    T[1, 5] = 1.0
+    T[0, 6] = -camera.fx / camera.fy
+    cov = T @ inv @ T.T
+    if principal_point == "hold":
+        # What holding the principal point did to the attitude at that pixel (the distortion
+        # centre and the perspective misplaced) is not noise the posterior knows of: add it.
+        free_cam = camera.replace(**dict(zip(_CAMERA_KEYS, free[1].tolist(), strict=True)))
+        bias = frame_rotation_at_pixel(A, camera, free[0], free_cam, (camera.cx, camera.cy))
+        cov = cov + np.outer(bias, bias)
+    return PriorFit(camera, A, res, math.sqrt(sigma2), cov, n_eff, chi2, inv)
+
+
+def frame_rotation_at_pixel(A: np.ndarray, camera: Camera, A_ref: np.ndarray, camera_ref: Camera,
+                            pixel: tuple[float, float]) -> np.ndarray:
+    """Rotation vector (3,) rad, about ``camera``'s axes, from the frame that (``A_ref``,
+    ``camera_ref``) give at ``pixel`` to the camera frame of ``A``: the reference frame at a pixel
+    has z along that pixel's sky direction and x along the direction in which the column grows
+    there. For ``pixel`` at ``camera``'s principal point it is the error of ``A`` when the
+    reference is the truth."""
+    p0 = np.array([pixel], dtype=np.float64)
+    ray0 = camera_ref.pixel_to_ray(p0)[0]
+    ray1 = camera_ref.pixel_to_ray(p0 + [0.5, 0.0])[0]
+    z = ray0 / np.linalg.norm(ray0)
+    x = ray1 - ray0
+    x -= (x @ z) * z
+    x /= np.linalg.norm(x)
+    frame = np.vstack([x, np.cross(z, x), z]) @ A_ref  # rows: the axes in ICRS
+    R = A @ frame.T
+    # Rotation vector of R (the angle is small; the general formula for safety).
+    angle = math.acos(min(max((np.trace(R) - 1.0) / 2.0, -1.0), 1.0))
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if angle < 1e-8:
+        return axis / 2.0
+    return axis * (angle / (2.0 * math.sin(angle)))

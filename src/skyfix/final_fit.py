@@ -14,14 +14,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
 from skyfix.attitude import attitude_covariance, solve_attitude
-from skyfix.calibrate import _model_scores, fit_camera
+from skyfix.calibrate import PRIOR_PARAMETERS, CameraPrior, fit_camera_with_prior
 from skyfix.camera import Camera
+from skyfix.identify.accept import chance_log_probability
 
 __all__ = ["FinalFit", "final_fit"]
 
@@ -40,7 +42,10 @@ class FinalFit:
     catalog_mag : (M,)
     residuals_rad : (M,) — angle between each star's ray and its catalogue direction.
     covariance_rad2 : (3, 3) — attitude error about the camera axes (x, y, roll).
-    camera_params : tuple of str — camera parameters fitted ("" when the camera was given).
+    camera_params : tuple of str — camera parameters fitted (empty when the camera was given).
+    log_prob_chance : float — log probability that the final matches are chance (with the
+        fitted camera's freedom paid for; identification's when the stars were not re-matched).
+    accepted : bool
     """
 
     A_icrs_to_cam: np.ndarray
@@ -52,6 +57,8 @@ class FinalFit:
     residuals_rad: np.ndarray
     covariance_rad2: np.ndarray
     camera_params: tuple[str, ...]
+    log_prob_chance: float = 0.0
+    accepted: bool = True
 
 
 def angles(b: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -114,17 +121,21 @@ def _inliers(resid, floor):
 
 
 def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch: float | None = None,
-              method: str = "svd") -> FinalFit:
+              method: str = "svd", prob_threshold: float = 1e-9, n_img: int = 200) -> FinalFit:
     """Refine a successful identification into the final attitude (see the module text).
 
     Parameters
     ----------
-    xy : (N, 2) centroids, px.
+    xy : (N, 2) centroids, px, brightest first.
     ident : skyfix.identify.Identification (successful).
     camera_given : bool — the user gave the camera: take it as exact.
     database : PatternDatabase, optional — its star table serves the re-matching.
     epoch : float, optional — Julian year of the catalogue positions.
     method : str — Wahba solver for the attitude.
+    prob_threshold : float — largest accepted probability that the final matches are chance
+        (:mod:`skyfix.identify.accept`); with no camera given the re-matched stars are tested
+        again, paying for the camera numbers fitted to them.
+    n_img : int — brightest centroids the catalogue is re-matched to.
     """
     camera: Camera = ident.camera
     idx = np.asarray(ident.star_index)
@@ -132,34 +143,174 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
     r = np.ascontiguousarray(ident.catalog_vectors, dtype=np.float64)
     mag = np.asarray(ident.catalog_mag, dtype=np.float64)
     A = np.ascontiguousarray(ident.A_icrs_to_cam, dtype=np.float64)
+    if not camera_given:
+        return _fit_unknown_camera(xy, ident, database, epoch, method, math.log(prob_threshold), n_img)
     xy_idx = np.ascontiguousarray(xy[idx], dtype=np.float64)
     b, keep, n_kept = _rays_and_inliers(xy_idx, r, A, _camera_array(camera))
     if n_kept < len(keep):
-        idx, ids, r, mag, b, xy_idx = idx[keep], ids[keep], r[keep], mag[keep], b[keep], xy_idx[keep]
-    params: tuple[str, ...] = ()
-    cov = None
-    if not camera_given and len(idx) >= 4:
-        scored, bic, _, covs = _model_scores(xy_idx, r, camera, A)
-        best = int(np.argmin(bic))  # the first of equal scores, as min()
-        params, cov = scored[best], covs[best]
-        if set(params) - {"f", "k1"}:
-            # The model grew beyond identification's (focal length, k1, already fitted): the
-            # matches made through the simpler model may miss stars or hold wrong ones, so
-            # fit the model and match again.
-            fit = fit_camera(xy[idx], r, camera, A, params)
-            if _largest_shift_px(camera, A, fit.camera, fit.A_icrs_to_cam) > 0.5:
-                fit, idx, ids, r, mag = _rematch(xy, fit, database, epoch, (idx, ids, r, mag))
-            camera, A, cov = fit.camera, fit.A_icrs_to_cam, fit.attitude_covariance_rad2
-            b = camera.pixel_to_ray(xy[idx])
+        idx, ids, r, mag, b = idx[keep], ids[keep], r[keep], mag[keep], b[keep]
     A = solve_attitude(b, r, method=method)
     resid = _angles(b, r, np.ascontiguousarray(A))
-    if cov is None:
-        # Per-axis σ from the fit's own residuals (3 attitude dof used), floored at 0.05 px
-        # so a lucky tiny residual does not claim an impossible precision.
-        dof = max(2 * len(idx) - 3, 1)
-        sigma = max(math.sqrt(float(np.sum(resid**2)) / dof), 0.05 * camera.plate_scale_rad)
-        cov = attitude_covariance(A, b, sigma)
-    return FinalFit(A, camera, idx, ids, r, mag, resid, cov, params)
+    # Per-axis σ from the fit's own residuals (3 attitude dof used), floored at 0.05 px
+    # so a lucky tiny residual does not claim an impossible precision.
+    dof = max(2 * len(idx) - 3, 1)
+    sigma = max(math.sqrt(float(np.sum(resid**2)) / dof), 0.05 * camera.plate_scale_rad)
+    cov = attitude_covariance(A, b, sigma)
+    log_p = math.log(max(ident.prob_false, 1e-300))
+    return FinalFit(A, camera, idx, ids, r, mag, resid, cov, (), log_p, True)
+
+
+class _Matches(NamedTuple):
+    """Centroid index, catalogue id, unit vector and magnitude of each matched star."""
+
+    idx: np.ndarray
+    ids: np.ndarray
+    r: np.ndarray
+    mag: np.ndarray
+
+    def take(self, keep: np.ndarray) -> _Matches:
+        return _Matches(self.idx[keep], self.ids[keep], self.r[keep], self.mag[keep])
+
+    def same_as(self, other: _Matches) -> bool:
+        a, b = np.argsort(self.idx), np.argsort(other.idx)
+        return (len(self.idx) == len(other.idx) and np.array_equal(self.idx[a], other.idx[b])
+                and np.array_equal(self.ids[a], other.ids[b]))
+
+
+def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, method: str,
+                        log_threshold: float, n_img: int) -> FinalFit:
+    """No camera given: fit every camera parameter under its prior
+    (:func:`skyfix.calibrate.fit_camera_with_prior`), re-match the catalogue through the fitted
+    model, and repeat until the matches stop changing (:func:`_grow`). The re-matched stars must
+    be beyond chance *after paying for the camera numbers fitted to them*
+    (:func:`skyfix.identify.accept.chance_log_probability`); if they are not, the stars
+    identification verified are kept, fitted the same way.
+
+    A sparse result (fewer than :data:`_ROBUST_MIN_STARS` stars) can hold a wrong star that a
+    flexible camera bends to fit, and then the re-match cannot grow; each verified star is
+    therefore also left out in turn, and a start that grows to at least two more stars wins.
+    """
+    cam0: Camera = ident.camera
+    prior = CameraPrior.uncalibrated(cam0.width, cam0.height)
+    verified = _Matches(np.asarray(ident.star_index), np.asarray(ident.catalog_ids),
+                        np.ascontiguousarray(ident.catalog_vectors, dtype=np.float64),
+                        np.asarray(ident.catalog_mag, dtype=np.float64))
+    area = float(cam0.width * cam0.height)
+    n_use = min(len(xy), n_img)
+    log_p = math.log(max(ident.prob_false, 1e-300))
+    # The common case: identification's simpler model (focal length, k1) already fitted every
+    # star; if the full model fits them all too (no outlier) and moves no star by half a pixel
+    # anywhere in the frame, re-matching through it would find the same stars.
+    fit = _prior_fit(xy[verified.idx], verified.r, cam0, ident.A_icrs_to_cam, prior)
+    fit, cur = _drop_outliers(xy, fit, verified, prior)
+    if len(verified.idx) - len(cur.idx) > max(2, len(verified.idx) // 20):
+        # Many stars off the model: least squares may have bent to the wrong ones; fit robustly.
+        fit, cur = _robust_prior_fit(xy, verified, cam0, ident.A_icrs_to_cam, prior)
+    if len(cur.idx) >= _ROBUST_MIN_STARS:
+        if _largest_shift_px(cam0, ident.A_icrs_to_cam, fit.camera, fit.A_icrs_to_cam) < 0.5:
+            return _final(xy, fit, cur, log_p, method)
+        new, _, _ = _match_catalogue(xy[:n_use], fit, database, epoch)
+        if new.same_as(cur):
+            return _final(xy, fit, cur, log_p, method)
+    best = _grow(xy[:n_use], fit, cur, prior, database, epoch, area, log_threshold,
+                 log_p)
+    if len(best[1].idx) < _ROBUST_MIN_STARS and len(verified.idx) > 4:
+        for i in range(len(verified.idx)):
+            m = verified.take(np.arange(len(verified.idx)) != i)
+            fit_i = _prior_fit(xy[m.idx], m.r, cam0, ident.A_icrs_to_cam, prior)
+            grown = _grow(xy[:n_use], fit_i, m, prior, database, epoch, area, log_threshold, math.inf)
+            if grown[2] <= log_threshold and len(grown[1].idx) >= len(best[1].idx) + 2:
+                best = grown
+    return _final(xy, *best, method)
+
+
+def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> FinalFit:
+    """The attitude by the chosen Wahba solver through the fitted camera, and the fit's
+    covariance."""
+    b = _pixel_rays(np.ascontiguousarray(xy[cur.idx], dtype=np.float64), _camera_array(fit.camera))
+    A = solve_attitude(b, cur.r, method=method)
+    resid = _angles(b, cur.r, np.ascontiguousarray(A))
+    return FinalFit(A, fit.camera, cur.idx, cur.ids, cur.r, cur.mag, resid, fit.covariance_rad2,
+                    PRIOR_PARAMETERS, log_p, True)
+
+
+def _largest_shift_px(cam0: Camera, A0: np.ndarray, cam1: Camera, A1: np.ndarray) -> float:
+    """How far (px) the new model moves a star anywhere on a 5×5 grid over the frame."""
+    gx, gy = np.meshgrid(np.linspace(0, cam0.width - 1, 5), np.linspace(0, cam0.height - 1, 5))
+    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    sky = _pixel_rays(grid, _camera_array(cam0)) @ A0  # rows: ICRS directions of the grid pixels
+    moved, _ = cam1.ray_to_pixel(sky @ A1.T)
+    return float(np.max(np.hypot(*(moved - grid).T)))
+
+
+def _grow(xy: np.ndarray, fit, cur: _Matches, prior: CameraPrior, database, epoch: float | None,
+          area: float, log_threshold: float, log_p: float):
+    """Re-match through ``fit`` and refit (:func:`_robust_prior_fit`) until the matches stop
+    changing, as long as each re-match is beyond chance with the fitted camera paid for.
+    Returns (fit, matches, log P(chance)) of the last accepted step (``log_p`` for the start)."""
+    for _ in range(6):
+        new, n_cat, radius = _match_catalogue(xy, fit, database, epoch)
+        if len(new.idx) < 3:
+            break
+        n_extra = fit.n_effective - 4.0  # beyond the rotations and the focal length
+        log_p_new = chance_log_probability(len(new.idx), n_cat, len(xy), radius, area, n_extra)
+        if log_p_new > log_threshold:
+            break  # these matches are not beyond chance: keep the last ones that were
+        log_p = log_p_new
+        if new.same_as(cur):
+            break
+        fit, cur = _robust_prior_fit(xy, new, fit.camera, fit.A_icrs_to_cam, prior)
+    return fit, cur, log_p
+
+
+# A star whose studentised residual (χ², 2 dof) exceeds this is dropped: P = 3.4e-4 for a star
+# that fits, the tail of a 4σ cut.
+_OUTLIER_CHI2 = 16.0
+# A robust fit needs redundancy: with fewer stars than twice the camera's and attitude's nine
+# numbers, its median σ is too optimistic and drops good stars.
+_ROBUST_MIN_STARS = 18
+
+
+def _prior_fit(xy: np.ndarray, r: np.ndarray, camera: Camera, A: np.ndarray, prior: CameraPrior,
+               **options):
+    """:func:`~skyfix.calibrate.fit_camera_with_prior` with the principal point held at the image
+    centre (its uncertainty in the covariance): with no camera file the Solution's RA/Dec/roll
+    are those of the image centre, as every blind solver reports them."""
+    return fit_camera_with_prior(xy, r, camera, A, prior, principal_point="hold", **options)
+
+
+def _outlier_limit(dof: float) -> float:
+    """The externally studentised χ² a good star exceeds with probability 3.4e-4 (the tail of
+    :data:`_OUTLIER_CHI2`): twice the F(2, m) quantile, m = dof − 2, in closed form
+    (``P(F > x) = (1 + 2x/m)^(−m/2)``); it tends to :data:`_OUTLIER_CHI2` for many stars."""
+    m = max(dof - 2.0, 1.0)
+    return m * (math.exp(_OUTLIER_CHI2 / m) - 1.0)
+
+
+def _robust_prior_fit(xy: np.ndarray, m: _Matches, camera: Camera, A: np.ndarray, prior: CameraPrior):
+    """:func:`fit_camera_with_prior` on the matches: a robust fit first (a few wrong stars
+    cannot hold the model), the stars it finds beyond :data:`_OUTLIER_CHI2` dropped (at least
+    half and three kept), then least squares and :func:`_drop_outliers`."""
+    if len(m.idx) >= _ROBUST_MIN_STARS:
+        fit = _prior_fit(xy[m.idx], m.r, camera, A, prior, robust=True, iterations=20)
+        keep = fit.outlier_chi2 <= _OUTLIER_CHI2
+        if keep.sum() >= max(3, len(keep) // 2):
+            m = m.take(keep)
+        camera, A = fit.camera, fit.A_icrs_to_cam
+    return _drop_outliers(xy, _prior_fit(xy[m.idx], m.r, camera, A, prior), m, prior)
+
+
+def _drop_outliers(xy: np.ndarray, fit, m: _Matches, prior: CameraPrior):
+    """While the worst star's studentised residual (its miss against what the other stars
+    predict, :attr:`~skyfix.calibrate.PriorFit.outlier_chi2`) is beyond :func:`_outlier_limit`,
+    drop it and fit again (three stars are always kept)."""
+    for _ in range(max(len(m.idx) // 2, 1)):
+        worst = int(np.argmax(fit.outlier_chi2))
+        if fit.outlier_chi2[worst] <= _outlier_limit(2 * len(m.idx) - fit.n_effective) or len(m.idx) <= 3:
+            break
+        m = m.take(np.arange(len(m.idx)) != worst)
+        fit = _prior_fit(xy[m.idx], m.r, fit.camera, fit.A_icrs_to_cam, prior)
+    return fit, m
 
 
 def _camera_array(camera: Camera) -> np.ndarray:
@@ -225,16 +376,6 @@ def _pixel_rays(xy, cam):
     return b
 
 
-def _largest_shift_px(cam0: Camera, A0: np.ndarray, cam1: Camera, A1: np.ndarray) -> float:
-    """How far (px) the new model moves a star anywhere on a 5×5 grid over the frame; below
-    about half a pixel the old matches stand, as the match radius is larger."""
-    gx, gy = np.meshgrid(np.linspace(0, cam0.width - 1, 5), np.linspace(0, cam0.height - 1, 5))
-    grid = np.column_stack([gx.ravel(), gy.ravel()])
-    sky = _pixel_rays(grid, _camera_array(cam0)) @ A0  # rows: ICRS directions of the grid pixels
-    moved, _ = cam1.ray_to_pixel(sky @ A1.T)
-    return float(np.max(np.hypot(*(moved - grid).T)))
-
-
 def _star_tree(database) -> cKDTree:
     tree = database.__dict__.get("_star_tree")
     if tree is None:
@@ -243,42 +384,46 @@ def _star_tree(database) -> cKDTree:
     return tree
 
 
-def _rematch(xy: np.ndarray, fit, database, epoch: float | None, current: tuple):
-    """Match the database's stars to the centroids through the fitted model, refit, twice."""
+def _match_catalogue(xy: np.ndarray, fit, database, epoch: float | None) -> tuple[_Matches, int, float]:
+    """Match the catalogue stars in view (the brightest, twice as many as centroids) to the
+    centroids ``xy`` through the fitted camera and attitude of ``fit`` (a
+    :class:`~skyfix.calibrate.PriorFit`). Each star is searched within 3.5 σ of its predicted
+    position, σ combining the centroid noise with the model's own uncertainty there (large
+    where the stars fitted so far leave the camera unknown: far from them, or with the pixel
+    aspect unconstrained), at least 1 px. Unambiguous pairs only (a centroid with two catalogue
+    stars within the radius, a blend, or a star claimed by two centroids says nothing reliable).
+    Returns the matches, how many catalogue stars were predicted in the frame, and the RMS
+    search radius (px) for the chance test."""
+    camera, A = fit.camera, fit.A_icrs_to_cam
     if database is None:
         from skyfix.identify import default_database
 
         database = default_database()
-    tree = _star_tree(database)
-    img_tree = cKDTree(xy)
-    for _ in range(2):
-        cam, A = fit.camera, fit.A_icrs_to_cam
-        half_diag = math.radians(cam.fov_diagonal_deg) / 2.0 * 1.05
-        near = np.asarray(tree.query_ball_point(A[2], 2.0 * math.sin(half_diag / 2.0)), dtype=np.int64)
-        if len(near) == 0:
-            break
-        v = database.vectors_at(near, epoch)
-        uv, front = cam.ray_to_pixel(v @ A.T)
-        seen = front & cam.in_frame(uv)
-        near, v, uv = near[seen], v[seen], uv[seen]
-        radius = max(4.0 * fit.sigma_px, 1.0)
-        dist, j = img_tree.query(uv, distance_upper_bound=radius)
-        hit = np.isfinite(dist)
-        star, cen = np.flatnonzero(hit), j[hit]
-        # Unambiguous pairs only: a centroid with two catalogue stars (a blend) or a star
-        # claimed by two centroids says nothing reliable about the camera.
-        n_stars_near = cKDTree(uv).query_ball_point(xy[cen], radius, return_length=True)
-        n_claims = np.bincount(cen, minlength=len(xy))[cen]
-        ok = (n_stars_near == 1) & (n_claims == 1)
-        star, cen = star[ok], cen[ok]
-        if len(cen) < max(4, len(current[0]) // 2):
-            break  # re-matching lost stars: keep what identification verified
-        r = v[star]
-        new = fit_camera(xy[cen], r, cam, A, fit.params)
-        keep = inliers(np.hypot(*new.residuals_px.T), 0.1)
-        if keep.sum() < 4:
-            break
-        fit = fit_camera(xy[cen][keep], r[keep], cam, A, fit.params)
-        current = (cen[keep], np.asarray(database.star_ids)[near[star]][keep], r[keep],
-                   np.asarray(database.star_mag, dtype=np.float64)[near[star]][keep])
-    return (fit, *current)
+    half_diag = math.radians(camera.fov_diagonal_deg) / 2.0 * 1.05
+    near = np.sort(np.asarray(_star_tree(database).query_ball_point(A[2], 2.0 * math.sin(half_diag / 2.0)),
+                              dtype=np.int64))
+    # The brightest first (database order); the cone is at most ~2.5× the frame's area, so
+    # 6× as many as will be kept is enough to fill the frame's quota.
+    near = near[:12 * len(xy)]
+    empty = _Matches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
+    if len(near) == 0:
+        return empty, 0, 1.0
+    v = database.vectors_at(near, epoch)
+    uv, front = camera.ray_to_pixel(v @ A.T)
+    seen = np.flatnonzero(front & camera.in_frame(uv))[:2 * len(xy)]  # brightest first (database order)
+    near, v, uv = near[seen], v[seen], uv[seen]
+    if len(near) == 0:
+        return empty, 0, 1.0
+    radius = np.maximum(3.5 * np.hypot(fit.sigma_px, fit.prediction_sigma_px(v)), 1.0)
+    dist, j = cKDTree(xy).query(uv, distance_upper_bound=float(radius.max()))
+    hit = dist <= radius
+    star, cen = np.flatnonzero(hit), j[hit]
+    # Ambiguity: another predicted star within the larger of the two radii of this centroid.
+    n_stars_near = cKDTree(uv).query_ball_point(xy[cen], radius[star], return_length=True)
+    n_claims = np.bincount(cen, minlength=len(xy))[cen]
+    ok = (n_stars_near == 1) & (n_claims == 1)
+    star, cen = star[ok], cen[ok]
+    ids = np.asarray(database.star_ids)[near[star]].astype(np.int64)
+    mag = np.asarray(database.star_mag, dtype=np.float64)[near[star]]
+    rms_radius = float(np.sqrt(np.mean(radius**2)))
+    return _Matches(cen.astype(np.int64), ids, v[star], mag), len(near), rms_radius

@@ -19,6 +19,7 @@ import numpy as np
 from skyfix.camera import Camera
 from skyfix.errors import CameraError, InputError
 from skyfix.final_fit import final_fit
+from skyfix.identify.accept import precision_failure
 from skyfix.solution import Match, Solution
 from skyfix.validate import (
     check_attitude_method,
@@ -170,11 +171,13 @@ def solve_centroids(
         log.info("%s: identification failed: %s", name, ident.reason)
         return sol
     _fill_attitude(sol, xy, ident, attitude_method, camera_given=camera is not None, database=database,
-                   epoch=epoch)
+                   epoch=epoch, prob_threshold=identify_options.get("prob_threshold", 1e-9),
+                   n_img=identify_options.get("refine_stars", 200))
     sol.time_ms["attitude"] = 1e3 * (time.perf_counter() - t1)
     sol.time_ms["total"] = 1e3 * (time.perf_counter() - t0)
-    log.info("%s: solved with %d stars, P(false) %.2g, rmse %.2f″", name, sol.n_matched,
-             sol.prob_false, sol.rmse_arcsec)
+    if sol.solved:
+        log.info("%s: solved with %d stars, P(false) %.2g, rmse %.2f″", name, sol.n_matched,
+                 sol.prob_false, sol.rmse_arcsec)
     return sol
 
 
@@ -206,10 +209,15 @@ _OWN_OPTIONS = ("xy", "width", "height", "fov_deg", "fov_tolerance_deg", "camera
 
 
 def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *, camera_given: bool,
-                   database, epoch: float | None) -> None:
+                   database, epoch: float | None, prob_threshold: float, n_img: int) -> None:
     fit = final_fit(xy, ident, camera_given=camera_given, database=database, epoch=epoch,
-                    method=attitude_method)
+                    method=attitude_method, prob_threshold=prob_threshold, n_img=n_img)
     A, camera, idx = fit.A_icrs_to_cam, fit.camera, fit.star_index
+    imprecise = precision_failure(fit.covariance_rad2, camera.plate_scale_rad)
+    if imprecise:
+        sol.reason = imprecise
+        log.info("%s: %s", sol.image, imprecise)
+        return
     f64 = np.float64
     pointing, table, rmse = _solution_numbers(
         np.ascontiguousarray(A, dtype=f64), np.ascontiguousarray(xy, dtype=f64),
@@ -223,7 +231,7 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     sol.quaternion_xyzw = pointing[3:]
     sol.covariance_arcsec2 = (fit.covariance_rad2 / _ARCSEC**2).tolist()
     sol.n_matched = len(idx)
-    sol.prob_false = float(ident.prob_false)
+    sol.prob_false = max(float(ident.prob_false), math.exp(fit.log_prob_chance))
     sol.rmse_arcsec = rmse / _ARCSEC
     sol.A_icrs_to_cam = A
     sol.camera = camera

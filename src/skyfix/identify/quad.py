@@ -31,10 +31,10 @@ import numpy as np
 
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
+from skyfix.identify.accept import is_beyond_chance
 from skyfix.identify.database import PatternDatabase, default_database, readonly_view
 from skyfix.identify.refine import refine
 from skyfix.identify.search import breadth_first_combinations, search
-from skyfix.identify.verify import log_binom_sf
 
 __all__ = ["Identification", "identify"]
 
@@ -359,8 +359,8 @@ def _finish(xy, p, A, f, prob, camera, geometry, frame, n_first, n_img, radius, 
     # verification on the cluster's stars, but its refit matches barely more stars than a random
     # attitude would at the radius its scatter needs.
     r_final, n_cat = float(fk[3]), int(fk[4])
-    p_chance = min(1.0, n_img * math.pi * r_final**2 / ((frame[1] - frame[0]) * (frame[3] - frame[2])))
-    if log_binom_sf(n_pairs, n_cat, p_chance) > log_threshold:
+    area = (frame[1] - frame[0]) * (frame[3] - frame[2])
+    if not is_beyond_chance(n_pairs, n_cat, n_img, r_final, area, log_threshold):
         return None
     star_index, cat_index = out_img[:n_pairs], out_star[:n_pairs]
     order = np.argsort(star_index)
