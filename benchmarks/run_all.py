@@ -7,6 +7,7 @@
   b  synthetic centroids, solve from centroids            suite_synthetic.py
   c  accuracy on frames from an independent renderer      suite_accuracy.py
   d  extraction ms/MP, end-to-end time, database build/load suite_speed.py
+  e  blind solves: wrong attitudes, honest error bars (skyfix) suite_blind.py  (not in the default set)
 """
 
 from __future__ import annotations
@@ -106,6 +107,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=None, help="timing repeats (default 3; quick 1)")
     ap.add_argument("--peer-fov", choices=["hint", "mid"], default="hint",
                     help="real images: give peers the reference FOV (hint) or none/mid-range (mid)")
+    ap.add_argument("--n-blind", type=int, default=None,
+                    help="suite e: uncalibrated centroid trials (default 10000; quick 500)")
+    ap.add_argument("--n-preset", type=int, default=None,
+                    help="suite e: rendered frames per preset and scene (default 500; quick 20)")
     ap.add_argument("--tools", default="skyfix,tetra3rs,tetra3rs-mme,cedar-solve",
                     help="comma-separated subset of tools")
     args = ap.parse_args(argv)
@@ -153,6 +158,13 @@ def main(argv: list[str] | None = None) -> int:
 
                 results["speed"] = suite_speed.run(tools, repeats=max(3, repeats + 2))
                 write_json("speed", results["speed"])
+            elif key == "e":
+                import suite_blind
+
+                results["blind"] = suite_blind.run(
+                    n_blind=args.n_blind or (500 if args.quick else 10_000),
+                    n_preset=args.n_preset or (20 if args.quick else 500))
+                write_json("blind", results["blind"])
             else:
                 say(f"unknown suite {key!r}")
                 continue

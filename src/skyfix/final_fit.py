@@ -1,13 +1,14 @@
-"""The final fit after identification: outliers out, camera model chosen, stars re-matched,
-attitude and its covariance.
+"""The final fit after identification: camera fitted, stars re-matched and re-verified,
+outliers out, attitude and its covariance.
 
 Identification proves *which* stars are in the image; this stage makes the attitude as good
 and its error bar as honest as the stars allow. With a camera given by the user the camera is
 taken as exact and Wahba's problem is solved with the chosen method (QUEST covariance). With
-no camera, the camera model the stars support is chosen by BIC (focal length, aspect ratio,
-radial distortion: :func:`skyfix.calibrate.select_camera_model`), the catalogue is re-matched
-through that model, and the covariance comes from the joint fit, so the attitude's error bar
-includes what the unknown camera leaves uncertain.
+no camera, every camera number is fitted under a prior
+(:func:`skyfix.calibrate.fit_camera_with_prior`: aspect, k1, k2, principal point held at the
+image centre but free in the covariance), the catalogue is re-matched through the fitted model
+and the re-matched stars must again be beyond chance, paying for the camera numbers fitted to
+them (:mod:`skyfix.identify.accept`). ``docs/solving-without-a-camera.md`` walks through it.
 """
 
 from __future__ import annotations
