@@ -1,20 +1,44 @@
 """The ``skyfix`` command.
 
 Exit codes: 0 all images solved; 1 some image failed to solve (its reason is printed);
-2 bad input (unreadable file, bad option, corrupt database) with a one-line error.
+2 bad input (unreadable file, bad option, corrupt database) with a one-line error — a batch
+goes on past a bad file and exits 2 at the end; 130 interrupted. No command prints a
+traceback unless asked with ``-vv`` (:mod:`skyfix.cli_support`).
 """
 
 from __future__ import annotations
 
-import logging
+import math
 import sys
 from pathlib import Path
 
 import typer
 
-from skyfix.errors import SkyfixError
+from skyfix import __version__
+from skyfix.cli_support import (
+    VERBOSE,
+    add_verbosity,
+    compile_notice,
+    error_line,
+    fail,
+    guarded,
+    load_database,
+    output_paths,
+    prepare_outputs,
+    reset_verbosity,
+)
+from skyfix.errors import ImageReadError
+from skyfix.validate import (
+    check_attitude_method,
+    check_count,
+    check_epoch,
+    check_fov,
+    check_fov_range,
+    check_positive,
+)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  context_settings={"help_option_names": ["-h", "--help"]},
                   help="skyfix — a star tracker: solve sky images for the camera's attitude.")
 database_app = typer.Typer(no_args_is_help=True, help="Build or inspect the pattern database.")
 app.add_typer(database_app, name="database")
@@ -29,29 +53,31 @@ def _register_analyze() -> None:
 _register_analyze()
 
 
-def _fail(message: str, code: int = 2) -> None:
-    typer.echo(f"skyfix: error: {message}", err=True)
-    raise typer.Exit(code)
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"skyfix {__version__}")
+        raise typer.Exit()
 
 
-def _setup_logging(verbose: int) -> None:
-    level = logging.WARNING if verbose == 0 else logging.INFO if verbose == 1 else logging.DEBUG
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+@app.callback()
+def main_options(
+    version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                 help="Print the version and exit."),
+    verbose: int = VERBOSE,
+) -> None:
+    """skyfix — a star tracker: solve sky images for the camera's attitude."""
+    reset_verbosity()
+    add_verbosity(verbose)
 
 
-def _output_path(template: Path | None, image: Path, n_images: int, suffix: str) -> Path | None:
-    """One output per image: the path itself for one image, else ``{stem}`` filled or the stem appended."""
-    if template is None:
-        return None
-    text = str(template)
-    if "{stem}" in text:
-        return Path(text.replace("{stem}", image.stem))
-    if n_images == 1:
-        return template
-    return template.with_name(f"{template.stem}-{image.stem}{template.suffix or suffix}")
+_OUTPUT_NAMES_HELP = ("Outputs are named after each image: put {stem} in the name (out/{stem}.png); "
+                      "images that share a name get their folder's name in front (a/sky.png → a-sky), "
+                      "else their extension behind (sky-fits). Missing folders are created; no output "
+                      "overwrites an input or another output.")
 
 
-@app.command()
+@app.command(epilog=_OUTPUT_NAMES_HELP)
+@guarded
 def solve(
     images: list[Path] = typer.Argument(..., help="Image files (FITS, PNG, TIFF, JPEG)."),
     fov: float = typer.Option(None, "--fov", help="Horizontal field of view, degrees (optional)."),
@@ -67,55 +93,58 @@ def solve(
     calibration: Path = typer.Option(None, "--calibration", help="Maps from `skyfix calibrate frames`."),
     dark: Path = typer.Option(None, "--dark", help="Master dark image to subtract."),
     flat: Path = typer.Option(None, "--flat", help="Master flat image to divide by (normalised to 1)."),
-    verbose: int = typer.Option(0, "--verbose", "-v", count=True, help="Log what each stage decided."),
+    verbose: int = VERBOSE,
 ) -> None:
     """Solve sky images lost in space: print RA, Dec, roll and the error bars."""
-    _setup_logging(verbose)
+    add_verbosity(verbose)
+    # Every option is checked, and every output folder made, before any work.
+    if fov is not None:
+        check_fov(fov, "--fov")
+    if fov_tolerance is not None:
+        check_positive(fov_tolerance, "--fov-tolerance")
+    check_epoch(epoch, "--epoch")
+    check_attitude_method(method, "--attitude")
+    wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
+    prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
+    maps = _calibration_maps(calibration, dark, flat)
+    camera = _load_camera(camera_file) if camera_file is not None else None
+    database = load_database(database_file)
+
     from skyfix.pipeline import solve as solve_image
 
-    try:
-        maps = _calibration_maps(calibration, dark, flat)
-        camera = None
-        if camera_file is not None:
-            camera = _load_camera(camera_file)
-        if fov is not None and not 0.1 <= fov <= 120:
-            _fail(f"--fov {fov} is not a plausible field of view (0.1–120 degrees)")
-        from skyfix.identify import PatternDatabase, default_database
-
-        database = default_database() if database_file is None else PatternDatabase.load(database_file)
-    except SkyfixError as exc:
-        _fail(str(exc))
-
-    any_failed = False
+    any_failed = any_error = False
     progress = _progress(len(images), json_out)
-    for path in images:
-        try:
-            sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
-                              database=database, epoch=epoch, attitude_method=method, **maps)
-        except SkyfixError as exc:
-            _fail(f"{path}: {exc}")
-        any_failed |= not sol.solved
-        if json_out:
-            typer.echo(sol.to_json())
-        else:
-            typer.echo(_summary(sol))
-        if sol.solved:
-            wcs_path = _output_path(wcs, path, len(images), ".wcs")
-            if wcs_path is not None:
-                from skyfix.wcs import write_wcs
+    with compile_notice(progress):
+        for path, wcs_path, plot_path in zip(images, wcs_paths, plot_paths, strict=True):
+            try:
+                sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
+                                  database=database, epoch=epoch, attitude_method=method, **maps)
+                any_failed |= not sol.solved
+                typer.echo(sol.to_json() if json_out else _summary(sol))
+                if sol.solved and wcs_path is not None:
+                    from skyfix.wcs import write_wcs
 
-                write_wcs(wcs_path, sol.A_icrs_to_cam, sol.camera)
-        plot_path = _output_path(plot, path, len(images), ".png")
-        if plot_path is not None:
-            from skyfix.io import read_image
-            from skyfix.plot import plot_solution
+                    write_wcs(wcs_path, sol.A_icrs_to_cam, sol.camera)
+                if plot_path is not None:
+                    from skyfix.io import read_image
+                    from skyfix.plot import plot_solution
 
-            plot_solution(read_image(path), sol, plot_path)
-        if progress is not None:
-            progress.advance(0)
+                    plot_solution(read_image(path), sol, plot_path)
+            except Exception as exc:  # this image's error line, then the next image
+                any_error = True
+                typer.echo(f"skyfix: error: {error_line(exc, path)}{_count_flag_hint(exc, path)}", err=True)
+            if progress is not None:
+                progress.advance(0)
     if progress is not None:
         progress.stop()
-    raise typer.Exit(1 if any_failed else 0)
+    raise typer.Exit(2 if any_error else 1 if any_failed else 0)
+
+
+def _count_flag_hint(exc: BaseException, path: Path) -> str:
+    """``skyfix solve -v 1 x.png`` reads "1" as an image: say why."""
+    if isinstance(exc, ImageReadError) and str(path).isdigit() and not path.exists():
+        return " (-v takes no value: write -v or -vv)"
+    return ""
 
 
 def _calibration_maps(calibration: Path | None, dark: Path | None, flat: Path | None) -> dict:
@@ -160,29 +189,29 @@ def _summary(sol) -> str:
 
 
 @database_app.command("build")
+@guarded
 def database_build(
     fov_min: float = typer.Option(10.0, help="Smallest field of view, degrees."),
     fov_max: float = typer.Option(30.0, help="Largest field of view, degrees."),
     output: Path = typer.Option(None, "--output", "-o", help="Where to write (default: user cache)."),
-    verbose: int = typer.Option(0, "--verbose", "-v", count=True),
+    verbose: int = VERBOSE,
 ) -> None:
-    """Build the lost-in-space pattern database for a FOV range."""
-    _setup_logging(verbose)
+    """Build the lost-in-space pattern database for a FOV range (it serves fields about 1.35×
+    beyond it on either side)."""
+    add_verbosity(verbose)
     from skyfix.identify import PatternDatabase, default_database_path
 
-    try:
-        if not 0.5 <= fov_min <= fov_max <= 100:
-            _fail(f"need 0.5 <= fov-min <= fov-max <= 100, got {fov_min}..{fov_max}")
-        db = PatternDatabase.build(fov_min_deg=fov_min, fov_max_deg=fov_max, progress=True)
-        path = output or default_database_path()
-        db.save(path)
-    except SkyfixError as exc:
-        _fail(str(exc))
+    check_fov_range(fov_min, fov_max, ("--fov-min", "--fov-max"))
+    path = output or default_database_path(fov_min, fov_max)
+    prepare_outputs({"--output": [path]})
+    db = PatternDatabase.build(fov_min_deg=fov_min, fov_max_deg=fov_max, progress=True)
+    db.save(path)
     typer.echo(f"wrote {path} ({len(db)} patterns of {len(db.star_ids)} stars, FOV {db.fov_min_deg:g}–"
                f"{db.fov_max_deg:g}°)")
 
 
 @app.command()
+@guarded
 def detect(
     images: list[Path] = typer.Argument(..., help="Image files (FITS, PNG, TIFF, JPEG)."),
     method: str = typer.Option("components", "--method", help="Detection method (skyfix.detect.METHODS)."),
@@ -191,22 +220,37 @@ def detect(
     max_stars: int = typer.Option(200, "--max-stars", help="Keep the brightest N."),
     calibration: Path = typer.Option(None, "--calibration", help="Maps from `skyfix calibrate frames`."),
     json_out: bool = typer.Option(False, "--json", help="One JSON line per image with its centroids."),
+    verbose: int = VERBOSE,
 ) -> None:
     """Find stars and print their centroids (DESIGN.md pixels), brightest first."""
     import json
 
     import numpy as np
 
-    from skyfix.detect import calibrate_frame, extract_centroids
+    import skyfix.detect as det
     from skyfix.io import read_image
 
-    try:
-        maps = _calibration_maps(calibration, None, None)
+    add_verbosity(verbose)
+    sigma = check_positive(sigma, "--sigma")
+    max_stars = check_count(max_stars, "--max-stars")
+    if method not in det.METHODS:
+        fail(f"unknown detection method {method!r}; choose one of {', '.join(det.METHODS)}")
+    if centroid not in det.CENTROIDERS:
+        fail(f"unknown centroider {centroid!r}; choose one of {', '.join(det.CENTROIDERS)}")
+    maps = _calibration_maps(calibration, None, None)
+    any_error = False
+    with compile_notice():
         for path in images:
-            data = read_image(path)
-            if maps:
-                data = calibrate_frame(data, **maps)
-            c = extract_centroids(data, method=method, centroid=centroid, sigma=sigma, max_stars=max_stars)
+            try:
+                data = read_image(path)
+                if maps:
+                    data = det.calibrate_frame(data, **maps)
+                c = det.extract_centroids(data, method=method, centroid=centroid, sigma=sigma,
+                                          max_stars=max_stars)
+            except Exception as exc:  # this image's error line, then the next image
+                any_error = True
+                typer.echo(f"skyfix: error: {error_line(exc, path)}", err=True)
+                continue
             if not json_out:
                 typer.echo(f"{path}: {len(c)} stars, background {c.background_level:.1f}, "
                            f"noise {c.noise:.2f}")
@@ -219,24 +263,52 @@ def detect(
             rows = [dict(zip(cols, vals, strict=True)) for vals in zip(*cols.values(), strict=True)]
             typer.echo(json.dumps({"image": str(path), "n": len(c), "background": float(c.background_level),
                                    "noise": float(c.noise), "centroids": rows}))
-    except SkyfixError as exc:
-        _fail(str(exc))
-    except ValueError as exc:  # an unknown method or centroider name
-        _fail(str(exc))
+    if any_error:
+        raise typer.Exit(2)
 
 
 calibrate_app = typer.Typer(no_args_is_help=True, help="Calibrate the sensor (dark, flat, hot pixels).")
 app.add_typer(calibrate_app, name="calibrate")
 
 
-@calibrate_app.command("frames")
+class _ManyFilesCommand(typer.core.TyperCommand):
+    """A command whose ``--darks``/``--flats`` take every file that follows, up to the next option
+    (``--darks a.fits b.fits c.fits``), as well as one file per flag (``--darks a --darks b``):
+    click options take a fixed number of values, so the flag is repeated before parsing."""
+
+    many = ("--darks", "--flats")
+
+    def parse_args(self, ctx, args: list[str]) -> list[str]:
+        out: list[str] = []
+        flag, n_values = None, 0
+        for arg in args:
+            if flag is not None and (n_values == 0 or not arg.startswith("-")):
+                out += [flag, arg]
+                n_values += 1
+                continue
+            flag = None
+            if arg in self.many:
+                flag, n_values = arg, 0
+                continue
+            out.append(arg)
+        if flag is not None and n_values == 0:
+            out.append(flag)  # no value: click says so
+        return super().parse_args(ctx, out)
+
+
+@calibrate_app.command("frames", cls=_ManyFilesCommand)
+@guarded
 def calibrate_frames(
-    darks: list[Path] = typer.Option(None, "--darks", help="Dark frames (shutter closed)."),
-    flats: list[Path] = typer.Option(None, "--flats", help="Flat-field frames (uniform illumination)."),
+    darks: list[Path] = typer.Option(None, "--darks",
+                                     help="Dark frames (shutter closed): --darks a.fits b.fits …"),
+    flats: list[Path] = typer.Option(None, "--flats", help="Flat-field frames (uniform illumination): "
+                                     "--flats a.fits b.fits …"),
     nsigma: float = typer.Option(5.0, "--nsigma", help="Hot pixel: this many σ above the dark level."),
     output: Path = typer.Option(..., "--output", "-o", help="Maps file (.fits or .npz)."),
+    verbose: int = VERBOSE,
 ) -> None:
-    """Master dark, master flat and hot/dead-pixel map from frame stacks, with a dark report."""
+    """Master dark, master flat and hot/dead-pixel map from frame stacks, with a dark report per
+    exposure (read from the FITS header's EXPTIME or EXPOSURE)."""
     from skyfix.detect import (
         dark_report,
         dead_pixel_map,
@@ -246,27 +318,34 @@ def calibrate_frames(
         save_calibration,
     )
 
+    add_verbosity(verbose)
     if not darks and not flats:
-        _fail("give --darks and/or --flats")
-    try:
-        dark = master_dark(darks) if darks else None
-        flat = master_flat(flats, dark=dark) if flats else None
-        bad = None
-        if dark is not None:
-            bad = hot_pixel_map(dark, nsigma)
-        if flat is not None:
-            bad = dead_pixel_map(flat) if bad is None else bad | dead_pixel_map(flat)
-        save_calibration(output, dark=dark, flat=flat, bad_pixels=bad)
-        if darks:
-            by_exposure: dict[float, list[Path]] = {}
-            for p in darks:
-                by_exposure.setdefault(_exposure_s(p), []).append(p)
-            typer.echo("exposure_s  frames  dark_level_adu  dark_noise_adu  dsnu_adu  hot_pixels")
-            for row in dark_report(by_exposure, nsigma):
-                typer.echo(f"{row['exposure_s']:10.4g}  {row['n_frames']:6d}  {row['dark_level_adu']:14.2f}  "
-                           f"{row['dark_noise_adu']:14.2f}  {row['dsnu_adu']:8.2f}  {row['hot_pixels']:10d}")
-    except SkyfixError as exc:
-        _fail(str(exc))
+        fail("give --darks and/or --flats")
+    check_positive(nsigma, "--nsigma")
+    prepare_outputs({"--output": [output]}, inputs=[*(darks or ()), *(flats or ())])
+    dark = master_dark(darks) if darks else None
+    flat = master_flat(flats, dark=dark) if flats else None
+    bad = None
+    if dark is not None:
+        bad = hot_pixel_map(dark, nsigma)
+    if flat is not None:
+        bad = dead_pixel_map(flat) if bad is None else bad | dead_pixel_map(flat)
+    save_calibration(output, dark=dark, flat=flat, bad_pixels=bad)
+    if darks:
+        unknown = math.nan  # one key for every dark without an exposure time
+        by_exposure: dict[float, list[Path]] = {}
+        for p in darks:
+            exposure = _exposure_s(p)
+            by_exposure.setdefault(unknown if math.isnan(exposure) else exposure, []).append(p)
+        if unknown in by_exposure:
+            n = len(by_exposure[unknown])
+            typer.echo(f"skyfix: note: {n} dark{'s have' if n > 1 else ' has'} no exposure time (no EXPTIME "
+                       f"or EXPOSURE in a FITS header): reported together as exposure 'unknown'", err=True)
+        typer.echo("exposure_s  frames  dark_level_adu  dark_noise_adu  dsnu_adu  hot_pixels")
+        for row in dark_report(by_exposure, nsigma):
+            exposure = "unknown" if math.isnan(row["exposure_s"]) else f"{row['exposure_s']:.4g}"
+            typer.echo(f"{exposure:>10}  {row['n_frames']:6d}  {row['dark_level_adu']:14.2f}  "
+                       f"{row['dark_noise_adu']:14.2f}  {row['dsnu_adu']:8.2f}  {row['hot_pixels']:10d}")
     n_bad = 0 if bad is None else int(bad.sum())
     typer.echo(f"wrote {output} (dark: {dark is not None}, flat: {flat is not None}, bad pixels: {n_bad})")
 
@@ -317,6 +396,7 @@ def _sensor_arg(value: str | None):
 
 
 @app.command()
+@guarded
 def simulate(
     ra: float = typer.Option(..., "--ra", help="Boresight right ascension, degrees."),
     dec: float = typer.Option(..., "--dec", help="Boresight declination, degrees."),
@@ -332,42 +412,51 @@ def simulate(
     frames: int = typer.Option(1, "--frames", help="Number of frames (a sequence when > 1)."),
     fps: float = typer.Option(10.0, "--fps", help="Frame rate of a sequence, frames per second."),
     output: Path = typer.Option(..., "--output", "-o", help="Image file: .fits, .png or .tif."),
+    verbose: int = VERBOSE,
 ) -> None:
     """Render a simulated star image and write its truth beside it (NAME.truth.json)."""
-    import math
-
     import numpy as np
 
     from skyfix.geometry import attitude_from_radec_roll
     from skyfix.simulate import render, render_sequence, write_frame
 
-    try:
-        rate = None
-        if rate_dps is not None:
+    add_verbosity(verbose)
+    rate = None
+    if rate_dps is not None:
+        try:
             parts = [float(v) for v in rate_dps.split(",")]
-            if len(parts) != 3:
-                _fail("--rate-dps takes three numbers: wx,wy,wz")
-            rate = np.radians(parts)
-        if not -90.0 <= dec <= 90.0:
-            _fail(f"--dec {dec} is outside -90..90 degrees")
-        if frames < 1 or not (fps > 0 and math.isfinite(fps)):
-            _fail("--frames must be >= 1 and --fps > 0")
-        A = attitude_from_radec_roll(math.radians(ra), math.radians(dec), math.radians(roll))
-        kw = dict(sensor=_sensor_arg(sensor), exposure_s=exposure, epoch=time, seed=seed,
-                  rate_rad_s=rate, false_stars=false_stars, hot_pixels=hot_pixels)
-        cam = _camera_arg(camera)
+        except ValueError:
+            parts = []
+        if len(parts) != 3 or not all(map(math.isfinite, parts)):
+            fail("--rate-dps takes three numbers: wx,wy,wz")
+        rate = np.radians(parts)
+    if not (math.isfinite(ra) and math.isfinite(roll)):
+        fail("--ra and --roll must be finite numbers of degrees")
+    if not -90.0 <= dec <= 90.0:
+        fail(f"--dec {dec:g} is outside -90..90 degrees")
+    frames = check_count(frames, "--frames")
+    check_positive(fps, "--fps")
+    if exposure is not None:
+        check_positive(exposure, "--exposure")
+    for name, value in (("--false-stars", false_stars), ("--hot-pixels", hot_pixels), ("--seed", seed)):
+        check_count(value, name, minimum=0)
+    paths = [output] if frames == 1 else [output.with_name(f"{output.stem}-{k:04d}{output.suffix}")
+                                          for k in range(frames)]
+    prepare_outputs({"--output": paths})
+    A = attitude_from_radec_roll(math.radians(ra), math.radians(dec), math.radians(roll))
+    kw = dict(sensor=_sensor_arg(sensor), exposure_s=exposure, epoch=time, seed=seed,
+              rate_rad_s=rate, false_stars=false_stars, hot_pixels=hot_pixels)
+    cam = _camera_arg(camera)
+    try:
         if frames == 1:
             image, truth = write_frame(render(A, cam, **kw), output)
             typer.echo(f"wrote {image} and {truth}")
             return
-        for k, frame in enumerate(render_sequence(A, cam, n_frames=frames, fps=fps, **kw)):
-            path = output.with_name(f"{output.stem}-{k:04d}{output.suffix}")
+        for path, frame in zip(paths, render_sequence(A, cam, n_frames=frames, fps=fps, **kw), strict=True):
             write_frame(frame, path)
-        typer.echo(f"wrote {frames} frames {output.stem}-0000{output.suffix} … with truth beside each")
-    except SkyfixError as exc:
-        _fail(str(exc))
-    except ValueError as exc:
-        _fail(f"bad value: {exc}")
+    except ValueError as exc:  # the simulator's own checks of sensor and preset values
+        fail(f"bad value: {exc}")
+    typer.echo(f"wrote {frames} frames {output.stem}-0000{output.suffix} … with truth beside each")
 
 
 def main() -> None:  # pragma: no cover - console entry point

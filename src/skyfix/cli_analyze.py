@@ -1,35 +1,47 @@
 """``skyfix analyze``: centroid accuracy vs. the Cramér–Rao bound, PSF across the field, photometry.
 
-Registered in :mod:`skyfix.cli` with ``app.add_typer(analyze_app, name="analyze")``.
+Registered in :mod:`skyfix.cli` with ``app.add_typer(analyze_app, name="analyze")``. Errors are
+one line, as everywhere in the CLI (:mod:`skyfix.cli_support`).
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import typer
 
-from skyfix.errors import SkyfixError
+from skyfix.cli_support import (
+    VERBOSE,
+    add_verbosity,
+    compile_notice,
+    error_line,
+    fail,
+    guarded,
+    load_database,
+    prepare_outputs,
+)
+from skyfix.validate import check_count, check_epoch, check_fov, check_positive
 
 analyze_app = typer.Typer(no_args_is_help=True, pretty_exceptions_enable=False,
                           help="Analyses: centroid accuracy vs. the Cramér–Rao bound, PSF over the field, "
                                "photometry against the catalogue.")
 
 
-def _fail(message: str, code: int = 2) -> None:
-    typer.echo(f"skyfix: error: {message}", err=True)
-    raise typer.Exit(code)
-
-
 def _progress(total: int, quiet: bool):
+    """A transient progress bar on stderr, shown only on a terminal (and not when ``quiet``)."""
+    from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+    console = Console(stderr=True)
     return Progress(TextColumn("[progress.description]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TimeRemainingColumn(), transient=True, disable=quiet)
+                    TimeRemainingColumn(), console=console, transient=True,
+                    disable=quiet or not console.is_terminal)
 
 
 @analyze_app.command()
+@guarded
 def centroids(
     out: Path = typer.Option(Path("centroid-study"), "--out", help="Output directory (JSON, Markdown, PNG)."),
     trials: int = typer.Option(2000, "--trials", min=10, help="Simulated stars per centroider, σ and SNR."),
@@ -38,15 +50,19 @@ def centroids(
     methods: str = typer.Option("", "--methods", help="Comma-separated centroiders and extraction methods "
                                 "(default: com, iwcog, gaussian, components, threshold_hillclimb, "
                                 "region_grow)."),
+    verbose: int = VERBOSE,
 ) -> None:
     """Run each centroider on simulated stars over SNR × PSF σ × sub-pixel phase; error vs. bound."""
     from skyfix.analysis import centroid_study as cs
     from skyfix.detect import CENTROIDERS
 
+    add_verbosity(verbose)
+    trials = check_count(trials, "--trials", minimum=10)
+
     names = tuple(m.strip() for m in methods.split(",") if m.strip()) or cs.DEFAULT_CENTROIDERS
     bad = [m for m in names if m not in (*CENTROIDERS, *cs.EXTRACTORS)]
     if bad or not names:
-        _fail(f"unknown centroider {', '.join(bad) or '(none)'}; choose from "
+        fail(f"unknown centroider {', '.join(bad) or '(none)'}; choose from "
               f"{', '.join((*CENTROIDERS, *cs.EXTRACTORS))}")
     sigmas, snrs = cs.DEFAULT_SIGMA, cs.DEFAULT_SNR
     if quick:
@@ -54,7 +70,8 @@ def centroids(
     n_steps = len(names) * (len(sigmas) * len(snrs) + 1)
     command = "skyfix analyze centroids" + (" --quick" if quick else f" --trials {trials}") + (
         f" --seed {seed}" if seed else "")
-    with _progress(n_steps, False) as bar:
+    prepare_outputs({"--out": [out / "centroid-study.json"]})
+    with _progress(n_steps, False) as bar, compile_notice(bar):
         task = bar.add_task("centroid study", total=n_steps)
         study = cs.run_study(names, sigmas, snrs, n_trials=trials, seed=seed,
                              progress=lambda what: bar.update(task, advance=1, description=what))
@@ -65,21 +82,34 @@ def centroids(
 
 
 @analyze_app.command()
+@guarded
 def psf(
     image: Path = typer.Argument(..., help="Sky image (FITS, PNG, TIFF, JPEG)."),
     out: Path = typer.Option(None, "--out", help="Write the field map (PNG)."),
     json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON line."),
     min_snr: float = typer.Option(10.0, "--min-snr", help="Use stars above this SNR."),
+    verbose: int = VERBOSE,
 ) -> None:
-    """Measure FWHM and ellipticity of isolated, unsaturated stars across the field."""
+    """Measure FWHM and ellipticity of isolated, unsaturated stars across the field.
+
+    A frame with no such star fails (exit 1) with the reason on one line."""
     from skyfix.analysis.psf_field import measure_psf_field, plot_psf_field
+    from skyfix.detect import frame_problem
     from skyfix.io import read_image
 
-    try:
-        img = read_image(image)
+    add_verbosity(verbose)
+    check_positive(min_snr, "--min-snr")
+    prepare_outputs({"--out": [out]}, inputs=[image])
+    img = read_image(image)
+    with compile_notice():
         field = measure_psf_field(img, min_snr=min_snr)
-    except SkyfixError as exc:
-        _fail(str(exc))
+    if field.n == 0:
+        problem = frame_problem(img)
+        reason = (f"no isolated unsaturated stars above SNR {min_snr:g} to measure"
+                  + (f": {problem}" if problem else ""))
+        typer.echo(json.dumps({"image": str(image), "status": "failed", "reason": reason}) if json_out
+                   else f"{image}: failed: {reason}")
+        raise typer.Exit(1)
     summary = field.summary()
     summary["image"] = str(image)
     if json_out:
@@ -90,37 +120,50 @@ def psf(
         plot_psf_field(field, out, title=image.name)
         if not json_out:
             typer.echo(f"wrote {out}")
-    if field.n == 0:
-        raise typer.Exit(1)
 
 
 @analyze_app.command()
+@guarded
 def photometry(
     images: list[Path] = typer.Argument(..., help="Sky images to solve and calibrate."),
     epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: now)."),
     fov: float = typer.Option(None, "--fov", help="Horizontal field of view, degrees (optional)."),
     flux: str = typer.Option("psf", "--flux", help="Flux estimator: psf, aperture, extractor."),
     json_out: bool = typer.Option(False, "--json", help="One JSON line per image, then one for the set."),
+    verbose: int = VERBOSE,
 ) -> None:
     """Instrumental magnitudes of identified stars vs. catalogue Hp: zero point and RMS per frame,
-    then a shared colour term (B−V) and vignetting (ρ²) fitted over all frames."""
+    then a shared colour term (B−V) and vignetting (ρ²) fitted over all frames. A frame that
+    cannot be read is reported and skipped (exit 2 at the end); with no frame solved, exit 1."""
     from skyfix.analysis.photometry import fit_field_calibration, frame_photometry, summarize
 
+    add_verbosity(verbose)
     if flux not in ("psf", "aperture", "extractor"):
-        _fail(f"unknown flux estimator {flux!r}; choose psf, aperture or extractor")
+        fail(f"unknown flux estimator {flux!r}; choose psf, aperture or extractor")
+    check_epoch(epoch, "--epoch")
+    if fov is not None:
+        check_fov(fov, "--fov")
+    load_database(None)  # says so when it has to be built first
     results = []
-    with _progress(len(images), json_out) as bar:
+    any_error = False
+    with _progress(len(images), json_out) as bar, compile_notice(bar):
         task = bar.add_task("photometry", total=len(images))
         for path in images:
             try:
                 res = frame_photometry(path, epoch=epoch, fov_deg=fov, flux=flux)
-            except SkyfixError as exc:
-                _fail(f"{path}: {exc}")
+            except Exception as exc:  # this image's error line, then the next image
+                any_error = True
+                typer.echo(f"skyfix: error: {error_line(exc, path)}", err=True)
+                continue
+            finally:
+                bar.update(task, advance=1)
             results.append(res)
-            bar.update(task, advance=1)
-            bar.console.print(json.dumps(res.summary()) if json_out else res.format_line(), soft_wrap=True,
-                              markup=False, highlight=False)
+            typer.echo(json.dumps(res.summary()) if json_out else res.format_line())
     total = summarize(results)
+    if total["n_frames_solved"] == 0:
+        if not json_out:
+            typer.echo("no frame solved: no photometry")
+        raise typer.Exit(2 if any_error else 1)
     cal = fit_field_calibration(results)
     total["field_calibration"] = {"colour_slope_mag_per_bv": cal.colour_slope,
                                   "vignetting_mag": cal.vignetting, "rms_mag": cal.rms_mag,
@@ -134,9 +177,14 @@ def photometry(
                    f"per-frame zero point only: RMS {total['rms_mag']:.3f} mag "
                    f"(clipped {total['rms_clipped_mag']:.3f}, "
                    f"median per frame {total['median_frame_rms_mag']:.3f})")
-        typer.echo(f"with colour term {cal.colour_slope:+.3f} mag/(B−V) and vignetting "
-                   f"{cal.vignetting:+.3f} mag at the corner: RMS {cal.rms_mag:.3f} mag "
-                   f"(clipped {cal.rms_clipped_mag:.3f}, "
-                   f"{cal.n_clipped} out; Hp < 6: {cal.rms_brighter_than(6.0):.3f})")
+        if math.isfinite(cal.rms_mag):
+            typer.echo(f"with colour term {cal.colour_slope:+.3f} mag/(B−V) and vignetting "
+                       f"{cal.vignetting:+.3f} mag at the corner: RMS {cal.rms_mag:.3f} mag "
+                       f"(clipped {cal.rms_clipped_mag:.3f}, "
+                       f"{cal.n_clipped} out; Hp < 6: {cal.rms_brighter_than(6.0):.3f})")
+        else:
+            typer.echo(f"colour term and vignetting: too few stars to fit ({cal.n_stars})")
+    if any_error:
+        raise typer.Exit(2)
     if total["n_frames_solved"] < total["n_frames"]:
         raise typer.Exit(1)

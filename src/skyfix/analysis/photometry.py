@@ -218,7 +218,7 @@ class FramePhotometry:
     def format_line(self) -> str:
         s = self.summary()
         if not self.solved or self.zero_point is None:
-            return f"{self.image}: not solved ({self.reason})"
+            return f"{self.image}: failed: {self.reason}"
         return (f"{self.image}: {s['n_used']} stars ({s['n_saturated']} saturated left out), "
                 f"ZP {s['zero_point_mag']:.3f}, RMS {s['rms_mag']:.3f} mag "
                 f"(clipped {s['rms_clipped_mag']:.3f}, {s['n_clipped']} out)")

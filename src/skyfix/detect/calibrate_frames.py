@@ -14,6 +14,7 @@ is outside ``[low, high]`` (default 0.5–1.5) of the median.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
@@ -34,10 +35,24 @@ def _stack(frames: Iterable[np.ndarray] | np.ndarray) -> np.ndarray:
     if isinstance(frames, np.ndarray) and frames.ndim == 3:
         stack = frames.astype(np.float32, copy=False)
     else:
-        stack = np.stack([read_image(f) for f in frames]).astype(np.float32, copy=False)
+        frames = list(frames)
+        images = [read_image(f) for f in frames]
+        for f, img in zip(frames, images, strict=True):
+            if img.shape != images[0].shape:
+                (h, w), (h0, w0) = img.shape, images[0].shape
+                raise ImageReadError(f"{_label(f, frames)}: {w}×{h} pixels, but {_label(frames[0], frames)} "
+                                     f"is {w0}×{h0}: a stack needs frames of one size")
+        stack = np.stack(images).astype(np.float32, copy=False) if images else np.zeros((0, 0, 0), np.float32)
     if stack.ndim != 3 or stack.shape[0] == 0:
         raise ImageReadError("a calibration stack needs at least one 2-D frame")
     return stack
+
+
+def _label(frame: object, frames: list) -> str:
+    """A frame's file name, or its place in the stack for an array."""
+    if isinstance(frame, (str, Path)):
+        return str(frame)
+    return f"frame {next(i for i, f in enumerate(frames) if f is frame)}"
 
 
 def master_frame(frames: Iterable[np.ndarray | str | Path] | np.ndarray, *, combine: str = "clipped_mean",
@@ -172,14 +187,14 @@ def dark_report(darks_by_exposure: Mapping[float, Iterable[np.ndarray | str | Pa
                 nsigma: float = 5.0) -> list[dict]:
     """Dark level and hot-pixel count per exposure (like thesis 000 Table 5).
 
-    Returns one dict per exposure, sorted by exposure: ``exposure_s``, ``n_frames``,
+    Returns one dict per exposure, sorted by exposure (NaN, unknown, last): ``exposure_s``, ``n_frames``,
     ``dark_level_adu`` (median of the master dark), ``dark_noise_adu`` (temporal noise of one
     frame, from the first frame minus the master; NaN for a single frame), ``dsnu_adu`` (robust
     spatial σ of the master dark less its own temporal noise) and ``hot_pixels`` (count,
     ``nsigma`` rule).
     """
     rows = []
-    for exposure in sorted(darks_by_exposure):
+    for exposure in sorted(darks_by_exposure, key=lambda e: (math.isnan(e), e)):  # unknown (NaN) last
         stack = _stack(darks_by_exposure[exposure])
         master = master_frame(stack)
         hot = hot_pixel_map(master, nsigma)

@@ -1,0 +1,305 @@
+"""What every ``skyfix`` command shares: one-line errors, the guard that turns any exception into
+one, ``-v``/``-vv``, output files (folders created, names never colliding) and the notice shown
+while numba compiles kernels (the first run on a machine).
+
+Errors: ``skyfix: error: MESSAGE`` on stderr and exit status 2; an interrupt prints
+``skyfix: interrupted`` and exits 130 (the shell's convention for Ctrl-C); an unexpected
+exception (a bug) is one line too, and ``-vv`` adds its traceback.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import os
+import sys
+import time
+import traceback
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, NoReturn
+
+import typer
+
+from skyfix.errors import SkyfixError
+
+__all__ = [
+    "VERBOSE", "add_verbosity", "compile_notice", "error_line", "fail", "guarded", "load_database",
+    "output_names", "output_paths", "prepare_outputs", "reset_verbosity",
+]
+
+#: ``-v`` / ``-vv``: a counted flag (it takes no value), on ``skyfix`` itself and on commands.
+VERBOSE = typer.Option(0, "--verbose", "-v", count=True, metavar="", show_default=False,
+                       help="-v: say what each stage decided; -vv: debug detail and tracebacks "
+                            "(a counted flag: it takes no value).")
+
+_state = {"verbosity": 0}
+
+
+class _StderrHandler(logging.StreamHandler):
+    """A handler that writes to whatever ``sys.stderr`` is at the time (test runners swap it)."""
+
+    @property
+    def stream(self):  # noqa: D401
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:
+        pass
+
+
+_HANDLER = _StderrHandler()
+_HANDLER.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+
+
+def add_verbosity(count: int) -> int:
+    """Add a command's ``-v`` count to the one given before the command; set skyfix's log level
+    (only skyfix's own loggers: numba's and Pillow's debug output stays off). Returns the total."""
+    _state["verbosity"] += int(count)
+    total = _state["verbosity"]
+    log = logging.getLogger("skyfix")
+    log.setLevel(logging.WARNING if total == 0 else logging.INFO if total == 1 else logging.DEBUG)
+    if _HANDLER not in log.handlers:
+        log.addHandler(_HANDLER)
+        log.propagate = False
+    return total
+
+
+def reset_verbosity() -> None:
+    """Back to no ``-v`` (the start of each invocation)."""
+    _state["verbosity"] = 0
+    logging.getLogger("skyfix").setLevel(logging.WARNING)
+
+
+def fail(message: str, code: int = 2) -> NoReturn:
+    """Print ``skyfix: error: MESSAGE`` on stderr and exit with ``code``."""
+    typer.echo(f"skyfix: error: {message}", err=True)
+    raise typer.Exit(code)
+
+
+def error_line(exc: BaseException, where: str | Path | None = None) -> str:
+    """One line for an exception: a SkyfixError's own message, anything else as an internal error
+    (its traceback on stderr with ``-vv``). ``where`` (a file) goes in front unless the message
+    already starts with it."""
+    if isinstance(exc, SkyfixError):
+        text = str(exc)
+    else:
+        first = (str(exc).strip().splitlines() or [""])[0]
+        text = f"internal error: {type(exc).__name__}{': ' + first if first else ''}"
+        if _state["verbosity"] >= 2:
+            typer.echo("".join(traceback.format_exception(exc)).rstrip(), err=True)
+        else:
+            text += " (run with -vv for the traceback)"
+    if where is not None and not text.startswith(str(where)):
+        text = f"{where}: {text}"
+    return text
+
+
+def guarded(func: Callable[..., Any]) -> Callable[..., Any]:
+    """Decorate a command: whatever it raises becomes one ``skyfix: error:`` line (exit 2), an
+    interrupt ``skyfix: interrupted`` (exit 130); ``typer.Exit`` passes through."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return func(*args, **kwargs)
+        except (typer.Exit, typer.Abort):
+            raise
+        except KeyboardInterrupt:
+            typer.echo("skyfix: interrupted", err=True)
+            raise typer.Exit(130) from None
+        except Exception as exc:  # a SkyfixError (bad input) or a bug: one line either way
+            fail(error_line(exc))
+        finally:
+            reset_verbosity()
+
+    return wrapper
+
+
+# --- output files ----------------------------------------------------------------------------------
+def output_names(images: Sequence[Path]) -> list[str]:
+    """A name per input for its output files, distinct whenever the inputs are.
+
+    The file's stem. Inputs that share a stem get their folder's name in front when that tells
+    them apart (``a/sky.png`` → ``a-sky``, ``b/sky.png`` → ``b-sky``), else their extension
+    behind (``sky.png`` → ``sky-png``, ``sky.fits`` → ``sky-fits``), else both; anything still
+    the same (a file given twice) gets ``-2``, ``-3``...
+    """
+    paths = [Path(p) for p in images]
+    names = [p.stem for p in paths]
+    groups: dict[str, list[int]] = {}
+    for i, n in enumerate(names):
+        groups.setdefault(n, []).append(i)
+    for stem, idx in groups.items():
+        if len(idx) == 1:
+            continue
+        folders = [paths[i].parent.name for i in idx]
+        exts = [paths[i].suffix.lstrip(".") for i in idx]
+        for i, folder, ext in zip(idx, folders, exts, strict=True):
+            if len(set(folders)) == len(idx):
+                parts = (folder, stem)
+            elif len(set(exts)) == len(idx):
+                parts = (stem, ext)
+            else:
+                parts = (folder, stem, ext)
+            names[i] = "-".join(part for part in parts if part)
+    seen: Counter[str] = Counter()
+    out = []
+    for n in names:
+        seen[n] += 1
+        out.append(n if seen[n] == 1 else f"{n}-{seen[n]}")
+    return out
+
+
+def output_paths(template: Path | None, images: Sequence[Path], suffix: str) -> list[Path | None]:
+    """The output file of each image for an option like ``--plot TEMPLATE``.
+
+    ``{stem}`` in the template is replaced by the image's name from :func:`output_names`; an
+    existing folder receives ``NAME{suffix}`` files; without either, one image writes the
+    template itself and several write ``TEMPLATE-NAME.ext``.
+    """
+    if template is None:
+        return [None] * len(images)
+    names = output_names(images)
+    text = str(template)
+    if "{stem}" in text:
+        return [Path(text.replace("{stem}", n)) for n in names]
+    if template.is_dir():
+        return [template / f"{n}{suffix}" for n in names]
+    if len(images) == 1:
+        return [template]
+    return [template.with_name(f"{template.stem}-{n}{template.suffix or suffix}") for n in names]
+
+
+def prepare_outputs(outputs: dict[str, Sequence[Path | None]], inputs: Sequence[Path] = ()) -> None:
+    """Before any work: create the folders of the output files and check they can be written;
+    refuse outputs that would overwrite an input or each other. ``outputs`` maps an option name
+    (``"--plot"``) to its paths. Fails with a one-line error."""
+    written: dict[Path, str] = {}
+    sources = {Path(p).resolve(): Path(p) for p in inputs}
+    for option, paths in outputs.items():
+        for path in paths:
+            if path is None:
+                continue
+            key = path.resolve()
+            if key in sources:
+                fail(f"{option} {path} would overwrite the input image {sources[key]}")
+            if key in written:
+                if written[key] != option:
+                    fail(f"{written[key]} and {option} both write {path}")
+                fail(f"{option} writes {path} more than once (put {{stem}} in its name)")
+            written[key] = option
+            if path.is_dir():
+                fail(f"{option} {path} is a folder; give a file name")
+            folder = path.parent
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                fail(f"{option}: cannot create the folder {folder} ({exc.strerror or type(exc).__name__})")
+            if not os.access(folder, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
+                fail(f"{option}: cannot write {path} (permission denied)")
+
+
+# --- the first run: building the database, numba compiling kernels ---------------------------------
+def load_database(path: Path | None) -> Any:
+    """The pattern database in ``path``, or the default one — saying so when it is about to be
+    built (the first run on a machine)."""
+    from skyfix.identify import PatternDatabase, default_database, default_database_path
+
+    if path is not None:
+        return PatternDatabase.load(path)
+    if not default_database_path().exists():
+        typer.echo("skyfix: first run: building the pattern database (once; about a minute)…", err=True)
+    return default_database()
+
+
+_COMPILE_TEXT = "compiling numba kernels (first run only, ~1–3 min)"
+
+
+@contextmanager
+def compile_notice(progress: Any = None, console: Any = None) -> Iterator[None]:
+    """While active, numba compiling anything (it does on the first run on a machine, or after an
+    upgrade; a warm cache loads without compiling) shows a transient spinner on stderr, with the
+    number of kernels compiled and the time so far. Nothing shows otherwise, nor when stderr is
+    not a terminal (then ``-v`` logs one line).
+
+    ``progress``: a running :class:`rich.progress.Progress` to add the line to (one display);
+    ``console``: the :class:`rich.console.Console` for a display of its own (default: stderr).
+    """
+    from numba.core import event
+
+    notice = _CompileNotice(progress, console)
+
+    class Listener(event.Listener):
+        def on_start(self, ev: Any) -> None:
+            notice.start()
+
+        def on_end(self, ev: Any) -> None:
+            notice.end()
+
+    listener = Listener()
+    event.register("numba:compile", listener)
+    try:
+        yield
+    finally:
+        event.unregister("numba:compile", listener)
+        notice.close()
+
+
+class _CompileNotice:
+    """The display of :func:`compile_notice`, driven by numba's ``numba:compile`` events (nested:
+    a kernel's callees compile inside it)."""
+
+    def __init__(self, progress: Any, console: Any) -> None:
+        self._progress = progress
+        self._own = None
+        self._console = console
+        self._task = None
+        self._depth = 0
+        self._done = 0
+        self._t0 = 0.0
+
+    def start(self) -> None:
+        self._depth += 1
+        if self._depth == 1:
+            self._show()
+
+    def end(self) -> None:
+        self._depth = max(self._depth - 1, 0)
+        self._done += 1
+        self._update()
+
+    def _show(self) -> None:
+        if self._t0 == 0.0:
+            self._t0 = time.perf_counter()
+            logging.getLogger("skyfix").info("%s…", _COMPILE_TEXT)
+        if self._task is not None:
+            return
+        bar = self._progress
+        if bar is None:
+            if self._own is None:
+                from rich.console import Console
+                from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+                console = self._console if self._console is not None else Console(stderr=True)
+                if not console.is_terminal:
+                    return
+                self._own = Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
+                                     console=console, transient=True)
+                self._own.start()
+            bar = self._own
+        self._task = bar.add_task(f"{_COMPILE_TEXT}…", total=None)
+
+    def _update(self) -> None:
+        bar = self._progress if self._progress is not None else self._own
+        if bar is not None and self._task is not None:
+            bar.update(self._task, description=f"{_COMPILE_TEXT}… {self._done} compiled")
+
+    def close(self) -> None:
+        if self._progress is not None and self._task is not None:
+            self._progress.remove_task(self._task)
+        if self._own is not None:
+            self._own.stop()
+        self._task = self._own = None
