@@ -395,13 +395,15 @@ class _QuadSet:
         code = q[:, 0] << np.uint64(3 * self._BITS)
         for j in (1, 2, 3):
             code |= q[:, j] << np.uint64((3 - j) * self._BITS)
-        return np.unique(code)
+        return _sorted_unique(code)
 
     def merge(self, parts: list[np.ndarray]) -> np.ndarray:
         """The union of sets from :meth:`unique` / :meth:`merge`."""
         if not parts:
             return np.empty((0,) if self.packed else (0, 4), np.uint64 if self.packed else np.int32)
-        return np.unique(np.concatenate(parts), axis=None if self.packed else 0)
+        if not self.packed:
+            return np.unique(np.concatenate(parts), axis=0)
+        return _sorted_unique(np.concatenate(parts))
 
     def unpack(self, codes: np.ndarray, index: np.ndarray) -> np.ndarray:
         """(P, 4) int32 rows of a set, each star number ``i`` replaced by ``index[i]`` (an
@@ -417,6 +419,16 @@ class _QuadSet:
         return rows
 
 
+def _sorted_unique(a: np.ndarray) -> np.ndarray:
+    """The distinct values of 1-d ``a``, ascending, by sorting in place (NumPy 2.4's np.unique
+    hashes first: 40x slower on a million uint64)."""
+    a.sort()
+    keep = np.empty(len(a), dtype=bool)
+    keep[:1] = True
+    np.not_equal(a[1:], a[:-1], out=keep[1:])
+    return a[keep]
+
+
 def _chunks(n: int) -> Iterator[slice]:
     """Slices of ``range(n)`` of :data:`_CHUNK_PATTERNS` patterns."""
     for first in range(0, n, _CHUNK_PATTERNS):
@@ -429,7 +441,7 @@ def _reporter(progress: bool | ProgressCallback, title: str) -> Iterator[Progres
     the callable itself; for True a transient rich bar on stderr if it is a terminal, else
     one log line per stage; for False nothing."""
     if callable(progress):
-        yield progress
+        yield lambda what, fraction: progress(what, round(fraction, 4))  # no 0.8000000000000002
         return
     if not progress:
         yield lambda what, fraction: None
