@@ -121,7 +121,19 @@ def test_output_names_scheme():
     names = output_names([Path("a/sky.png"), Path("b/sky.png"), Path("c/moon.png")])
     assert names == ["a-sky", "b-sky", "moon"]
     assert output_names([Path("x/sky.png"), Path("x/sky.fits")]) == ["sky-png", "sky-fits"]
-    assert output_names([Path("x/sky.png"), Path("x/sky.png")]) == ["x-sky-png", "x-sky-png-2"]
+    assert output_names([Path("x/sky.png"), Path("x/sky.png")]) == ["sky", "sky-2"]
+    assert output_names([Path("a/sky.png"), Path("a/sky.fits"), Path("b/sky.png")]) == [
+        "a-sky-png", "a-sky-fits", "b-sky-png"]
+
+
+def test_missing_database_and_bad_camera_file_are_named(tmp_path):
+    missing = tmp_path / "db.npz"
+    assert _one_error(_run("solve", EXAMPLE, "--database", missing)) == (
+        f"{missing}: no such pattern database (build one with "
+        f"`skyfix database build --fov-min … --fov-max … -o {missing}`)")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("garbage = [\n")
+    assert _one_error(_run("solve", EXAMPLE, "--camera", bad)).startswith(f"{bad}: ")
 
 
 # --- a batch goes on past a bad file --------------------------------------------------------------

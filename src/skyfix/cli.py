@@ -27,7 +27,7 @@ from skyfix.cli_support import (
     prepare_outputs,
     reset_verbosity,
 )
-from skyfix.errors import ImageReadError
+from skyfix.errors import ImageReadError, SkyfixError
 from skyfix.validate import (
     check_attitude_method,
     check_count,
@@ -70,10 +70,11 @@ def main_options(
     add_verbosity(verbose)
 
 
-_OUTPUT_NAMES_HELP = ("Outputs are named after each image: put {stem} in the name (out/{stem}.png); "
-                      "images that share a name get their folder's name in front (a/sky.png → a-sky), "
-                      "else their extension behind (sky-fits). Missing folders are created; no output "
-                      "overwrites an input or another output.")
+_OUTPUT_NAMES_HELP = ("Outputs are named after each image: put {stem} in the name (out/{stem}.png). "
+                      "Images that share a name get their folder's name in front if the folders differ "
+                      "(a/sky.png → a-sky, b/sky.png → b-sky), their extension behind if the extensions "
+                      "differ (sky-png, sky-fits), -2 for a file given twice. Missing folders are "
+                      "created; no output overwrites an input or another output.")
 
 
 @app.command(epilog=_OUTPUT_NAMES_HELP)
@@ -107,7 +108,10 @@ def solve(
     wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
     prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
     maps = _calibration_maps(calibration, dark, flat)
-    camera = _load_camera(camera_file) if camera_file is not None else None
+    try:
+        camera = _load_camera(camera_file) if camera_file is not None else None
+    except SkyfixError as exc:
+        fail(error_line(exc, camera_file))
     database = load_database(database_file)
 
     from skyfix.pipeline import solve as solve_image

@@ -23,7 +23,7 @@ from typing import Any, NoReturn
 
 import typer
 
-from skyfix.errors import SkyfixError
+from skyfix.errors import DatabaseError, SkyfixError
 
 __all__ = [
     "VERBOSE", "add_verbosity", "compile_notice", "error_line", "fail", "guarded", "load_database",
@@ -80,17 +80,18 @@ def fail(message: str, code: int = 2) -> NoReturn:
 
 
 def error_line(exc: BaseException, where: str | Path | None = None) -> str:
-    """One line for an exception: a SkyfixError's own message, anything else as an internal error
-    (its traceback on stderr with ``-vv``). ``where`` (a file) goes in front unless the message
-    already starts with it."""
+    """One line for an exception: a SkyfixError's own message, anything else as an internal error.
+    With ``-vv`` the traceback goes to stderr first. ``where`` (a file) goes in front unless the
+    message already starts with it."""
+    debug = _state["verbosity"] >= 2
+    if debug:
+        typer.echo("".join(traceback.format_exception(exc)).rstrip(), err=True)
     if isinstance(exc, SkyfixError):
         text = str(exc)
     else:
         first = (str(exc).strip().splitlines() or [""])[0]
         text = f"internal error: {type(exc).__name__}{': ' + first if first else ''}"
-        if _state["verbosity"] >= 2:
-            typer.echo("".join(traceback.format_exception(exc)).rstrip(), err=True)
-        else:
+        if not debug:
             text += " (run with -vv for the traceback)"
     if where is not None and not text.startswith(str(where)):
         text = f"{where}: {text}"
@@ -122,10 +123,10 @@ def guarded(func: Callable[..., Any]) -> Callable[..., Any]:
 def output_names(images: Sequence[Path]) -> list[str]:
     """A name per input for its output files, distinct whenever the inputs are.
 
-    The file's stem. Inputs that share a stem get their folder's name in front when that tells
-    them apart (``a/sky.png`` → ``a-sky``, ``b/sky.png`` → ``b-sky``), else their extension
-    behind (``sky.png`` → ``sky-png``, ``sky.fits`` → ``sky-fits``), else both; anything still
-    the same (a file given twice) gets ``-2``, ``-3``...
+    The file's stem. Inputs that share a stem get their folder's name in front if their folders
+    differ (``a/sky.png`` → ``a-sky``, ``b/sky.png`` → ``b-sky``) and their extension behind if
+    their extensions differ (``sky.png`` → ``sky-png``, ``sky.fits`` → ``sky-fits``); anything
+    still the same (a file given twice) gets ``-2``, ``-3``...
     """
     paths = [Path(p) for p in images]
     names = [p.stem for p in paths]
@@ -137,13 +138,9 @@ def output_names(images: Sequence[Path]) -> list[str]:
             continue
         folders = [paths[i].parent.name for i in idx]
         exts = [paths[i].suffix.lstrip(".") for i in idx]
+        by_folder, by_ext = len(set(folders)) > 1, len(set(exts)) > 1
         for i, folder, ext in zip(idx, folders, exts, strict=True):
-            if len(set(folders)) == len(idx):
-                parts = (folder, stem)
-            elif len(set(exts)) == len(idx):
-                parts = (stem, ext)
-            else:
-                parts = (folder, stem, ext)
+            parts = (folder if by_folder else "", stem, ext if by_ext else "")
             names[i] = "-".join(part for part in parts if part)
     seen: Counter[str] = Counter()
     out = []
@@ -209,6 +206,9 @@ def load_database(path: Path | None) -> Any:
     from skyfix.identify import PatternDatabase, default_database, default_database_path
 
     if path is not None:
+        if not Path(path).is_file():
+            raise DatabaseError(f"{path}: no such pattern database (build one with "
+                                f"`skyfix database build --fov-min … --fov-max … -o {path}`)")
         return PatternDatabase.load(path)
     if not default_database_path().exists():
         typer.echo("skyfix: first run: building the pattern database (once; about a minute)…", err=True)
