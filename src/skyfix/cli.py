@@ -452,12 +452,14 @@ def simulate(
               rate_rad_s=rate, false_stars=false_stars, hot_pixels=hot_pixels)
     cam = _camera_arg(camera)
     try:
-        if frames == 1:
-            image, truth = write_frame(render(A, cam, **kw), output)
-            typer.echo(f"wrote {image} and {truth}")
-            return
-        for path, frame in zip(paths, render_sequence(A, cam, n_frames=frames, fps=fps, **kw), strict=True):
-            write_frame(frame, path)
+        with compile_notice():
+            if frames == 1:
+                image, truth = write_frame(render(A, cam, **kw), output)
+                typer.echo(f"wrote {image} and {truth}")
+                return
+            for path, frame in zip(paths, render_sequence(A, cam, n_frames=frames, fps=fps, **kw),
+                                   strict=True):
+                write_frame(frame, path)
     except ValueError as exc:  # the simulator's own checks of sensor and preset values
         fail(f"bad value: {exc}")
     typer.echo(f"wrote {frames} frames {output.stem}-0000{output.suffix} … with truth beside each")
