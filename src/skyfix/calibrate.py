@@ -768,11 +768,11 @@ def _rodrigues(p):
 
 
 @numba.njit(cache=True)
-def _prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, sigma_floor):
+def _prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, sigma_floor, prior_out):
     """The iterations of :func:`fit_camera_with_prior` for :data:`PRIOR_PARAMETERS`; ``prior``
-    = (cx, cy, σ principal point px, σ aspect, σ k1, σ k2). Returns the attitude, camera
-    numbers, σ², the posterior covariance of the last step, n_eff, the weights (2N,), and the
-    Jacobian (N, 2, P) and residuals (N, 2) at the result."""
+    = (cx, cy, σ principal point px, σ aspect, σ k1, σ k2) for the steps, ``prior_out`` for the
+    posterior returned. Returns the attitude, camera numbers, σ², the posterior covariance at
+    the result, n_eff, the residuals (N, 2) and the studentised χ² (N,)."""
     codes = np.array([0, 1, 2, 3, 4], dtype=np.int64)  # PRIOR_PARAMETERS in _PARAMETER_CODES
     n = xy.shape[0]
     n_obs = 2 * n
@@ -815,10 +815,11 @@ def _prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, 
         for a in range(P):
             for b in range(a):
                 JtJ[a, b] = JtJ[b, a]
-        lam[4] = 1.0 / prior[3] ** 2
-        lam[5] = lam[6] = (cam[0] / prior[2]) ** 2
-        lam[7] = 1.0 / (prior[4] * rmax**2) ** 2
-        lam[8] = 1.0 / (prior[5] * rmax**4) ** 2
+        pr = prior_out if it == iterations else prior
+        lam[4] = 1.0 / pr[3] ** 2
+        lam[5] = lam[6] = (cam[0] / pr[2]) ** 2
+        lam[7] = 1.0 / (pr[4] * rmax**2) ** 2
+        lam[8] = 1.0 / (pr[5] * rmax**4) ** 2
         dev[4] = cam[1] / cam[0] - 1.0
         dev[5] = (cam[2] - prior[0]) / cam[0]
         dev[6] = (cam[3] - prior[1]) / cam[0]
@@ -924,7 +925,8 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     if principal_point not in ("auto", "fit", "hold"):
         raise ValueError(f"principal_point must be 'auto', 'fit' or 'hold', not {principal_point!r}")
     A, cam, sigma2, inv, n_eff, res, chi2 = _prior_gauss_newton(
-        xy, r, A0, cam0, half_diag, prior_numbers, bool(robust), int(iterations), float(sigma_floor_px))
+        xy, r, A0, cam0, half_diag, prior_numbers, bool(robust), int(iterations), float(sigma_floor_px),
+        prior_numbers)
     free = (A, cam)
     if principal_point == "auto":
         sigma_pp = math.sqrt(max(inv[5, 5], inv[6, 6])) * cam[0]
@@ -937,10 +939,9 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
         cam0[2], cam0[3] = prior.cx, prior.cy
         fixed = prior_numbers.copy()
         fixed[2] = 1e-9 * prior.sigma_principal_point_px
-        A, cam, sigma2, _, n_eff, res, chi2 = _prior_gauss_newton(
-            xy, r, A0, cam0, half_diag, fixed, bool(robust), int(iterations), float(sigma_floor_px))
-        inv = _prior_gauss_newton(xy, r, A, cam, half_diag, prior_numbers, bool(robust), 0,
-                                  float(sigma_floor_px))[3]
+        A, cam, sigma2, inv, n_eff, res, chi2 = _prior_gauss_newton(
+            xy, r, A0, cam0, half_diag, fixed, bool(robust), int(iterations), float(sigma_floor_px),
+            prior_numbers)
     camera = camera.replace(**dict(zip(_CAMERA_KEYS, cam.tolist(), strict=True)))
     # Attitude of the frame at the principal point's pixel: a shift (δcx, δcy) of the principal
     # point (scaled by fx) with no change of that pixel's sky direction is the rotation
@@ -952,9 +953,12 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     cov = T @ inv @ T.T
     if principal_point == "hold":
         # What holding the principal point did to the attitude at that pixel (the distortion
-        # centre and the perspective misplaced) is not noise the posterior knows of: add it.
-        free_cam = camera.replace(**dict(zip(_CAMERA_KEYS, free[1].tolist(), strict=True)))
-        bias = frame_rotation_at_pixel(A, camera, free[0], free_cam, (camera.cx, camera.cy))
+        # centre and the perspective misplaced) is not noise the posterior knows of: add it —
+        # the free solution's frame at that pixel against the held one, to first order through
+        # the same T (within 1% of frame_rotation_at_pixel for 20 px moves).
+        A_free, cam_free = free
+        shift = np.array([cam_free[2] - camera.cx, cam_free[3] - camera.cy]) / camera.fx
+        bias = _rotation_vector(A_free @ A.T) + T[:, 5:7] @ shift
         cov = cov + np.outer(bias, bias)
     return PriorFit(camera, A, res, math.sqrt(sigma2), cov, n_eff, chi2, inv)
 
@@ -974,9 +978,12 @@ def frame_rotation_at_pixel(A: np.ndarray, camera: Camera, A_ref: np.ndarray, ca
     x -= (x @ z) * z
     x /= np.linalg.norm(x)
     frame = np.vstack([x, np.cross(z, x), z]) @ A_ref  # rows: the axes in ICRS
-    R = A @ frame.T
-    # Rotation vector of R (the angle is small; the general formula for safety).
-    angle = math.acos(min(max((np.trace(R) - 1.0) / 2.0, -1.0), 1.0))
+    return _rotation_vector(A @ frame.T)
+
+
+def _rotation_vector(R: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) of a rotation matrix not near 180° (the errors compared here)."""
+    angle = math.acos(min(max((float(np.trace(R)) - 1.0) / 2.0, -1.0), 1.0))
     axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
     if angle < 1e-8:
         return axis / 2.0

@@ -13,6 +13,7 @@ them (:mod:`skyfix.identify.accept`). ``docs/solving-without-a-camera.md`` walks
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -193,6 +194,10 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
     """
     cam0: Camera = ident.camera
     prior = CameraPrior.uncalibrated(cam0.width, cam0.height)
+    if database is None:
+        from skyfix.identify import default_database
+
+        database = default_database()
     verified = _Matches(np.asarray(ident.star_index), np.asarray(ident.catalog_ids),
                         np.ascontiguousarray(ident.catalog_vectors, dtype=np.float64),
                         np.asarray(ident.catalog_mag, dtype=np.float64))
@@ -208,7 +213,10 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
         # Many stars off the model: least squares may have bent to the wrong ones; fit robustly.
         fit, cur = _robust_prior_fit(xy, verified, cam0, ident.A_icrs_to_cam, prior)
     if len(cur.idx) >= _ROBUST_MIN_STARS:
-        if _largest_shift_px(cam0, ident.A_icrs_to_cam, fit.camera, fit.A_icrs_to_cam) < 0.5:
+        # A model that moves no star by a quarter of identification's match radius (3.5 σ of its
+        # residuals) cannot change which stars matched but for a rare one at the radius's edge.
+        still = max(0.5, 0.25 * ident.match_radius_px)
+        if _largest_shift_px(cam0, ident.A_icrs_to_cam, fit.camera, fit.A_icrs_to_cam) < still:
             return _final(xy, fit, cur, log_p, method)
         new, _, _ = _match_catalogue(xy[:n_use], fit, database, epoch)
         if new.same_as(cur):
@@ -235,10 +243,18 @@ def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> Fin
                     PRIOR_PARAMETERS, log_p, True)
 
 
+@functools.lru_cache(maxsize=16)
+def _grid(width: int, height: int) -> np.ndarray:
+    """A 5×5 grid of pixels over the frame (read-only)."""
+    gx, gy = np.meshgrid(np.linspace(0, width - 1, 5), np.linspace(0, height - 1, 5))
+    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    grid.flags.writeable = False
+    return grid
+
+
 def _largest_shift_px(cam0: Camera, A0: np.ndarray, cam1: Camera, A1: np.ndarray) -> float:
     """How far (px) the new model moves a star anywhere on a 5×5 grid over the frame."""
-    gx, gy = np.meshgrid(np.linspace(0, cam0.width - 1, 5), np.linspace(0, cam0.height - 1, 5))
-    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    grid = _grid(cam0.width, cam0.height)
     sky = _pixel_rays(grid, _camera_array(cam0)) @ A0  # rows: ICRS directions of the grid pixels
     moved, _ = cam1.ray_to_pixel(sky @ A1.T)
     return float(np.max(np.hypot(*(moved - grid).T)))
@@ -260,7 +276,9 @@ def _grow(xy: np.ndarray, fit, cur: _Matches, prior: CameraPrior, database, epoc
         log_p = log_p_new
         if new.same_as(cur):
             break
-        fit, cur = _robust_prior_fit(xy, new, fit.camera, fit.A_icrs_to_cam, prior)
+        # Matched within the model's own gates: least squares and the outlier test suffice.
+        fit, cur = _drop_outliers(xy, _prior_fit(xy[new.idx], new.r, fit.camera, fit.A_icrs_to_cam, prior),
+                                  new, prior)
     return fit, cur, log_p
 
 
@@ -396,10 +414,6 @@ def _match_catalogue(xy: np.ndarray, fit, database, epoch: float | None) -> tupl
     Returns the matches, how many catalogue stars were predicted in the frame, and the RMS
     search radius (px) for the chance test."""
     camera, A = fit.camera, fit.A_icrs_to_cam
-    if database is None:
-        from skyfix.identify import default_database
-
-        database = default_database()
     half_diag = math.radians(camera.fov_diagonal_deg) / 2.0 * 1.05
     near = np.sort(np.asarray(_star_tree(database).query_ball_point(A[2], 2.0 * math.sin(half_diag / 2.0)),
                               dtype=np.int64))
@@ -424,7 +438,8 @@ def _match_catalogue(xy: np.ndarray, fit, database, epoch: float | None) -> tupl
     n_claims = np.bincount(cen, minlength=len(xy))[cen]
     ok = (n_stars_near == 1) & (n_claims == 1)
     star, cen = star[ok], cen[ok]
-    ids = np.asarray(database.star_ids)[near[star]].astype(np.int64)
-    mag = np.asarray(database.star_mag, dtype=np.float64)[near[star]]
+    star_ids, star_mag, _ = database.star_arrays()
+    ids = star_ids[near[star]].astype(np.int64)
+    mag = star_mag[near[star]].astype(np.float64)
     rms_radius = float(np.sqrt(np.mean(radius**2)))
     return _Matches(cen.astype(np.int64), ids, v[star], mag), len(near), rms_radius

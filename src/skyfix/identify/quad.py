@@ -63,6 +63,7 @@ class Identification:
     n_candidates : int — catalogue patterns verified.
     method : str
     time_s : float — wall time of the identification (attitude fit included).
+    match_radius_px : float — radius of the last matching pass of the refit, px.
     """
 
     success: bool
@@ -78,6 +79,7 @@ class Identification:
     n_candidates: int = 0
     method: str = METHOD
     time_s: float = 0.0
+    match_radius_px: float = 0.0
 
     @property
     def n_matched(self) -> int:
@@ -374,4 +376,4 @@ def _finish(xy, p, A, f, prob, camera, geometry, frame, n_first, n_img, radius, 
     star_ids, star_mag, _ = db.star_arrays()
     return Identification(
         True, "", star_index, star_ids[cat_index], db.vectors_at(cat_index, epoch), star_mag[cat_index], A,
-        camera, float(min(prob, 1.0)), n_tried, n_cand, METHOD, time.perf_counter() - t0)
+        camera, float(min(prob, 1.0)), n_tried, n_cand, METHOD, time.perf_counter() - t0, r_final)
