@@ -139,14 +139,14 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
         again, paying for the camera numbers fitted to them.
     n_img : int — brightest centroids the catalogue is re-matched to.
     """
+    if not camera_given:
+        return _fit_unknown_camera(xy, ident, database, epoch, method, math.log(prob_threshold), n_img)
     camera: Camera = ident.camera
     idx = np.asarray(ident.star_index)
     ids = np.asarray(ident.catalog_ids)
     r = np.ascontiguousarray(ident.catalog_vectors, dtype=np.float64)
     mag = np.asarray(ident.catalog_mag, dtype=np.float64)
     A = np.ascontiguousarray(ident.A_icrs_to_cam, dtype=np.float64)
-    if not camera_given:
-        return _fit_unknown_camera(xy, ident, database, epoch, method, math.log(prob_threshold), n_img)
     xy_idx = np.ascontiguousarray(xy[idx], dtype=np.float64)
     b, keep, n_kept = _rays_and_inliers(xy_idx, r, A, _camera_array(camera))
     if n_kept < len(keep):
@@ -205,8 +205,8 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
     n_use = min(len(xy), n_img)
     log_p = math.log(max(ident.prob_false, 1e-300))
     # The common case: identification's simpler model (focal length, k1) already fitted every
-    # star; if the full model fits them all too (no outlier) and moves no star by half a pixel
-    # anywhere in the frame, re-matching through it would find the same stars.
+    # star; if the full model fits them too and hardly moves any star, re-matching through it
+    # would find the same stars.
     fit = _prior_fit(xy[verified.idx], verified.r, cam0, ident.A_icrs_to_cam, prior)
     fit, cur = _drop_outliers(xy, fit, verified, prior)
     if len(verified.idx) - len(cur.idx) > max(2, len(verified.idx) // 20):
@@ -262,8 +262,9 @@ def _largest_shift_px(cam0: Camera, A0: np.ndarray, cam1: Camera, A1: np.ndarray
 
 def _grow(xy: np.ndarray, fit, cur: _Matches, prior: CameraPrior, database, epoch: float | None,
           area: float, log_threshold: float, log_p: float):
-    """Re-match through ``fit`` and refit (:func:`_robust_prior_fit`) until the matches stop
-    changing, as long as each re-match is beyond chance with the fitted camera paid for.
+    """Re-match through ``fit`` and refit (least squares and :func:`_drop_outliers`) until the
+    matches stop changing, as long as each re-match is beyond chance with the fitted camera paid
+    for.
     Returns (fit, matches, log P(chance)) of the last accepted step (``log_p`` for the start)."""
     for _ in range(6):
         new, n_cat, radius = _match_catalogue(xy, fit, database, epoch)
