@@ -138,6 +138,23 @@ def test_verified_file_is_stamped_and_a_changed_one_hashed_again(cold_cache, tmp
     assert len(hashed) == 1
 
 
+def test_stamps_of_vanished_files_are_pruned(cold_cache, tmp_path, monkeypatch):
+    monkeypatch.setattr(skyfix.cache, "STAMP_MIN_AGE_S", -1.0)
+    files = [tmp_path / f"f{i}.npz" for i in range(70)]
+    for path in files:
+        write_npz(path, {"x": np.arange(3)})
+        with open(path, "rb") as fh:
+            verify(fh)
+    stamps = cold_cache / "verified"
+    assert len(list(stamps.iterdir())) == 70  # beyond 64 only stamps of vanished files go
+    for path in files[:60]:
+        path.unlink()
+    write_npz(tmp_path / "last.npz", {"x": np.arange(3)})
+    with open(tmp_path / "last.npz", "rb") as fh:
+        verify(fh)
+    assert len(list(stamps.iterdir())) == 11  # 10 files left + the last
+
+
 # --- the catalogue cache -----------------------------------------------------------------------
 def test_catalogue_is_parsed_once_then_read_from_the_cache(cold_cache, monkeypatch):
     fresh = load_hipparcos(epoch=EPOCH)

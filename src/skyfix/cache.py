@@ -122,14 +122,16 @@ def verify(fh: BinaryIO, *, remember: bool = True) -> None:
         raise CorruptFileError("no checksum at its end (truncated, or written by an older skyfix)")
     stored = trailer[len(_PREFIX):].decode("ascii", "replace")
     identity = f"{st.st_dev} {st.st_ino} {st.st_size} {st.st_mtime_ns} {st.st_ctime_ns} {stored}"
-    stamp = _stamp_path(fh) if remember else None
-    if stamp is None or _read_text(stamp) != identity:
+    target = _real_name(fh) if remember else None
+    stamp = _stamp_path(target) if target is not None else None
+    if stamp is None or _read_text(stamp).split("\n")[0] != identity:
         if _sha256(fh, st.st_size - _HEX) != stored:
             raise CorruptFileError("checksum mismatch (the file is corrupt)")
         age_s = time.time() - max(st.st_mtime_ns, st.st_ctime_ns) / 1e9
         if stamp is not None and age_s > STAMP_MIN_AGE_S:
             try:
-                _write_text(stamp, identity)
+                _write_text(stamp, f"{identity}\n{target}")
+                _prune_stamps(stamp.parent)
             except OSError as exc:  # a read-only cache costs a hash per load, nothing else
                 log.debug("cannot write %s: %s", stamp, exc)
     fh.seek(0)
@@ -191,22 +193,38 @@ def _sha256(fh: BinaryIO, length: int) -> str:
     return h.hexdigest()
 
 
-def _stamp_path(fh: BinaryIO) -> Path | None:
+def _real_name(fh: BinaryIO) -> str | None:
     name = getattr(fh, "name", None)
     if not isinstance(name, (str, bytes, os.PathLike)):
         return None
+    return os.fsdecode(os.path.realpath(name))
+
+
+def _stamp_path(target: str) -> Path | None:
+    """The stamp of the file at real path ``target`` (None without a cache folder)."""
     try:
-        key = hashlib.sha256(os.fsencode(os.path.realpath(name))).hexdigest()[:32]
-        return cache_dir() / "verified" / key
+        return cache_dir() / "verified" / hashlib.sha256(os.fsencode(target)).hexdigest()[:32]
     except OSError:
         return None
 
 
-def _read_text(path: Path) -> str | None:
+def _prune_stamps(folder: Path, keep: int = 64) -> None:
+    """Beyond ``keep`` stamps, remove those whose file is gone (temporary databases, old paths)."""
+    stamps = [p for p in folder.iterdir() if not p.name.startswith(".")]  # not others' temporaries
+    if len(stamps) <= keep:
+        return
+    for stamp in stamps:
+        lines = _read_text(stamp).split("\n")
+        if len(lines) < 2 or not os.path.exists(lines[1]):
+            stamp.unlink(missing_ok=True)
+
+
+def _read_text(path: Path) -> str:
+    """The text of ``path``; "" if it cannot be read."""
     try:
         return path.read_text()
     except (OSError, UnicodeDecodeError):
-        return None
+        return ""
 
 
 def _write_text(path: Path, text: str) -> None:
