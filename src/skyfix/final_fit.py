@@ -293,10 +293,10 @@ _ROBUST_MIN_STARS = 18
 
 def _prior_fit(xy: np.ndarray, r: np.ndarray, camera: Camera, A: np.ndarray, prior: CameraPrior,
                **options):
-    """:func:`~skyfix.calibrate.fit_camera_with_prior` with the principal point held at the image
-    centre (its uncertainty in the covariance): with no camera file the Solution's RA/Dec/roll
-    are those of the image centre, as every blind solver reports them."""
-    return fit_camera_with_prior(xy, r, camera, A, prior, principal_point="hold", **options)
+    """:func:`~skyfix.calibrate.fit_camera_with_prior` with the principal point moved only where
+    the stars pin it down (a distorted or wide field, an off-centre crop) and otherwise held at
+    the image centre with its uncertainty in the covariance."""
+    return fit_camera_with_prior(xy, r, camera, A, prior, principal_point="auto", **options)
 
 
 def _outlier_limit(dof: float) -> float:

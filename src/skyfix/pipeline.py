@@ -227,6 +227,7 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     sol.status = "solved"
     sol.reason = ""
     sol.ra_deg, sol.dec_deg, sol.roll_deg = pointing[:3]
+    sol.boresight_px = [float(camera.cx), float(camera.cy)]
     sol.fov_deg = camera.fov_deg
     sol.quaternion_xyzw = pointing[3:]
     sol.covariance_arcsec2 = (fit.covariance_rad2 / _ARCSEC**2).tolist()

@@ -26,7 +26,12 @@ class Match(NamedTuple):
 
 @dataclass
 class Solution:
-    """Result of solving one image; ``status`` is ``"solved"`` or ``"failed"`` (with ``reason``)."""
+    """Result of solving one image; ``status`` is ``"solved"`` or ``"failed"`` (with ``reason``).
+
+    ``ra_deg``, ``dec_deg`` and ``roll_deg`` are those of the boresight, the camera's +z axis,
+    which meets the image at ``boresight_px`` (the principal point: the image centre unless a
+    camera file says otherwise or, with no camera file, the stars pin it down elsewhere);
+    :meth:`radec_of_pixel` gives any other pixel's."""
 
     image: str = ""
     status: str = "failed"
@@ -34,6 +39,7 @@ class Solution:
     ra_deg: float | None = None
     dec_deg: float | None = None
     roll_deg: float | None = None
+    boresight_px: list[float] | None = None
     fov_deg: float | None = None
     quaternion_xyzw: list[float] | None = None
     covariance_arcsec2: list[list[float]] | None = None
@@ -51,6 +57,15 @@ class Solution:
     @property
     def solved(self) -> bool:
         return self.status == "solved"
+
+    def radec_of_pixel(self, x: float, y: float) -> tuple[float, float]:
+        """RA, Dec (degrees) of the pixel ``(x, y)`` (e.g. the image centre, which is not the
+        boresight when the principal point was fitted off it)."""
+        from skyfix.geometry import vector_to_radec
+
+        ray = self.camera.pixel_to_ray(np.array([[x, y]], dtype=np.float64))[0]
+        ra, dec = vector_to_radec(np.asarray(self.A_icrs_to_cam).T @ ray)
+        return math.degrees(float(ra)), math.degrees(float(dec))
 
     def to_dict(self) -> dict:
         matches = [m._asdict() for m in self.matches]
