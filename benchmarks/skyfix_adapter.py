@@ -76,7 +76,10 @@ class Skyfix:
         if sol.status != "solved":
             return Attempt(False, None, dt, sol.reason or sol.status,
                            extra={"n_detected": sol.n_detected, "self_ms": dict(sol.time_ms)})
-        return Attempt(True, np.asarray(sol.A_icrs_to_cam, float), dt, "solved", int(sol.n_matched),
+        # The frame at the image centre, as the peers and the references report it (skyfix's
+        # boresight is the principal point, which it may fit elsewhere with no camera file).
+        A = sol.attitude_at_pixel((sol.camera.width - 1) / 2.0, (sol.camera.height - 1) / 2.0)
+        return Attempt(True, np.asarray(A, float), dt, "solved", int(sol.n_matched),
                        sol.fov_deg, {"n_detected": sol.n_detected, "self_ms": dict(sol.time_ms),
                                      "prob_false": sol.prob_false})
 

@@ -20,7 +20,7 @@ import numpy as np
 from skyfix.camera import Camera
 
 __all__ = ["CameraFit", "CameraPrior", "ModelScore", "PriorFit", "fit_camera", "fit_camera_with_prior",
-           "frame_rotation_at_pixel",
+           "frame_at_pixel", "frame_rotation_at_pixel",
            "score_camera_models", "select_camera_model", "PRIOR_PARAMETERS",
            "PARAMETERS", "MODEL_LADDER"]
 
@@ -902,8 +902,8 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     that pixel, with its uncertainty in the covariance — and what holding it did to the attitude
     there (the difference from the ``"fit"`` solution: a misplaced distortion centre is a bias,
     not noise the posterior knows of) added to the covariance as ``b bᵀ``; ``"auto"`` fits it
-    where the stars pin it down (posterior σ below a third of the prior's, the move beyond 3
-    posterior σ: a wide or distorted field) and holds it elsewhere.
+    where the stars pin it down (posterior σ below a third of the prior's, the move beyond
+    χ² = 30 of its posterior: a wide or distorted field, a crop) and holds it elsewhere.
 
     Parameters
     ----------
@@ -930,9 +930,14 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
         prior_numbers)
     free = (A, cam)
     if principal_point == "auto":
-        sigma_pp = math.sqrt(max(inv[5, 5], inv[6, 6])) * cam[0]
-        moved = math.hypot(cam[2] - prior.cx, cam[3] - prior.cy)
-        observable = 3.0 * sigma_pp < prior.sigma_principal_point_px and moved > 3.0 * sigma_pp
+        # Moved only when the stars say so beyond doubt: the move against its posterior
+        # covariance χ² > 30 (2 dof: 3e-7 by chance, so a centred camera stays centred) and
+        # the posterior σ a third of the prior's or less.
+        move = np.array([cam[2] - prior.cx, cam[3] - prior.cy]) / cam[0]
+        C = inv[5:7, 5:7]
+        sigma_pp = math.sqrt(max(C[0, 0], C[1, 1])) * cam[0]
+        chi2_move = float(move @ np.linalg.solve(C, move)) if np.linalg.det(C) > 0 else 0.0
+        observable = 3.0 * sigma_pp < prior.sigma_principal_point_px and chi2_move > 30.0
         principal_point = "fit" if observable else "hold"
     if principal_point == "hold":
         # Fit with it fixed at the prior's, then take the posterior with it free there.
@@ -964,22 +969,27 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     return PriorFit(camera, A, res, math.sqrt(sigma2), cov, n_eff, chi2, inv)
 
 
-def frame_rotation_at_pixel(A: np.ndarray, camera: Camera, A_ref: np.ndarray, camera_ref: Camera,
-                            pixel: tuple[float, float]) -> np.ndarray:
-    """Rotation vector (3,) rad, about ``camera``'s axes, from the frame that (``A_ref``,
-    ``camera_ref``) give at ``pixel`` to the camera frame of ``A``: the reference frame at a pixel
-    has z along that pixel's sky direction and x along the direction in which the column grows
-    there. For ``pixel`` at ``camera``'s principal point it is the error of ``A`` when the
-    reference is the truth."""
+def frame_at_pixel(A_icrs_to_cam: np.ndarray, camera: Camera, pixel: tuple[float, float]) -> np.ndarray:
+    """The attitude (3, 3) of the frame that ``camera`` and ``A_icrs_to_cam`` give at ``pixel``:
+    z along that pixel's sky direction, x along the direction in which the column grows there
+    (made perpendicular to z), y = z × x. At the principal point it is ``A_icrs_to_cam``."""
     p0 = np.array([pixel], dtype=np.float64)
-    ray0 = camera_ref.pixel_to_ray(p0)[0]
-    ray1 = camera_ref.pixel_to_ray(p0 + [0.5, 0.0])[0]
+    ray0 = camera.pixel_to_ray(p0)[0]
+    ray1 = camera.pixel_to_ray(p0 + [0.5, 0.0])[0]
     z = ray0 / np.linalg.norm(ray0)
     x = ray1 - ray0
     x -= (x @ z) * z
     x /= np.linalg.norm(x)
-    frame = np.vstack([x, np.cross(z, x), z]) @ A_ref  # rows: the axes in ICRS
-    return _rotation_vector(A @ frame.T)
+    return np.vstack([x, np.cross(z, x), z]) @ np.asarray(A_icrs_to_cam, dtype=np.float64)
+
+
+def frame_rotation_at_pixel(A: np.ndarray, camera: Camera, A_ref: np.ndarray, camera_ref: Camera,
+                            pixel: tuple[float, float]) -> np.ndarray:
+    """Rotation vector (3,) rad, about ``camera``'s axes, from the frame that (``A_ref``,
+    ``camera_ref``) give at ``pixel`` (:func:`frame_at_pixel`) to the camera frame of ``A``.
+    For ``pixel`` at ``camera``'s principal point it is the error of ``A`` when the reference is
+    the truth."""
+    return _rotation_vector(A @ frame_at_pixel(A_ref, camera_ref, pixel).T)
 
 
 def _rotation_vector(R: np.ndarray) -> np.ndarray:

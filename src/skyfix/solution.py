@@ -58,13 +58,21 @@ class Solution:
     def solved(self) -> bool:
         return self.status == "solved"
 
+    def attitude_at_pixel(self, x: float, y: float) -> np.ndarray:
+        """The attitude (3, 3) of the frame at pixel ``(x, y)``: z along its sky direction, x
+        along the growing column there (:func:`skyfix.calibrate.frame_at_pixel`); at
+        ``boresight_px`` it is ``A_icrs_to_cam``. The image centre's is what other solvers
+        report."""
+        from skyfix.calibrate import frame_at_pixel
+
+        return frame_at_pixel(self.A_icrs_to_cam, self.camera, (x, y))
+
     def radec_of_pixel(self, x: float, y: float) -> tuple[float, float]:
         """RA, Dec (degrees) of the pixel ``(x, y)`` (e.g. the image centre, which is not the
         boresight when the principal point was fitted off it)."""
         from skyfix.geometry import vector_to_radec
 
-        ray = self.camera.pixel_to_ray(np.array([[x, y]], dtype=np.float64))[0]
-        ra, dec = vector_to_radec(np.asarray(self.A_icrs_to_cam).T @ ray)
+        ra, dec = vector_to_radec(self.attitude_at_pixel(x, y)[2])
         return math.degrees(float(ra)), math.degrees(float(dec))
 
     def to_dict(self) -> dict:
