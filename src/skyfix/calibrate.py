@@ -694,6 +694,8 @@ class PriorFit(NamedTuple):
         twice an F(2, dof − 2) variable, dof = ``2N − n_effective``.
     parameter_covariance : (P, P) — posterior covariance of the parameter step (rotations,
         then :data:`PRIOR_PARAMETERS` in :func:`_unpack`'s scaled units).
+    largest_move_px : float — the largest distance by which the fit moved a star's predicted
+        position from where the starting camera and attitude put it.
     """
 
     camera: Camera
@@ -704,6 +706,7 @@ class PriorFit(NamedTuple):
     n_effective: float
     outlier_chi2: np.ndarray
     parameter_covariance: np.ndarray
+    largest_move_px: float = 0.0
 
     def prediction_sigma_px(self, r_icrs: np.ndarray) -> np.ndarray:
         """How uncertain (px, the larger axis's σ) the fitted model's pixel position of each
@@ -773,7 +776,9 @@ def _prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, 
     """The iterations of :func:`fit_camera_with_prior` for :data:`PRIOR_PARAMETERS`; ``prior``
     = (cx, cy, σ principal point px, σ aspect, σ k1, σ k2) for the steps, ``prior_out`` for the
     posterior returned. Returns the attitude, camera numbers, σ², the posterior covariance at
-    the result, n_eff, the residuals (N, 2) and the studentised χ² (N,)."""
+    the result, n_eff, the residuals (N, 2), the studentised χ² (N,) and the Gauss–Newton step
+    (P,) under ``prior_out`` from the result (what freeing ``prior_out``'s parameters would do),
+    and the largest distance (px) by which the fit moved a star's predicted position."""
     codes = np.array([0, 1, 2, 3, 4], dtype=np.int64)  # PRIOR_PARAMETERS in _PARAMETER_CODES
     n = xy.shape[0]
     n_obs = 2 * n
@@ -787,12 +792,15 @@ def _prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, 
     inv = np.zeros((P, P))
     J = np.empty((n, 2, P))
     res = np.empty((n, 2))
+    res0 = np.empty((n, 2))
     for it in range(iterations + 1):
         for i in range(n):
             for k in range(3):
                 rays0[i, k] = A[k, 0] * r[i, 0] + A[k, 1] * r[i, 1] + A[k, 2] * r[i, 2]
         rmax = half_diag_px / cam[0]
         J, res = _jacobian_rows(xy, rays0, cam, rmax, codes)
+        if it == 0:
+            res0 = res.copy()
         d = np.empty(n)
         ss = 0.0
         for i in range(n):
@@ -837,12 +845,12 @@ def _prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, 
             for b in range(P):
                 n_eff += inv[a, b] * JtJ[b, a]
         n_eff /= sigma2
-        if it == iterations:
-            break
         step = np.zeros(P)
         for a in range(P):
             for b in range(P):
                 step[a] -= inv[a, b] * (g[b] / sigma2 + lam[b] * dev[b])
+        if it == iterations:
+            break
         A = _rodrigues(step) @ A
         cam = _apply_step(cam, rmax, codes, step)
         moved = 0.0
@@ -858,16 +866,22 @@ def _prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, 
     rss = 0.0
     for i in range(n):
         rss += res[i, 0] ** 2 + res[i, 1] ** 2
+    H = np.empty((2, 2))
+    t = np.empty((2, P))
+    moved = 0.0  # how far the fit moved the stars from where the starting model put them
     for i in range(n):
-        H = np.zeros((2, 2))
+        moved = max(moved, np.sqrt((res[i, 0] - res0[i, 0]) ** 2 + (res[i, 1] - res0[i, 1]) ** 2))
+        for e in range(2):
+            for a in range(P):
+                acc = 0.0
+                for b in range(P):
+                    acc += inv[a, b] * J[i, e, b]
+                t[e, a] = acc
         for c in range(2):
             for e in range(2):
                 acc = 0.0
                 for a in range(P):
-                    t = 0.0
-                    for b in range(P):
-                        t += inv[a, b] * J[i, e, b]
-                    acc += J[i, c, a] * t
+                    acc += J[i, c, a] * t[e, a]
                 H[c, e] = acc * w[2 * i + c] / sigma2
         m00, m01 = sigma2 * (1.0 - H[0, 0]), -sigma2 * H[0, 1]
         m10, m11 = -sigma2 * H[1, 0], sigma2 * (1.0 - H[1, 1])
@@ -877,7 +891,7 @@ def _prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, 
             rss_without = max(rss - q * sigma2, 1e-12 * sigma2)
             q = q * sigma2 / max(rss_without / max(n_obs - n_eff - 2.0, 1.0), sigma_floor**2)
         chi2[i] = q
-    return A, cam, sigma2, inv, n_eff, res, chi2
+    return A, cam, sigma2, inv, n_eff, res, chi2, step, moved
 
 
 def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_cam: np.ndarray,
@@ -925,29 +939,37 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     cam0 = _camera_numbers(camera)
     if principal_point not in ("auto", "fit", "hold"):
         raise ValueError(f"principal_point must be 'auto', 'fit' or 'hold', not {principal_point!r}")
-    A, cam, sigma2, inv, n_eff, res, chi2 = _prior_gauss_newton(
-        xy, r, A0, cam0, half_diag, prior_numbers, bool(robust), int(iterations), float(sigma_floor_px),
-        prior_numbers)
-    free = (A, cam)
-    if principal_point == "auto":
-        # Moved only when the stars say so beyond doubt: the move against its posterior
-        # covariance χ² > 30 (2 dof: 3e-7 by chance, so a centred camera stays centred) and
-        # the posterior σ a third of the prior's or less.
-        move = np.array([cam[2] - prior.cx, cam[3] - prior.cy]) / cam[0]
-        C = inv[5:7, 5:7]
-        sigma_pp = math.sqrt(max(C[0, 0], C[1, 1])) * cam[0]
-        chi2_move = float(move @ np.linalg.solve(C, move)) if np.linalg.det(C) > 0 else 0.0
-        observable = 3.0 * sigma_pp < prior.sigma_principal_point_px and chi2_move > 30.0
-        principal_point = "fit" if observable else "hold"
-    if principal_point == "hold":
-        # Fit with it fixed at the prior's, then take the posterior with it free there.
-        cam0 = cam0.copy()
-        cam0[2], cam0[3] = prior.cx, prior.cy
-        fixed = prior_numbers.copy()
-        fixed[2] = 1e-9 * prior.sigma_principal_point_px
-        A, cam, sigma2, inv, n_eff, res, chi2 = _prior_gauss_newton(
-            xy, r, A0, cam0, half_diag, fixed, bool(robust), int(iterations), float(sigma_floor_px),
+    fixed = prior_numbers.copy()
+    fixed[2] = 1e-9 * prior.sigma_principal_point_px
+    if principal_point == "fit":
+        A, cam, sigma2, inv, n_eff, res, chi2, _, moved = _prior_gauss_newton(
+            xy, r, A0, cam0, half_diag, prior_numbers, bool(robust), int(iterations), float(sigma_floor_px),
             prior_numbers)
+    else:
+        # Fit with the principal point held at the prior's; the posterior and one step with it
+        # free come from the result: that step is what holding it costs (the bias below), and
+        # tells "auto" whether the stars pin it down elsewhere.
+        held = cam0.copy()
+        held[2], held[3] = prior.cx, prior.cy
+        A, cam, sigma2, inv, n_eff, res, chi2, free_step, moved = _prior_gauss_newton(
+            xy, r, A0, held, half_diag, fixed, bool(robust), int(iterations), float(sigma_floor_px),
+            prior_numbers)
+        if principal_point == "auto":
+            # Moved only when the stars say so beyond doubt: the move against its posterior
+            # covariance χ² > 30 (2 dof: 3e-7 by chance, so a centred camera stays centred) and
+            # the posterior σ a third of the prior's or less.
+            (mx, my), (c00, c01, c11) = free_step[5:7], (inv[5, 5], inv[5, 6], inv[6, 6])
+            det = c00 * c11 - c01 * c01
+            chi2_move = (c11 * mx * mx - 2.0 * c01 * mx * my + c00 * my * my) / det if det > 0 else 0.0
+            principal_point = "hold"
+            if 3.0 * math.sqrt(max(c00, c11)) * cam[0] < prior.sigma_principal_point_px and chi2_move > 30.0:
+                principal_point = "fit"
+                res_held = res
+                A1, cam, sigma2, inv, n_eff, res, chi2, _, _ = _prior_gauss_newton(
+                    xy, r, A, cam, half_diag, prior_numbers, bool(robust), int(iterations),
+                    float(sigma_floor_px), prior_numbers)
+                moved += float(np.max(np.hypot(*(res - res_held).T)))
+                A = A1
     camera = camera.replace(**dict(zip(_CAMERA_KEYS, cam.tolist(), strict=True)))
     # Attitude of the frame at the principal point's pixel: a shift (δcx, δcy) of the principal
     # point (scaled by fx) with no change of that pixel's sky direction is the rotation
@@ -960,13 +982,10 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     if principal_point == "hold":
         # What holding the principal point did to the attitude at that pixel (the distortion
         # centre and the perspective misplaced) is not noise the posterior knows of: add it —
-        # the free solution's frame at that pixel against the held one, to first order through
-        # the same T (within 1% of frame_rotation_at_pixel for 20 px moves).
-        A_free, cam_free = free
-        shift = np.array([cam_free[2] - camera.cx, cam_free[3] - camera.cy]) / camera.fx
-        bias = _rotation_vector(A_free @ A.T) + T[:, 5:7] @ shift
+        # the step that frees it, as a rotation of the frame at that pixel (through T).
+        bias = T @ free_step
         cov = cov + np.outer(bias, bias)
-    return PriorFit(camera, A, res, math.sqrt(sigma2), cov, n_eff, chi2, inv)
+    return PriorFit(camera, A, res, math.sqrt(sigma2), cov, n_eff, chi2, inv, float(moved))
 
 
 def frame_at_pixel(A_icrs_to_cam: np.ndarray, camera: Camera, pixel: tuple[float, float]) -> np.ndarray:

@@ -13,7 +13,6 @@ them (:mod:`skyfix.identify.accept`). ``docs/solving-without-a-camera.md`` walks
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -214,9 +213,9 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
         fit, cur = _robust_prior_fit(xy, verified, cam0, ident.A_icrs_to_cam, prior)
     if len(cur.idx) >= _ROBUST_MIN_STARS:
         # A model that moves no star by a quarter of identification's match radius (3.5 σ of its
-        # residuals) cannot change which stars matched but for a rare one at the radius's edge.
-        still = max(0.5, 0.25 * ident.match_radius_px)
-        if _largest_shift_px(cam0, ident.A_icrs_to_cam, fit.camera, fit.A_icrs_to_cam) < still:
+        # residuals) cannot change which stars matched but for a rare one at the radius's edge;
+        # with 18 or more stars spread over the frame, theirs are the moves that count.
+        if fit.largest_move_px < max(0.5, 0.25 * ident.match_radius_px):
             return _final(xy, fit, cur, log_p, method)
         new, _, _ = _match_catalogue(xy[:n_use], fit, database, epoch)
         if new.same_as(cur):
@@ -241,23 +240,6 @@ def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> Fin
     resid = _angles(b, cur.r, np.ascontiguousarray(A))
     return FinalFit(A, fit.camera, cur.idx, cur.ids, cur.r, cur.mag, resid, fit.covariance_rad2,
                     PRIOR_PARAMETERS, log_p, True)
-
-
-@functools.lru_cache(maxsize=16)
-def _grid(width: int, height: int) -> np.ndarray:
-    """A 5×5 grid of pixels over the frame (read-only)."""
-    gx, gy = np.meshgrid(np.linspace(0, width - 1, 5), np.linspace(0, height - 1, 5))
-    grid = np.column_stack([gx.ravel(), gy.ravel()])
-    grid.flags.writeable = False
-    return grid
-
-
-def _largest_shift_px(cam0: Camera, A0: np.ndarray, cam1: Camera, A1: np.ndarray) -> float:
-    """How far (px) the new model moves a star anywhere on a 5×5 grid over the frame."""
-    grid = _grid(cam0.width, cam0.height)
-    sky = _pixel_rays(grid, _camera_array(cam0)) @ A0  # rows: ICRS directions of the grid pixels
-    moved, _ = cam1.ray_to_pixel(sky @ A1.T)
-    return float(np.max(np.hypot(*(moved - grid).T)))
 
 
 def _grow(xy: np.ndarray, fit, cur: _Matches, prior: CameraPrior, database, epoch: float | None,
