@@ -913,11 +913,10 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
 
     ``principal_point``: ``"fit"`` moves the principal point from the prior's as the stars
     ask; ``"hold"`` keeps it at the prior's (the image centre), so that the attitude refers to
-    that pixel, with its uncertainty in the covariance — and what holding it did to the attitude
-    there (the difference from the ``"fit"`` solution: a misplaced distortion centre is a bias,
-    not noise the posterior knows of) added to the covariance as ``b bᵀ``; ``"auto"`` fits it
-    where the stars pin it down (posterior σ below a third of the prior's, the move beyond
-    χ² = 30 of its posterior: a wide or distorted field, a crop) and holds it elsewhere.
+    that pixel, with its uncertainty (free under its prior at the held solution) in the
+    covariance; ``"auto"`` fits it where the stars pin it down (posterior σ below a third of the
+    prior's, the move beyond χ² = 30 of its posterior: a wide or distorted field, a crop) and
+    holds it elsewhere.
 
     Parameters
     ----------
@@ -947,8 +946,8 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
             prior_numbers)
     else:
         # Fit with the principal point held at the prior's; the posterior and one step with it
-        # free come from the result: that step is what holding it costs (the bias below), and
-        # tells "auto" whether the stars pin it down elsewhere.
+        # free come from the result: the step tells "auto" whether the stars pin it down
+        # elsewhere.
         held = cam0.copy()
         held[2], held[3] = prior.cx, prior.cy
         A, cam, sigma2, inv, n_eff, res, chi2, free_step, moved = _prior_gauss_newton(
@@ -979,12 +978,6 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     T[1, 5] = 1.0
     T[0, 6] = -camera.fx / camera.fy
     cov = T @ inv @ T.T
-    if principal_point == "hold":
-        # What holding the principal point did to the attitude at that pixel (the distortion
-        # centre and the perspective misplaced) is not noise the posterior knows of: add it —
-        # the step that frees it, as a rotation of the frame at that pixel (through T).
-        bias = T @ free_step
-        cov = cov + np.outer(bias, bias)
     return PriorFit(camera, A, res, math.sqrt(sigma2), cov, n_eff, chi2, inv, float(moved))
 
 
