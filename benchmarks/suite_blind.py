@@ -56,6 +56,7 @@ def run(n_blind: int = 10_000, n_preset: int = 500, presets=PRESETS, seed: int =
             bar.stop()
     out["uncalibrated"] = {**s, "wall_s": time.time() - t0}
     rows.append(_row("uncalibrated centroids", s, time.time() - t0))
+    say(f"uncalibrated centroids: {s}")
     for preset in presets:
         for scene, n_false, n_hot in SCENES:
             t0 = time.time()
