@@ -165,38 +165,11 @@ def _residuals_kernel(cam, rmax, codes, ps, rays0, xy):
     ``ps`` (K, P): :func:`_unpack` and the projection, with the same arithmetic."""
     n = xy.shape[0]
     out = np.empty((ps.shape[0], 2 * n))
-    R = np.empty((3, 3))
     for k in range(ps.shape[0]):
         p = ps[k]
-        # Rodrigues, as _rotvec_matrix
-        theta = np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
-        K = np.array([[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]])
-        a, b = 1.0, 0.0
-        if theta >= 1e-12:
-            a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta**2
-        for i in range(3):
-            for j in range(3):
-                KK = K[i, 0] * K[0, j] + K[i, 1] * K[1, j] + K[i, 2] * K[2, j]
-                R[i, j] = (1.0 if i == j else 0.0) + a * K[i, j] + b * KK
-        fx, fy, cx, cy, skew, k1, k2, k3, p1, p2 = (cam[0], cam[1], cam[2], cam[3], cam[4], cam[5],
-                                                    cam[6], cam[7], cam[8], cam[9])
-        j = 3
-        for c in codes:
-            if c == 0:  # f
-                fx, fy = cam[0] * (1.0 + p[j]), cam[1] * (1.0 + p[j])
-            elif c == 1:  # aspect
-                fy = fy * (1.0 + p[j])
-            elif c == 2:  # principal_point
-                cx, cy = cam[2] + p[j] * cam[0], cam[3] + p[j + 1] * cam[0]
-                j += 1
-            elif c == 3:  # k1
-                k1 = cam[5] + p[j] / rmax**2
-            elif c == 4:  # k2
-                k2 = cam[6] + p[j] / rmax**4
-            else:  # tangential
-                p1, p2 = cam[8] + p[j] / rmax, cam[9] + p[j + 1] / rmax
-                j += 1
-            j += 1
+        R = _rodrigues(p)  # as _rotvec_matrix
+        c = _apply_step(cam, rmax, codes, p)  # as _unpack
+        fx, fy, cx, cy, skew, k1, k2, k3, p1, p2 = c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9]
         for i in range(n):
             X = R[0, 0] * rays0[i, 0] + R[0, 1] * rays0[i, 1] + R[0, 2] * rays0[i, 2]
             Y = R[1, 0] * rays0[i, 0] + R[1, 1] * rays0[i, 1] + R[1, 2] * rays0[i, 2]
