@@ -29,12 +29,10 @@ from skyfix.cli_support import (
 )
 from skyfix.errors import ImageReadError, SkyfixError
 from skyfix.validate import (
-    check_attitude_method,
     check_count,
-    check_epoch,
-    check_fov,
     check_fov_range,
     check_positive,
+    check_solve_options,
 )
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
@@ -99,12 +97,8 @@ def solve(
     """Solve sky images lost in space: print RA, Dec, roll and the error bars."""
     add_verbosity(verbose)
     # Every option is checked, and every output folder made, before any work.
-    if fov is not None:
-        check_fov(fov, "--fov")
-    if fov_tolerance is not None:
-        check_positive(fov_tolerance, "--fov-tolerance")
-    check_epoch(epoch, "--epoch")
-    check_attitude_method(method, "--attitude")
+    check_solve_options(fov, fov_tolerance, epoch, method,
+                        ("--fov", "--fov-tolerance", "--epoch", "--attitude"))
     wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
     prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
     maps = _calibration_maps(calibration, dark, flat)

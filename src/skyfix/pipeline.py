@@ -23,12 +23,9 @@ from skyfix.final_fit import final_fit
 from skyfix.identify.accept import precision_failure
 from skyfix.solution import Match, Solution
 from skyfix.validate import (
-    check_attitude_method,
     check_count,
-    check_epoch,
-    check_fov,
     check_frame_size,
-    check_positive,
+    check_solve_options,
     check_xy,
 )
 
@@ -187,12 +184,7 @@ def _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude
     """The checks :func:`solve` and :func:`solve_centroids` share (:mod:`skyfix.validate`)."""
     from skyfix.identify import PatternDatabase, identify
 
-    if fov_deg is not None:
-        check_fov(fov_deg, "fov_deg")
-    if fov_tolerance_deg is not None:
-        check_positive(fov_tolerance_deg, "fov_tolerance_deg")
-    check_epoch(epoch, "epoch")
-    check_attitude_method(attitude_method, "attitude_method")
+    check_solve_options(fov_deg, fov_tolerance_deg, epoch, attitude_method)
     if camera is not None and not isinstance(camera, Camera):
         raise InputError(f"camera must be a Camera (Camera.load(path)), got {type(camera).__name__}")
     if database is not None and not isinstance(database, PatternDatabase):

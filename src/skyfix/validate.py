@@ -19,6 +19,7 @@ import numpy as np
 from skyfix.errors import InputError
 
 __all__ = [
+    "check_solve_options",
     "EPOCH_RANGE", "FOV_RANGE_DEG", "check_attitude_method", "check_count", "check_epoch", "check_fov",
     "check_fov_range", "check_frame_size", "check_positive", "check_xy",
 ]
@@ -94,6 +95,19 @@ def check_attitude_method(value: object, name: str = "attitude_method") -> str:
     if not isinstance(value, str) or value.lower() not in METHODS:
         raise InputError(f"{name} {value!r} is not a Wahba solver; choose one of {', '.join(METHODS)}")
     return value
+
+
+def check_solve_options(fov: object, fov_tolerance: object, epoch: object, attitude_method: object,
+                        names: tuple[str, str, str, str] = ("fov_deg", "fov_tolerance_deg", "epoch",
+                                                            "attitude_method")) -> None:
+    """The options ``solve`` takes from the API and the CLI alike (``names``: how the caller
+    spells them, e.g. ``--fov``)."""
+    if fov is not None:
+        check_fov(fov, names[0])
+    if fov_tolerance is not None:
+        check_positive(fov_tolerance, names[1])
+    check_epoch(epoch, names[2])
+    check_attitude_method(attitude_method, names[3])
 
 
 def check_frame_size(width: object, height: object) -> tuple[int, int]:
