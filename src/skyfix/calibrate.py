@@ -874,8 +874,9 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     camera parameter but the focal length held by its ``prior`` (maximum a posteriori).
 
     Gauss–Newton on ``Σ w |residual|²/σ² + Σ ((θ − θ₀)/τ)²`` with the analytic Jacobian of
-    :func:`_jacobian_at_start`. σ, the centroid noise, is re-estimated at every step: from the
-    residuals (``σ² = RSS / (2N − n_eff)``), or with ``robust`` from their median (a
+    :func:`_jacobian_rows`, in one numba kernel (:func:`_prior_gauss_newton`). σ, the centroid
+    noise, is re-estimated at every step: from the residuals (``σ² = RSS / (2N − n_eff)``), or
+    with ``robust`` from their median (a
     2-D Gaussian's residual length has median 1.1774 σ) and with Cauchy weights
     ``w = 1 / (1 + (|residual| / 3σ)²)``, so that a few wrong stars cannot hold the model away
     from the many right ones; floored at ``sigma_floor_px``. The covariance is the
