@@ -46,7 +46,6 @@ class FinalFit:
     camera_params : tuple of str — camera parameters fitted (empty when the camera was given).
     log_prob_chance : float — log probability that the final matches are chance (with the
         fitted camera's freedom paid for; identification's when the stars were not re-matched).
-    accepted : bool
     """
 
     A_icrs_to_cam: np.ndarray
@@ -59,7 +58,6 @@ class FinalFit:
     covariance_rad2: np.ndarray
     camera_params: tuple[str, ...]
     log_prob_chance: float = 0.0
-    accepted: bool = True
 
 
 def angles(b: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -158,7 +156,7 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
     sigma = max(math.sqrt(float(np.sum(resid**2)) / dof), 0.05 * camera.plate_scale_rad)
     cov = attitude_covariance(A, b, sigma)
     log_p = math.log(max(ident.prob_false, 1e-300))
-    return FinalFit(A, camera, idx, ids, r, mag, resid, cov, (), log_p, True)
+    return FinalFit(A, camera, idx, ids, r, mag, resid, cov, (), log_p)
 
 
 class _Matches(NamedTuple):
@@ -239,7 +237,7 @@ def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> Fin
     A = solve_attitude(b, cur.r, method=method)
     resid = _angles(b, cur.r, np.ascontiguousarray(A))
     return FinalFit(A, fit.camera, cur.idx, cur.ids, cur.r, cur.mag, resid, fit.covariance_rad2,
-                    PRIOR_PARAMETERS, log_p, True)
+                    PRIOR_PARAMETERS, log_p)
 
 
 def _grow(xy: np.ndarray, fit, cur: _Matches, prior: CameraPrior, database, epoch: float | None,
