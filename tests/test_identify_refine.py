@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from skyfix.camera import Camera
+from skyfix.identify.kernel_data import StarIndex, ViewBuffers
 from skyfix.identify.verify import gather_stars, grid_index, match_greedy, match_grid, project_stars
 
 
@@ -23,33 +24,37 @@ def sky():
     order = np.lexsort((np.arange(n_stars), cell_of))
     start = np.concatenate([[0], np.cumsum(np.bincount(cell_of, minlength=n_cells))]).astype(np.int64)
     radius = float(np.max(np.arccos(np.clip(np.sum(v * c[cell_of], axis=1), -1, 1))))
-    return v, c, start, order.astype(np.int32), radius, rng
+    return StarIndex(v, c, start, order.astype(np.int32), radius), rng
 
 
 @pytest.mark.parametrize("cone", [0.05, 0.2, 0.6])
 def test_gather_stars_is_a_cone_search(sky, cone):
-    v, c, start, stars, radius, rng = sky
+    stars, rng = sky
+    v = stars.vectors
     found = 0
     for _ in range(20):
         z = rng.normal(size=3)
         z /= np.linalg.norm(z)
         limit = int(rng.integers(100, len(v) + 1))
         want = np.flatnonzero((v[:limit] @ z) >= np.cos(cone))
-        got = gather_stars(z, cone, limit, v, c, start, stars, radius)
+        got = gather_stars(z, cone, limit, stars)
         assert np.array_equal(got, want)
         found += len(want)
     assert found > 20
 
 
 def test_project_and_match_against_brute_force(sky):
-    v, c, start, stars, radius, rng = sky
+    stars, rng = sky
+    v = stars.vectors
     frame = np.array([-640.0, 639.0, -480.0, 479.0])
     f, k1 = 1500.0, 1e-3
     for _ in range(20):
         A = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-        near = gather_stars(A[2], 0.6, len(v), v, c, start, stars, radius)
-        idx, x, y = np.empty(16384, np.int64), np.empty(16384), np.empty(16384)
-        n = project_stars(near, A, f, k1, frame, 60, v, idx, x, y)
+        near = gather_stars(A[2], 0.6, len(v), stars)
+        view = ViewBuffers(np.empty(16384, np.int64), np.empty(16384), np.empty(16384), np.zeros(0, np.bool_),
+                           np.empty(0, np.int64))
+        n = project_stars(near, A, f, k1, frame, 60, stars, view)
+        idx, x, y = view.index, view.x_px, view.y_px
         # Reference: pinhole + k1 projection in numpy, brightest first, the first 60 in frame.
         b = v[near] @ A.T
         front = b[:, 2] > 1e-6
@@ -72,8 +77,8 @@ def test_project_and_match_against_brute_force(sky):
         for n_use in (len(p) // 2, len(p)):
             m_want, m_got = np.empty(n, np.int64), np.empty(n, np.int64)
             used = np.zeros(len(p), np.bool_)
-            k_want = match_greedy(x, y, n, p, n_use, r, used, m_want)
-            k_got = match_grid(x, y, n, p, n_use, frame, 2 * r, *grid, r, used, m_got)
+            k_want = match_greedy(ViewBuffers(view.index, x, y, used, m_want), n, p, n_use, r)
+            k_got = match_grid(ViewBuffers(view.index, x, y, used, m_got), n, p, n_use, grid, r)
             assert k_want == k_got > 0
             assert np.array_equal(m_want, m_got)
 

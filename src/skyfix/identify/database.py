@@ -33,6 +33,7 @@ from skyfix.cache import CorruptFileError, cache_dir, exclusive_lock, notice, ve
 from skyfix.catalog import Catalog, epoch_now, fibonacci_sphere, load_hipparcos
 from skyfix.errors import DatabaseError
 from skyfix.identify.hashing import build_table, edge_ratios, key_codes
+from skyfix.identify.kernel_data import PatternTable, StarIndex
 
 __all__ = ["PatternDatabase", "default_database", "default_database_path", "DATABASE_VERSION",
            "ProgressCallback"]
@@ -124,12 +125,26 @@ class PatternDatabase:
             return (PatternDatabase.load, (path,))
         return super().__reduce__()
 
-    def search_arrays(self) -> tuple[np.ndarray, ...]:
-        """Read-only plain-ndarray views (no copies) of the arrays the compiled search reads, in
-        its order (read-only whether memory-mapped or built in memory: one compiled signature)."""
-        return self._plain_views(("table", "key_codes", "key_start", "pattern_ratios", "pattern_largest",
-                                  "pattern_stars", "star_vectors", "cell_centres", "cell_start",
-                                  "cell_stars"))
+    def pattern_table(self) -> PatternTable:
+        """The patterns and their hash table as the compiled search reads them: read-only
+        plain-ndarray views, no copies (read-only whether memory-mapped or built in memory: one
+        compiled signature)."""
+        table = self.__dict__.get("_views", {}).get("pattern_table")
+        if table is None:
+            table = PatternTable(self.n_bins, *self._plain_views(
+                ("table", "key_codes", "key_start", "pattern_ratios", "pattern_largest", "pattern_stars")))
+            self.__dict__["_views"]["pattern_table"] = table
+        return table
+
+    def star_index(self) -> StarIndex:
+        """The stars and their sky cells as the compiled verification and refit read them
+        (read-only plain-ndarray views, as :meth:`pattern_table`)."""
+        index = self.__dict__.get("_views", {}).get("star_index")
+        if index is None:
+            views = self._plain_views(("star_vectors", "cell_centres", "cell_start", "cell_stars"))
+            index = StarIndex(*views, self.cell_radius)
+            self.__dict__["_views"]["star_index"] = index
+        return index
 
     def star_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Read-only plain-ndarray views of ``star_ids``, ``star_mag``, ``star_vectors`` (indexing a

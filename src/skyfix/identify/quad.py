@@ -16,6 +16,8 @@
    (:mod:`skyfix.identify.search`).
 4. The accepted attitude is refitted on all matched stars — with the focal length and, where
    significant, radial distortion k1 when no camera was given (:mod:`skyfix.identify.refine`).
+
+The kernels take and return the named tuples of :mod:`skyfix.identify.kernel_data`.
 """
 
 from __future__ import annotations
@@ -24,7 +26,6 @@ import hashlib
 import math
 import time
 from dataclasses import dataclass
-from itertools import permutations
 from pathlib import Path
 
 import numpy as np
@@ -33,14 +34,23 @@ from skyfix.camera import Camera
 from skyfix.errors import CameraError
 from skyfix.identify.accept import is_beyond_chance
 from skyfix.identify.database import PatternDatabase, default_database, readonly_view
-from skyfix.identify.refine import refine
-from skyfix.identify.search import breadth_first_combinations, search
+from skyfix.identify.kernel_data import (
+    FocalRange,
+    ImageStars,
+    PatternTable,
+    RefineSettings,
+    SearchResult,
+    StarIndex,
+    Tolerances,
+    VerifySettings,
+)
+from skyfix.identify.refine import refine_entry
+from skyfix.identify.search import breadth_first_combinations, search_entry
 
 __all__ = ["Identification", "identify"]
 
 METHOD = "quad-hash"
 _FOV_MARGIN = 1.35  # FOVs served beyond the database range (ratio)
-_PERMS = np.array(list(permutations(range(4))), dtype=np.int64)  # (24, 4)
 
 
 @dataclass(frozen=True)
@@ -93,7 +103,7 @@ def _failure(reason: str, t0: float, n_tried: int = 0, n_cand: int = 0) -> Ident
 
 
 _COMPILED = False
-_KERNEL_MODULES = ("hashing.py", "search.py", "verify.py", "refine.py")
+_KERNEL_MODULES = ("hashing.py", "search.py", "verify.py", "refine.py", "kernel_data.py")
 
 
 def _drop_stale_kernel_cache() -> None:
@@ -127,18 +137,19 @@ def _compile_kernels() -> None:
         return
     _drop_stale_kernel_cache()
     ro = readonly_view
-    p = np.array([[0.0, 0.0], [100.0, 0.0], [0.0, 100.0], [70.0, 60.0]])
-    combos = breadth_first_combinations(4)
+    image = ImageStars(np.array([[0.0, 0.0], [100.0, 0.0], [0.0, 100.0], [70.0, 60.0]]),
+                       np.array([-100.0, 100.0, -100.0, 100.0]))
     vec = ro(np.array([[0.0, 0.0, 1.0]]))
-    frame = np.array([-100.0, 100.0, -100.0, 100.0])
-    cells = (vec, ro(np.array([0, 1], np.int64)), ro(np.zeros(1, np.int32)))
-    search(p, combos, 0, 1, 1000.0, 900.0, 1100.0, False, 0.01, 1.0, 0.01, 25,
-           ro(np.full(16, -1, np.int32)), ro(np.zeros(1, np.int64)), ro(np.zeros(2, np.int64)),
-           ro(np.zeros((0, 5), np.float32)), ro(np.zeros(0, np.float32)), ro(np.zeros((0, 4), np.int32)),
-           vec, *cells, 0.1, frame, 4, 5.0, -20.0, 0, 0, _PERMS, np.empty((3, 3)), np.empty(6))
-    out = np.empty(16, np.int64)
-    refine(p, np.eye(3), 1000.0, True, 12, frame, 4, 4, 5.0, 1.0, vec, *cells, 0.1, 1, out, out.copy(),
-           np.empty(3))
+    stars = StarIndex(vec, vec, ro(np.array([0, 1], np.int64)), ro(np.zeros(1, np.int32)), 0.1)
+    patterns = PatternTable(25, ro(np.full(16, -1, np.int32)), ro(np.zeros(1, np.int64)),
+                            ro(np.zeros(2, np.int64)), ro(np.zeros((0, 5), np.float32)),
+                            ro(np.zeros(0, np.float32)), ro(np.zeros((0, 4), np.int32)))
+    focal = FocalRange(1000.0, 900.0, 1100.0, False)
+    tolerances = Tolerances(0.01, 1.0, 0.01)
+    search_entry(tuple(image), breadth_first_combinations(4), 0, 1, tuple(focal), tuple(tolerances),
+                 tuple(patterns), tuple(stars), tuple(VerifySettings(4, 5.0, -20.0)), 0)
+    refine = RefineSettings(True, 12, 4, 4, 5.0, 1.0, 1)
+    refine_entry(tuple(image), np.eye(3), 1000.0, tuple(refine), tuple(stars))
     _COMPILED = True
 
 
@@ -268,16 +279,24 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                  match_radius=match_radius, prob_threshold=prob_threshold,
                  centroid_sigma_px=centroid_sigma_px, ratio_tolerance=ratio_tolerance,
                  key_tolerance=key_tolerance, check_mirror=False) if check_mirror else None
-    arrays = db.search_arrays()
-    result_A = np.empty((3, 3))
-    stats = np.empty(6)
     log_threshold = math.log(prob_threshold)
+    image = ImageStars(p, frame)
+    ctx = _Context(xy, kept, (int(width), int(height), cx, cy), camera, image,
+                   RefineSettings(camera is None, 12, n_verify, min(n, refine_stars), float(radius),
+                                  float(centroid_sigma_px), 3),
+                   db, epoch, log_threshold, t0)
+    # The kernels' NamedTuple arguments as plain tuples (search_entry: kernel_data says why).
+    plain = dict(image=tuple(image), focal=tuple(FocalRange(f0, f_lo, f_hi, camera is not None)),
+                 patterns=tuple(db.pattern_table()), stars=tuple(db.star_index()),
+                 verification=tuple(VerifySettings(n_verify, float(radius), log_threshold)))
+    tiers = [tuple(Tolerances(float(eps_key), float(centroid_sigma_px), float(model_err)))
+             for eps_key, model_err in tiers]
     total = min(len(combos), max_patterns)
     pos = [0] * len(tiers)
     n_lookups = n_cand = 0
     chunk = 16
     while True:
-        for tier, (eps_key, model_err) in enumerate(tiers):
+        for tier, tolerances in enumerate(tiers):
             if tier == 0:
                 target = min(total, pos[0] + chunk)
                 chunk = min(chunk * 2, 512)
@@ -289,18 +308,13 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                                     + _mirror_note(xy, width, height, cx, retry), t0, max(pos), n_cand)
                 start = pos[tier]
                 stop = min(target, start + 512)
-                hit, n_done, n_c = search(p, combos, start, stop, f0, f_lo, f_hi, camera is not None,
-                                          eps_key, centroid_sigma_px, model_err, db.n_bins, *arrays,
-                                          db.cell_radius, frame, n_verify, radius, log_threshold,
-                                          n_lookups, n_cand, _PERMS, result_A, stats)
-                pos[tier] = start + n_done
-                n_lookups += n_done
-                n_cand += n_c
-                if hit:
-                    res = _finish(xy, p, result_A, float(stats[0]), math.exp(stats[1]), camera,
-                                  (int(width), int(height), cx, cy), frame, n_verify, min(n, refine_stars),
-                                  radius, centroid_sigma_px, db, arrays, epoch, max(pos), n_cand, t0, kept,
-                                  log_threshold)
+                hit = search_entry(plain["image"], combos, start, stop, plain["focal"], tolerances,
+                                   plain["patterns"], plain["stars"], plain["verification"], n_cand)
+                pos[tier] = start + hit.n_done
+                n_lookups += hit.n_done
+                n_cand += hit.n_candidates
+                if hit.found:
+                    res = _finish(ctx, hit, max(pos), n_cand)
                     if res is not None and f_lo * 0.97 <= res.camera.fx <= f_hi * 1.03:
                         return res
                     # A refit that fails or leaves the allowed range: search on.
@@ -340,40 +354,58 @@ def _mirror_note(xy: np.ndarray, width: int, height: int, cx: float, retry: dict
     return _MIRROR_NOTE if identify(flipped, width, height, **retry).success else ""
 
 
-def _finish(xy, p, A, f, prob, camera, geometry, frame, n_first, n_img, radius, sigma_px, db, arrays, epoch,
-            n_tried, n_cand, t0, kept, log_threshold):
-    """Refit on all matched stars (compiled :func:`refine`) and package the result.
+@dataclass(frozen=True)
+class _Context:
+    """What :func:`identify` works out once per frame and :func:`_finish` needs.
 
-    ``camera`` is the calibrated camera, or None: then the focal length (and k1) are fitted and
-    the camera is built from ``geometry`` = (width, height, cx, cy).
+    xy : (N, 2) — the finite centroids; ``kept`` their indices in the caller's array (None: all).
+    geometry : (width, height, cx, cy) — the frame and the principal point assumed.
+    camera : the calibrated camera, or None (then the focal length and k1 are fitted).
+    image : the centroids as the kernels see them; refit : the refit's settings.
     """
-    fit_focal = camera is None
-    A = A.copy()
-    out_img = np.empty(16384, np.int64)
-    out_star = np.empty(16384, np.int64)
-    fk = np.empty(5)
-    n_pairs = refine(p, A, f, fit_focal, 12, frame, n_first, n_img, radius, sigma_px, *arrays[-4:],
-                     db.cell_radius, 3, out_img, out_star, fk)
+
+    xy: np.ndarray
+    kept: np.ndarray | None
+    geometry: tuple[int, int, float, float]
+    camera: Camera | None
+    image: ImageStars
+    refit: RefineSettings
+    database: PatternDatabase
+    epoch: float | None
+    log_threshold: float
+    t0: float
+
+
+def _finish(ctx: _Context, hit: SearchResult, n_tried: int, n_cand: int) -> Identification | None:
+    """Refit the accepted candidate ``hit`` on all matched stars (compiled :func:`refine`) and
+    package the result; None when the refit is not itself beyond chance."""
+    db = ctx.database
+    fit = refine_entry(tuple(ctx.image), hit.A_icrs_to_cam, hit.focal_px, tuple(ctx.refit),
+                       tuple(db.star_index()))
+    n_pairs = fit.n_pairs
     if n_pairs < 4:
         return None
     # The refitted solution must itself be far beyond chance at its final match radius: a pattern
     # that is right only locally (three stars of a dense cluster and a false star) passes the
     # verification on the cluster's stars, but its refit matches barely more stars than a random
     # attitude would at the radius its scatter needs.
-    r_final, n_cat = float(fk[3]), int(fk[4])
+    r_final, n_cat = float(fit.radius_px), int(fit.n_catalog)
+    frame = ctx.image.frame_px
     area = (frame[1] - frame[0]) * (frame[3] - frame[2])
-    if not is_beyond_chance(n_pairs, n_cat, n_img, r_final, area, log_threshold):
+    if not is_beyond_chance(n_pairs, n_cat, ctx.refit.n_img, r_final, area, ctx.log_threshold):
         return None
-    star_index, cat_index = out_img[:n_pairs], out_star[:n_pairs]
+    star_index, cat_index = fit.star_index, fit.catalog_index
     order = np.argsort(star_index)
     star_index, cat_index = star_index[order], cat_index[order]
-    if fit_focal:
-        width, height, cx, cy = geometry
-        f_fit = float(fk[0])
-        camera = Camera(width=width, height=height, fx=f_fit, fy=f_fit, cx=cx, cy=cy, k1=float(fk[1]))
-    if kept is not None:
-        star_index = kept[star_index]
+    camera = ctx.camera
+    if camera is None:
+        width, height, cx, cy = ctx.geometry
+        f_fit = float(fit.focal_px)
+        camera = Camera(width=width, height=height, fx=f_fit, fy=f_fit, cx=cx, cy=cy, k1=float(fit.k1))
+    if ctx.kept is not None:
+        star_index = ctx.kept[star_index]
     star_ids, star_mag, _ = db.star_arrays()
     return Identification(
-        True, "", star_index, star_ids[cat_index], db.vectors_at(cat_index, epoch), star_mag[cat_index], A,
-        camera, float(min(prob, 1.0)), n_tried, n_cand, METHOD, time.perf_counter() - t0, r_final)
+        True, "", star_index, star_ids[cat_index], db.vectors_at(cat_index, ctx.epoch), star_mag[cat_index],
+        fit.A_icrs_to_cam, camera, float(min(math.exp(hit.log_prob_false), 1.0)), n_tried, n_cand, METHOD,
+        time.perf_counter() - ctx.t0, r_final)

@@ -3,7 +3,9 @@
 After a pattern is verified, :func:`refine` matches the brightest centroids to the catalogue
 stars in view, fits the attitude (and, without a calibrated camera, the focal length and
 radial distortion k1) by robust Gauss–Newton on the pixel residuals, and repeats with a
-match radius that shrinks to the fit's own scatter.
+match radius that shrinks to the fit's own scatter. It takes and returns the named data of
+:mod:`skyfix.identify.kernel_data` (:class:`~skyfix.identify.kernel_data.RefineSettings` in,
+:class:`~skyfix.identify.kernel_data.Refit` out).
 """
 
 from __future__ import annotations
@@ -11,9 +13,18 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skyfix.identify.kernel_data import ImageStars, RefineSettings, Refit, StarIndex, ViewBuffers
 from skyfix.identify.verify import gather_stars, grid_index, match_grid, project_stars, star_limit
 
-__all__ = ["refine"]
+__all__ = ["refine", "refine_entry"]
+
+# The rows of the per-star table of :func:`_gauss_newton` (a (13, M) table, one column per star,
+# so that the sums over stars read memory in order): the residuals, the weight, and the
+# Jacobian rows of u and v with respect to the rotation (3), the focal length and k1.
+_RU, _RV, _W = 0, 1, 2
+_DU = 3  # _DU + 0..2: ∂u/∂δ; _DU + 3: ∂u/∂f; _DU + 4: ∂u/∂k1
+_DV = 8  # the same for v
+_J_ROWS = 13
 
 
 @numba.njit(cache=True)
@@ -93,7 +104,7 @@ def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
     g = np.empty(n_params)
     c2 = cauchy_px * cauchy_px
     # Per star: residuals (u, v), weight, and the Jacobian rows of u (5) and v (5).
-    J = np.empty((13, m))
+    J = np.empty((_J_ROWS, m))
     for _ in range(iterations):
         # First every star's terms (independent: the divisions overlap), then the sums in order.
         a00, a01, a02 = A[0, 0], A[0, 1], A[0, 2]
@@ -113,21 +124,21 @@ def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
             # d(xn)/dδ and d(yn)/dδ from db/dδ = -[b×].
             dx0, dx1, dx2 = (0.0 - xn * by) / bz, (bz + xn * bx) / bz, (-by) / bz
             dy0, dy1, dy2 = (-bz - yn * by) / bz, (0.0 + yn * bx) / bz, bx / bz
-            J[0, t], J[1, t], J[2, t] = ru, rv, 1.0 / (1.0 + (ru * ru + rv * rv) / c2)
-            J[3, t], J[4, t] = dudx * dx0 + dudy * dy0, dudx * dx1 + dudy * dy1
-            J[5, t] = dudx * dx2 + dudy * dy2
-            J[8, t], J[9, t] = dvdx * dx0 + dvdy * dy0, dvdx * dx1 + dvdy * dy1
-            J[10, t] = dvdx * dx2 + dvdy * dy2
-            J[6, t], J[11, t] = xn * gr, yn * gr
-            J[7, t], J[12, t] = f * xn * r2, f * yn * r2
+            J[_RU, t], J[_RV, t], J[_W, t] = ru, rv, 1.0 / (1.0 + (ru * ru + rv * rv) / c2)
+            J[_DU, t], J[_DU + 1, t] = dudx * dx0 + dudy * dy0, dudx * dx1 + dudy * dy1
+            J[_DU + 2, t] = dudx * dx2 + dudy * dy2
+            J[_DV, t], J[_DV + 1, t] = dvdx * dx0 + dvdy * dy0, dvdx * dx1 + dvdy * dy1
+            J[_DV + 2, t] = dvdx * dx2 + dvdy * dy2
+            J[_DU + 3, t], J[_DV + 3, t] = xn * gr, yn * gr
+            J[_DU + 4, t], J[_DV + 4, t] = f * xn * r2, f * yn * r2
         # The 15 sums of the 5-parameter normal matrix and 5 of the gradient as scalars; a
         # smaller fit uses the leading block.
         n00 = n01 = n02 = n03 = n04 = n11 = n12 = n13 = n14 = n22 = n23 = n24 = n33 = n34 = n44 = 0.0
         g0 = g1 = g2 = g3 = g4 = 0.0
         for t in range(m):
-            ru, rv, w = J[0, t], J[1, t], J[2, t]
-            u0, u1, u2, u3, u4 = J[3, t], J[4, t], J[5, t], J[6, t], J[7, t]
-            v0, v1, v2, v3, v4 = J[8, t], J[9, t], J[10, t], J[11, t], J[12, t]
+            ru, rv, w = J[_RU, t], J[_RV, t], J[_W, t]
+            u0, u1, u2, u3, u4 = J[_DU, t], J[_DU + 1, t], J[_DU + 2, t], J[_DU + 3, t], J[_DU + 4, t]
+            v0, v1, v2, v3, v4 = J[_DV, t], J[_DV + 1, t], J[_DV + 2, t], J[_DV + 3, t], J[_DV + 4, t]
             g0 += w * (u0 * ru + v0 * rv)
             g1 += w * (u1 * ru + v1 * rv)
             g2 += w * (u2 * ru + v2 * rv)
@@ -173,59 +184,69 @@ def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
 
 
 @numba.njit(cache=True)
-def refine(p, A, f, fit_focal, fit_k1_min, frame, n_first, n_img, radius_px, sigma_px, star_vectors,
-           cell_centres, cell_start, cell_stars, cell_radius, iterations, out_img, out_star, out_fk):
-    """Match all stars with the accepted attitude, refit, re-match (``iterations`` times).
+def refine_entry(image, A, f, settings, stars):
+    """:func:`refine` with its NamedTuple arguments as plain tuples (``tuple(nt)``): the entry
+    for Python callers (:mod:`skyfix.identify.kernel_data` says why)."""
+    return refine(ImageStars(*image), A, f, RefineSettings(*settings), StarIndex(*stars))
 
-    Each pass matches the ``n_img`` brightest centroids (the first pass only ``n_first``) to
-    the catalogue stars in view (about twice as deep) and fits, by robust Gauss–Newton on the
-    pixel residuals, the attitude and, when ``fit_focal``, the focal length and — from the
-    second pass on, with at least ``fit_k1_min`` matches, and only if it reduces χ²
-    significantly — radial distortion k1 (``p = f·x_n·(1 + k1·r²)``). The match radius then
-    shrinks to 3.5 robust σ of the residuals (not below 1.5σ of the centroid noise).
 
-    Returns the number of matched pairs written to ``out_img`` (centroid) and ``out_star``
-    (catalogue index); ``A`` is updated in place; ``out_fk`` = (f, k1, rms px) and, when it has
-    room, (…, match radius px, catalogue stars projected) of the last matching pass.
+@numba.njit(cache=True)
+def refine(image, A, f, settings, stars):
+    """Match all stars with the accepted attitude ``A`` at focal length ``f``, refit, re-match
+    (``settings.iterations`` times).
+
+    Each pass matches the ``n_img`` brightest centroids of ``image`` (:class:`ImageStars`; the
+    first pass only ``n_first``) to the catalogue stars of ``stars`` (:class:`StarIndex`) in
+    view (about twice as deep) and fits, by robust Gauss–Newton on the pixel residuals, the
+    attitude and, when ``fit_focal``, the focal length and — from the second pass on, with at
+    least ``fit_k1_min`` matches, and only if it reduces χ² significantly — radial distortion
+    k1 (``p = f·x_n·(1 + k1·r²)``). The match radius then shrinks to 3.5 robust σ of the
+    residuals (not below 1.5σ of the centroid noise). ``settings`` is a :class:`RefineSettings`.
+
+    Returns a :class:`Refit`. When a later pass matches fewer than 3 stars, the pairs of the
+    pass before are returned with the attitude and focal length given (k1 = 0): the fits of
+    the passes are dropped.
     """
-    view_idx = np.empty(16384, dtype=np.int64)
-    view_x = np.empty(16384)
-    view_y = np.empty(16384)
-    used = np.zeros(n_img, dtype=np.bool_)
-    match_img = np.empty(16384, dtype=np.int64)
+    p, frame = image.offsets_px, image.frame_px
+    fit_focal, fit_k1_min, n_first, n_img, radius_px, sigma_px, iterations = settings
+    star_vectors = stars.vectors
+    out_img = np.empty(16384, dtype=np.int64)
+    out_star = np.empty(16384, dtype=np.int64)
+    view = ViewBuffers(np.empty(16384, dtype=np.int64), np.empty(16384), np.empty(16384),
+                       np.zeros(n_img, dtype=np.bool_), np.empty(16384, dtype=np.int64))
+    view_idx, match_img = view.index, view.match
+    f_given = f
     k1 = 0.0
     radius = radius_px
     n_pairs = 0
-    out_fk[0] = f
-    out_fk[1] = k1
-    out_fk[2] = radius_px
+    rms = radius_px
+    last_radius = radius_px
+    last_n_cat = 0
     A_cur = A.copy()
     use_k1 = -1  # undecided; decided once, on the first pass with all stars
     # Cells of twice the match radius: a quarter of the cells to set up, the same matches.
     cell = 2.0 * radius_px
-    nx, ny, gstart, gitems = grid_index(p, n_img, frame, cell)
+    grid = grid_index(p, n_img, frame, cell)
     # The catalogue stars that can come into view while the fit moves (once, brightest first).
     ext = np.sqrt(max(frame[0] ** 2, frame[1] ** 2) + max(frame[2] ** 2, frame[3] ** 2))
     limit = star_limit(len(star_vectors), n_img, frame, f, 3.0)
-    near = gather_stars(A[2], np.arctan(ext / f) * 1.1 + 0.02, limit, star_vectors, cell_centres,
-                        cell_start, cell_stars, cell_radius)
+    near = gather_stars(A[2], np.arctan(ext / f) * 1.1 + 0.02, limit, stars)
     for it in range(iterations + 1):
         # The first pass matches only the brightest stars, where chance neighbours are rare.
         n_use = min(n_img, n_first) if it == 0 else n_img
-        n_cat = project_stars(near, A_cur, f, k1, frame, 2 * n_use, star_vectors, view_idx, view_x, view_y)
-        n_match = match_grid(view_x, view_y, n_cat, p, n_use, frame, cell, nx, ny, gstart,
-                                  gitems, radius, used, match_img)
+        n_cat = project_stars(near, A_cur, f, k1, frame, 2 * n_use, stars, view)
+        n_match = match_grid(view, n_cat, p, n_use, grid, radius)
         if n_match < 3:
-            return n_pairs
+            return Refit(n_pairs, out_img[:n_pairs], out_star[:n_pairs], A.copy(), f_given, 0.0, rms,
+                         last_radius, last_n_cat)
         n_pairs = 0
         for j in range(n_cat):
             if match_img[j] >= 0:
                 out_img[n_pairs] = match_img[j]
                 out_star[n_pairs] = view_idx[j]
                 n_pairs += 1
-        if len(out_fk) >= 5:
-            out_fk[3] = radius
-            out_fk[4] = n_cat
+        last_radius = radius
+        last_n_cat = n_cat
         if it == iterations:
             break
         v = np.empty((n_pairs, 3))
@@ -269,8 +290,5 @@ def refine(p, A, f, fit_focal, fit_k1_min, frame, n_first, n_img, radius_px, sig
         dist = np.sqrt(res[0::2] ** 2 + res[1::2] ** 2)
         sigma_est = np.median(dist) / 1.1774  # median of a 2-D Gaussian distance is 1.1774 σ
         radius = min(radius_px, max(3.5 * sigma_est, 1.5 * sigma_px))
-        out_fk[2] = np.sqrt(np.mean(dist**2))
-    A[:, :] = A_cur
-    out_fk[0] = f
-    out_fk[1] = k1
-    return n_pairs
+        rms = np.sqrt(np.mean(dist**2))
+    return Refit(n_pairs, out_img[:n_pairs], out_star[:n_pairs], A_cur, f, k1, rms, last_radius, last_n_cat)

@@ -5,19 +5,33 @@ computes the edge ratios from camera rays at an assumed focal length, probes eve
 within the tolerance, walks the hash table, keeps catalogue patterns whose ratios agree, then
 estimates the focal length from the ratio of largest edges, recomputes the image ratios at that
 focal length and keeps the pattern only if they agree tightly and the focal length is allowed.
+The data it reads and returns are the named tuples of :mod:`skyfix.identify.kernel_data`.
 """
 
 from __future__ import annotations
+
+from itertools import permutations
 
 import numba
 import numpy as np
 
 from skyfix.identify.hashing import lookup_run
+from skyfix.identify.kernel_data import (
+    FocalRange,
+    ImageStars,
+    PatternTable,
+    SearchResult,
+    StarIndex,
+    Tolerances,
+    VerifySettings,
+    ViewBuffers,
+)
 from skyfix.identify.verify import verify_attitude
 
-__all__ = ["breadth_first_combinations", "search"]
+__all__ = ["breadth_first_combinations", "search", "search_entry"]
 
 _COMBOS: dict[int, np.ndarray] = {}
+_PERMS = np.array(list(permutations(range(4))), dtype=np.int64)  # (24, 4): every vertex correspondence
 
 
 def breadth_first_combinations(n: int) -> np.ndarray:
@@ -132,37 +146,44 @@ def _no_rotation_fits(b: np.ndarray, r: np.ndarray, eps: float) -> bool:
 
 
 @numba.njit(cache=True)
-def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px, model_err, n_bins,
-           table, key_codes, key_start, pattern_ratios, pattern_largest, pattern_stars, star_vectors,
-           cell_centres, cell_start, cell_stars, cell_radius, frame, n_verify, radius_px,
-           log_threshold, trials_before, cand_before, perms, result_A, result_stats):
+def search_entry(image, combos, start, stop, focal, tolerances, patterns, stars, verification, cand_before):
+    """:func:`search` with its NamedTuple arguments as plain tuples (``tuple(nt)``): the entry
+    for Python callers (:mod:`skyfix.identify.kernel_data` says why)."""
+    return search(ImageStars(*image), combos, start, stop, FocalRange(*focal), Tolerances(*tolerances),
+                  PatternTable(*patterns), StarIndex(*stars), VerifySettings(*verification), cand_before)
+
+
+@numba.njit(cache=True)
+def search(image, combos, start, stop, focal, tolerances, patterns, stars, verification, cand_before):
     """Search image combinations ``start:stop`` for a verified catalogue pattern.
 
     Parameters
     ----------
-    p : (N, 2) float64 — image stars as undistorted pixel offsets from the principal point
-        (``x_n · f0``), brightest first.
+    image : ImageStars — the centroids as undistorted offsets from the principal point
+        (``x_n · f0``), brightest first, and the frame's extent.
     combos : (C, 4) int64 — image-star index quadruples, in search order.
-    f0 : float — assumed focal length (pixels); ``f_lo``–``f_hi`` the allowed range;
-        ``fix_focal`` — use ``f0`` itself (calibrated camera).
-    eps_key : float — ratio tolerance of the key probe (covers the unknown focal length).
-    sigma_px, model_err : float — centroid noise (pixels) and the ratio error of the unmodelled
-        camera; the tight ratio tolerance is ``4·√2·σ / L_px + model_err``.
-    cell_* : the database's sky-cell index of all stars (verification).
-    frame : (4,) float — x_lo, x_hi, y_lo, y_hi of the frame in ``p`` coordinates.
-    n_verify : int — image stars (and at most as many catalogue stars) used in verification.
-    radius_px : float — verification match radius.
-    log_threshold : float — log of the largest accepted false-match probability.
-    trials_before, cand_before : int — look-elsewhere counts of earlier calls.
-    perms : (24, 4) int64 — all vertex permutations.
-    result_A : (3, 3) out — accepted attitude; result_stats : (6,) out — f, log P(false),
-        combination index, pattern index, n matched, n catalogue.
+    start, stop : int — the combinations to search.
+    focal : FocalRange — the assumed focal length and the allowed range.
+    tolerances : Tolerances — the ratio tolerances of the key probe and of the tight check
+        (:func:`skyfix.identify.accept.ratio_tolerance`).
+    patterns : PatternTable — the database's patterns and hash table.
+    stars : StarIndex — the database's sky-cell index of all stars (verification).
+    verification : VerifySettings — stars matched, match radius, acceptance threshold.
+    cand_before : int — candidates verified by earlier calls (the look-elsewhere count).
 
     Returns
     -------
-    (found, n_done, n_candidates) — whether a pattern was accepted, combinations processed,
-    candidates verified.
+    SearchResult
     """
+    p = image.offsets_px
+    f0, f_lo, f_hi, fix_focal = focal
+    eps_key, sigma_px, model_err = tolerances
+    n_bins = patterns.n_bins
+    table, key_codes, key_start = patterns.table, patterns.key_codes, patterns.key_start
+    pattern_ratios, pattern_largest, pattern_stars = patterns.ratios, patterns.largest_rad, patterns.stars
+    star_vectors = stars.vectors
+    n_verify, radius_px, log_threshold = verification
+    perms = _PERMS
     edges = np.empty(6)
     edges1 = np.empty(6)
     ratios = np.empty(5)
@@ -180,12 +201,9 @@ def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px,
     rp = np.empty((4, 3))
     ai = np.empty((4, 4))
     ac = np.empty((4, 4))
-    view_idx = np.empty(8192, dtype=np.int64)
-    view_x = np.empty(8192)
-    view_y = np.empty(8192)
     n_img = min(n_verify, len(p))
-    used = np.zeros(n_img, dtype=np.bool_)
-    match_img = np.empty(8192, dtype=np.int64)
+    view = ViewBuffers(np.empty(8192, dtype=np.int64), np.empty(8192), np.empty(8192),
+                       np.zeros(n_img, dtype=np.bool_), np.empty(8192, dtype=np.int64))
     n_cand = 0
     for c in range(start, stop):
         combo = combos[c]
@@ -296,24 +314,14 @@ def search(p, combos, start, stop, f0, f_lo, f_hi, fix_focal, eps_key, sigma_px,
                 # A quick first stage (the 15 brightest against 30 centroids) rejects most false
                 # candidates at a third of the cost; the pattern's own stars are not counted.
                 n_img1 = min(n_img, 30)
-                logp1, _, n1_ = verify_attitude(A, f1, frame, 15, n_img1, p, radius_px, pattern_stars[q],
-                                                combo, star_vectors, cell_centres, cell_start, cell_stars,
-                                                cell_radius, view_idx, view_x, view_y, used, match_img)
+                logp1, _, n1_ = verify_attitude(A, f1, image, 15, n_img1, radius_px, pattern_stars[q], combo,
+                                                stars, view)
                 if n1_ >= 3 and logp1 > -3.0:
                     continue
-                logp, n_match, n_cat = verify_attitude(A, f1, frame, n_img, n_img, p, radius_px,
-                                                       pattern_stars[q], combo, star_vectors, cell_centres,
-                                                       cell_start, cell_stars, cell_radius, view_idx, view_x,
-                                                       view_y, used, match_img)
+                logp, n_match, n_cat = verify_attitude(A, f1, image, n_img, n_img, radius_px,
+                                                       pattern_stars[q], combo, stars, view)
                 n_trials = cand_before + n_cand  # look-elsewhere: candidates examined so far
                 logp += np.log(n_trials)
                 if logp <= log_threshold:
-                    result_A[:, :] = A
-                    result_stats[0] = f1
-                    result_stats[1] = logp
-                    result_stats[2] = c
-                    result_stats[3] = q
-                    result_stats[4] = n_match
-                    result_stats[5] = n_cat
-                    return True, c - start + 1, n_cand
-    return False, stop - start, n_cand
+                    return SearchResult(True, c - start + 1, n_cand, A, f1, logp, c, q, n_match, n_cat)
+    return SearchResult(False, stop - start, n_cand, np.zeros((3, 3)), 0.0, 0.0, -1, -1, 0, 0)

@@ -9,6 +9,10 @@ four stars, matched by construction, are left out of both counts.
 
 All positions are in the undistorted pixel-offset space ``p = x_n · f`` of the search (see
 :mod:`skyfix.identify.search`), so a calibrated camera's distortion never enters the kernels.
+The data the kernels share are named in :mod:`skyfix.identify.kernel_data`: the catalogue's
+:class:`~skyfix.identify.kernel_data.StarIndex`, the :class:`~skyfix.identify.kernel_data.ViewBuffers`
+the projections and matches fill, and the :class:`~skyfix.identify.kernel_data.CentroidGrid`.
+Whether the match counted here is beyond chance is decided in :mod:`skyfix.identify.accept`.
 """
 
 from __future__ import annotations
@@ -17,6 +21,8 @@ import math
 
 import numba
 import numpy as np
+
+from skyfix.identify.kernel_data import CentroidGrid
 
 _N_RADII = 5  # verification radii R, R/2, ..., R/16
 
@@ -94,13 +100,17 @@ def cell_band(cell_centres, u, cone):
 
 
 @numba.njit(cache=True)
-def stars_in_view(A, f, k1, frame, limit, star_vectors, cell_centres, cell_start, cell_stars,
-                   cell_radius, out_idx, out_x, out_y):
-    """Catalogue stars (index < ``limit``) that project into the frame, brightest first.
+def stars_in_view(A, f, k1, frame, limit, stars, view):
+    """Catalogue stars (index < ``limit``) of the :class:`StarIndex` ``stars`` that project into
+    the frame, brightest first.
 
     Projection in the undistorted offset space of ``p``: ``x = f·x_n·(1 + k1·r²)``.
-    Returns the count written to ``out_*``.
+    Returns the count written to ``view.index``, ``view.x_px``, ``view.y_px``.
     """
+    star_vectors, cell_centres, cell_start, cell_stars = (stars.vectors, stars.cell_centres, stars.cell_start,
+                                                          stars.cell_stars)
+    cell_radius = stars.cell_radius_rad
+    out_idx, out_x, out_y = view.index, view.x_px, view.y_px
     x_lo, x_hi, y_lo, y_hi = frame[0], frame[1], frame[2], frame[3]
     ext = np.sqrt(max(x_lo * x_lo, x_hi * x_hi) + max(y_lo * y_lo, y_hi * y_hi))
     half_diag = np.arctan(ext / f) * (1.0 + 2.0 * abs(k1)) + 0.01
@@ -166,10 +176,13 @@ def sorted_indices(a, top):
 
 
 @numba.njit(cache=True)
-def gather_stars(z, cone, limit, star_vectors, cell_centres, cell_start, cell_stars, cell_radius):
-    """Indices (sorted: brightest first) of stars ``< limit`` within ``cone`` radians of ``z``.
-    No star vector is read in cells that lie wholly inside the cone (a third of them; the
-    reads are cache misses)."""
+def gather_stars(z, cone, limit, stars):
+    """Indices (sorted: brightest first) of the stars ``< limit`` of the :class:`StarIndex`
+    ``stars`` within ``cone`` radians of ``z``. No star vector is read in cells that lie wholly
+    inside the cone (a third of them; the reads are cache misses)."""
+    star_vectors, cell_centres, cell_start, cell_stars = (stars.vectors, stars.cell_centres, stars.cell_start,
+                                                          stars.cell_stars)
+    cell_radius = stars.cell_radius_rad
     cos_cell = np.cos(min(cone + cell_radius, np.pi))
     cos_cone = np.cos(min(cone, np.pi))
     # Cells whose every star is inside the cone (margin far beyond rounding).
@@ -209,10 +222,13 @@ def gather_stars(z, cone, limit, star_vectors, cell_centres, cell_start, cell_st
 
 
 @numba.njit(cache=True, error_model="numpy")
-def project_stars(near, A, f, k1, frame, n_max, star_vectors, out_idx, out_x, out_y):
-    """Project stars ``near`` (brightest first); keep the first ``n_max`` in the frame. Written
-    branch-free, so that the cold vector reads of successive stars overlap; ``out_*`` need one
-    slot of room beyond what is returned."""
+def project_stars(near, A, f, k1, frame, n_max, stars, view):
+    """Project stars ``near`` (brightest first) of the :class:`StarIndex` ``stars``; keep the
+    first ``n_max`` in the frame in ``view.index``, ``view.x_px``, ``view.y_px`` and return how
+    many. Written branch-free, so that the cold vector reads of successive stars overlap; the
+    buffers need one slot of room beyond what is returned."""
+    star_vectors = stars.vectors
+    out_idx, out_x, out_y = view.index, view.x_px, view.y_px
     n = 0
     n_room = min(n_max, len(out_idx) - 1)
     for s in near:
@@ -236,9 +252,12 @@ def project_stars(near, A, f, k1, frame, n_max, star_vectors, out_idx, out_x, ou
 
 
 @numba.njit(cache=True)
-def match_greedy(view_x, view_y, n_cat, p, n_img, radius_px, used, match_img):
-    """Greedy one-to-one matching, brightest catalogue star first, nearest free centroid within
-    the radius. ``match_img[j]`` = centroid of catalogue star ``j`` or -1; returns the count."""
+def match_greedy(view, n_cat, p, n_img, radius_px):
+    """Greedy one-to-one matching of the first ``n_cat`` stars of ``view`` (:class:`ViewBuffers`)
+    to the first ``n_img`` centroids ``p``, brightest catalogue star first, nearest free centroid
+    within the radius. ``view.match[j]`` = centroid of catalogue star ``j`` or -1; returns the
+    count."""
+    view_x, view_y, used, match_img = view.x_px, view.y_px, view.used, view.match
     used[:n_img] = False
     r2 = radius_px * radius_px
     n_match = 0
@@ -262,7 +281,7 @@ def match_greedy(view_x, view_y, n_cat, p, n_img, radius_px, used, match_img):
 @numba.njit(cache=True)
 def grid_index(p, n_img, frame, cell):
     """Bucket the first ``n_img`` points of ``p`` into square cells of side ``cell`` over the
-    frame: returns (nx, ny, start (nx·ny + 1,), items) for :func:`match_grid`."""
+    frame: the :class:`CentroidGrid` that :func:`match_grid` searches."""
     nx = max(1, int((frame[1] - frame[0]) / cell) + 1)
     ny = max(1, int((frame[3] - frame[2]) / cell) + 1)
     ids = np.empty(n_img, dtype=np.int64)
@@ -278,21 +297,22 @@ def grid_index(p, n_img, frame, cell):
     for i in range(n_img):  # in index order, so each cell lists the brightest first
         items[fill[ids[i]]] = i
         fill[ids[i]] += 1
-    return nx, ny, start, items
+    return CentroidGrid(frame[0], frame[2], cell, nx, ny, start, items)
 
 
 @numba.njit(cache=True)
-def match_grid(view_x, view_y, n_cat, p, n_use, frame, cell, nx, ny, start, items, radius_px, used,
-               match_img):
-    """:func:`match_greedy` against centroids ``< n_use`` bucketed by :func:`grid_index`.
-    Needs ``radius_px <= cell / 2``: a match circle then reaches only the 2×2 cells on the side
-    of its cell that its centre lies in."""
+def match_grid(view, n_cat, p, n_use, grid, radius_px):
+    """:func:`match_greedy` against centroids ``< n_use`` bucketed in ``grid`` (:func:`grid_index`).
+    Needs ``radius_px <= grid.cell_px / 2``: a match circle then reaches only the 2×2 cells on
+    the side of its cell that its centre lies in."""
+    view_x, view_y, used, match_img = view.x_px, view.y_px, view.used, view.match
+    gx0, gy0, cell, nx, ny, start, items = grid
     used[:] = False
     r2 = radius_px * radius_px
     n_match = 0
     for j in range(n_cat):
-        ux = (view_x[j] - frame[0]) / cell
-        uy = (view_y[j] - frame[2]) / cell
+        ux = (view_x[j] - gx0) / cell
+        uy = (view_y[j] - gy0) / cell
         gx = int(ux)
         gy = int(uy)
         x0 = gx - 1 if ux - gx < 0.5 else gx
@@ -320,10 +340,11 @@ def match_grid(view_x, view_y, n_cat, p, n_use, frame, cell, nx, ny, start, item
 
 
 @numba.njit(cache=True)
-def verify_attitude(A, f, frame, n_cat_max, n_img, p, radius_px, pattern, combo, star_vectors, cell_centres,
-            cell_start, cell_stars, cell_radius, view_idx, view_x, view_y, used, match_img):
+def verify_attitude(A, f, image, n_cat_max, n_img, radius_px, pattern, combo, stars, view):
     """log P(a wrong attitude matches as well) and the counts, for the ``n_cat_max`` brightest
-    catalogue stars in view matched to the ``n_img`` brightest centroids.
+    catalogue stars in view (of the :class:`StarIndex` ``stars``) matched to the ``n_img``
+    brightest centroids of ``image`` (:class:`ImageStars`); ``view`` (:class:`ViewBuffers`) is
+    work space.
 
     The pattern's own stars are not counted. Each catalogue star lands by chance within ``r`` of
     some centroid with ``p = n_img·π·r² / frame area``; the matches are counted within the full
@@ -331,11 +352,12 @@ def verify_attitude(A, f, frame, n_cat_max, n_img, p, radius_px, pattern, combo,
     test; a distorted one still passes with the full radius), and the best of the five binomial
     tails, times 5 for the choice, is returned with (matches within the radius, catalogue stars).
     """
-    limit = star_limit(len(star_vectors), n_cat_max, frame, f, 2.0)
-    n_view = stars_in_view(A, f, 0.0, frame, limit, star_vectors, cell_centres, cell_start,
-                            cell_stars, cell_radius, view_idx, view_x, view_y)
+    p, frame = image.offsets_px, image.frame_px
+    view_idx, view_x, view_y, match_img = view.index, view.x_px, view.y_px, view.match
+    limit = star_limit(len(stars.vectors), n_cat_max, frame, f, 2.0)
+    n_view = stars_in_view(A, f, 0.0, frame, limit, stars, view)
     n_cat = min(n_view, n_cat_max)
-    match_greedy(view_x, view_y, n_cat, p, n_img, radius_px, used, match_img)
+    match_greedy(view, n_cat, p, n_img, radius_px)
     k = np.zeros(_N_RADII, dtype=np.int64)  # matches within radius_px / 2**m
     n = 0
     r2 = radius_px * radius_px
