@@ -32,7 +32,7 @@ import numpy as np
 
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
-from skyfix.identify.accept import is_beyond_chance
+from skyfix.identify.accept import refit_accepted, refit_focal_allowed
 from skyfix.identify.database import PatternDatabase, default_database, readonly_view
 from skyfix.identify.kernel_data import (
     FocalRange,
@@ -103,7 +103,7 @@ def _failure(reason: str, t0: float, n_tried: int = 0, n_cand: int = 0) -> Ident
 
 
 _COMPILED = False
-_KERNEL_MODULES = ("hashing.py", "search.py", "verify.py", "refine.py", "kernel_data.py")
+_KERNEL_MODULES = ("hashing.py", "search.py", "verify.py", "refine.py", "kernel_data.py", "accept.py")
 
 
 def _drop_stale_kernel_cache() -> None:
@@ -315,7 +315,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 n_cand += hit.n_candidates
                 if hit.found:
                     res = _finish(ctx, hit, max(pos), n_cand)
-                    if res is not None and f_lo * 0.97 <= res.camera.fx <= f_hi * 1.03:
+                    if res is not None and refit_focal_allowed(res.camera.fx, f_lo, f_hi):  # accept rule 7
                         return res
                     # A refit that fails or leaves the allowed range: search on.
         if all(q >= total for q in pos):
@@ -378,21 +378,14 @@ class _Context:
 
 def _finish(ctx: _Context, hit: SearchResult, n_tried: int, n_cand: int) -> Identification | None:
     """Refit the accepted candidate ``hit`` on all matched stars (compiled :func:`refine`) and
-    package the result; None when the refit is not itself beyond chance."""
+    package the result; None when the refit is not itself beyond chance (accept rule 6)."""
     db = ctx.database
     fit = refine_entry(tuple(ctx.image), hit.A_icrs_to_cam, hit.focal_px, tuple(ctx.refit),
                        tuple(db.star_index()))
-    n_pairs = fit.n_pairs
-    if n_pairs < 4:
-        return None
-    # The refitted solution must itself be far beyond chance at its final match radius: a pattern
-    # that is right only locally (three stars of a dense cluster and a false star) passes the
-    # verification on the cluster's stars, but its refit matches barely more stars than a random
-    # attitude would at the radius its scatter needs.
     r_final, n_cat = float(fit.radius_px), int(fit.n_catalog)
     frame = ctx.image.frame_px
     area = (frame[1] - frame[0]) * (frame[3] - frame[2])
-    if not is_beyond_chance(n_pairs, n_cat, ctx.refit.n_img, r_final, area, ctx.log_threshold):
+    if not refit_accepted(fit.n_pairs, n_cat, ctx.refit.n_img, r_final, area, ctx.log_threshold):
         return None
     star_index, cat_index = fit.star_index, fit.catalog_index
     order = np.argsort(star_index)

@@ -5,7 +5,9 @@ computes the edge ratios from camera rays at an assumed focal length, probes eve
 within the tolerance, walks the hash table, keeps catalogue patterns whose ratios agree, then
 estimates the focal length from the ratio of largest edges, recomputes the image ratios at that
 focal length and keeps the pattern only if they agree tightly and the focal length is allowed.
-The data it reads and returns are the named tuples of :mod:`skyfix.identify.kernel_data`.
+The data it reads and returns are the named tuples of :mod:`skyfix.identify.kernel_data`; the
+rules that accept or reject a candidate are the helpers of :mod:`skyfix.identify.accept` it calls
+(rules 1–5 there).
 """
 
 from __future__ import annotations
@@ -15,6 +17,16 @@ from itertools import permutations
 import numba
 import numpy as np
 
+from skyfix.identify.accept import (
+    QUICK_CATALOG_STARS,
+    QUICK_CENTROIDS,
+    focal_allowed,
+    is_verified,
+    log_prob_false,
+    pattern_fits,
+    quick_check_fails,
+    ratio_tolerance,
+)
 from skyfix.identify.hashing import lookup_run
 from skyfix.identify.kernel_data import (
     FocalRange,
@@ -259,10 +271,10 @@ def search(image, combos, start, stop, focal, tolerances, patterns, stars, verif
                     f1 = f0 * largest / pattern_largest[q]
                     _pattern_edges(p, combo, f1, edges1)
                     f1 = f1 * edges1[5] / pattern_largest[q]
-                if f1 < f_lo or f1 > f_hi:
+                if not focal_allowed(f1, f_lo, f_hi):  # accept rule 2
                     continue
                 _pattern_edges(p, combo, f1, edges1)
-                tol = 4.0 * 1.4142 * sigma_px / (edges1[5] * f1) + model_err
+                tol = ratio_tolerance(sigma_px, edges1[5], f1, model_err)  # accept rule 1
                 bad = False
                 for i in range(5):
                     if abs(edges1[i] / edges1[5] - pattern_ratios[q, i]) > tol:
@@ -292,14 +304,14 @@ def search(image, combos, start, stop, focal, tolerances, patterns, stars, verif
                         best_err = err
                         best = m
                 # Each edge is off by at most the sum of its two stars' errors after any rotation,
-                # so an edge mismatch above twice the allowed star error (the residual test below)
+                # so an edge mismatch above twice the allowed star error (accept rule 3, below)
                 # rejects the candidate without the SVD.
                 if best_err > 2.0 * theta_max + 1e-9:
                     continue
                 for a in range(4):
                     rp[a] = r[perms[best, a]]
                 if _no_rotation_fits(b, rp, radius_px / f1):
-                    continue  # a mirror image: the residual test below would reject it
+                    continue  # a mirror image: accept rule 3 below would reject it
                 A = _kabsch(b, rp)
                 resid = 0.0
                 for a in range(4):
@@ -308,20 +320,19 @@ def search(image, combos, start, stop, focal, tolerances, patterns, stars, verif
                         e = b[a, i] - (A[i, 0] * rp[a, 0] + A[i, 1] * rp[a, 1] + A[i, 2] * rp[a, 2])
                         d2 += e * e
                     resid = max(resid, np.sqrt(d2))
-                if resid * f1 > radius_px:
+                if not pattern_fits(resid, f1, radius_px):  # accept rule 3
                     continue  # a mirror image or an inconsistent correspondence
                 # Verification: the brightest catalogue stars in the frame, matched to centroids.
                 # A quick first stage (the 15 brightest against 30 centroids) rejects most false
                 # candidates at a third of the cost; the pattern's own stars are not counted.
-                n_img1 = min(n_img, 30)
-                logp1, _, n1_ = verify_attitude(A, f1, image, 15, n_img1, radius_px, pattern_stars[q], combo,
-                                                stars, view)
-                if n1_ >= 3 and logp1 > -3.0:
+                n_img1 = min(n_img, QUICK_CENTROIDS)
+                logp1, _, n1_ = verify_attitude(A, f1, image, QUICK_CATALOG_STARS, n_img1, radius_px,
+                                                pattern_stars[q], combo, stars, view)
+                if quick_check_fails(n1_, logp1):  # accept rule 4
                     continue
                 logp, n_match, n_cat = verify_attitude(A, f1, image, n_img, n_img, radius_px,
                                                        pattern_stars[q], combo, stars, view)
-                n_trials = cand_before + n_cand  # look-elsewhere: candidates examined so far
-                logp += np.log(n_trials)
-                if logp <= log_threshold:
+                logp = log_prob_false(logp, cand_before + n_cand)  # every candidate examined so far
+                if is_verified(logp, log_threshold):  # accept rule 5
                     return SearchResult(True, c - start + 1, n_cand, A, f1, logp, c, q, n_match, n_cat)
     return SearchResult(False, stop - start, n_cand, np.zeros((3, 3)), 0.0, 0.0, -1, -1, 0, 0)

@@ -1,0 +1,79 @@
+"""The acceptance rules of identification (skyfix.identify.accept): their definitions, and that
+identify applies the ones it runs in Python."""
+
+import math
+
+import numpy as np
+import pytest
+
+from skyfix.identify import accept
+
+W, H = 1280, 960
+
+
+def test_rule_helpers_are_the_kernel_arithmetic():
+    # rule 1: 4·√2·σ over the largest edge in pixels, plus the tier's model allowance
+    assert accept.ratio_tolerance(1.0, 0.1, 2000.0, 0.002) == 4.0 * 1.4142 * 1.0 / (0.1 * 2000.0) + 0.002
+    # rule 2: inclusive range; NaN passes (rule 3 rejects it)
+    assert accept.focal_allowed(1000.0, 1000.0, 1100.0) and accept.focal_allowed(1100.0, 1000.0, 1100.0)
+    assert not accept.focal_allowed(999.9, 1000.0, 1100.0) and not accept.focal_allowed(1100.1, 1000.0, 1100.0)
+    assert accept.focal_allowed(math.nan, 1000.0, 1100.0)
+    # rule 3: every star within the radius (in pixels at the candidate's focal length)
+    assert accept.pattern_fits(0.005, 2000.0, 10.0) and not accept.pattern_fits(0.0051, 2000.0, 10.0)
+    # rule 5: look-elsewhere multiplies by the candidates examined
+    assert accept.log_prob_false(-30.0, 1000) == pytest.approx(-30.0 + math.log(1000.0), abs=0)
+    assert accept.is_verified(math.log(1e-9), math.log(1e-9))
+    assert not accept.is_verified(math.log(1e-9) + 1e-12, math.log(1e-9))
+
+
+def test_quick_check_rule():
+    """Rule 4 judges only with three or more catalogue stars, and fails a candidate whose matches
+    have a chance above e^-3 (5 %)."""
+    assert accept.QUICK_CATALOG_STARS == 15 and accept.QUICK_CENTROIDS == 30
+    assert accept.quick_check_fails(3, -2.9)
+    assert not accept.quick_check_fails(3, -3.0)
+    assert not accept.quick_check_fails(2, 0.0)  # too few stars in view to judge: full verification
+
+
+def test_refit_rules():
+    # rule 6: at least four pairs, and beyond chance
+    assert not accept.refit_accepted(3, 3, 200, 1.0, W * H, math.log(1e-9))
+    assert accept.refit_accepted(30, 60, 200, 2.0, W * H, math.log(1e-9))
+    assert not accept.refit_accepted(6, 400, 200, 30.0, W * H, math.log(1e-9))  # as many as chance gives
+    # rule 7: 3 % of slack on the allowed range
+    assert accept.refit_focal_allowed(1000.0 * 0.97, 1000.0, 1100.0)
+    assert accept.refit_focal_allowed(1100.0 * 1.03, 1000.0, 1100.0)
+    assert not accept.refit_focal_allowed(1000.0 * 0.969, 1000.0, 1100.0)
+    assert not accept.refit_focal_allowed(1100.0 * 1.031, 1000.0, 1100.0)
+
+
+def test_refit_focal_range_rule(database, monkeypatch):
+    """identify applies rules 6 and 7 to every accepted candidate: with either refusing, a field
+    that solves finds no match."""
+    from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+    from skyfix.camera import Camera
+    from skyfix.catalog import load_hipparcos
+    from skyfix.identify import identify, quad
+
+    catalog = load_hipparcos(epoch=database.epoch, mag_limit=8.0)
+    f = synthetic_centroids(Camera.from_fov(W, H, 15.0), random_attitudes(1, rng=21)[0], catalog,
+                            sigma_px=0.5, rng=21)
+    assert identify(f.xy, W, H, fov_deg=15.0, database=database).success
+    for rule in ("refit_focal_allowed", "refit_accepted"):
+        with monkeypatch.context() as m:
+            m.setattr(quad, rule, lambda *args: False)
+            res = identify(f.xy, W, H, fov_deg=15.0, database=database, max_patterns=200, check_mirror=False)
+        assert not res.success and "no match" in res.reason, rule
+
+
+def test_chance_rule_is_the_binomial_tail():
+    """The refit's and the final fit's chance test (module text, *Chance*): k of n catalogue stars
+    each within r of one of n_img centroids with p = n_img·π·r²/area, discounting ⌈n_extra/2⌉."""
+    from scipy.stats import binom
+
+    p = 200 * math.pi * 3.0**2 / (W * H)
+    got = accept.chance_log_probability(12, 80, 200, 3.0, W * H)
+    assert math.exp(got) == pytest.approx(binom.sf(11, 80, p), rel=1e-9)
+    paid = accept.chance_log_probability(12, 80, 200, 3.0, W * H, n_extra=3.0)  # two matches discounted
+    assert math.exp(paid) == pytest.approx(binom.sf(9, 80, p), rel=1e-9)
+    assert np.isfinite(got) and paid > got
