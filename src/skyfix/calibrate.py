@@ -631,7 +631,8 @@ _PP_CHI2 = 13.8
 class CameraPrior(NamedTuple):
     """What is known of a camera before its image is solved: a Gaussian prior on each parameter
     but the focal length (free) — the principal point about ``(cx, cy)``, the pixel aspect
-    ``fy/fx`` about 1, radial distortion about 0 (``k1``, ``k2`` in OpenCV's normalised units).
+    ``fy/fx`` about ``aspect`` (1), radial distortion about ``k1``, ``k2`` (0; OpenCV's normalised
+    units).
 
     The prior keeps a sparse field from fitting an absurd lens (``k2 = 400``) and lets the
     attitude's covariance include what the stars leave unknown; many stars overrule it.
@@ -643,6 +644,9 @@ class CameraPrior(NamedTuple):
     sigma_aspect: float = 0.05
     sigma_k1: float = 0.3
     sigma_k2: float = 0.3
+    aspect: float = 1.0
+    k1: float = 0.0
+    k2: float = 0.0
 
     @classmethod
     def uncalibrated(cls, width: int, height: int) -> CameraPrior:
@@ -753,8 +757,8 @@ def _rodrigues(p):
 @numba.njit(cache=True)
 def _prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, sigma_floor, prior_out):
     """The iterations of :func:`fit_camera_with_prior` for :data:`PRIOR_PARAMETERS`; ``prior``
-    = (cx, cy, σ principal point px, σ aspect, σ k1, σ k2) for the steps, ``prior_out`` for the
-    posterior returned. Returns the attitude, camera numbers, σ², the posterior covariance at
+    = (cx, cy, σ principal point px, σ aspect, σ k1, σ k2, aspect, k1, k2) for the steps,
+    ``prior_out`` for the posterior returned. Returns the attitude, camera numbers, σ², the posterior covariance at
     the result, n_eff, the residuals (N, 2), the studentised χ² (N,) and the Gauss–Newton step
     (P,) under ``prior_out`` from the result (what freeing ``prior_out``'s parameters would do),
     and the largest distance (px) by which the fit moved a star's predicted position."""
@@ -808,11 +812,11 @@ def _prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, 
         lam[5] = lam[6] = (cam[0] / pr[2]) ** 2
         lam[7] = 1.0 / (pr[4] * rmax**2) ** 2
         lam[8] = 1.0 / (pr[5] * rmax**4) ** 2
-        dev[4] = cam[1] / cam[0] - 1.0
+        dev[4] = cam[1] / cam[0] - pr[6]
         dev[5] = (cam[2] - prior[0]) / cam[0]
         dev[6] = (cam[3] - prior[1]) / cam[0]
-        dev[7] = cam[5] * rmax**2
-        dev[8] = cam[6] * rmax**4
+        dev[7] = (cam[5] - pr[7]) * rmax**2
+        dev[8] = (cam[6] - pr[8]) * rmax**4
         N = JtJ / sigma2
         for a in range(P):
             N[a, a] += lam[a]
@@ -913,7 +917,7 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     r = np.ascontiguousarray(r_icrs, dtype=np.float64)
     A0 = np.ascontiguousarray(A_icrs_to_cam, dtype=np.float64)
     prior_numbers = np.array([prior.cx, prior.cy, prior.sigma_principal_point_px, prior.sigma_aspect,
-                              prior.sigma_k1, prior.sigma_k2], dtype=np.float64)
+                              prior.sigma_k1, prior.sigma_k2, prior.aspect, prior.k1, prior.k2], dtype=np.float64)
     half_diag = float(math.hypot(camera.width, camera.height) / 2.0)
     cam0 = _camera_numbers(camera)
     if principal_point not in ("auto", "fit", "hold"):

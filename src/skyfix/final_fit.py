@@ -14,7 +14,7 @@ them (:mod:`skyfix.identify.accept`). ``docs/solving-without-a-camera.md`` walks
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numba
@@ -227,7 +227,45 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
             grown = _grow(xy[:n_use], fit_i, m, prior, database, epoch, area, log_threshold, math.inf)
             if grown[2] <= log_threshold and len(grown[1].idx) >= len(best[1].idx) + 2:
                 best = grown
+    if len(best[1].idx) < _ROBUST_MIN_STARS and len(best[1].idx) < _EXPLAINED * n_use:
+        for start in _prior_starts(prior):
+            grown = _grow_from_start(xy, n_use, verified, cam0, ident.A_icrs_to_cam, start, prior, database,
+                                     epoch, area, log_threshold)
+            if grown[2] <= log_threshold and len(grown[1].idx) >= len(best[1].idx) + 2:
+                best = grown
     return _final(xy, *best, method)
+
+
+# A sparse result that explains fewer than this share of the centroids it was matched against
+# may be a local optimum of the camera fit (the stars identification verified through its
+# square-pixel model, a wrong neighbour among them, a camera bent to fit it): the fit is
+# started again across the prior (:func:`_prior_starts`).
+_EXPLAINED = 0.8
+# Starts across the prior, in units of its σ: aspect and k1 at 0 and ±0.6 σ (the 3×3 grid),
+# each held within a tenth of its prior σ while the start's outliers are found.
+_START_STEPS = (-0.6, 0.0, 0.6)
+_START_HOLD = 0.01
+
+
+def _prior_starts(prior: CameraPrior) -> list[CameraPrior]:
+    """Priors held tightly (:data:`_START_HOLD` of their σ) about points of the prior's
+    aspect–k1 plane (:data:`_START_STEPS`), to start the camera fit of a sparse result from."""
+    return [prior._replace(aspect=prior.aspect + a * prior.sigma_aspect, k1=prior.k1 + k * prior.sigma_k1,
+                           sigma_aspect=_START_HOLD * prior.sigma_aspect, sigma_k1=_START_HOLD * prior.sigma_k1)
+            for a in _START_STEPS for k in _START_STEPS]
+
+
+def _grow_from_start(xy: np.ndarray, n_use: int, verified: _Matches, camera: Camera, A: np.ndarray,
+                     start: CameraPrior, prior: CameraPrior, database, epoch: float | None, area: float,
+                     log_threshold: float):
+    """The verified stars fitted with the camera held near ``start`` (aspect, k1), those that
+    miss it dropped (:func:`_drop_outliers`), then grown under the real ``prior``
+    (:func:`_grow`, against the brightest ``n_use`` centroids): a wrong neighbour that the free
+    fit bent the camera to fit misses a held camera near the true one and is dropped."""
+    cam = replace(camera, fy=camera.fx * start.aspect, k1=start.k1)
+    fit = fit_camera_with_prior(xy[verified.idx], verified.r, cam, A, start, principal_point="hold")
+    fit, cur = _drop_outliers(xy, fit, verified, start)
+    return _grow(xy[:n_use], fit, cur, prior, database, epoch, area, log_threshold, math.inf)
 
 
 def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> FinalFit:

@@ -6,8 +6,6 @@ of its own module; this one only composes them, times them and fills in the Solu
 
 from __future__ import annotations
 
-import functools
-import inspect
 import logging
 import math
 import os
@@ -45,6 +43,7 @@ def solve(
     database=None,
     epoch: float | None = None,
     attitude_method: str = "svd",
+    identify_method: str = "quad-hash",
     max_stars: int = 200,
     name: str | None = None,
     dark: np.ndarray | None = None,
@@ -70,6 +69,9 @@ def solve(
         Observation epoch, Julian year, for proper motion (default: now).
     attitude_method : str
         Wahba solver for the final fit: ``svd``, ``quest``, ``esoq2``, ``q-method``, ``triad``.
+    identify_method : str
+        Identification method, by name (:data:`skyfix.identify.METHODS`); the other keywords
+        (``identify_options``) are that method's own (:func:`skyfix.identify.method_options`).
     dark, flat, bad_pixels : (H, W) arrays, optional
         Frame calibration applied before extraction, in this order (master dark in ADU,
         normalised flat, hot/dead pixel mask): see :mod:`skyfix.detect.calibrate_frames`.
@@ -97,7 +99,8 @@ def solve(
                          f"{type(image).__name__}" + ("; call it once per image"
                                                       if isinstance(image, (list, tuple)) else ""))
     max_stars = check_count(max_stars, "max_stars")
-    _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_options)
+    _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_method,
+                   identify_options)
     t0 = time.perf_counter()
     label = name if name is not None else (str(image) if isinstance(image, (str, Path)) else "<array>")
     data = raw = read_image(image)
@@ -113,7 +116,7 @@ def solve(
     sol = solve_centroids(
         centroids.xy, data.shape[1], data.shape[0], fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
         camera=camera, database=database, epoch=epoch, attitude_method=attitude_method,
-        name=label, **identify_options,
+        identify_method=identify_method, name=label, **identify_options,
     )
     if not sol.solved and (problem := frame_problem(raw)):  # blank, saturated, too small: say which
         sol.reason = f"{sol.reason}: {problem}"
@@ -139,6 +142,7 @@ def solve_centroids(
     database=None,
     epoch: float | None = None,
     attitude_method: str = "svd",
+    identify_method: str = "quad-hash",
     name: str = "",
     **identify_options,
 ) -> Solution:
@@ -151,7 +155,8 @@ def solve_centroids(
 
     xy = check_xy(xy)
     width, height = check_frame_size(width, height)
-    _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_options)
+    _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_method,
+                   identify_options)
     sol = Solution(image=name, n_detected=len(xy))
     if camera is not None and (camera.width, camera.height) != (width, height):
         raise CameraError(f"camera is {camera.width}×{camera.height} but the image is {width}×{height}")
@@ -159,8 +164,9 @@ def solve_centroids(
         sol.reason = f"too few stars detected ({len(xy)}; need at least 3)"
         return sol
     t0 = time.perf_counter()
-    ident = identify(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
-                     camera=camera, database=database, epoch=epoch, **identify_options)
+    ident = identify(xy, width, height, method=identify_method, fov_deg=fov_deg,
+                     fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database, epoch=epoch,
+                     **identify_options)
     t1 = time.perf_counter()
     sol.time_ms = {"identify": 1e3 * (t1 - t0)}
     sol.method = ident.method
@@ -179,10 +185,11 @@ def solve_centroids(
     return sol
 
 
-def _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method,
+def _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_method,
                    identify_options: dict) -> None:
-    """The checks :func:`solve` and :func:`solve_centroids` share (:mod:`skyfix.validate`)."""
-    from skyfix.identify import PatternDatabase, identify
+    """The checks :func:`solve` and :func:`solve_centroids` share (:mod:`skyfix.validate`; the
+    identification method and its options: :mod:`skyfix.identify.methods`)."""
+    from skyfix.identify import PatternDatabase, get_method, method_options
 
     check_solve_options(fov_deg, fov_tolerance_deg, epoch, attitude_method)
     if camera is not None and not isinstance(camera, Camera):
@@ -190,23 +197,13 @@ def _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude
     if database is not None and not isinstance(database, PatternDatabase):
         raise InputError(f"database must be a PatternDatabase (PatternDatabase.load(path)), "
                          f"got {type(database).__name__}")
+    get_method(identify_method)  # an unknown name: InputError listing the known ones
     if not identify_options:
         return
-    known = _identify_parameters(identify)
-    unknown = [k for k in identify_options if k not in known or k in _OWN_OPTIONS]
+    known = method_options(identify_method)
+    unknown = [k for k in identify_options if k not in known]
     if unknown:
-        extra = [k for k in known if k not in _OWN_OPTIONS]
-        raise InputError(f"unknown option {', '.join(unknown)}; known: {', '.join(extra)}")
-
-
-@functools.lru_cache(maxsize=4)
-def _identify_parameters(identify) -> tuple[str, ...]:
-    """identify()'s parameter names (inspect.signature costs ~0.2 ms: once per process)."""
-    return tuple(inspect.signature(identify).parameters)
-
-
-# identify()'s parameters that solve_centroids sets itself (not **identify_options)
-_OWN_OPTIONS = ("xy", "width", "height", "fov_deg", "fov_tolerance_deg", "camera", "database", "epoch")
+        raise InputError(f"unknown option {', '.join(unknown)}; known: {', '.join(known)}")
 
 
 def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *, camera_given: bool,

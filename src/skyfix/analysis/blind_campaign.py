@@ -21,8 +21,9 @@ the results (``tests/test_blind_campaign.py``).
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import NamedTuple
 
 import numpy as np
@@ -31,8 +32,8 @@ from skyfix.calibrate import frame_rotation_at_pixel
 from skyfix.camera import Camera
 from skyfix.identify.accept import WRONG_BORESIGHT_ARCSEC, WRONG_ROLL_DEG
 
-__all__ = ["Trial", "attitude_error_rad", "is_wrong", "preset_image_trials", "random_uncalibrated_camera",
-           "summarize", "uncalibrated_centroid_trials"]
+__all__ = ["Trial", "UncalibratedField", "attitude_error_rad", "is_wrong", "preset_image_trials",
+           "random_uncalibrated_camera", "summarize", "uncalibrated_centroid_trials", "uncalibrated_fields"]
 
 _ARCSEC = math.pi / (180.0 * 3600.0)
 
@@ -89,29 +90,45 @@ def _trial(sol, A_true: np.ndarray, camera_true: Camera, n_stars: int) -> Trial:
     return Trial(True, "", n_stars, camera_true.fov_deg, err, sigma, scale)
 
 
-def uncalibrated_centroid_trials(n: int, seed: int = 0, *, epoch: float = 2025.0,
-                                 progress: Callable[[int], None] | None = None) -> list[Trial]:
-    """``n`` blind solves of synthetic centroids from :func:`random_uncalibrated_camera`
-    (8–40 catalogue stars to a random limit 5–8 mag, 5% missed, 0–5 false stars, centroid
-    noise 0.1–1 px)."""
+class UncalibratedField(NamedTuple):
+    """One synthetic field of :func:`uncalibrated_fields`: the true camera and attitude, the
+    centroids (``field.xy``, with ``field.star_id`` ≤ 0 for false stars) and how many are real."""
+
+    camera: Camera
+    A_icrs_to_cam: np.ndarray
+    field: object
+    n_stars: int
+
+
+def uncalibrated_fields(seed: int = 0, *, epoch: float = 2025.0) -> Iterator[UncalibratedField]:
+    """The endless, reproducible sequence of fields :func:`uncalibrated_centroid_trials` solves:
+    a :func:`random_uncalibrated_camera`, a random attitude, 8–40 catalogue stars to a random
+    limit 5–8 mag, 5% missed, 0–5 false stars, centroid noise 0.1–1 px."""
     from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
     from skyfix.catalog import load_hipparcos
-    from skyfix.pipeline import solve_centroids
 
     catalog = load_hipparcos(epoch=epoch)
     rng = np.random.default_rng(seed)
-    trials: list[Trial] = []
-    while len(trials) < n:
+    while True:
         camera = random_uncalibrated_camera(rng)
         A = random_attitudes(1, rng)[0]
         field = synthetic_centroids(camera, A, catalog, mag_limit=rng.uniform(5.0, 8.0),
                                     sigma_px=rng.uniform(0.1, 1.0), n_false=int(rng.integers(0, 6)),
                                     dropout=0.05, rng=rng)
         n_real = int((field.star_id > 0).sum())
-        if not 8 <= n_real <= 40:
-            continue
-        sol = solve_centroids(field.xy, camera.width, camera.height, epoch=epoch)
-        trials.append(_trial(sol, A, camera, n_real))
+        if 8 <= n_real <= 40:
+            yield UncalibratedField(camera, A, field, n_real)
+
+
+def uncalibrated_centroid_trials(n: int, seed: int = 0, *, epoch: float = 2025.0,
+                                 progress: Callable[[int], None] | None = None) -> list[Trial]:
+    """``n`` blind solves of the fields of :func:`uncalibrated_fields`."""
+    from skyfix.pipeline import solve_centroids
+
+    trials: list[Trial] = []
+    for f in itertools.islice(uncalibrated_fields(seed, epoch=epoch), n):
+        sol = solve_centroids(f.field.xy, f.camera.width, f.camera.height, epoch=epoch)
+        trials.append(_trial(sol, f.A_icrs_to_cam, f.camera, f.n_stars))
         if progress is not None:
             progress(1)
     return trials
