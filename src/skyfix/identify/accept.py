@@ -29,18 +29,59 @@ chance of being wrong: on 10 000 blind uncalibrated sparse fields with honest er
 (normalised RMS 1.02–1.08) that bound summed to 5.3 expected wrong attitudes and one came
 70″ off at 2.6σ; at 1e-3 the bound sums to 0.24 and 667 of 8767 solutions (7.6 %) fail instead
 (``tests/test_final_fit.py::test_precision_rule_bounds_the_chance_of_a_wrong_attitude``).
+
+The rules, in the order a frame meets them
+------------------------------------------
+Each rule has a function or a constant of its own; a rule that runs inside a compiled kernel
+is a small ``@njit(inline="always")`` helper here that the kernel calls (as fast as the
+arithmetic written out). The tests named pin them.
+
+Identification by the 4-star method (:func:`skyfix.identify.quad.identify`). Rules 1–5 run for
+each candidate pattern inside the compiled search (:func:`skyfix.identify.search.search`):
+
+1. :func:`ratio_tolerance` — the candidate's five edge ratios agree with the image pattern's.
+2. :func:`focal_allowed` — the focal length the candidate implies is in the allowed range.
+3. :func:`pattern_fits` — its four stars fit one proper rotation within the match radius.
+4. :func:`quick_check_fails` — a quick verification on the brightest stars rejects most false
+   candidates cheaply.
+5. :func:`log_prob_false`, :func:`is_verified` — the verification: the catalogue stars in view
+   land on centroids far beyond chance, every candidate examined so far counted.
+6. :func:`refit_accepted` — the refit on all matched stars is itself beyond chance (*Chance*
+   above, :func:`is_beyond_chance`).
+7. :func:`refit_focal_allowed` — the refit's focal length stays near the allowed range.
+
+The final fit (:func:`skyfix.final_fit.final_fit`), whose rules live beside the fits they judge:
+
+8. A calibrated camera: a star more than 4 σ (median-based, floored at 0.1 px) from the fitted
+   attitude is dropped, at least half and three kept — :func:`skyfix.final_fit.inliers`
+   (``tests/test_final_fit_kernels.py::test_inliers_drop_outliers_keep_half``).
+9. No camera: while the worst star's externally studentised χ² is beyond
+   ``skyfix.final_fit._outlier_limit`` (a good star's chance 3.4e-4, ``_OUTLIER_CHI2``) it
+   is dropped and the camera refitted (``skyfix.final_fit._drop_outliers``;
+   ``tests/test_final_fit.py::test_issue_sunsat_frames_solve_right_with_honest_error_bars``).
+10. No camera: the stars re-matched through the fitted camera must be beyond chance with the
+    camera's freedom paid for (*Freedom paid for* above, :func:`chance_log_probability`);
+    otherwise the verified stars are kept.
+
+The solution (:func:`skyfix.pipeline.solve_centroids`):
+
+11. :func:`precision_failure` — precise enough to be right (above).
 """
 
 from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from skyfix.identify.verify import log_binom_sf
 
-__all__ = ["MAX_WRONG_PROBABILITY", "WRONG_BORESIGHT_ARCSEC", "WRONG_ROLL_DEG", "chance_log_probability",
-           "is_beyond_chance", "precision_failure", "wrong_probability"]
+__all__ = ["MAX_WRONG_PROBABILITY", "MIN_REFIT_PAIRS", "QUICK_CATALOG_STARS", "QUICK_CENTROIDS",
+           "QUICK_LOG_P", "WRONG_BORESIGHT_ARCSEC", "WRONG_ROLL_DEG", "chance_log_probability",
+           "focal_allowed", "is_beyond_chance", "is_verified", "log_prob_false", "pattern_fits",
+           "precision_failure", "quick_check_fails", "ratio_tolerance", "refit_accepted",
+           "refit_focal_allowed", "wrong_probability"]
 
 # What makes an attitude wrong (the campaigns' and the benchmarks' bar): boresight error beyond
 # max(WRONG_BORESIGHT_ARCSEC, one pixel), or roll error beyond WRONG_ROLL_DEG.
@@ -71,6 +112,126 @@ def is_beyond_chance(n_pairs: int, n_cat: int, n_img: int, radius_px: float, are
                      log_threshold: float, n_extra: float = 0.0) -> bool:
     """Whether a match passes :func:`chance_log_probability` ``<= log_threshold``."""
     return chance_log_probability(n_pairs, n_cat, n_img, radius_px, area_px2, n_extra) <= log_threshold
+
+# --- 1–5: each candidate pattern, inside the compiled search ---------------------------------
+@numba.njit(cache=True, inline="always")
+def ratio_tolerance(sigma_px: float, largest_edge_rad: float, f_px: float, model_err: float) -> float:
+    """Rule 1: how far a candidate's edge ratios may be from the image pattern's (each of the
+    five, after the focal length is estimated).
+
+    Why: a centroid off by σ per axis moves an edge by up to about √2·σ at each end, so a ratio
+    to the largest edge ``L`` (``largest_edge_rad · f_px`` pixels) by about 2·√2·σ / L; twice
+    that covers the noise's tail, and ``model_err`` (the search tier's allowance for an
+    unmodelled camera: distortion, a far-off focal length) is added. Tighter, true patterns are
+    lost; looser, more false candidates reach verification (slower, never wrong: rule 5).
+    Pinned by ``tests/test_identify.py::test_synthetic_solve_rate_and_no_wrong_attitude`` (σ = 1
+    px) and ``::test_calibrated_distorted_camera`` (the model term, k1 = −0.3 fitted blind).
+    """
+    return 4.0 * 1.4142 * sigma_px / (largest_edge_rad * f_px) + model_err
+
+
+@numba.njit(cache=True, inline="always")
+def focal_allowed(f_px: float, lo_px: float, hi_px: float) -> bool:
+    """Rule 2: the focal length a candidate implies (from its largest edge) is in the allowed
+    range — the FOV hint ± its tolerance, a calibrated camera's ± 3 %, or what the database
+    serves.
+
+    Why: a pattern of the right shape at the wrong scale is another pattern. Pinned by
+    ``tests/test_identify.py::test_fov_hint_wrong_by_two_fails``. (NaN passes, as the kernel
+    always had it; rule 3 rejects it.)
+    """
+    return not (f_px < lo_px or f_px > hi_px)
+
+
+@numba.njit(cache=True, inline="always")
+def pattern_fits(max_residual_rad: float, f_px: float, radius_px: float) -> bool:
+    """Rule 3: the candidate's four stars, in their best vertex correspondence, fit one proper
+    rotation (``det = +1``) with every star within the match radius.
+
+    Why: a mirror image or an inconsistent correspondence has the right edge lengths but no
+    rotation that carries it onto the sky. Two shortcuts in the search reject such candidates
+    before the SVD and reject nothing this rule would keep: an edge mismatch beyond twice the
+    allowed star error, and ``skyfix.identify.search._no_rotation_fits`` (triple products).
+    Pinned by ``tests/test_identify.py::test_mirror_image_fails`` and
+    ``::test_rotation_bound_rejects_mirror_images_only``.
+    """
+    return not (max_residual_rad * f_px > radius_px)
+
+
+# The quick verification (rule 4): this many brightest catalogue stars against this many
+# brightest centroids, and the log probability above which it rejects.
+QUICK_CATALOG_STARS = 15
+QUICK_CENTROIDS = 30
+QUICK_LOG_P = -3.0
+
+
+@numba.njit(cache=True, inline="always")
+def quick_check_fails(n_catalog: int, log_p: float) -> bool:
+    """Rule 4: the quick verification — the :data:`QUICK_CATALOG_STARS` brightest catalogue
+    stars in view against the :data:`QUICK_CENTROIDS` brightest centroids — fails when at least
+    three catalogue stars were tried and their matches are unremarkable (log P > :data:`QUICK_LOG_P`,
+    P > 5 %).
+
+    Why: speed. Most false candidates fail here at a third of the full verification's cost; a
+    true one matches its brightest stars. Pinned by the solve rates of
+    ``tests/test_identify.py::test_synthetic_solve_rate_and_no_wrong_attitude`` and
+    ``::test_quick_check_rule`` (its thresholds).
+    """
+    return n_catalog >= 3 and log_p > QUICK_LOG_P
+
+
+@numba.njit(cache=True, inline="always")
+def log_prob_false(log_p_match: float, n_trials: int) -> float:
+    """Rule 5, the number: log P(a wrong candidate matches as well), ``log_p_match`` from
+    :func:`skyfix.identify.verify.verify_attitude` (the best of five match radii, binomial
+    tails of the catalogue stars in view landing on centroids, the pattern's own stars not
+    counted), times ``n_trials``, the candidates examined so far (the look-elsewhere effect: a
+    search that tries many candidates meets a good chance match sooner)."""
+    return log_p_match + np.log(n_trials)
+
+
+@numba.njit(cache=True, inline="always")
+def is_verified(log_prob: float, log_threshold: float) -> bool:
+    """Rule 5: a candidate is accepted when :func:`log_prob_false` is at most ``log_threshold``
+    (``prob_threshold`` of :func:`skyfix.identify.identify`, 1e-9 by default).
+
+    Why: with 1e-9 and the look-elsewhere count, random points never identify and a false
+    candidate is accepted about once in a billion frames. Pinned by
+    ``tests/test_identify.py::test_random_points_fail``,
+    ``::test_false_match_probability_is_the_binomial_tail`` and the ``prob_false < 1e-9`` of
+    ``::test_synthetic_solve_rate_and_no_wrong_attitude``.
+    """
+    return log_prob <= log_threshold
+
+
+# --- 6–7: the refit of an accepted candidate (skyfix.identify.quad) ---------------------------
+MIN_REFIT_PAIRS = 4  # a refit on fewer stars than a pattern's proves nothing
+
+
+def refit_accepted(n_pairs: int, n_cat: int, n_img: int, radius_px: float, area_px2: float,
+                   log_threshold: float) -> bool:
+    """Rule 6: the refit on all matched stars has at least :data:`MIN_REFIT_PAIRS` pairs and is
+    itself beyond chance (:func:`is_beyond_chance`) at its final match radius ``radius_px``.
+
+    Why: a pattern that is right only locally (three stars of a dense cluster and a false star)
+    passes the verification on the cluster's stars, but its refit matches barely more stars than
+    a random attitude would at the radius its scatter needs. Pinned by
+    ``tests/test_identify.py::test_cluster_pattern_with_a_false_star_is_not_accepted`` (a
+    1560″ wrong attitude before).
+    """
+    return n_pairs >= MIN_REFIT_PAIRS and is_beyond_chance(n_pairs, n_cat, n_img, radius_px, area_px2,
+                                                           log_threshold)
+
+
+def refit_focal_allowed(f_px: float, lo_px: float, hi_px: float) -> bool:
+    """Rule 7: the refitted focal length is within 3 % of the allowed range of rule 2.
+
+    Why: the refit frees the focal length (and k1) on all matched stars; a candidate whose refit
+    leaves the range is a different camera than the one asked for (the search goes on). The
+    3 % are the search's own slack: its focal length comes from one pattern's largest edge.
+    Pinned by ``tests/test_identify_accept.py::test_refit_focal_range_rule``.
+    """
+    return lo_px * 0.97 <= f_px <= hi_px * 1.03
 
 
 def wrong_probability(covariance_rad2: np.ndarray, plate_scale_rad: float) -> float:
