@@ -16,7 +16,8 @@ def test_rule_helpers_are_the_kernel_arithmetic():
     assert accept.ratio_tolerance(1.0, 0.1, 2000.0, 0.002) == 4.0 * 1.4142 * 1.0 / (0.1 * 2000.0) + 0.002
     # rule 2: inclusive range; NaN passes (rule 3 rejects it)
     assert accept.focal_allowed(1000.0, 1000.0, 1100.0) and accept.focal_allowed(1100.0, 1000.0, 1100.0)
-    assert not accept.focal_allowed(999.9, 1000.0, 1100.0) and not accept.focal_allowed(1100.1, 1000.0, 1100.0)
+    assert not accept.focal_allowed(999.9, 1000.0, 1100.0)
+    assert not accept.focal_allowed(1100.1, 1000.0, 1100.0)
     assert accept.focal_allowed(math.nan, 1000.0, 1100.0)
     # rule 3: every star within the radius (in pixels at the candidate's focal length)
     assert accept.pattern_fits(0.005, 2000.0, 10.0) and not accept.pattern_fits(0.0051, 2000.0, 10.0)

@@ -1,4 +1,4 @@
-"""Lost-in-space star identification: pattern database, 4-star hashing search, verification.
+"""Lost-in-space star identification: pattern database, identification methods by name, acceptance.
 
 >>> from skyfix.identify import identify, default_database
 >>> ident = identify(xy, width, height)             # xy: (N, 2) centroids, brightest first
@@ -6,12 +6,17 @@
 
 - :class:`PatternDatabase` — ``build(fov_min_deg, fov_max_deg)``, ``save(path)``, ``load(path)``
   (memory-mapped ``.npz``); :func:`default_database` caches one in the user cache directory.
-- :func:`identify` — 4-star edge-ratio hashing with or without a FOV (or a calibrated camera),
-  binomial false-match probability, mirror images rejected, work bounded; returns an
-  :class:`Identification`.
+- :func:`identify` — identifies a frame with a method chosen by name from :data:`METHODS`
+  (:mod:`skyfix.identify.methods` defines the interface a method implements); the default,
+  ``"quad-hash"`` (:mod:`skyfix.identify.quad`), is 4-star edge-ratio hashing with or without a
+  FOV (or a calibrated camera), binomial false-match probability, mirror images rejected, work
+  bounded. Every method returns an :class:`Identification`.
+- :mod:`skyfix.identify.accept` — the rules that decide that a match is an identification.
 """
 
 from skyfix.identify.database import PatternDatabase, default_database, default_database_path
-from skyfix.identify.quad import Identification, identify
+from skyfix.identify.methods import DEFAULT_METHOD, METHODS, get_method, identify, method_options
+from skyfix.identify.result import Identification
 
-__all__ = ["Identification", "PatternDatabase", "default_database", "default_database_path", "identify"]
+__all__ = ["DEFAULT_METHOD", "METHODS", "Identification", "PatternDatabase", "default_database",
+           "default_database_path", "get_method", "identify", "method_options"]

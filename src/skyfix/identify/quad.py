@@ -1,4 +1,5 @@
-"""Lost-in-space identification by 4-star geometric hashing, with statistical verification.
+"""Lost-in-space identification by 4-star geometric hashing, with statistical verification: the
+``"quad-hash"`` method of :data:`skyfix.identify.METHODS` (:mod:`skyfix.identify.methods`).
 
 1. The brightest centroids form 4-star combinations in breadth-first order (every pattern
    of the first ``m`` stars before any that uses star ``m + 1``).
@@ -17,7 +18,8 @@
 4. The accepted attitude is refitted on all matched stars — with the focal length and, where
    significant, radial distortion k1 when no camera was given (:mod:`skyfix.identify.refine`).
 
-The kernels take and return the named tuples of :mod:`skyfix.identify.kernel_data`.
+The kernels take and return the named tuples of :mod:`skyfix.identify.kernel_data`; the rules
+that accept a candidate and its refit are those of :mod:`skyfix.identify.accept` (rules 1–7).
 """
 
 from __future__ import annotations
@@ -45,61 +47,20 @@ from skyfix.identify.kernel_data import (
     VerifySettings,
 )
 from skyfix.identify.refine import refine_entry
+from skyfix.identify.result import Identification
 from skyfix.identify.search import breadth_first_combinations, search_entry
 
-__all__ = ["Identification", "identify"]
+__all__ = ["METHOD", "identify"]
 
 METHOD = "quad-hash"
 _FOV_MARGIN = 1.35  # FOVs served beyond the database range (ratio)
 
 
-@dataclass(frozen=True)
-class Identification:
-    """Result of :func:`identify`.
-
-    Attributes
-    ----------
-    success : bool
-    reason : str — why it failed ("" on success).
-    star_index : (M,) int — indices into the input centroids of the identified stars.
-    catalog_ids : (M,) int — their Hipparcos numbers.
-    catalog_vectors : (M, 3) — their ICRS unit vectors at ``epoch``.
-    catalog_mag : (M,) — their magnitudes.
-    A_icrs_to_cam : (3, 3) or None — attitude (``b = A r``).
-    camera : Camera or None — the camera used, focal length (and k1) refitted when the
-        camera was not given.
-    prob_false : float — probability that the match is chance (look-elsewhere included).
-    n_patterns_tried : int — image 4-star combinations looked up.
-    n_candidates : int — catalogue patterns verified.
-    method : str
-    time_s : float — wall time of the identification (attitude fit included).
-    match_radius_px : float — radius of the last matching pass of the refit, px.
-    """
-
-    success: bool
-    reason: str = ""
-    star_index: np.ndarray = None
-    catalog_ids: np.ndarray = None
-    catalog_vectors: np.ndarray = None
-    catalog_mag: np.ndarray = None
-    A_icrs_to_cam: np.ndarray | None = None
-    camera: Camera | None = None
-    prob_false: float = 1.0
-    n_patterns_tried: int = 0
-    n_candidates: int = 0
-    method: str = METHOD
-    time_s: float = 0.0
-    match_radius_px: float = 0.0
-
-    @property
-    def n_matched(self) -> int:
-        return 0 if self.star_index is None else len(self.star_index)
-
-
 def _failure(reason: str, t0: float, n_tried: int = 0, n_cand: int = 0) -> Identification:
     empty = np.zeros(0, np.int64)
     return Identification(False, reason, empty, empty, np.zeros((0, 3)), np.zeros(0, np.float32),
-                          n_patterns_tried=n_tried, n_candidates=n_cand, time_s=time.perf_counter() - t0)
+                          n_patterns_tried=n_tried, n_candidates=n_cand, method=METHOD,
+                          time_s=time.perf_counter() - t0)
 
 
 _COMPILED = False
@@ -157,6 +118,8 @@ def _focal_from_fov(width: int, fov_deg: float) -> float:
     return (width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
 
 
+# Over ten parameters: the interface of every method (:mod:`skyfix.identify.methods`) and this
+# method's options, all keywords with a documented default, which solve() passes through by name.
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, max_patterns: int = 4000,
@@ -165,12 +128,13 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              prob_threshold: float = 1e-9,
              centroid_sigma_px: float = 1.0, ratio_tolerance: float | None = None,
              key_tolerance: float | None = None, check_mirror: bool = True) -> Identification:
-    """Identify the stars of one frame, lost in space, and fit the attitude.
+    """Identify the stars of one frame, lost in space, by 4-star hashing, and fit the attitude.
 
     Parameters
     ----------
     xy : (N, 2) float
-        Centroids, pixels (DESIGN.md convention), brightest first.
+        Centroids, pixels, brightest first: ``(x, y)`` = (column, row), ``(0, 0)`` the centre of
+        the top-left pixel.
     width, height : int
         Frame size, pixels.
     fov_deg : float, optional

@@ -1,0 +1,54 @@
+"""What every identification method returns: :class:`Identification`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from skyfix.camera import Camera
+
+__all__ = ["Identification"]
+
+
+@dataclass(frozen=True)
+class Identification:
+    """Result of an identification method (:mod:`skyfix.identify.methods`).
+
+    Attributes
+    ----------
+    success : bool
+    reason : str — why it failed ("" on success).
+    star_index : (M,) int — indices into the input centroids of the identified stars.
+    catalog_ids : (M,) int — their Hipparcos numbers.
+    catalog_vectors : (M, 3) — their ICRS unit vectors at ``epoch``.
+    catalog_mag : (M,) — their magnitudes.
+    A_icrs_to_cam : (3, 3) or None — attitude (``b = A r``).
+    camera : Camera or None — the camera used, focal length (and k1) refitted when the
+        camera was not given.
+    prob_false : float — probability that the match is chance (look-elsewhere included).
+    n_patterns_tried : int — image patterns looked up (the method's unit of work).
+    n_candidates : int — catalogue candidates verified.
+    method : str — the method's name in :data:`skyfix.identify.METHODS`.
+    time_s : float — wall time of the identification (attitude fit included).
+    match_radius_px : float — radius of the last matching pass of the refit, px.
+    """
+
+    success: bool
+    reason: str = ""
+    star_index: np.ndarray = None
+    catalog_ids: np.ndarray = None
+    catalog_vectors: np.ndarray = None
+    catalog_mag: np.ndarray = None
+    A_icrs_to_cam: np.ndarray | None = None
+    camera: Camera | None = None
+    prob_false: float = 1.0
+    n_patterns_tried: int = 0
+    n_candidates: int = 0
+    method: str = ""
+    time_s: float = 0.0
+    match_radius_px: float = 0.0
+
+    @property
+    def n_matched(self) -> int:
+        return 0 if self.star_index is None else len(self.star_index)

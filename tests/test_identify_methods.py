@@ -1,0 +1,86 @@
+"""The registry of identification methods (skyfix.identify.methods) and the pipeline's choice
+through it."""
+
+import numpy as np
+import pytest
+
+from skyfix.errors import InputError
+from skyfix.identify import (
+    DEFAULT_METHOD,
+    METHODS,
+    Identification,
+    get_method,
+    identify,
+    method_options,
+    quad,
+)
+from skyfix.identify.methods import INTERFACE_KEYWORDS
+
+W, H = 1280, 960
+
+
+def test_registry_holds_the_quad_method_as_default():
+    assert DEFAULT_METHOD == "quad-hash" and METHODS["quad-hash"] is quad.identify
+    assert get_method("Quad-Hash") is quad.identify
+    with pytest.raises(InputError, match="identification method 'nope' is unknown; choose one of quad-hash"):
+        get_method("nope")
+
+
+def test_method_options_are_the_method_keywords_beyond_the_interface():
+    options = method_options("quad-hash")
+    assert "max_patterns" in options and "prob_threshold" in options
+    assert not set(options) & set(INTERFACE_KEYWORDS)
+    import inspect
+
+    params = inspect.signature(quad.identify).parameters
+    assert set(options) | set(INTERFACE_KEYWORDS) == set(params)  # the method implements the interface
+
+
+def test_identify_by_name_is_the_method(database):
+    from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+    from skyfix.camera import Camera
+    from skyfix.catalog import load_hipparcos
+
+    catalog = load_hipparcos(epoch=database.epoch, mag_limit=8.0)
+    f = synthetic_centroids(Camera.from_fov(W, H, 15.0), random_attitudes(1, rng=5)[0], catalog, sigma_px=0.5,
+                            rng=5)
+    a = identify(f.xy, W, H, method="quad-hash", fov_deg=15.0, database=database)
+    b = quad.identify(f.xy, W, H, fov_deg=15.0, database=database)
+    assert a.success and a.method == "quad-hash"
+    assert np.array_equal(a.star_index, b.star_index) and np.array_equal(a.A_icrs_to_cam, b.A_icrs_to_cam)
+    failed = identify(f.xy[:2], W, H, database=database)
+    assert not failed.success and failed.method == "quad-hash"
+
+
+def test_pipeline_chooses_the_method_by_name(monkeypatch, database):
+    from skyfix.identify import methods
+    from skyfix.pipeline import solve_centroids
+
+    seen = {}
+
+    def fake(xy, width, height, *, fov_deg=None, fov_tolerance_deg=None, camera=None, database=None,
+             epoch=None, depth=1):
+        seen.update(width=width, fov_deg=fov_deg, depth=depth)
+        return Identification(False, "fake says no", method="fake")
+
+    monkeypatch.setitem(methods.METHODS, "fake", fake)
+    methods.method_options.cache_clear()
+    xy = np.random.default_rng(1).uniform([0, 0], [W, H], (20, 2))
+    sol = solve_centroids(xy, W, H, fov_deg=12.0, database=database, identify_method="fake", depth=3)
+    assert sol.status == "failed" and sol.reason == "fake says no" and sol.method == "fake"
+    assert seen == dict(width=W, fov_deg=12.0, depth=3)
+    with pytest.raises(InputError, match="unknown option max_patterns; known: depth"):
+        solve_centroids(xy, W, H, database=database, identify_method="fake", max_patterns=10)
+    methods.method_options.cache_clear()
+
+
+def test_pipeline_refuses_an_unknown_method_or_option_before_any_work(database):
+    from skyfix.pipeline import solve, solve_centroids
+
+    xy = np.zeros((10, 2))
+    with pytest.raises(InputError, match="identification method 'pyramid' is unknown"):
+        solve_centroids(xy, W, H, database=database, identify_method="pyramid")
+    with pytest.raises(InputError, match="identification method 'pyramid' is unknown"):
+        solve(np.zeros((H, W)), database=database, identify_method="pyramid")
+    with pytest.raises(InputError, match=r"unknown option max_patern; known: max_patterns, time_limit_s"):
+        solve_centroids(xy, W, H, database=database, max_patern=10)
