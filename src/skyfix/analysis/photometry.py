@@ -147,9 +147,9 @@ def fit_zero_point(inst_mag: np.ndarray, cat_mag: np.ndarray, clip: float = 3.0,
 @lru_cache(maxsize=1)
 def _hip_colours() -> tuple[np.ndarray, np.ndarray]:
     """HIP numbers and B−V from the bundled Hipparcos 2 file (column 24 of I/311)."""
-    from skyfix.catalog import _hip2_path
+    from skyfix.catalog import hip2_path
 
-    table = np.loadtxt(_hip2_path(), usecols=(0, 23), dtype=np.float64)
+    table = np.loadtxt(hip2_path(), usecols=(0, 23), dtype=np.float64)
     return table[:, 0].astype(np.int64), table[:, 1]
 
 
