@@ -12,14 +12,9 @@ import numpy as np
 import pytest
 
 from skyfix.detect import extract_centroids
-from skyfix.detect.background import (
-    _median_inplace,
-    estimate_background,
-    interp_weights,
-    is_integer_valued,
-    median_of,
-    smooth3,
-)
+from skyfix.detect._grid import GridWeights, SkyGrid, interp_weights
+from skyfix.detect._stats import median_inplace
+from skyfix.detect.background import estimate_background, is_integer_valued, median_of, smooth3
 
 
 def _star_field(seed: int = 3, h: int = 240, w: int = 320, n: int = 25) -> tuple[np.ndarray, np.ndarray]:
@@ -87,7 +82,7 @@ def test_median_inplace_matches_numpy(kind, n):
          "constant": np.full(n, 3.25), "two_values": rng.integers(0, 2, n).astype(float)}[kind]
     for guess in (np.nan, 0.0, float(np.median(v)), 1e9, -1e9):
         a = v.copy()
-        med = _median_inplace(a, n, guess)
+        med = median_inplace(a, n, guess)
         assert med == np.median(v)
         # below index n//2 lie values ≤ the median (the noise estimate relies on it)
         assert np.all(a[: n // 2] <= med)
@@ -96,8 +91,8 @@ def test_median_inplace_matches_numpy(kind, n):
 
 def test_median_terminates_on_nan():
     v = np.array([1.0, np.nan, 3.0, np.nan, 2.0])
-    _median_inplace(v.copy(), v.size)
-    _median_inplace(v.copy(), v.size, 2.0)
+    median_inplace(v.copy(), v.size)
+    median_inplace(v.copy(), v.size, 2.0)
 
 
 def test_interp_weights_and_helpers_match_numpy():
@@ -129,7 +124,7 @@ def test_run_labelling_matches_scipy(density):
     """Labels of the run-based labelling equal scipy's 8-connected ones (raster-order numbering)."""
     from scipy import ndimage
 
-    from skyfix.detect.extract import _label
+    from skyfix.detect.labelling import Frames, label_components
 
     rng = np.random.default_rng(int(density * 100))
     h, w = 61, 150  # not a multiple of the 64-pixel blocks
@@ -145,15 +140,16 @@ def test_run_labelling_matches_scipy(density):
     ref, n = ndimage.label(on, structure=np.ones((3, 3), int))
     for cap in (1 << 16, max(n // 3, 1)):
         labels = np.zeros((h, w), np.int32)
-        comps = _label(sm, img, labels, mask, blocks, grid, grid, iy, fy, ix, fx, cap)
+        sky = SkyGrid(grid, grid, grid, grid, np.array([15.0, 45.0]), np.array([25.0, 75.0, 125.0]),
+                      GridWeights(iy, fy, ix, fx))
+        comps = label_components(img, Frames(sm, mask, blocks, labels), sky, cap)
         expect = np.where(ref <= cap, ref, 0)
         np.testing.assert_array_equal(labels, expect)
-        assert comps.shape[0] == min(n, cap)
-        for k in range(comps.shape[0]):
+        assert comps.area.size == min(n, cap)
+        for k in range(comps.area.size):
             ys, xs = np.nonzero(ref == k + 1)
-            assert comps[k, 0] == ys.size
-            box = (ys.min(), ys.max(), xs.min(), xs.max())
-            assert (comps[k, 1], comps[k, 2], comps[k, 3], comps[k, 4]) == box
+            assert comps.area[k] == ys.size
+            assert tuple(comps.box[k]) == (ys.min(), ys.max(), xs.min(), xs.max())
             excess = float(sm[ys, xs].astype(np.float64).sum())
-            assert comps[k, 5] == pytest.approx(excess, rel=1e-9, abs=1e-9)
-            assert comps[k, 6] == img[ys, xs].max()
+            assert comps.excess[k] == pytest.approx(excess, rel=1e-9, abs=1e-9)
+            assert comps.peak[k] == img[ys, xs].max()

@@ -18,7 +18,7 @@ def field():
 
 def test_methods_by_name(field):
     xy, flux, img = field
-    assert METHODS == ("components", "threshold_hillclimb", "region_grow", "regionprops")
+    assert tuple(METHODS) == ("components", "threshold_hillclimb", "region_grow", "regionprops")
     # a 3×3 ROI cuts a σ = 1.5 px star's wings: thesis 000's CoM is pulled toward the peak
     # pixel (the S-curve), by up to half a pixel
     tol = {"components": 0.1, "threshold_hillclimb": 0.5, "region_grow": 0.2, "regionprops": 0.2}

@@ -21,6 +21,7 @@ Typical use::
   :func:`save_calibration` / :func:`load_calibration`.
 """
 
+from skyfix.detect._kernel_cache import drop_stale_cache
 from skyfix.detect.background import Background, estimate_background
 from skyfix.detect.calibrate_frames import (
     calibrate_frame,
@@ -41,7 +42,8 @@ from skyfix.detect.centroid import (
 )
 from skyfix.detect.centroids import Centroids
 from skyfix.detect.diagnose import frame_problem
-from skyfix.detect.extract import METHODS, extract_centroids, saturation_level
+from skyfix.detect.extract import METHODS, extract_centroids
+from skyfix.detect.saturation import saturation_level
 
 __all__ = [
     "CENTROIDERS",
@@ -65,3 +67,7 @@ __all__ = [
     "refine_centroids",
     "saturation_level",
 ]
+
+# The kernels call each other across files, which numba's cache does not track: drop a stale
+# cache before any kernel loads (kernels load on first call, never at import).
+drop_stale_cache()

@@ -28,26 +28,43 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 from scipy import ndimage
 
+from skyfix.detect._grid import bilinear, grid_weights
+from skyfix.detect._smooth import column_sum, smooth_at, smooth_row
+from skyfix.detect._stats import CLIP, median, median_inplace, robust_level_noise, tile_level_noise
+
 __all__ = ["Background", "estimate_background", "smooth3", "default_tile_size"]
 
-# A clipped RMS at ±3σ of a Gaussian underestimates σ by this factor.
-_CLIP = 3.0
 # Raw noise below this (in levels) on integer data counts as quantised.
 _QUANTISED_SIGMA = 1.0
 # Noise of the 3×3 binomial mean of white noise, relative to the pixel noise: √(36/256).
 _SMOOTH_WHITE = 0.375
 # The sampling lattice in a tile has about this many points per side.
 _SAMPLES_PER_SIDE = 10
-# smooth3's weights as float32: its arithmetic stays in float32 (twice the SIMD width of float64
-# and exact on 8- to 16-bit data, whose 3×3 weighted sums stay below 2²⁴)
-_F2, _F3, _F16 = np.float32(2.0), np.float32(3.0), np.float32(0.0625)
-_CLIP_CORRECTION = 1.0 / math.sqrt(1.0 - 2.0 * _CLIP * math.exp(-0.5 * _CLIP**2) / math.sqrt(2 * math.pi)
-                                   / math.erf(_CLIP / math.sqrt(2.0)))
+
+
+class _Lattice(NamedTuple):
+    """Where a frame is sampled: tile edges ((ny + 1,), (nx + 1,) int64) and the sampling steps,
+    pixels; in each tile the samples form a lattice centred in it (:func:`_lattice_start`)."""
+
+    edges_y: np.ndarray
+    edges_x: np.ndarray
+    step_y: int
+    step_x: int
+
+
+class _Samples(NamedTuple):
+    """The frame on each tile's lattice (:func:`_lattice_samples`); tiles row-major."""
+
+    smooth: np.ndarray  # (T, cap) float64 — the smoothed frame, in scan order
+    raw: np.ndarray  # (T, cap) float64 — the raw frame
+    count: np.ndarray  # (T,) int64 — samples in each tile
+    median: np.ndarray  # (T,) float64 — each tile's median (of the smoothed or the raw samples)
 
 
 @dataclass(frozen=True)
@@ -144,7 +161,9 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
         sm = np.empty((0, 0), np.float32)
     else:
         sm = np.ascontiguousarray(smoothed, dtype=np.float32)
-    smp, rawp, cnt, med = _lattice_samples(img, sm, edges_y, edges_x, sy, sx, method == "rows")
+    lattice = _Lattice(edges_y, edges_x, sy, sx)
+    samples = _lattice_samples(img, sm, lattice, method == "rows")
+    med = samples.median
     if method == "rows":
         # levels of the raw rows; the smoothed frame sees each row mixed [1 2 1]/4 with its neighbours
         level_raw = med.reshape(ny, nx)
@@ -156,15 +175,13 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
         level = ndimage.median_filter(level, size=grid_filter, mode="nearest")
     cy = 0.5 * (edges_y[:-1] + edges_y[1:]) - 0.5
     cx = 0.5 * (edges_x[:-1] + edges_x[1:]) - 0.5
-    iy, fy = interp_weights(cy, h)
-    ix, fx = interp_weights(cx, w)
+    weights = grid_weights(cy, cx, (h, w))
     if method != "rows":
         level_raw = level
     # noise about the interpolated sky, not the tile median, so a gradient across a tile is
     # not taken for noise
     is_int = is_integer_valued(img)
-    stats, raw_res = _tile_noise(smp, rawp, cnt, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix, fx,
-                                 is_int, method != "rows")
+    stats, raw_res = _tile_noise(samples, lattice, level, level_raw, weights, is_int, method != "rows")
     if method != "rows":  # rows are one pixel tall: no gradient inside them to correct for
         level = level + stats[..., 0]
         level_raw = level
@@ -173,13 +190,13 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
         noise_s = ndimage.median_filter(noise_s, size=grid_filter, mode="nearest")
     # raw-pixel noise: one pooled robust estimate, spread over the tiles like the smoothed noise
     # residuals about the sky model: their median is near 0, a good first pivot
-    raw_med, raw_sigma = _robust_level_noise(raw_res, 1.0 if is_int else 0.0, False, 0.0)
+    raw_med, raw_sigma = robust_level_noise(raw_res, 1.0 if is_int else 0.0, False, 0.0)
     if is_int and raw_sigma < _QUANTISED_SIGMA and raw_res.size:
         # Noise below one level: most pixels share a value, so medians sit on the integer grid
         # while the sky's mean does not (a few tenths of a level, times hundreds of pixels in a
         # footprint), and the lower half of the distribution hides the noise. Use the clipped
         # mean for the level and the white-noise smoothing factor as a floor for the noise.
-        near = np.abs(raw_res - raw_med) <= _CLIP * max(raw_sigma, 1.0)
+        near = np.abs(raw_res - raw_med) <= CLIP * max(raw_sigma, 1.0)
         delta = float(np.mean(raw_res[near]) - raw_med) if near.any() else 0.0
         level = level + delta
         level_raw = level_raw + delta
@@ -245,19 +262,13 @@ def smooth3_stats(image: np.ndarray, out: np.ndarray | None = None) -> tuple[np.
 def interpolate_grid(grid: np.ndarray, centers_y: np.ndarray, centers_x: np.ndarray,
                      shape: tuple[int, int]) -> np.ndarray:
     """Bilinear interpolation of a tile grid to every pixel (linear beyond the outer centres)."""
-    iy, fy = interp_weights(centers_y, shape[0])
-    ix, fx = interp_weights(centers_x, shape[1])
-    return _interp_full(np.ascontiguousarray(grid, dtype=np.float64), iy, fy, ix, fx)
-
-
-def interp_weights(centers: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """For pixels 0..n-1: index of the lower tile centre and the weight of the upper one."""
-    return _interp_weights(np.ascontiguousarray(centers, dtype=np.float64), int(n))
+    weights = grid_weights(centers_y, centers_x, shape)
+    return _interp_full(np.ascontiguousarray(grid, dtype=np.float64), weights)
 
 
 def median_of(values: np.ndarray) -> float:
     """Median of an array (as ``np.median``, without its per-call overhead on small arrays)."""
-    return _median_of(np.ascontiguousarray(values, dtype=np.float64).reshape(-1))
+    return median(np.ascontiguousarray(values, dtype=np.float64).reshape(-1))
 
 
 # --- numba kernels ------------------------------------------------------------------------
@@ -274,34 +285,6 @@ def _whole_on_lattice(a, sy, sx):
     return True
 
 
-@njit(cache=True)
-def _interp_weights(centers, n):
-    i = np.zeros(n, np.int64)
-    f = np.zeros(n, np.float32)
-    m = centers.size
-    if m == 1:
-        return i, f
-    j = 0  # centres ≤ pos (searchsorted "right"), advanced as pos grows
-    for p in range(n):
-        pos = float(p)
-        while j < m and centers[j] <= pos:
-            j += 1
-        k = min(max(j - 1, 0), m - 2)
-        i[p] = k
-        # linear beyond the outer centres too (half a tile): a gradient continues to the edge
-        f[p] = (pos - centers[k]) / (centers[k + 1] - centers[k])
-    return i, f
-
-
-@njit(cache=True)
-def _median_of(v):
-    """Median of a 1-D float64 array (NaN if empty), leaving it untouched."""
-    if v.size == 0:
-        return np.nan
-    return _median_inplace(v.copy(), v.size)
-
-
-# reassociation lets the row sum vectorise; NaN and Inf still propagate (no "nnan"/"ninf")
 @njit(cache=True, fastmath={"reassoc", "contract"})
 def _smooth3(img, out):
     """Smooth into ``out``; returns the sum of the raw frame (non-finite if any pixel is)."""
@@ -312,207 +295,11 @@ def _smooth3(img, out):
         ya, yb = max(y - 1, 0), min(y + 1, h - 1)
         acc = np.float32(0.0)
         for x in range(w):
-            tmp[x] = img[ya, x] + _F2 * img[y, x] + img[yb, x]
+            tmp[x] = column_sum(img, ya, y, yb, x)
             acc += img[y, x]
         total += acc
-        if w == 1:
-            out[y, 0] = tmp[0] * np.float32(0.25)
-            continue
-        out[y, 0] = (_F3 * tmp[0] + tmp[1]) * _F16
-        for x in range(1, w - 1):
-            out[y, x] = (tmp[x - 1] + _F2 * tmp[x] + tmp[x + 1]) * _F16
-        out[y, w - 1] = (tmp[w - 2] + _F3 * tmp[w - 1]) * _F16
+        smooth_row(tmp, out[y], w)
     return total
-
-
-@njit(cache=True)
-def _robust_level_noise(v, quantum=0.0, lower=False, guess=np.nan):
-    """Median and clipped RMS (about the median, ±3σ, corrected) of a 1-D sample.
-
-    ``quantum`` is the data's quantisation step (0 for continuous data): the clip starts no
-    narrower than ±3 steps, since a MAD below one step only says the noise is unresolved.
-    With ``lower`` only values below the median count: stars add light, so the lower half of
-    a tile's distribution is noise alone even when a bright star covers much of the tile.
-    ``guess``: a likely value of the median, the selection's first pivot (NaN: none).
-    """
-    n = v.size
-    if n == 0:
-        return 0.0, 0.0
-    scratch = v.astype(np.float64)  # a copy: the selection reorders it
-    med = _median_inplace(scratch, n, guess)
-    if lower:
-        m = 0
-        dev = np.empty(n)
-        for i in range(n):
-            if v[i] <= med:
-                dev[m] = med - v[i]
-                m += 1
-        dev = dev[:m]
-    else:
-        dev = np.abs(v - med)
-    scratch = dev.copy()
-    s0 = max(1.4826 * _median_inplace(scratch, dev.size), quantum)
-    if s0 <= 0.0:
-        # more than half the sample equals the median: start from the smallest step seen
-        step = np.inf
-        for i in range(dev.size):
-            if 0.0 < dev[i] < step:
-                step = dev[i]
-        s0 = step if step < np.inf else 0.0
-    if s0 <= 0.0:
-        return med, 0.0
-    cut = _CLIP * s0
-    s = s0
-    for _ in range(4):
-        acc = 0.0
-        m = 0
-        for i in range(dev.size):  # branch-free: noise makes the test unpredictable
-            d = dev[i]
-            keep = d <= cut
-            acc += d * d if keep else 0.0
-            m += keep
-        s = math.sqrt(acc / max(m, 1)) * _CLIP_CORRECTION
-        new_cut = _CLIP * max(s, 0.5 * s0)
-        if abs(new_cut - cut) < 1e-3 * cut:
-            break
-        cut = new_cut
-    return med, s
-
-
-@njit(cache=True)
-def _select(a, lo, hi, k):
-    """Partially sort ``a[lo:hi]`` in place so that ``a[k]`` is its k-th smallest; returns it.
-
-    Quickselect with a median-of-three pivot and branch-free Lomuto partitions (about 3× faster
-    than Hoare's on noise, whose comparisons a branch predictor cannot guess); no allocation
-    (the tiles call it thousands of times per frame). Values equal to the pivot are gathered
-    in a second pass, so quantised data with many ties stays linear. Terminates on NaN.
-    """
-    hi -= 1
-    while hi > lo:
-        mid = (lo + hi) >> 1
-        u, v, t = a[lo], a[mid], a[hi]
-        if u > v:
-            u, v = v, u
-        if v > t:
-            v = t
-        pivot = max(u, v)
-        # a[lo:store] < pivot ≤ a[store:hi+1]; every element is swapped, the index moves or not
-        store = lo
-        for i in range(lo, hi + 1):
-            e = a[i]
-            a[i] = a[store]
-            a[store] = e
-            store += e < pivot
-        if k < store:
-            hi = store - 1
-            continue
-        # then the ties: a[store:eq] == pivot
-        eq = store
-        for i in range(store, hi + 1):
-            e = a[i]
-            a[i] = a[eq]
-            a[eq] = e
-            eq += e == pivot
-        if k < eq or eq == lo:  # found, or a NaN pivot that nothing equals
-            return a[k] if eq == lo else pivot
-        lo = eq
-    return a[k]
-
-
-@njit(cache=True)
-def _select_around(a, n, k, guess):
-    """:func:`_select` on ``a[:n]`` whose first partition is around ``guess``, a likely value.
-
-    Neighbouring tiles have nearly the same sky, so one tile's median is a good first pivot
-    for the next: the selection then works on the few values beside it (on quantised data the
-    guess is often the median itself and two passes find it).
-    """
-    store = 0
-    for i in range(n):
-        e = a[i]
-        a[i] = a[store]
-        a[store] = e
-        store += e < guess
-    if k < store:
-        return _select(a, 0, store, k)
-    eq = store
-    for i in range(store, n):
-        e = a[i]
-        a[i] = a[eq]
-        a[eq] = e
-        eq += e == guess
-    if k < eq:
-        return a[k]
-    return _select(a, eq, n, k)
-
-
-@njit(cache=True)
-def _median_inplace(a, n, guess=np.nan):
-    """Median of ``a[:n]`` (reordered in place); below index n//2 lie values ≤ it.
-
-    ``guess``, if not NaN, is a likely value of the median (see :func:`_select_around`).
-    """
-    k = n // 2
-    if math.isnan(guess):
-        upper = _select(a, 0, n, k)
-    else:
-        upper = _select_around(a, n, k, guess)
-    if n % 2 == 1:
-        return upper
-    lower = a[0]
-    for i in range(1, k):
-        lower = max(lower, a[i])
-    return 0.5 * (lower + upper)
-
-
-@njit(cache=True)
-def _tile_level_noise(a, n, quantum, guess=np.nan, guess_lower=np.nan):
-    """Median and lower-side clipped RMS of ``a[:n]``, in place and without allocating.
-
-    The same estimate as ``_robust_level_noise(a[:n], quantum, lower=True)``. ``guess`` and
-    ``guess_lower``: likely values of the median and of the lower half's median less the
-    median (NaN: none).
-    Returns the median, the RMS and the lower half's median.
-    """
-    if n == 0:
-        return 0.0, 0.0, np.nan
-    med = _median_inplace(a, n, guess)
-    # the values ≤ median: the first n//2 after the select, plus any ties above (branch-free)
-    m = 0
-    for i in range(n):
-        e = a[i]
-        a[i] = a[m]
-        a[m] = e
-        m += e <= med
-    # median of the deviations med − a[i] is med − (median of the lower values)
-    lower_med = _median_inplace(a, m, med + guess_lower)
-    s0 = max(1.4826 * (med - lower_med), quantum)
-    if s0 <= 0.0:
-        step = np.inf
-        for i in range(m):
-            d = med - a[i]
-            if 0.0 < d < step:
-                step = d
-        s0 = step if step < np.inf else 0.0
-    if s0 <= 0.0:
-        return med, 0.0, lower_med
-    cut = _CLIP * s0
-    s = s0
-    for _ in range(4):
-        acc = 0.0
-        cnt = 0
-        for i in range(m):  # branch-free: noise makes the test unpredictable
-            d = med - a[i]
-            keep = d <= cut
-            acc += d * d if keep else 0.0
-            cnt += keep
-        s = math.sqrt(acc / max(cnt, 1)) * _CLIP_CORRECTION
-        new_cut = _CLIP * max(s, 0.5 * s0)
-        if abs(new_cut - cut) < 1e-3 * cut:
-            break
-        cut = new_cut
-    return med, s, lower_med
 
 
 @njit(cache=True)
@@ -522,13 +309,14 @@ def _lattice_start(e0, e1, stride):
 
 
 @njit(cache=True)
-def _lattice_samples(img, sm, edges_y, edges_x, sy, sx, of_raw=False):
+def _lattice_samples(img, sm, lattice, of_raw=False):
     """The smoothed and raw frame on each tile's sampling lattice, and each tile's median.
 
     ``sm`` is the smoothed frame, or a 0×0 array to smooth at the lattice points only.
-    Returns (T, cap) float64 smoothed and raw samples in scan order (tiles row-major), (T,)
-    counts, and (T,) medians of the smoothed samples (of the raw ones if ``of_raw``).
+    Returns the :class:`_Samples`, with the medians of the smoothed samples (of the raw ones if
+    ``of_raw``).
     """
+    edges_y, edges_x, sy, sx = lattice
     ny, nx = edges_y.size - 1, edges_x.size - 1
     cap = ((edges_y[1:] - edges_y[:-1]).max() // sy + 1) * ((edges_x[1:] - edges_x[:-1]).max() // sx + 1)
     smp = np.empty((ny * nx, cap))
@@ -545,7 +333,7 @@ def _lattice_samples(img, sm, edges_y, edges_x, sy, sx, of_raw=False):
             if not have_sm:
                 ya, yb = max(y - 1, 0), min(y + 1, h - 1)
                 for x in range(w):  # contiguous: vectorises, unlike per-sample 3×3 gathers
-                    vsum[x] = img[ya, x] + _F2 * img[y, x] + img[yb, x]
+                    vsum[x] = column_sum(img, ya, y, yb, x)
             for tx in range(nx):
                 t = ty * nx + tx
                 x_first = _lattice_start(edges_x[tx], edges_x[tx + 1], sx)
@@ -558,7 +346,7 @@ def _lattice_samples(img, sm, edges_y, edges_x, sy, sx, of_raw=False):
                         smp[t, k] = vsum[0] * np.float32(0.25)
                     else:
                         xa, xb = max(x - 1, 0), min(x + 1, w - 1)
-                        smp[t, k] = (vsum[xa] + _F2 * vsum[x] + vsum[xb]) * _F16
+                        smp[t, k] = smooth_at(vsum, xa, x, xb)
                     k += 1
                 cnt[t] = k
             row += 1
@@ -569,23 +357,25 @@ def _lattice_samples(img, sm, edges_y, edges_x, sy, sx, of_raw=False):
             for i in range(k):
                 buf[i] = src[t, i]
             # the previous tile's median (the one above at a row start) as the first pivot
-            med[t] = _median_inplace(buf, k, med[t - 1] if tx > 0 else (med[t - nx] if ty > 0 else np.nan))
-    return smp, rawp, cnt, med
+            med[t] = median_inplace(buf, k, med[t - 1] if tx > 0 else (med[t - nx] if ty > 0 else np.nan))
+    return _Samples(smp, rawp, cnt, med)
 
 
 @njit(cache=True)
-def _tile_noise(smp, rawp, cnt, level, level_raw, edges_y, edges_x, sy, sx, iy, fy, ix, fx, is_int,
-                same_level):
+def _tile_noise(samples, lattice, level, level_raw, weights, is_int, same_level):
     """Per tile, the median and lower-side clipped RMS of the smoothed frame minus the sky model.
 
     The median is a correction to the tile's level: a plain tile median of a sky with a
     gradient is as uncertain as the gradient is steep, the median about the model is not.
-    ``smp``, ``rawp``: the lattice samples of :func:`_lattice_samples`. Returns the statistics
-    as (ny, nx, 2), then the raw samples minus the sky pooled over about 64 tiles (in tile
-    order).
+    ``samples``: the :class:`_Samples` of :func:`_lattice_samples` on ``lattice``; ``weights``
+    the frame's :class:`~skyfix.detect._grid.GridWeights`. Returns the statistics as
+    (ny, nx, 2), then the raw samples minus the sky pooled over about 64 tiles (in tile order).
     ``is_int``: the frame holds integers (quantised data); ``same_level``: ``level_raw`` is
     ``level``.
     """
+    smp, rawp, cnt = samples.smooth, samples.raw, samples.count
+    edges_y, edges_x, sy, sx = lattice
+    iy, fy, ix, fx = weights
     ny, nx = edges_y.size - 1, edges_x.size - 1
     out = np.empty((ny, nx, 2))
     cap = smp.shape[1]
@@ -595,7 +385,7 @@ def _tile_noise(smp, rawp, cnt, level, level_raw, edges_y, edges_x, sy, sx, iy, 
         start[t + 1] = start[t] + (cnt[t] if t % pool_every == 0 else 0)
     pooled = np.empty(start[-1], np.float64)
     # the level interpolated along x at every tile-centre row, on the lattice columns: each
-    # sample's model is then one interpolation along y (the same arithmetic as in full)
+    # sample's model is then one interpolation along y (the arithmetic of bilinear, in two steps)
     col_start = np.zeros(nx + 1, np.int64)
     for tx in range(nx):
         x_first = _lattice_start(edges_x[tx], edges_x[tx + 1], sx)
@@ -628,18 +418,13 @@ def _tile_noise(smp, rawp, cnt, level, level_raw, edges_y, edges_x, sy, sx, iy, 
                     res[k] = smp[t, k] - model
                     if pool:  # the raw residuals of the pooled tiles only
                         if not same_level:
-                            j = ix[x]
-                            j1 = min(j + 1, nx - 1)
-                            g = fx[x]
-                            top = (1.0 - g) * level_raw[i, j] + g * level_raw[i, j1]
-                            bot = (1.0 - g) * level_raw[i1, j] + g * level_raw[i1, j1]
-                            model = (1.0 - f) * top + f * bot
+                            model = bilinear(level_raw, weights, y, x)
                         pooled[start[t] + k] = rawp[t, k] - model
                     k += 1
             # a 3×3 binomial mean of integers moves in steps of 1/16
             # first pivots: residuals about the sky model centre on 0; the lower half's median
             # sits about as far below as in the previous tile
-            med, sig, lower = _tile_level_noise(res, k, 0.0625 if is_int else 0.0, 0.0, lower_offset)
+            med, sig, lower = tile_level_noise(res, k, 0.0625 if is_int else 0.0, 0.0, lower_offset)
             lower_offset = lower - med
             out[ty, tx, 0] = med
             out[ty, tx, 1] = sig
@@ -647,7 +432,9 @@ def _tile_noise(smp, rawp, cnt, level, level_raw, edges_y, edges_x, sy, sx, iy, 
 
 
 @njit(cache=True)
-def _interp_full(grid, iy, fy, ix, fx):
+def _interp_full(grid, weights):
+    """A tile grid interpolated to every pixel, float32 (H, W)."""
+    iy, fy, ix, fx = weights
     h, w = iy.size, ix.size
     ny, nx = grid.shape
     out = np.empty((h, w), np.float32)

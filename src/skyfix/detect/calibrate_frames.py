@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skyfix.detect.background import _robust_level_noise
+from skyfix.detect._stats import robust_level_noise
 from skyfix.errors import ImageReadError
 
 __all__ = [
@@ -118,7 +118,7 @@ def hot_pixel_map(dark: np.ndarray, nsigma: float = 5.0) -> np.ndarray:
     d = np.asarray(dark, dtype=np.float64)
     sample = d[:: max(1, d.shape[0] // 256), :: max(1, d.shape[1] // 256)].ravel()
     quantum = 1.0 if np.all(sample == np.floor(sample)) else 0.0
-    level, sigma = _robust_level_noise(sample.copy(), quantum, False)
+    level, sigma = robust_level_noise(sample.copy(), quantum, False)
     return d > level + nsigma * max(sigma, 1e-12)
 
 
@@ -199,10 +199,10 @@ def dark_report(darks_by_exposure: Mapping[float, Iterable[np.ndarray | str | Pa
         master = master_frame(stack)
         hot = hot_pixel_map(master, nsigma)
         good = master[~hot].astype(np.float64)
-        _, dsnu = _robust_level_noise(good[:: max(1, good.size // 65536)].copy(), 0.0, False)
+        _, dsnu = robust_level_noise(good[:: max(1, good.size // 65536)].copy(), 0.0, False)
         n = stack.shape[0]
         diff = (stack[0] - master)[~hot].astype(np.float64)
-        _, temporal = _robust_level_noise(diff[:: max(1, diff.size // 65536)].copy(), 0.0, False)
+        _, temporal = robust_level_noise(diff[:: max(1, diff.size // 65536)].copy(), 0.0, False)
         # the master contains the frame: frame − master has variance σ²·(1 − 1/n)
         temporal = temporal * np.sqrt(n / (n - 1)) if n > 1 else float("nan")
         if n > 1:  # the master still carries σ²/n of temporal noise

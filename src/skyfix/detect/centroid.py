@@ -33,20 +33,96 @@ wings), and thesis 000's 3×3-ROI CoM a −0.24 px pull toward the pixel centre 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from skyfix.detect.background import _robust_level_noise
-from skyfix.detect.centroids import Centroids
+from skyfix.detect._stats import robust_level_noise
+from skyfix.detect.centroids import Centroids, background_snr
 
-__all__ = ["CENTROIDERS", "centroid_windows", "refine_centroids", "cramer_rao_centroid", "measure_psf"]
+__all__ = ["CENTROIDERS", "COM", "IWCOG", "GAUSSIAN", "Refined", "centroid_windows", "refine_centroids",
+           "cramer_rao_centroid", "measure_psf"]
 
-CENTROIDERS = ("com", "iwcog", "gaussian")
-_CODES = {name: i for i, name in enumerate(CENTROIDERS)}
-# refine output columns
-# columns of the kernels' output rows
-_NCOL = 13  # x, y, flux, peak, sigma_x, sigma_y, cov_xy, npix, psf_sx, psf_sy, ok, noise, sky
+# The centroiders' codes inside the kernels (numba compiles module-level ints as constants).
+COM, IWCOG, GAUSSIAN = 0, 1, 2
+#: Centroiders by name (``method=`` here, ``centroid=`` of :func:`~skyfix.detect.extract_centroids`).
+CENTROIDERS = {"com": COM, "iwcog": IWCOG, "gaussian": GAUSSIAN}
+
+
+class Refined(NamedTuple):
+    """The columns of :func:`refine_centroids`'s (N, 13) table, by name (:meth:`of` gives views)."""
+
+    x: np.ndarray  #: centroid, pixels
+    y: np.ndarray
+    flux: np.ndarray  #: sum above the sky (CoM, IWCoG) or the fit's flux, ADU
+    peak: np.ndarray  #: highest pixel above the sky, ADU
+    sigma_x: np.ndarray  #: centroid's 1-σ error, pixels
+    sigma_y: np.ndarray
+    cov_xy: np.ndarray  #: its x–y covariance, px² (the fit only)
+    npix: np.ndarray  #: pixels above the threshold
+    psf_sx: np.ndarray  #: PSF σ along x and y (second moments, or the fit), pixels
+    psf_sy: np.ndarray
+    ok: np.ndarray  #: 1.0 where a centroid was found
+    noise: np.ndarray  #: the window's noise σ and sky level, ADU
+    sky: np.ndarray
+
+    @classmethod
+    def of(cls, table: np.ndarray) -> Refined:
+        """The columns of an (N, 13) table (views, not copies)."""
+        return cls(*np.asarray(table).T)
+
+    @property
+    def elongation(self) -> np.ndarray:
+        """Long over short PSF axis (the short one floored at 1e-6 px)."""
+        return np.maximum(self.psf_sx, self.psf_sy) / np.maximum(np.minimum(self.psf_sx, self.psf_sy), 1e-6)
+
+
+# The kernels' columns, in the order of Refined's fields; a star's row holds the first _NROW
+# (the window's noise and sky are added by _refine).
+(_X, _Y, _FLUX, _PEAK, _SIGMA_X, _SIGMA_Y, _COV_XY, _NPIX, _PSF_SX, _PSF_SY, _OK, _NOISE, _SKY) = range(13)
+_NCOL = len(Refined._fields)
+_NROW = _OK + 1
+
+
+class _How(NamedTuple):
+    """A centroider as the kernels run it."""
+
+    code: int  # COM, IWCOG or GAUSSIAN
+    k: float  # CoM threshold, in σ above the sky
+    psf_sigma: float  # PSF σ for IWCoG's weight and the fit's first guess, px (≤ 0: measured)
+    inv_gain: float  # ADU per electron (0: unknown)
+
+
+class _Window(NamedTuple):
+    """A star's window, rows y0..y1 and columns x0..x1 inclusive, with its sky level and noise σ."""
+
+    y0: int
+    y1: int
+    x0: int
+    x1: int
+    sky: float
+    noise: float
+
+
+class _Profiles(NamedTuple):
+    """Scratch for the Gaussian fit: the pixel-integrated profile along x and y and their
+    derivatives by the centre and by σ."""
+
+    px: np.ndarray
+    dpx_c: np.ndarray
+    dpx_s: np.ndarray
+    py: np.ndarray
+    dpy_c: np.ndarray
+    dpy_s: np.ndarray
+
+
+class _Normal(NamedTuple):
+    """The fit's weighted normal equations JᵀWJ (6×6), JᵀWr (6,) and the sandwich's meat (6×6)."""
+
+    jtj: np.ndarray
+    jtr: np.ndarray
+    meat: np.ndarray
 
 
 def centroid_windows(
@@ -93,10 +169,9 @@ def centroid_windows(
     if img.ndim != 2:
         raise ValueError(f"image must be 2-D, got shape {img.shape}")
     xy = np.asarray(xy_pred, dtype=np.float64).reshape(-1, 2)
-    code = _method_code(method)
+    how = _how(method, sigma, psf_sigma, gain)
     hs = int(max(2, half_size))
-    out = _windows(img, xy[:, 0].copy(), xy[:, 1].copy(), hs, code, float(sigma),
-                   -1.0 if psf_sigma is None else float(psf_sigma), _inv_gain(gain))
+    out = _windows(img, xy[:, 0].copy(), xy[:, 1].copy(), hs, how)
     return _to_centroids(out, img.shape, ordered=True)
 
 
@@ -115,15 +190,16 @@ def refine_centroids(
     """Refine positions with a centroider given each window's sky level and noise.
 
     Returns an (N, 13) float64 array: x, y, flux, peak, sigma_x, sigma_y, cov_xy, npix,
-    PSF σx, σy (second moments or fit), ok (1.0 where a centroid was found), noise, sky.
+    PSF σx, σy (second moments or fit), ok (1.0 where a centroid was found), noise, sky
+    (:class:`Refined` names them: ``Refined.of(table).x``).
     """
+    how = _how(method, sigma, psf_sigma, gain)
     img = np.ascontiguousarray(image, dtype=np.float32)
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     n = len(xy)
     return _refine(img, xy[:, 0].copy(), xy[:, 1].copy(), np.broadcast_to(background, n).astype(np.float64),
                    np.broadcast_to(noise, n).astype(np.float64),
-                   np.broadcast_to(half_size, n).astype(np.int64), _method_code(method), float(sigma),
-                   -1.0 if psf_sigma is None else float(psf_sigma), _inv_gain(gain))
+                   np.broadcast_to(half_size, n).astype(np.int64), how)
 
 
 def measure_psf(image: np.ndarray, xy: np.ndarray, half_size: int = 8) -> dict[str, np.ndarray]:
@@ -147,11 +223,11 @@ def measure_psf(image: np.ndarray, xy: np.ndarray, half_size: int = 8) -> dict[s
     """
     img = np.ascontiguousarray(image, dtype=np.float32)
     xyv = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    out = _windows(img, xyv[:, 0].copy(), xyv[:, 1].copy(), int(max(2, half_size)), _CODES["gaussian"], 3.0,
-                   -1.0, 0.0)
-    sx, sy, ok = out[:, 8], out[:, 9], out[:, 10] > 0
+    r = Refined.of(_windows(img, xyv[:, 0].copy(), xyv[:, 1].copy(), int(max(2, half_size)),
+                            _How(GAUSSIAN, 3.0, -1.0, 0.0)))
+    sx, sy, ok = r.psf_sx, r.psf_sy, r.ok > 0
     big, small = np.maximum(sx, sy), np.maximum(np.minimum(sx, sy), 1e-12)
-    x, y = np.where(ok, out[:, 0], np.nan), np.where(ok, out[:, 1], np.nan)
+    x, y = np.where(ok, r.x, np.nan), np.where(ok, r.y, np.nan)
     return {"x": x, "y": y, "sigma_x": np.where(ok, sx, np.nan), "sigma_y": np.where(ok, sy, np.nan),
             "fwhm": np.where(ok, 2.0 * math.sqrt(2.0 * math.log(2.0)) * np.sqrt(sx * sy), np.nan),
             "ellipticity": np.where(ok, 1.0 - small / big, np.nan), "ok": ok}
@@ -202,33 +278,33 @@ def _inv_gain(gain: float | None) -> float:
     return 1.0 / float(gain)
 
 
-def _method_code(method: str) -> int:
+def _how(method: str, sigma: float, psf_sigma: float | None, gain: float | None) -> _How:
     try:
-        return _CODES[method]
-    except KeyError:
+        code = CENTROIDERS[method]
+    except (KeyError, TypeError):
         raise ValueError(f"unknown centroider {method!r}; choose one of {', '.join(CENTROIDERS)}") from None
+    return _How(code, float(sigma), -1.0 if psf_sigma is None else float(psf_sigma), _inv_gain(gain))
 
 
 def _to_centroids(out: np.ndarray, shape, ordered: bool) -> Centroids:
-    x, y, flux, peak, sx, sy, cxy, npix, psx, psy, ok, nz, sky = out.T
-    bad = ok == 0
-    big, small = np.maximum(psx, psy), np.maximum(np.minimum(psx, psy), 1e-6)
-    snr = flux / np.maximum(nz * np.sqrt(np.maximum(npix, 1.0)), 1e-30)
+    r = Refined.of(out)
+    bad = r.ok == 0
+    snr = background_snr(r.flux, r.noise, r.npix)
     return Centroids(
-        x=np.where(bad, np.nan, x), y=np.where(bad, np.nan, y), flux=np.where(bad, 0.0, flux), area=npix,
-        snr=np.where(bad, 0.0, snr), elongation=np.where(bad, np.nan, big / small), peak=peak,
-        sigma_x=np.where(bad, np.nan, sx), sigma_y=np.where(bad, np.nan, sy),
-        saturated=np.zeros(len(x), bool), image_shape=shape, cov_xy=np.where(bad, 0.0, cxy),
-        background_level=float(np.median(sky)) if len(sky) else 0.0,
-        noise=float(np.median(nz)) if len(nz) else 0.0, meta={"ordered": ordered})
+        x=np.where(bad, np.nan, r.x), y=np.where(bad, np.nan, r.y), flux=np.where(bad, 0.0, r.flux),
+        area=r.npix, snr=np.where(bad, 0.0, snr), elongation=np.where(bad, np.nan, r.elongation), peak=r.peak,
+        sigma_x=np.where(bad, np.nan, r.sigma_x), sigma_y=np.where(bad, np.nan, r.sigma_y),
+        saturated=np.zeros(len(r.x), bool), image_shape=shape, cov_xy=np.where(bad, 0.0, r.cov_xy),
+        background_level=float(np.median(r.sky)) if len(r.sky) else 0.0,
+        noise=float(np.median(r.noise)) if len(r.noise) else 0.0, meta={"ordered": ordered})
 
 
 # --- numba kernels ------------------------------------------------------------------------
 
 
 @njit(cache=True)
-def _windows(img, xs, ys, hs, code, k, psf_sigma, ig):
-    """Sky and noise from each window's border, then the centroider."""
+def _windows(img, xs, ys, hs, how):
+    """Sky and noise from each window's border, then the centroider ``how`` (a :class:`_How`)."""
     h, w = img.shape
     n = xs.size
     bg = np.zeros(n)
@@ -252,18 +328,20 @@ def _windows(img, xs, ys, hs, code, k, psf_sigma, ig):
             buf[m] = img[y, x0]
             buf[m + 1] = img[y, x1]
             m += 2
-        bg[i], nz[i] = _robust_level_noise(buf[:m].copy(), 0.0, False)
-    return _refine(img, xs, ys, bg, nz, half, code, k, psf_sigma, ig)
+        bg[i], nz[i] = robust_level_noise(buf[:m].copy(), 0.0, False)
+    return _refine(img, xs, ys, bg, nz, half, how)
 
 
 @njit(cache=True)
-def _refine(img, xs, ys, bg, nz, half, code, k, psf_sigma, ig):
+def _refine(img, xs, ys, bg, nz, half, how):
+    """The centroider ``how`` in the window of half size ``half[i]`` around each position, with
+    the sky ``bg[i]`` and noise ``nz[i]``; returns the (N, 13) table of :class:`Refined`."""
     h, w = img.shape
     n = xs.size
-    out = np.zeros((n, 13))
+    out = np.zeros((n, _NCOL))
     for i in range(n):
-        out[i, 11] = nz[i]
-        out[i, 12] = bg[i]
+        out[i, _NOISE] = nz[i]
+        out[i, _SKY] = bg[i]
         if not (np.isfinite(xs[i]) and np.isfinite(ys[i])):
             continue
         hs = half[i]
@@ -272,24 +350,28 @@ def _refine(img, xs, ys, bg, nz, half, code, k, psf_sigma, ig):
         x0, x1 = max(cx - hs, 0), min(cx + hs - 1, w - 1)
         if y1 < y0 or x1 < x0:
             continue
-        res = _com(img, y0, y1, x0, x1, bg[i], nz[i], k, ig)
-        if res[10] == 0.0:
+        win = _Window(y0, y1, x0, x1, bg[i], nz[i])
+        res = _com(img, win, how.k, how.inv_gain)
+        if res[_OK] == 0.0:
             continue
-        if code == 1:
+        if how.code == IWCOG:
             # a weight narrower than ~0.8 px locks onto pixel centres (S-curve): floor it
-            s = psf_sigma if psf_sigma > 0 else math.sqrt(0.5 * (res[8] ** 2 + res[9] ** 2))
-            res = _iwcog(img, y0, y1, x0, x1, bg[i], nz[i], res, max(s, 0.8), ig)
-        elif code == 2:
-            s = psf_sigma if psf_sigma > 0 else -1.0
-            res = _gauss_fit(img, y0, y1, x0, x1, bg[i], nz[i], res, s, ig)
-        out[i, :11] = res
+            s = how.psf_sigma
+            if not s > 0:
+                s = math.sqrt(0.5 * (res[_PSF_SX] ** 2 + res[_PSF_SY] ** 2))
+            res = _iwcog(img, win, res, max(s, 0.8), how.inv_gain)
+        elif how.code == GAUSSIAN:
+            s = how.psf_sigma if how.psf_sigma > 0 else -1.0
+            res = _gauss_fit(img, win, res, s, how.inv_gain)
+        out[i, :_NROW] = res
     return out
 
 
 @njit(cache=True)
-def _com(img, y0, y1, x0, x1, bg, nz, k, ig):
-    """Thresholded centre of mass in the window; also second-moment σx, σy."""
-    r = np.zeros(11)
+def _com(img, win, k, ig):
+    """Thresholded centre of mass in the window; also second-moment σx, σy. A row of :data:`_NROW`."""
+    y0, y1, x0, x1, bg, nz = win
+    r = np.zeros(_NROW)
     thr = k * nz
     sw = swx = swy = swxx = swyy = 0.0
     a = ax = ay = axx = ayy = 0.0  # Σ var, Σ var·x, ... for the centroid's σ
@@ -316,25 +398,26 @@ def _com(img, y0, y1, x0, x1, bg, nz, k, ig):
     if sw <= 0.0 or npix == 0:
         return r
     xc, yc = swx / sw, swy / sw
-    r[0] = xc
-    r[1] = yc
-    r[2] = sw
-    r[3] = peak
+    r[_X] = xc
+    r[_Y] = yc
+    r[_FLUX] = sw
+    r[_PEAK] = peak
     # var(x̄) = Σ var_i (x_i − x̄)² / F²
-    r[4] = math.sqrt(max(axx - 2 * xc * ax + xc * xc * a, 0.0)) / sw
-    r[5] = math.sqrt(max(ayy - 2 * yc * ay + yc * yc * a, 0.0)) / sw
-    r[7] = npix
-    r[8] = math.sqrt(max(swxx / sw - xc * xc, 0.0))
-    r[9] = math.sqrt(max(swyy / sw - yc * yc, 0.0))
-    r[10] = 1.0
+    r[_SIGMA_X] = math.sqrt(max(axx - 2 * xc * ax + xc * xc * a, 0.0)) / sw
+    r[_SIGMA_Y] = math.sqrt(max(ayy - 2 * yc * ay + yc * yc * a, 0.0)) / sw
+    r[_NPIX] = npix
+    r[_PSF_SX] = math.sqrt(max(swxx / sw - xc * xc, 0.0))
+    r[_PSF_SY] = math.sqrt(max(swyy / sw - yc * yc, 0.0))
+    r[_OK] = 1.0
     return r
 
 
 @njit(cache=True)
-def _iwcog(img, y0, y1, x0, x1, bg, nz, start, s, ig):
-    """Gaussian-weighted centre of gravity iterated from ``start``; weights (v − bg)·W."""
+def _iwcog(img, win, start, s, ig):
+    """Gaussian-weighted centre of gravity iterated from the row ``start``; weights (v − bg)·W."""
+    y0, y1, x0, x1, bg, nz = win
     r = start.copy()
-    xc, yc = start[0], start[1]
+    xc, yc = start[_X], start[_Y]
     inv = 1.0 / (2.0 * s * s)
     for _ in range(30):
         sw = swx = swy = 0.0
@@ -362,12 +445,12 @@ def _iwcog(img, y0, y1, x0, x1, bg, nz, start, s, ig):
         xc, yc = nx_, ny_
         if done:
             break
-    r[0] = xc
-    r[1] = yc
+    r[_X] = xc
+    r[_Y] = yc
     # error of the fixed point Σ v·w(x̄)·(x − x̄) = 0 (implicit function theorem):
     # √Σ w² var (x − x̄)² / (Σ v·w − Σ v·w·(x − x̄)²/s²)
-    r[4] = math.sqrt(sxx2) / max(sw - dxx / (s * s), 0.1 * sw)
-    r[5] = math.sqrt(syy2) / max(sw - dyy / (s * s), 0.1 * sw)
+    r[_SIGMA_X] = math.sqrt(sxx2) / max(sw - dxx / (s * s), 0.1 * sw)
+    r[_SIGMA_Y] = math.sqrt(syy2) / max(sw - dyy / (s * s), 0.1 * sw)
     return r
 
 
@@ -387,8 +470,12 @@ def _gauss_profile(n0, c, s, p, dp_dc, dp_ds):
 
 
 @njit(cache=True)
-def _gauss_chi2(img, y0, x0, q, px, dpx_c, dpx_s, py, dpy_c, dpy_s, nz, ig):
-    """Σ (data − model)² / var of the model with parameters q in the window at (y0, x0)."""
+def _gauss_chi2(img, y0, x0, q, prof, nz, ig):
+    """Σ (data − model)² / var of the model with parameters q in the window at (y0, x0).
+
+    ``prof`` (:class:`_Profiles`) receives the model's x and y profiles.
+    """
+    px, dpx_c, dpx_s, py, dpy_c, dpy_s = prof
     _gauss_profile(x0, q[1], q[3], px, dpx_c, dpx_s)
     _gauss_profile(y0, q[2], q[4], py, dpy_c, dpy_s)
     acc = 0.0
@@ -402,8 +489,11 @@ def _gauss_chi2(img, y0, x0, q, px, dpx_c, dpx_s, py, dpy_c, dpy_s, nz, ig):
 
 
 @njit(cache=True)
-def _gauss_normal(img, y0, x0, p, px, dpx_c, dpx_s, py, dpy_c, dpy_s, nz, ig, jtj, jtr, meat):
-    """Weighted normal equations JᵀWJ, JᵀWr at p, and the sandwich's JᵀW diag(r²) WJ."""
+def _gauss_normal(img, y0, x0, p, prof, nz, ig, normal):
+    """Weighted normal equations JᵀWJ, JᵀWr at p, and the sandwich's JᵀW diag(r²) WJ, into
+    ``normal`` (:class:`_Normal`); ``prof`` (:class:`_Profiles`) receives the profiles."""
+    px, dpx_c, dpx_s, py, dpy_c, dpy_s = prof
+    jtj, jtr, meat = normal
     _gauss_profile(x0, p[1], p[3], px, dpx_c, dpx_s)
     _gauss_profile(y0, p[2], p[4], py, dpy_c, dpy_s)
     jtj[:, :] = 0.0
@@ -435,32 +525,32 @@ def _gauss_normal(img, y0, x0, p, px, dpx_c, dpx_s, py, dpy_c, dpy_s, nz, ig, jt
 
 
 @njit(cache=True)
-def _gauss_fit(img, y0, y1, x0, x1, bg, nz, start, s0, ig):
-    """Levenberg–Marquardt fit of F·Px(x)·Py(y) + B; returns the CoM row updated.
+def _gauss_fit(img, win, start, s0, ig):
+    """Levenberg–Marquardt fit of F·Px(x)·Py(y) + B; returns the CoM row ``start`` updated.
 
     Weights 1/(σ² + star/gain) (uniform when the gain is unknown). Covariance: (JᵀWJ)⁻¹ with a
     known gain, else the sandwich (JᵀJ)⁻¹·Jᵀdiag(r²)J·(JᵀJ)⁻¹, right whatever the noise.
     """
+    y0, y1, x0, x1, bg, nz = win
     r = start.copy()
     nxp, nyp = x1 - x0 + 1, y1 - y0 + 1
     if nxp * nyp < 9:
         return r
+    # parameters: flux, x₀, y₀, σx, σy, sky
     p = np.empty(6)
-    p[0] = max(start[2], 1e-9)
-    p[1] = start[0]
-    p[2] = start[1]
-    p[3] = s0 if s0 > 0 else max(start[8], 0.4)
-    p[4] = s0 if s0 > 0 else max(start[9], 0.4)
+    p[0] = max(start[_FLUX], 1e-9)
+    p[1] = start[_X]
+    p[2] = start[_Y]
+    p[3] = s0 if s0 > 0 else max(start[_PSF_SX], 0.4)
+    p[4] = s0 if s0 > 0 else max(start[_PSF_SY], 0.4)
     p[5] = bg
-    px, dpx_c, dpx_s = np.empty(nxp), np.empty(nxp), np.empty(nxp)
-    py, dpy_c, dpy_s = np.empty(nyp), np.empty(nyp), np.empty(nyp)
-    jtj = np.empty((6, 6))
-    meat = np.empty((6, 6))
-    jtr = np.empty(6)
+    prof = _Profiles(np.empty(nxp), np.empty(nxp), np.empty(nxp), np.empty(nyp), np.empty(nyp), np.empty(nyp))
+    normal = _Normal(np.empty((6, 6)), np.empty(6), np.empty((6, 6)))
+    jtj, jtr, meat = normal
     lam = 1e-3
-    cur = _gauss_chi2(img, y0, x0, p, px, dpx_c, dpx_s, py, dpy_c, dpy_s, nz, ig)
+    cur = _gauss_chi2(img, y0, x0, p, prof, nz, ig)
     for _ in range(40):
-        _gauss_normal(img, y0, x0, p, px, dpx_c, dpx_s, py, dpy_c, dpy_s, nz, ig, jtj, jtr, meat)
+        _gauss_normal(img, y0, x0, p, prof, nz, ig, normal)
         improved = False
         small = False
         for _try in range(10):
@@ -472,7 +562,7 @@ def _gauss_fit(img, y0, y1, x0, x1, bg, nz, start, s0, ig):
             if q[0] <= 0 or q[3] < 0.1 or q[4] < 0.1 or q[3] > 20 or q[4] > 20:
                 lam *= 10.0
                 continue
-            new = _gauss_chi2(img, y0, x0, q, px, dpx_c, dpx_s, py, dpy_c, dpy_s, nz, ig)
+            new = _gauss_chi2(img, y0, x0, q, prof, nz, ig)
             if new <= cur:
                 small = abs(step[1]) < 1e-6 and abs(step[2]) < 1e-6
                 p = q
@@ -484,20 +574,20 @@ def _gauss_fit(img, y0, y1, x0, x1, bg, nz, start, s0, ig):
         if not improved or small:
             break
     # keep the fit only if it stayed on the star
-    if not (abs(p[1] - start[0]) < 3.0 and abs(p[2] - start[1]) < 3.0):
+    if not (abs(p[1] - start[_X]) < 3.0 and abs(p[2] - start[_Y]) < 3.0):
         return r
-    _gauss_normal(img, y0, x0, p, px, dpx_c, dpx_s, py, dpy_c, dpy_s, nz, ig, jtj, jtr, meat)
+    _gauss_normal(img, y0, x0, p, prof, nz, ig, normal)
     for a in range(6):
         if not jtj[a, a] > 0.0:
             return r
     inv = np.linalg.pinv(jtj)  # no exception on a degenerate star (flat top, no wings)
     cov = inv if ig > 0 else inv @ meat @ inv
-    r[0] = p[1]
-    r[1] = p[2]
-    r[2] = p[0]
-    r[4] = math.sqrt(max(cov[1, 1], 0.0))
-    r[5] = math.sqrt(max(cov[2, 2], 0.0))
-    r[6] = cov[1, 2]
-    r[8] = p[3]
-    r[9] = p[4]
+    r[_X] = p[1]
+    r[_Y] = p[2]
+    r[_FLUX] = p[0]
+    r[_SIGMA_X] = math.sqrt(max(cov[1, 1], 0.0))
+    r[_SIGMA_Y] = math.sqrt(max(cov[2, 2], 0.0))
+    r[_COV_XY] = cov[1, 2]
+    r[_PSF_SX] = p[3]
+    r[_PSF_SY] = p[4]
     return r

@@ -5,8 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
-__all__ = ["Centroids"]
+__all__ = ["Centroids", "background_snr"]
 
 _ARRAYS = ("x", "y", "flux", "area", "snr", "elongation", "peak", "sigma_x", "sigma_y")
 
@@ -24,7 +25,7 @@ class Centroids:
     flux : (N,) float64 — background-subtracted sum over the star's pixels, ADU.
     area : (N,) float64 — number of pixels in the star's footprint.
     snr : (N,) float64 — ``flux / (noise·sqrt(area))`` (background-limited; shot noise of the
-        star itself is not included because the gain is unknown).
+        star itself is not included because the gain is unknown; :func:`background_snr`).
     elongation : (N,) float64 — ratio of the long to the short axis from the intensity
         second moments (1 = round).
     peak : (N,) float64 — highest background-subtracted pixel, ADU.
@@ -127,3 +128,13 @@ class Centroids:
         cols = {name: getattr(self, name).tolist() for name in (*_ARRAYS, "cov_xy", "angle")}
         sat = self.saturated.tolist()
         return [{**{k: v[i] for k, v in cols.items()}, "saturated": sat[i]} for i in range(len(self))]
+
+
+@njit(cache=True, inline="always")
+def background_snr(flux, noise, area):
+    """``flux / (noise·√area)``: the SNR of a star whose noise is the sky's alone.
+
+    ``area`` (pixels) counts as at least 1 and the denominator as at least 1e-30. Scalars or
+    arrays (broadcast); every detector's :attr:`Centroids.snr` is this.
+    """
+    return flux / np.maximum(noise * np.sqrt(np.maximum(area, 1.0)), 1e-30)

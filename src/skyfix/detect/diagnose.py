@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from skyfix.detect.extract import saturation_level
+from skyfix.detect.saturation import saturation_level
 
 __all__ = ["SATURATED_FRACTION", "frame_problem"]
 

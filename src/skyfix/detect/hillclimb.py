@@ -21,14 +21,29 @@ Maxima closer than 3 px to a brighter one are merged (a flat-topped saturated st
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from skyfix.detect.background import _robust_level_noise
-from skyfix.detect.centroids import Centroids
+from skyfix.detect._stats import robust_level_noise, sum_sq_dev
+from skyfix.detect.centroids import Centroids, background_snr
+from skyfix.detect.saturation import saturation_level
 
 __all__ = ["extract_hillclimb", "global_background"]
+
+
+class _Spots(NamedTuple):
+    """The stars :func:`_hillclimb` finds, (K,) float64 each."""
+
+    x: np.ndarray  # centre of mass over the 3×3 ROI, pixels
+    y: np.ndarray
+    flux: np.ndarray  # Σ (I − n) over the ROI pixels above T
+    npix: np.ndarray  # ROI pixels above T
+    peak: np.ndarray  # the maximum above the background
+    spread_x: np.ndarray  # unweighted Σ(x − x̄)², Σ(y − ȳ)² of those pixels
+    spread_y: np.ndarray
+    nsat: np.ndarray  # ROI pixels at or above the saturation level
 
 
 def global_background(image: np.ndarray, max_samples: int = 65536) -> tuple[float, float]:
@@ -37,7 +52,7 @@ def global_background(image: np.ndarray, max_samples: int = 65536) -> tuple[floa
     step = max(1, int(math.sqrt(img.size / max_samples)))
     sample = img[::step, ::step].astype(np.float64).ravel()
     quantum = 1.0 if np.all(sample == np.floor(sample)) else 0.0
-    level, noise = _robust_level_noise(sample, quantum, False)
+    level, noise = robust_level_noise(sample, quantum, False)
     return float(level), float(noise)
 
 
@@ -59,26 +74,23 @@ def extract_hillclimb(image: np.ndarray, *, sigma: float = 5.0, max_stars: int =
     saturation : float, optional
         Saturation level for the flag (default: :func:`skyfix.detect.saturation_level`).
     """
-    from skyfix.detect.extract import saturation_level
-
     img = np.ascontiguousarray(image, dtype=np.float32)
     h, w = img.shape
     level, noise = global_background(img)
     if not noise > 0:
         return Centroids.empty((h, w), level, noise, reason="flat frame")
     sat = saturation_level(img) if saturation is None else float(saturation)
-    out = _hillclimb(img, level, level + sigma * noise, int(min_pixels), sat)
-    if len(out) == 0:
+    s = _hillclimb(img, level, level + sigma * noise, int(min_pixels), sat)
+    if len(s.x) == 0:
         return Centroids.empty((h, w), level, noise)
-    x, y, flux, npix, peak, sxx, syy, nsat = out.T
-    keep = _suppress_neighbours(x, y, flux, 3.0)
-    keep = keep[np.argsort(-flux[keep], kind="stable")][:max_stars]
-    n = np.maximum(npix[keep], 1.0)
+    keep = _suppress_neighbours(s.x, s.y, s.flux, 3.0)
+    keep = keep[np.argsort(-s.flux[keep], kind="stable")][:max_stars]
+    flux = s.flux[keep]
     return Centroids(
-        x=x[keep], y=y[keep], flux=flux[keep], area=npix[keep], snr=flux[keep] / (noise * np.sqrt(n)),
-        elongation=np.ones(keep.size), peak=peak[keep],
-        sigma_x=noise * np.sqrt(sxx[keep]) / flux[keep], sigma_y=noise * np.sqrt(syy[keep]) / flux[keep],
-        saturated=nsat[keep] > 0, image_shape=(h, w), background_level=level, noise=noise,
+        x=s.x[keep], y=s.y[keep], flux=flux, area=s.npix[keep], snr=background_snr(flux, noise, s.npix[keep]),
+        elongation=np.ones(keep.size), peak=s.peak[keep],
+        sigma_x=noise * np.sqrt(s.spread_x[keep]) / flux, sigma_y=noise * np.sqrt(s.spread_y[keep]) / flux,
+        saturated=s.nsat[keep] > 0, image_shape=(h, w), background_level=level, noise=noise,
         meta={"method": "threshold_hillclimb", "threshold": level + sigma * noise})
 
 
@@ -96,6 +108,7 @@ def _suppress_neighbours(x, y, flux, radius):
 
 @njit(cache=True)
 def _hillclimb(img, level, thr, min_pixels, saturation):
+    """Steps 2–4 of the module docstring: the :class:`_Spots` above threshold ``thr``."""
     h, w = img.shape
     seen = np.zeros((h, w), np.uint8)  # 1: on a climbed path, 2: a recorded maximum
     rows = []
@@ -141,12 +154,10 @@ def _hillclimb(img, level, thr, min_pixels, saturation):
             if npix < min_pixels or sw <= 0:
                 continue
             xc, yc = swx / sw, swy / sw
-            rows.append((xc, yc, sw, float(npix), img[y, x] - level,
-                         max(sxx - 2 * xc * sx + npix * xc * xc, 0.0),
-                         max(syy - 2 * yc * sy + npix * yc * yc, 0.0), float(nsat)))
-    out = np.empty((len(rows), 8))
+            rows.append((xc, yc, sw, float(npix), img[y, x] - level, sum_sq_dev(sxx, sx, npix, xc),
+                         sum_sq_dev(syy, sy, npix, yc), float(nsat)))
+    cols = np.empty((8, len(rows)))
     for i in range(len(rows)):
-        r = rows[i]
-        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = r[0], r[1], r[2], r[3]
-        out[i, 4], out[i, 5], out[i, 6], out[i, 7] = r[4], r[5], r[6], r[7]
-    return out
+        for j in range(8):
+            cols[j, i] = rows[i][j]
+    return _Spots(cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6], cols[7])

@@ -24,16 +24,31 @@ The thesis keeps the first 20 regions found; here all are kept and sorted by bri
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from skyfix.detect.background import _robust_level_noise
-from skyfix.detect.centroids import Centroids
+from skyfix.detect._stats import robust_level_noise
+from skyfix.detect.centroids import Centroids, background_snr
+from skyfix.detect.saturation import saturation_level
 
 __all__ = ["extract_region_grow"]
 
 K_AREA = 2.0  # thesis 004 Eq. 2.11: adds back the light between the dark level and the threshold
+
+
+class _Regions(NamedTuple):
+    """The regions :func:`_grow` accepts, (K,) float64 each."""
+
+    x: np.ndarray  # centroid weighted by b = value − threshold, pixels
+    y: np.ndarray
+    brightness: np.ndarray  # Σb + K_AREA·n·Δth (Eq. 2.11)
+    npix: np.ndarray  # region size n
+    peak: np.ndarray  # highest pixel above the row's level
+    along: np.ndarray  # extents along and across the long axis, pixels
+    across: np.ndarray
+    nsat: np.ndarray  # pixels at or above the saturation level
 
 
 def extract_region_grow(image: np.ndarray, *, sigma: float = 5.0, max_stars: int = 100, min_area: int = 10,
@@ -56,37 +71,36 @@ def extract_region_grow(image: np.ndarray, *, sigma: float = 5.0, max_stars: int
     saturation : float, optional
         Saturation level for the flag (default: :func:`skyfix.detect.saturation_level`).
     """
-    from skyfix.detect.extract import saturation_level
-
     img = np.ascontiguousarray(image, dtype=np.float32)
     h, w = img.shape
     row_level = np.median(img, axis=1).astype(np.float64)
     step = max(1, int(math.sqrt(img.size / 65536)))
     sample = (img[::step, ::step] - row_level[::step, None]).astype(np.float64).ravel()
     quantum = 1.0 if np.all(img[::step, ::step] == np.floor(img[::step, ::step])) else 0.0
-    _, noise = _robust_level_noise(sample, quantum, False)
+    _, noise = robust_level_noise(sample, quantum, False)
     if not noise > 0:
         return Centroids.empty((h, w), float(np.median(row_level)), noise, reason="flat frame")
     dth = sigma * noise
     sat = saturation_level(img) if saturation is None else float(saturation)
-    out = _grow(img, row_level + dth, float(dth), int(min_area), int(max_area), float(max_ab), sat)
+    r = _grow(img, row_level + dth, float(dth), int(min_area), int(max_area), float(max_ab), sat)
     level = float(np.median(row_level))
-    if len(out) == 0:
+    if len(r.x) == 0:
         return Centroids.empty((h, w), level, noise)
-    x, y, flux, npix, peak, a_ext, b_ext, nsat = out.T
-    keep = np.argsort(-flux, kind="stable")[:max_stars]
-    n = np.maximum(npix[keep], 1.0)
+    keep = np.argsort(-r.brightness, kind="stable")[:max_stars]
+    flux = r.brightness[keep]
+    n = np.maximum(r.npix[keep], 1.0)
     # centroid noise of a region-weighted mean: σ·√(n·(extent²/12)) / Σb, a rough figure
-    sig = noise * np.sqrt(n * (np.maximum(a_ext[keep], 1.0) ** 2 / 12.0)) / flux[keep]
+    sig = noise * np.sqrt(n * (np.maximum(r.along[keep], 1.0) ** 2 / 12.0)) / flux
     return Centroids(
-        x=x[keep], y=y[keep], flux=flux[keep], area=npix[keep], snr=flux[keep] / (noise * np.sqrt(n)),
-        elongation=np.maximum(a_ext[keep], 1.0) / np.maximum(b_ext[keep], 1.0), peak=peak[keep],
-        sigma_x=sig, sigma_y=sig, saturated=nsat[keep] > 0, image_shape=(h, w),
+        x=r.x[keep], y=r.y[keep], flux=flux, area=r.npix[keep], snr=background_snr(flux, noise, r.npix[keep]),
+        elongation=np.maximum(r.along[keep], 1.0) / np.maximum(r.across[keep], 1.0), peak=r.peak[keep],
+        sigma_x=sig, sigma_y=sig, saturated=r.nsat[keep] > 0, image_shape=(h, w),
         background_level=level, noise=noise, meta={"method": "region_grow", "delta_threshold": dth})
 
 
 @njit(cache=True)
 def _grow(img, thr_row, dth, min_area, max_area, max_ab, saturation):
+    """Steps 2–7 of the module docstring: the accepted :class:`_Regions`."""
     h, w = img.shape
     erased = np.zeros((h, w), np.uint8)
     stack = np.empty(h * w, np.int64)
@@ -162,9 +176,8 @@ def _grow(img, thr_row, dth, min_area, max_area, max_ab, saturation):
                 continue
             brightness = sb + K_AREA * n * dth
             rows.append((sbx / sb, sby / sb, brightness, float(n), peak, a_ext, b_ext, float(nsat)))
-    out = np.empty((len(rows), 8))
+    cols = np.empty((8, len(rows)))
     for i in range(len(rows)):
-        r = rows[i]
-        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = r[0], r[1], r[2], r[3]
-        out[i, 4], out[i, 5], out[i, 6], out[i, 7] = r[4], r[5], r[6], r[7]
-    return out
+        for j in range(8):
+            cols[j, i] = rows[i][j]
+    return _Regions(cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6], cols[7])

@@ -25,9 +25,11 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from skyfix.detect._stats import sum_sq_dev
 from skyfix.detect.background import smooth3
-from skyfix.detect.centroids import Centroids
+from skyfix.detect.centroids import Centroids, background_snr
 from skyfix.detect.hillclimb import global_background
+from skyfix.detect.saturation import saturation_level
 
 __all__ = ["extract_regionprops", "perona_malik"]
 
@@ -77,8 +79,6 @@ def extract_regionprops(image: np.ndarray, *, sigma: float = 3.0, max_stars: int
     saturation : float, optional
         Saturation level for the flag (default: :func:`skyfix.detect.saturation_level`).
     """
-    from skyfix.detect.extract import saturation_level
-
     img = np.ascontiguousarray(image, dtype=np.float32)
     h, w = img.shape
     if prefilter is None:
@@ -133,12 +133,12 @@ def extract_regionprops(image: np.ndarray, *, sigma: float = 3.0, max_stars: int
     peak = peak[1:][sel]
     sat = saturation_level(img) if saturation is None else float(saturation)
     # background-noise error of a weighted mean over the spot: σ·√Σ(x − x̄)² / F
-    sxx = per_spot(xs * xs)[sel] - 2 * x * sx[sel] + area[sel] * x * x
-    syy = per_spot(ys * ys)[sel] - 2 * y * sy[sel] + area[sel] * y * y
+    sxx = sum_sq_dev(per_spot(xs * xs)[sel], sx[sel], area[sel], x)
+    syy = sum_sq_dev(per_spot(ys * ys)[sel], sy[sel], area[sel], y)
     return Centroids(
-        x=x, y=y, flux=f, area=area[sel], snr=f / (noise * np.sqrt(area[sel])),
+        x=x, y=y, flux=f, area=area[sel], snr=background_snr(f, noise, area[sel]),
         elongation=np.sqrt(lam1[sel] / lam2[sel]), peak=peak - level,
-        sigma_x=noise * np.sqrt(np.maximum(sxx, 0.0)) / f, sigma_y=noise * np.sqrt(np.maximum(syy, 0.0)) / f,
+        sigma_x=noise * np.sqrt(sxx) / f, sigma_y=noise * np.sqrt(syy) / f,
         saturated=peak >= sat, image_shape=(h, w), background_level=level, noise=noise,
         angle=0.5 * np.arctan2(2.0 * cxy[sel], cxx[sel] - cyy[sel]),
         meta={"method": "regionprops", "prefilter": prefilter, "threshold": level + sigma * noise})

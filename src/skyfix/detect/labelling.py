@@ -1,0 +1,303 @@
+"""Threshold and label: the smoothed frame above the sky by k·σ, as 8-connected components.
+
+Steps 2–3 of the default extractor (:mod:`skyfix.detect.components`):
+
+1. :func:`smooth_threshold` — one pass over the frame smooths it (3×3 binomial, a cheap matched
+   filter for a PSF of σ ≈ 1 px), sets the pixels whose smoothed value exceeds the smoothed
+   sky by ``sigma``·σ (more on the frame border, where smoothing averages fewer pixels), flags
+   the 64-pixel blocks that hold any, and returns the frame's sum (non-finite pixels) and
+   maximum (saturation).
+2. :func:`label_components` — runs of set pixels along rows joined by union-find into
+   8-connected components, skipping empty blocks; records each component's size, box and
+   summed excess (:class:`Components`).
+3. :func:`select_candidates` — components too small, too large or too extended (Moon, roof
+   edges) are dropped, and lone hot pixels (nearly all the light in one pixel), before the cap
+   on measured candidates (:class:`Candidates`).
+
+Boxes are (y0, y1, x0, x1), inclusive, int64, one row per component.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from skyfix.detect._grid import grid_at, grid_rows
+from skyfix.detect._smooth import column_sum, smooth_row
+
+__all__ = ["Frames", "Components", "Candidates", "MAX_COMPONENTS", "smooth_threshold", "label_components",
+           "select_candidates", "clear_boxes"]
+
+#: Components beyond this many (in raster order) stay unlabelled.
+MAX_COMPONENTS = 1 << 16
+# Fraction of a component's positive raw light in its brightest pixel beyond which it is a hot
+# pixel (a star centred on a pixel with PSF σ = 0.35 px puts 80% there).
+_HOT_CONCENTRATION = 0.9
+# Noise σ of the 3×3 binomial mean with replicated edges, relative to the interior:
+# [3 1]/4 along a border axis has Σw² = 10/16 against 6/16.
+_EDGE_NOISE = math.sqrt(10.0 / 6.0)
+
+
+class Frames(NamedTuple):
+    """The full-frame buffers of one extraction, H×W (reused between calls of one frame size)."""
+
+    smooth: np.ndarray  #: (H, W) float32 — the 3×3-smoothed frame
+    mask: np.ndarray  #: (H, W rounded up to 64) uint8 — smoothed frame above threshold (padding 0)
+    blocks: np.ndarray  #: (H, ⌈W/64⌉) uint8 — whether each 64-pixel block of a mask row has a pixel set
+    labels: np.ndarray  #: (H, W) int32 — component labels, 1-based (0: none)
+
+
+class Components(NamedTuple):
+    """The connected components of one frame, (K,) each, in label order (label = index + 1)."""
+
+    area: np.ndarray  #: int64 — pixels above threshold
+    box: np.ndarray  #: (K, 4) int64 — bounding box (y0, y1, x0, x1)
+    excess: np.ndarray  #: float64 — summed excess of the smoothed frame over its sky
+    peak: np.ndarray  #: float64 — highest raw pixel above the sky
+    positive: np.ndarray  #: float64 — sum of the raw pixels above the sky (positive ones only)
+
+
+class Candidates(NamedTuple):
+    """Components chosen for measurement, (N,) each."""
+
+    ids: np.ndarray  #: int32 — label in ``Frames.labels``
+    boxes: np.ndarray  #: (N, 4) int64 — bounding box (y0, y1, x0, x1)
+    is_part: np.ndarray  #: bool — a part split off a component by deblending
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def smooth_threshold(img, bits, float_bits, thr_grid, sky, frames):
+    """One pass: the frame smoothed into ``frames.smooth``, above threshold into ``frames.mask``.
+
+    The smoothing is :func:`~skyfix.detect.background.smooth3`'s; ``frames.blocks`` flags the
+    64-pixel blocks of each mask row that hold a set pixel (the labelling skips the others).
+
+    ``bits`` is a float32 ``img`` viewed as int32 (``float_bits``), or an unsigned integer
+    ``img`` itself (its values are their own order). ``thr_grid`` is the threshold on the tile
+    grid of ``sky`` (a :class:`~skyfix.detect._grid.SkyGrid`), interpolated bilinearly (raised
+    on the border, :func:`_threshold_at`).
+    Returns the sum of the raw frame (non-finite if any pixel is) and its maximum.
+    Reassociation lets the row loops vectorise; NaN and Inf still propagate (no "nnan"/"ninf").
+    The arithmetic is float32 (exact on 8- to 16-bit data).
+    """
+    h, w = img.shape
+    sm, mask, blocks = frames.smooth, frames.mask, frames.blocks
+    iy, fy = sky.weights.iy, sky.weights.fy
+    # the threshold grid interpolated along x at the tile-centre rows: any pixel row is then
+    # r0 + f·dr, one fused multiply-add per pixel
+    t0, dt = grid_rows(thr_grid, sky.weights)
+    tmp = np.empty(w, np.float32)
+    total = 0.0
+    top = np.int32(-(2**31))
+    for y in range(h):
+        ya, yb = max(y - 1, 0), min(y + 1, h - 1)
+        acc = np.float32(0.0)
+        for x in range(w):
+            tmp[x] = column_sum(img, ya, y, yb, x)
+            acc += img[y, x]
+            # the maximum on the float's bits made monotonic as int32: a float max reduction
+            # does not vectorise without "nnan", an integer one does
+            b = bits[y, x]
+            top = max(top, b ^ ((b >> 31) & np.int32(0x7FFFFFFF)))
+        total += acc
+        out = sm[y]
+        smooth_row(tmp, out, w)
+        i = iy[y]
+        f = np.float32(fy[y])
+        m = mask[y]
+        for x in range(w):
+            m[x] = out[x] > t0[i, x] + f * dt[i, x]
+        # border pixels: the replicated edge makes their smoothed noise larger
+        if y == 0 or y == h - 1:
+            for x in range(w):
+                m[x] = out[x] > _threshold_at(thr_grid, sky, y, x, h, w)
+        else:
+            m[0] = out[0] > _threshold_at(thr_grid, sky, y, 0, h, w)
+            m[w - 1] = out[w - 1] > _threshold_at(thr_grid, sky, y, w - 1, h, w)
+        words = m.view(np.uint64)
+        for c in range(blocks.shape[1]):
+            any_set = np.uint64(0)
+            for wi in range(8 * c, 8 * c + 8):
+                any_set |= words[wi]
+            blocks[y, c] = any_set != 0
+    if not float_bits:
+        return total, float(top)
+    top ^= (top >> 31) & np.int32(0x7FFFFFFF)
+    return total, float(np.array([top], np.int32).view(np.float32)[0])
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def _threshold_at(thr_grid, sky, y, x, h, w):
+    """Detection threshold at (y, x), raised on the frame border where smoothing averages less.
+
+    The flags are :func:`smooth_threshold`'s, which numba gave it from the start by inheritance.
+    """
+    t = grid_at(thr_grid, sky.weights, y, x)
+    fac = 1.0
+    if y == 0 or y == h - 1:
+        fac *= _EDGE_NOISE
+    if x == 0 or x == w - 1:
+        fac *= _EDGE_NOISE
+    if fac == 1.0:
+        return t
+    b = grid_at(sky.level_smooth, sky.weights, y, x)
+    return b + (t - b) * fac
+
+
+@njit(cache=True)
+def label_components(img, frames, sky, max_components):
+    """8-connected components of the pixels set in ``frames.mask``, into ``frames.labels`` (1-based).
+
+    ``frames`` as :func:`smooth_threshold` left them; ``labels`` must be 0 wherever the mask
+    is set. Components are numbered in the raster order of their first pixel (as a flood fill
+    from a raster scan numbers them); those beyond ``max_components`` stay unlabelled. Works on
+    runs of set pixels along rows, joined to the touching runs of the row above by union-find:
+    the frame is read row by row (a flood fill's scattered reads wait on memory).
+    Returns the :class:`Components`.
+    """
+    sm, mask, blocks, labels = frames
+    iy, fy = sky.weights.iy, sky.weights.fy
+    h, w = sm.shape
+    b0, db = grid_rows(sky.level_smooth, sky.weights)
+    q0, dq = grid_rows(sky.level, sky.weights)
+    n_blocks = 0
+    for y in range(h):
+        for c in range(blocks.shape[1]):
+            n_blocks += blocks[y, c] != 0
+    cap = 32 * n_blocks + 1  # a 64-pixel block holds at most 32 runs
+    run_y = np.empty(cap, np.int64)
+    run_x0 = np.empty(cap, np.int64)
+    run_x1 = np.empty(cap, np.int64)
+    parent = np.empty(cap, np.int64)
+    run_excess = np.empty(cap)
+    run_peak = np.empty(cap)
+    run_sum = np.empty(cap)
+    nr = 0
+    prev_start = prev_end = 0
+    for y in range(h):
+        words = mask[y].view(np.uint64)
+        cur_start = nr
+        i = iy[y]
+        f = fy[y]
+        for c in range(blocks.shape[1]):
+            if blocks[y, c] == 0:
+                continue
+            for wi in range(8 * c, 8 * c + 8):
+                if words[wi] == 0:
+                    continue
+                for x in range(8 * wi, min(8 * wi + 8, w)):
+                    if mask[y, x] == 0:
+                        continue
+                    if nr == cur_start or run_x1[nr - 1] != x - 1:
+                        run_y[nr] = y
+                        run_x0[nr] = x
+                        parent[nr] = nr
+                        run_excess[nr] = 0.0
+                        run_peak[nr] = -np.inf
+                        run_sum[nr] = 0.0
+                        nr += 1
+                    run_x1[nr - 1] = x
+                    run_excess[nr - 1] += sm[y, x] - (b0[i, x] + f * db[i, x])
+                    r = img[y, x] - (q0[i, x] + f * dq[i, x])
+                    run_peak[nr - 1] = max(run_peak[nr - 1], r)
+                    run_sum[nr - 1] += max(r, 0.0)
+        # join each run to the runs of the row above that touch it (8-connected), both in x order
+        k0 = prev_start
+        for j in range(cur_start, nr):
+            while k0 < prev_end and run_x1[k0] < run_x0[j] - 1:
+                k0 += 1
+            k = k0
+            while k < prev_end and run_x0[k] <= run_x1[j] + 1:
+                # union, the earlier run (in raster order) becoming the root
+                a = k
+                while parent[a] != a:
+                    parent[a] = parent[parent[a]]
+                    a = parent[a]
+                bb = j
+                while parent[bb] != bb:
+                    parent[bb] = parent[parent[bb]]
+                    bb = parent[bb]
+                if a < bb:
+                    parent[bb] = a
+                elif bb < a:
+                    parent[a] = bb
+                k += 1
+        prev_start, prev_end = cur_start, nr
+    # component numbers: roots in raster order (each root is its component's first run)
+    rank = np.empty(nr, np.int64)
+    k = 0
+    for r in range(nr):
+        a = r
+        while parent[a] != a:
+            a = parent[a]
+        parent[r] = a
+        if a == r:
+            rank[r] = k
+            k += 1
+    n_comp = min(k, max_components)
+    area = np.zeros(n_comp, np.int64)
+    box = np.empty((n_comp, 4), np.int64)
+    excess = np.zeros(n_comp)
+    peak = np.full(n_comp, -np.inf)
+    positive = np.zeros(n_comp)
+    for c in range(n_comp):
+        box[c, 0], box[c, 1], box[c, 2], box[c, 3] = h, -1, w, -1
+    for r in range(nr):
+        c = rank[parent[r]]
+        if c >= n_comp:
+            continue
+        y, x0, x1 = run_y[r], run_x0[r], run_x1[r]
+        area[c] += x1 - x0 + 1
+        box[c, 0] = min(box[c, 0], y)
+        box[c, 1] = max(box[c, 1], y)
+        box[c, 2] = min(box[c, 2], x0)
+        box[c, 3] = max(box[c, 3], x1)
+        excess[c] += run_excess[r]
+        peak[c] = max(peak[c], run_peak[r])
+        positive[c] += run_sum[r]
+        for x in range(x0, x1 + 1):
+            labels[y, x] = c + 1
+    return Components(area, box, excess, peak, positive)
+
+
+
+@njit(cache=True)
+def select_candidates(comps, min_area, max_area, max_extent, drop_hot, cap):
+    """The :class:`Candidates` worth measuring among :class:`Components`, by decreasing summed excess.
+
+    Size and extent limits; with ``drop_hot``, lone hot pixels (nearly all of the component's
+    light in one pixel); at most ``cap``, the brightest (ties keep label order).
+    """
+    n = comps.area.size
+    keep = np.empty(n, np.int64)
+    k = 0
+    for c in range(n):
+        area = comps.area[c]
+        extent = max(comps.box[c, 1] - comps.box[c, 0], comps.box[c, 3] - comps.box[c, 2]) + 1
+        ok = area >= min_area and area <= max_area and extent <= max_extent
+        if drop_hot and not comps.peak[c] < _HOT_CONCENTRATION * max(comps.positive[c], 1e-30):
+            ok = False
+        if ok:
+            keep[k] = c
+            k += 1
+    idx = keep[:k]
+    order = np.argsort(-comps.excess[idx], kind="mergesort")  # stable
+    idx = idx[order[:cap]]
+    ids = (idx + 1).astype(np.int32)
+    boxes = np.empty((idx.size, 4), np.int64)
+    for i in range(idx.size):
+        for j in range(4):
+            boxes[i, j] = comps.box[idx[i], j]
+    return Candidates(ids, boxes, np.zeros(idx.size, np.bool_))
+
+
+@njit(cache=True)
+def clear_boxes(labels, boxes):
+    """Zero ``labels`` inside each box (y0, y1, x0, x1) (what the last extraction labelled)."""
+    for k in range(boxes.shape[0]):
+        for y in range(boxes[k, 0], boxes[k, 1] + 1):
+            for x in range(boxes[k, 2], boxes[k, 3] + 1):
+                labels[y, x] = 0
