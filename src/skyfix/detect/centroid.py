@@ -6,10 +6,10 @@ independent of the frame size):
 
 ``"com"``
     Centre of mass of the pixels above ``sky + k·σ`` with weights ``value − sky`` — thesis
-    000/002's centroid with its printed equation corrected (SEEDS.md): the background ``n`` is
-    subtracted from every pixel's weight, not once from the sum, and the window offset is added
-    back. Fast; biased toward the window centre when the threshold cuts the wings, and with a
-    pixel-phase S-curve on narrow PSFs.
+    000/002's centroid with its printed equation corrected (docs/seeds.md#thesis-000-corrections):
+    the background ``n`` is subtracted from every pixel's weight, not once from the sum, and the
+    window offset is added back. Fast; biased toward the window centre when the threshold cuts
+    the wings, and with a pixel-phase S-curve on narrow PSFs.
 ``"iwcog"``
     Iteratively weighted centre of gravity: weights ``(value − sky)·exp(−r²/2s²)`` about the
     current estimate with ``s`` the PSF σ, iterated to convergence. For a Gaussian PSF and
@@ -142,7 +142,7 @@ def centroid_windows(
     image : (H, W) array
         The frame, ADU.
     xy_pred : (N, 2) array
-        Predicted ``(x, y)`` positions, pixels (DESIGN.md convention).
+        Predicted ``(x, y)`` positions, pixels (docs/design.md#pixel-coordinates).
     half_size : int
         The window is ``2·half_size`` pixels square, centred on the rounded prediction.
     method : {"com", "iwcog", "gaussian"}

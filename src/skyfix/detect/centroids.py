@@ -16,8 +16,8 @@ _ARRAYS = ("x", "y", "flux", "area", "snr", "elongation", "peak", "sigma_x", "si
 class Centroids:
     """Stars found in one frame, sorted by flux, brightest first.
 
-    Pixel convention (DESIGN.md): ``(x, y)`` = (column, row), 0-based, ``(0, 0)`` is the centre
-    of the top-left pixel.
+    Pixel convention (docs/design.md#pixel-coordinates): ``(x, y)`` = (column, row), 0-based,
+    ``(0, 0)`` is the centre of the top-left pixel.
 
     Attributes
     ----------

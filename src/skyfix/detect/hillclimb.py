@@ -1,6 +1,6 @@
 """Thesis 000's detector: global k·σ threshold, 3×3 hill climb, centre of mass in a 3×3 ROI.
 
-Steps (SEEDS 000 §2.1–2.3, with the corrections its notes list):
+Steps (thesis 000 §4.2–4.3, with the corrections of docs/seeds.md#thesis-000-corrections):
 
 1. One global background ``n`` and noise ``σ`` for the whole frame. The thesis takes the frame
    mean and standard deviation; stars and hot pixels bias those, so the median and a clipped
@@ -12,7 +12,7 @@ Steps (SEEDS 000 §2.1–2.3, with the corrections its notes list):
    are above ``T``; a lone hot pixel fails it.
 4. Centre of mass over the 3×3 ROI, pixels above ``T`` only, weights ``I − n`` — the printed
    equation subtracts ``n`` once from the sum and omits the ROI offset; both are corrected.
-   In DESIGN.md's pixel convention no ``+0.5`` is added.
+   In skyfix's pixel convention (docs/design.md#pixel-coordinates) no ``+0.5`` is added.
 5. Stars on the 1-pixel frame border are dropped (their 3×3 ROI is incomplete).
 
 Maxima closer than 3 px to a brighter one are merged (a flat-topped saturated star has several).

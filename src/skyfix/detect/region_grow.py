@@ -1,6 +1,6 @@
 """Thesis 004's detector: every-third-pixel scan, 4-connected region growing, size and shape tests.
 
-Steps (SEEDS 004 §2.2–2.7):
+Steps (thesis 004 §2.2; docs/seeds.md#thesis-004):
 
 1. Threshold per row: the row's dark level plus ``Δth``. The thesis reads the dark level from
    43 light-shielded pixels per row; frames here have none, so the row's median stands in
@@ -11,8 +11,9 @@ Steps (SEEDS 004 §2.2–2.7):
    so each region is found once; growth crosses nothing but the frame edge.
 4. Accept ``min_area ≤ n ≤ max_area`` (thesis: 10–300 px) and regions not touching the frame
    edge.
-5. Centroid weighted by ``b = value − threshold`` (Eq. 2.1–2.2; in DESIGN.md's convention the
-   pixel centre is the index itself, so the thesis's ``− 0.5`` is not applied).
+5. Centroid weighted by ``b = value − threshold`` (Eq. 2.1–2.2; in skyfix's pixel convention,
+   docs/design.md#pixel-coordinates, the pixel centre is the index itself, so the thesis's
+   ``− 0.5`` is not applied).
 6. Shape test: unweighted base centre and second moments give the long-axis direction λ;
    ``a`` and ``b`` are the region's extents along and across it; accept ``a − b < max_ab``
    (thesis: 12 px, its 10 px maximum smear plus 2).

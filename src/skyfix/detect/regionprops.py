@@ -1,7 +1,7 @@
 """Thesis 003's detector: optional smoothing or anisotropic diffusion, threshold, 8-connected
 spots (``regionprops``), minimum/maximum area and an eccentricity limit.
 
-Steps (SEEDS 003 §3.II.B and Fig. 3.1):
+Steps (thesis 003 §3.II.B and Fig. 3.1; docs/seeds.md#thesis-003):
 
 1. Optional noise removal: a 3×3 binomial low-pass, or Perona–Malik anisotropic diffusion
    (edge-preserving), both described in the thesis though its results used neither.
