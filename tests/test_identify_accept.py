@@ -27,6 +27,29 @@ def test_rule_helpers_are_the_kernel_arithmetic():
     assert not accept.is_verified(math.log(1e-9) + 1e-12, math.log(1e-9))
 
 
+def test_ratio_tolerance_covers_the_centroid_noise():
+    """Rule 1 lets through the true patterns of centroids with noise σ (99.9 %), and is not much
+    looser than that noise needs (fewer than 90 % pass with 2σ)."""
+    from skyfix.identify.hashing import edge_ratios
+
+    rng = np.random.default_rng(2)
+    f = (W / 2) / math.tan(math.radians(7.5))
+    xy = rng.uniform([-W / 2, -H / 2], [W / 2, H / 2], (20000, 4, 2))
+
+    def rays(p):
+        v = np.concatenate([p / f, np.ones(p.shape[:-1] + (1,))], axis=-1)
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    true_ratios, _ = edge_ratios(rays(xy))
+    for sigma in (0.5, 1.0):
+        passed = []
+        for noise in (sigma, 2 * sigma):
+            ratios, largest = edge_ratios(rays(xy + rng.normal(0.0, noise, xy.shape)))
+            tol = accept.ratio_tolerance(sigma, largest, f, 0.0)
+            passed.append(np.mean(np.abs(ratios - true_ratios).max(axis=1) <= tol))
+        assert passed[0] >= 0.998 and passed[1] < 0.9, (sigma, passed)
+
+
 def test_quick_check_rule():
     """Rule 4 judges only with three or more catalogue stars, and fails a candidate whose matches
     have a chance above e^-3 (5 %)."""
@@ -65,6 +88,28 @@ def test_refit_focal_range_rule(database, monkeypatch):
             m.setattr(quad, rule, lambda *args: False)
             res = identify(f.xy, W, H, fov_deg=15.0, database=database, max_patterns=200, check_mirror=False)
         assert not res.success and "no match" in res.reason, rule
+
+
+def test_prob_threshold_bounds_the_reported_chance(database):
+    """Rule 5: a success never reports a chance of a false match above ``prob_threshold``. Sparse
+    fields (stars to magnitude 6) have first candidates between 1e-15 and 1e-20: with a threshold
+    of 1e-20 they fail or solve with a later, better candidate."""
+    from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+    from skyfix.camera import Camera
+    from skyfix.catalog import load_hipparcos
+    from skyfix.identify import identify
+
+    catalog = load_hipparcos(epoch=database.epoch, mag_limit=8.0)
+    cam = Camera.from_fov(W, H, 15.0)
+    weak = 0
+    for i, A in enumerate(random_attitudes(20, rng=31)):
+        f = synthetic_centroids(cam, A, catalog, mag_limit=6.0, sigma_px=1.0, n_false=3, rng=i)
+        usual = identify(f.xy, W, H, fov_deg=15.0, database=database)
+        strict = identify(f.xy, W, H, fov_deg=15.0, database=database, prob_threshold=1e-20)
+        assert usual.success and usual.prob_false <= 1e-9
+        assert not strict.success or strict.prob_false <= 1e-20
+        weak += usual.prob_false > 1e-20
+    assert weak >= 2  # the threshold decided something
 
 
 def test_chance_rule_is_the_binomial_tail():

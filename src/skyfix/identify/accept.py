@@ -124,8 +124,9 @@ def ratio_tolerance(sigma_px: float, largest_edge_rad: float, f_px: float, model
     that covers the noise's tail, and ``model_err`` (the search tier's allowance for an
     unmodelled camera: distortion, a far-off focal length) is added. Tighter, true patterns are
     lost; looser, more false candidates reach verification (slower, never wrong: rule 5).
-    Pinned by ``tests/test_identify.py::test_synthetic_solve_rate_and_no_wrong_attitude`` (σ = 1
-    px) and ``::test_calibrated_distorted_camera`` (the model term, k1 = −0.3 fitted blind).
+    Pinned by ``tests/test_identify_accept.py::test_ratio_tolerance_covers_the_centroid_noise``
+    (99.9 % of true patterns with noise σ pass, fewer than 90 % with 2σ). The solve-rate tests
+    do not pin it: they still pass with a tolerance ten times tighter (a field needs one pattern).
     """
     return 4.0 * 1.4142 * sigma_px / (largest_edge_rad * f_px) + model_err
 
@@ -136,9 +137,11 @@ def focal_allowed(f_px: float, lo_px: float, hi_px: float) -> bool:
     range — the FOV hint ± its tolerance, a calibrated camera's ± 3 %, or what the database
     serves.
 
-    Why: a pattern of the right shape at the wrong scale is another pattern. Pinned by
-    ``tests/test_identify.py::test_fov_hint_wrong_by_two_fails``. (NaN passes, as the kernel
-    always had it; rule 3 rejects it.)
+    Why: a pattern of the right shape at the wrong scale is another pattern, and it is cheaper
+    to reject it here than after verification. Pinned with rule 7 by
+    ``tests/test_identify.py::test_fov_hint_wrong_by_two_fails``: either rule alone makes that
+    test pass (rule 7 rejects the refit of a candidate this one let through), both removed fail
+    it. (NaN passes, as the kernel always had it; rule 3 rejects it.)
     """
     return not (f_px < lo_px or f_px > hi_px)
 
@@ -151,9 +154,11 @@ def pattern_fits(max_residual_rad: float, f_px: float, radius_px: float) -> bool
     Why: a mirror image or an inconsistent correspondence has the right edge lengths but no
     rotation that carries it onto the sky. Two shortcuts in the search reject such candidates
     before the SVD and reject nothing this rule would keep: an edge mismatch beyond twice the
-    allowed star error, and ``skyfix.identify.search._no_rotation_fits`` (triple products).
-    Pinned by ``tests/test_identify.py::test_mirror_image_fails`` and
-    ``::test_rotation_bound_rejects_mirror_images_only``.
+    allowed star error, and ``skyfix.identify.search._no_rotation_fits`` (triple products,
+    ``tests/test_identify.py::test_rotation_bound_rejects_mirror_images_only``). Correctness
+    does not rest on it: without it the verification (rule 5) still rejects mirror images
+    (``tests/test_identify.py::test_mirror_image_fails`` passes); it saves verifications. Its
+    definition is pinned by ``tests/test_identify_accept.py::test_rule_helpers_are_the_kernel_arithmetic``.
     """
     return not (max_residual_rad * f_px > radius_px)
 
@@ -173,9 +178,8 @@ def quick_check_fails(n_catalog: int, log_p: float) -> bool:
     P > 5 %).
 
     Why: speed. Most false candidates fail here at a third of the full verification's cost; a
-    true one matches its brightest stars. Pinned by the solve rates of
-    ``tests/test_identify.py::test_synthetic_solve_rate_and_no_wrong_attitude`` and
-    ``::test_quick_check_rule`` (its thresholds).
+    true one matches its brightest stars. It can only reject: without it the same fields solve.
+    Its thresholds are pinned by ``tests/test_identify_accept.py::test_quick_check_rule``.
     """
     return n_catalog >= 3 and log_p > QUICK_LOG_P
 
@@ -195,11 +199,12 @@ def is_verified(log_prob: float, log_threshold: float) -> bool:
     """Rule 5: a candidate is accepted when :func:`log_prob_false` is at most ``log_threshold``
     (``prob_threshold`` of :func:`skyfix.identify.identify`, 1e-9 by default).
 
-    Why: with 1e-9 and the look-elsewhere count, random points never identify and a false
-    candidate is accepted about once in a billion frames. Pinned by
-    ``tests/test_identify.py::test_random_points_fail``,
-    ``::test_false_match_probability_is_the_binomial_tail`` and the ``prob_false < 1e-9`` of
-    ``::test_synthetic_solve_rate_and_no_wrong_attitude``.
+    Why: with 1e-9 and the look-elsewhere count, a false candidate is accepted about once in a
+    billion frames. Pinned by
+    ``tests/test_identify_accept.py::test_prob_threshold_bounds_the_reported_chance`` and
+    ``tests/test_identify.py::test_false_match_probability_is_the_binomial_tail`` (the tail);
+    ``tests/test_identify.py::test_random_points_fail`` does not pin it alone: it passes with
+    this rule loosened to P ≤ 1, as rule 6 rejects random points too.
     """
     return log_prob <= log_threshold
 
@@ -229,7 +234,9 @@ def refit_focal_allowed(f_px: float, lo_px: float, hi_px: float) -> bool:
     Why: the refit frees the focal length (and k1) on all matched stars; a candidate whose refit
     leaves the range is a different camera than the one asked for (the search goes on). The
     3 % are the search's own slack: its focal length comes from one pattern's largest edge.
-    Pinned by ``tests/test_identify_accept.py::test_refit_focal_range_rule``.
+    Pinned with rule 2 by ``tests/test_identify.py::test_fov_hint_wrong_by_two_fails`` (see
+    :func:`focal_allowed`); ``tests/test_identify_accept.py::test_refit_focal_range_rule`` checks
+    that identify applies it.
     """
     return lo_px * 0.97 <= f_px <= hi_px * 1.03
 
