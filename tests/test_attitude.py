@@ -12,13 +12,11 @@ from skyfix.attitude import (
     attitude_covariance,
     attitude_error,
     covariance_to_arcsec2,
-    refine_focal,
     residuals_arcsec,
     rmse_arcsec,
     solve_attitude,
     svd_attitude,
 )
-from skyfix.camera import Camera
 from skyfix.geometry import angle_between, attitude_from_radec_roll, normalize, rotation_angle_between
 
 OPTIMAL = ["svd", "quest", "esoq2", "q-method"]  # all minimise the same Wahba loss
@@ -215,49 +213,6 @@ def test_residuals_and_rmse() -> None:
     res = residuals_arcsec(A, b_off, r)
     assert res[0] == pytest.approx(10.0, abs=1e-6)
     assert rmse_arcsec(A, b_off, r) == pytest.approx(10.0 / 2, abs=1e-6)  # sqrt(100 / 4)
-
-
-def _star_pixels(rng: np.random.Generator, cam: Camera, A: np.ndarray,
-                 n: int) -> tuple[np.ndarray, np.ndarray]:
-    xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (n, 2))
-    return xy, cam.pixel_to_ray(xy) @ A  # r = Aᵀ b
-
-
-def test_refine_focal_recovers_three_percent_error() -> None:
-    rng = np.random.default_rng(8)
-    true = Camera.from_fov(1280, 960, 15.0)
-    A = attitude_from_radec_roll(3.0, -0.6, 4.0)
-    xy, r = _star_pixels(rng, true, A, 30)
-    cam, Ah = refine_focal(xy, true.scaled_focal(1.03), r)
-    assert abs(cam.fx / true.fx - 1) < 1e-4
-    assert abs(cam.fx / true.fx - 1) < 1e-8  # noiseless: exact
-    assert rotation_angle_between(A, Ah) < 1e-9
-    # With 0.05 px centroid noise, still inside 0.01 %.
-    noisy = xy + rng.normal(0, 0.05, xy.shape)
-    cam, Ah = refine_focal(noisy, true.scaled_focal(0.97), r)
-    assert abs(cam.fx / true.fx - 1) < 1e-4
-    P = attitude_covariance(Ah, true.pixel_to_ray(xy), 0.05 * true.plate_scale_rad)
-    assert rotation_angle_between(A, Ah) < 4 * np.sqrt(np.trace(P))
-
-
-def test_refine_focal_with_principal_point_and_k1() -> None:
-    rng = np.random.default_rng(12)
-    true = Camera.from_fov(1280, 960, 30.0).replace(cx=652.0, cy=471.0, k1=-0.08)
-    A = attitude_from_radec_roll(1.0, 0.9, 0.5)
-    xy, r = _star_pixels(rng, true, A, 60)
-    start = Camera.from_fov(1280, 960, 30.0).scaled_focal(1.03)
-    cam, Ah = refine_focal(xy, start, r, fit_principal_point=True, fit_k1=True)
-    assert abs(cam.fx / true.fx - 1) < 1e-6
-    assert abs(cam.cx - true.cx) < 1e-3 and abs(cam.cy - true.cy) < 1e-3
-    assert cam.k1 == pytest.approx(true.k1, abs=1e-6)
-    assert rotation_angle_between(A, Ah) < 1e-9
-
-
-def test_refine_focal_needs_enough_stars() -> None:
-    cam = Camera.from_fov(640, 480, 10.0)
-    xy = np.array([[10.0, 10.0], [300.0, 200.0]])
-    with pytest.raises(ValueError, match="needs more than"):
-        refine_focal(xy, cam, cam.pixel_to_ray(xy))
 
 
 def test_attitude_error_axes_and_quaternion_inverse() -> None:

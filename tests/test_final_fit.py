@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from skyfix.analysis.blind_campaign import attitude_error_rad
-from skyfix.attitude import attitude_error
+from skyfix.attitude import attitude_covariance, attitude_error, svd_attitude
 from skyfix.calibrate import fit_camera, score_camera_models, select_camera_model
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
-from skyfix.geometry import attitude_from_radec_roll
+from skyfix.geometry import attitude_from_radec_roll, rotation_angle_between
 from skyfix.pipeline import solve_centroids
 
 ARCSEC = np.radians(1 / 3600)
@@ -189,7 +189,8 @@ def test_a_wrong_neighbour_pair_does_not_hold_the_camera():
     f = next(itertools.islice(uncalibrated_fields(1), 392, None))
     sol = solve_centroids(f.field.xy, f.camera.width, f.camera.height, epoch=2025.0)
     assert sol.status == "solved", sol.reason
-    truth = {(round(x, 6), round(y, 6)): int(i) for (x, y), i in zip(f.field.xy, f.field.star_id)}
+    pairs = zip(f.field.xy, f.field.star_id, strict=True)
+    truth = {(round(x, 6), round(y, 6)): int(i) for (x, y), i in pairs}
     assert all(truth[(round(m.x, 6), round(m.y, 6))] == m.id for m in sol.matches)
     assert sol.n_matched >= 28, sol.n_matched
     err = attitude_error_rad(sol.A_icrs_to_cam, sol.camera, f.A_icrs_to_cam, f.camera) / ARCSEC
@@ -221,3 +222,52 @@ def test_precision_rule_bounds_the_chance_of_a_wrong_attitude():
         assert bool(precision_failure(c, scale)) is fails, sigma
         assert (wrong_probability(c, scale) > MAX_WRONG_PROBABILITY) is fails
     assert precision_failure(np.full((3, 3), np.nan), scale).startswith("attitude too uncertain")
+
+
+def _star_pixels(rng: np.random.Generator, cam: Camera, A: np.ndarray,
+                 n: int) -> tuple[np.ndarray, np.ndarray]:
+    xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (n, 2))
+    return xy, cam.pixel_to_ray(xy) @ A  # r = Aᵀ b
+
+
+def test_fit_camera_recovers_three_percent_error() -> None:
+    rng = np.random.default_rng(8)
+    true = Camera.from_fov(1280, 960, 15.0)
+    A = attitude_from_radec_roll(3.0, -0.6, 4.0)
+    xy, r = _star_pixels(rng, true, A, 30)
+    start = true.scaled_focal(1.03)
+    fit = fit_camera(xy, r, start, svd_attitude(start.pixel_to_ray(xy), r), ("f",))
+    cam, Ah = fit.camera, fit.A_icrs_to_cam
+    assert abs(cam.fx / true.fx - 1) < 1e-4
+    assert abs(cam.fx / true.fx - 1) < 1e-8  # noiseless: exact
+    assert rotation_angle_between(A, Ah) < 1e-9
+    # With 0.05 px centroid noise, still inside 0.01 %.
+    noisy = xy + rng.normal(0, 0.05, xy.shape)
+    start = true.scaled_focal(0.97)
+    fit = fit_camera(noisy, r, start, svd_attitude(start.pixel_to_ray(noisy), r), ("f",))
+    cam, Ah = fit.camera, fit.A_icrs_to_cam
+    assert abs(cam.fx / true.fx - 1) < 1e-4
+    P = attitude_covariance(Ah, true.pixel_to_ray(xy), 0.05 * true.plate_scale_rad)
+    assert rotation_angle_between(A, Ah) < 4 * np.sqrt(np.trace(P))
+
+
+def test_fit_camera_with_principal_point_and_k1() -> None:
+    rng = np.random.default_rng(12)
+    true = Camera.from_fov(1280, 960, 30.0).replace(cx=652.0, cy=471.0, k1=-0.08)
+    A = attitude_from_radec_roll(1.0, 0.9, 0.5)
+    xy, r = _star_pixels(rng, true, A, 60)
+    start = Camera.from_fov(1280, 960, 30.0).scaled_focal(1.03)
+    fit = fit_camera(xy, r, start, svd_attitude(start.pixel_to_ray(xy), r), ("f", "principal_point", "k1"),
+                     iterations=20)
+    cam, Ah = fit.camera, fit.A_icrs_to_cam
+    assert abs(cam.fx / true.fx - 1) < 1e-6
+    assert abs(cam.cx - true.cx) < 1e-3 and abs(cam.cy - true.cy) < 1e-3
+    assert cam.k1 == pytest.approx(true.k1, abs=1e-6)
+    assert rotation_angle_between(A, Ah) < 1e-9
+
+
+def test_fit_camera_needs_enough_stars() -> None:
+    cam = Camera.from_fov(640, 480, 10.0)
+    xy = np.array([[10.0, 10.0], [300.0, 200.0]])
+    with pytest.raises(ValueError, match="needs more than"):
+        fit_camera(xy, cam.pixel_to_ray(xy), cam, np.eye(3), ("f",))

@@ -9,6 +9,12 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
+# Before any kernel loads from numba's cache: drop the cache if a kernel source changed
+# (numba itself checks only each kernel's own file; skyfix._kernels explains).
+from skyfix._kernels import drop_stale_kernel_caches as _drop_stale_kernel_caches  # noqa: E402
+
+_drop_stale_kernel_caches()
+
 __all__ = ["solve", "solve_centroids", "Camera", "Solution", "load_hipparcos"]
 
 _LAZY = {

@@ -28,10 +28,9 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from skyfix.camera import Camera
+from skyfix.geometry import angle_between, normalize
 
 __all__ = [
     "METHODS",
@@ -46,7 +45,6 @@ __all__ = [
     "attitude_error",
     "residuals_arcsec",
     "rmse_arcsec",
-    "refine_focal",
 ]
 
 RAD_TO_ARCSEC = 180.0 / np.pi * 3600.0
@@ -548,80 +546,10 @@ def residuals_arcsec(A_icrs_to_cam: np.ndarray, b_cam: np.ndarray, r_icrs: np.nd
     """Angle between each observed vector and its catalogue vector rotated by ``A``, arcsec (N,)."""
     b = np.asarray(b_cam, dtype=np.float64)
     pred = np.asarray(r_icrs, dtype=np.float64) @ np.asarray(A_icrs_to_cam, dtype=np.float64).T
-    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
-    pred = pred / np.linalg.norm(pred, axis=-1, keepdims=True)
-    cross = np.linalg.norm(np.cross(b, pred), axis=-1)
-    return np.arctan2(cross, np.sum(b * pred, axis=-1)) * RAD_TO_ARCSEC
+    return angle_between(normalize(b), normalize(pred)) * RAD_TO_ARCSEC
 
 
 def rmse_arcsec(A_icrs_to_cam: np.ndarray, b_cam: np.ndarray, r_icrs: np.ndarray) -> float:
     """Root-mean-square of :func:`residuals_arcsec`, arcsec."""
     res = residuals_arcsec(A_icrs_to_cam, b_cam, r_icrs)
     return float(np.sqrt(np.mean(res**2))) if res.size else float("nan")
-
-
-# --- joint attitude + focal-length refinement --------------------------------------------------
-def refine_focal(xy: np.ndarray, camera: Camera, r_icrs: np.ndarray,
-                 A_icrs_to_cam: np.ndarray | None = None, *, fit_principal_point: bool = False,
-                 fit_k1: bool = False, weights: np.ndarray | None = None,
-                 loss: str = "linear") -> tuple[Camera, np.ndarray]:
-    """Fit the attitude and a common focal-length scale (optionally ``cx, cy`` and ``k1``).
-
-    Least squares (``scipy.optimize.least_squares``) on the reprojection error in pixels of
-    the catalogue vectors through the camera model. Used when the field of view was only
-    estimated: a 3% focal error is recovered to ~1e-5 from a few dozen stars.
-
-    Parameters
-    ----------
-    xy : (N, 2) matched pixel positions (DESIGN.md convention).
-    camera : the starting camera model.
-    r_icrs : (N, 3) matching catalogue unit vectors.
-    A_icrs_to_cam : (3, 3) starting attitude; default: SVD on ``camera.pixel_to_ray(xy)``.
-    fit_principal_point : also fit ``cx, cy`` (needs a wide field and many stars: the
-        principal point trades off against pointing).
-    fit_k1 : also fit the radial coefficient ``k1``.
-    weights : (N,) optional per-star weights of the squared residuals.
-    loss : ``scipy.optimize.least_squares`` loss (``"linear"``, ``"soft_l1"``, ``"huber"``...).
-
-    Returns
-    -------
-    camera : the refined Camera (``fx, fy`` scaled by the same factor; skew kept).
-    A_icrs_to_cam : (3, 3) the refined attitude.
-    """
-    xy = np.asarray(xy, dtype=np.float64)
-    r = np.asarray(r_icrs, dtype=np.float64)
-    if xy.ndim != 2 or xy.shape[1] != 2 or r.shape != (len(xy), 3):
-        raise ValueError(f"refine_focal needs (N, 2) pixels and (N, 3) vectors, got {xy.shape}, {r.shape}")
-    n_par = 4 + 2 * fit_principal_point + fit_k1
-    if 2 * len(xy) <= n_par:
-        raise ValueError(f"refine_focal needs more than {n_par // 2} stars for {n_par} parameters, "
-                         f"got {len(xy)}")
-    w = np.ones(len(xy)) if weights is None else np.asarray(weights, dtype=np.float64)
-    A0 = (svd_attitude(camera.pixel_to_ray(xy), r, w) if A_icrs_to_cam is None
-          else np.asarray(A_icrs_to_cam, dtype=np.float64))
-    sqrt_w = np.sqrt(w)[:, None]
-    rays0 = r @ A0.T  # catalogue vectors in the starting camera frame
-
-    def unpack(p: np.ndarray) -> tuple[np.ndarray, Camera]:
-        R = Rotation.from_rotvec(p[:3]).as_matrix()
-        changes = {"fx": camera.fx * (1.0 + p[3]), "fy": camera.fy * (1.0 + p[3])}
-        i = 4
-        if fit_principal_point:
-            changes["cx"], changes["cy"] = camera.cx + p[i], camera.cy + p[i + 1]
-            i += 2
-        if fit_k1:
-            changes["k1"] = camera.k1 + p[i]
-        return R, camera.replace(**changes)
-
-    def residual(p: np.ndarray) -> np.ndarray:
-        R, cam = unpack(p)
-        uv, _ = cam.ray_to_pixel(rays0 @ R.T)
-        return ((uv - xy) * sqrt_w).ravel()
-
-    lower = np.full(n_par, -np.inf)
-    upper = np.full(n_par, np.inf)
-    lower[3], upper[3] = -0.5, 1.0  # focal scale stays within ×0.5 … ×2
-    fit = least_squares(residual, np.zeros(n_par), bounds=(lower, upper), x_scale="jac",
-                        loss=loss, xtol=1e-12, ftol=1e-12, gtol=1e-12)
-    R, cam = unpack(fit.x)
-    return cam, R @ A0

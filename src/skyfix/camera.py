@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import tomllib
 
+from skyfix._kernels import lens
 from skyfix.errors import CameraError
 
 __all__ = ["Camera", "PRESETS", "camera_from_preset"]
@@ -105,61 +106,47 @@ class Camera:
         """Angular size of one pixel at the centre, radians."""
         return 1.0 / math.sqrt(self.fx * self.fy)
 
-    # --- distortion ---------------------------------------------------------------------
+    # --- distortion and projection: the arithmetic is skyfix._kernels.lens's, shared with
+    # every kernel that projects ----------------------------------------------------------
+    def numbers(self) -> np.ndarray:
+        """The ten numbers kernels take for this camera (``skyfix._kernels.lens.CAMERA_NUMBERS``)."""
+        return lens.camera_numbers(self)
+
     def distort(self, xn: np.ndarray, yn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Apply Brown–Conrady distortion to normalised coordinates."""
         if not self.has_distortion:
             return xn, yn
-        r2 = xn * xn + yn * yn
-        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
-        xd = xn * radial + 2.0 * self.p1 * xn * yn + self.p2 * (r2 + 2.0 * xn * xn)
-        yd = yn * radial + self.p1 * (r2 + 2.0 * yn * yn) + 2.0 * self.p2 * xn * yn
-        return xd, yd
+        xn, yn = np.broadcast_arrays(np.asarray(xn, dtype=np.float64), np.asarray(yn, dtype=np.float64))
+        xd, yd = lens.distort_points(np.ascontiguousarray(xn.ravel()), np.ascontiguousarray(yn.ravel()),
+                                     self.numbers())
+        return xd.reshape(xn.shape), yd.reshape(yn.shape)
 
     def undistort(self, xd: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Invert :meth:`distort` by fixed-point iteration (converged well below 1e-3 px)."""
+        """Invert :meth:`distort` by fixed-point iteration (converged to 1e-5 px)."""
         if not self.has_distortion:
             return xd, yd
-        xn, yn = np.array(xd, dtype=np.float64), np.array(yd, dtype=np.float64)
-        tol = 1e-5 / max(self.fx, self.fy)  # 1e-5 px
-        for _ in range(50):
-            r2 = xn * xn + yn * yn
-            radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
-            dx = 2.0 * self.p1 * xn * yn + self.p2 * (r2 + 2.0 * xn * xn)
-            dy = self.p1 * (r2 + 2.0 * yn * yn) + 2.0 * self.p2 * xn * yn
-            xn_new = (xd - dx) / radial
-            yn_new = (yd - dy) / radial
-            step = np.max(np.abs(xn_new - xn) + np.abs(yn_new - yn), initial=0.0)
-            xn, yn = xn_new, yn_new
-            if step < tol:
-                break
-        return xn, yn
+        xd, yd = np.broadcast_arrays(np.asarray(xd, dtype=np.float64), np.asarray(yd, dtype=np.float64))
+        xn, yn = lens.undistort(np.ascontiguousarray(xd.ravel()), np.ascontiguousarray(yd.ravel()),
+                                self.numbers())
+        return xn.reshape(xd.shape), yn.reshape(yd.shape)
 
-    # --- projection ---------------------------------------------------------------------
     def pixel_to_normalized(self, xy: np.ndarray) -> np.ndarray:
         """Undistorted normalised coordinates (N, 2) ``(X/Z, Y/Z)`` of pixels (N, 2)."""
         xy = np.asarray(xy, dtype=np.float64)
-        yd = (xy[..., 1] - self.cy) / self.fy
-        xd = (xy[..., 0] - self.cx - self.skew * yd) / self.fx
-        xn, yn = self.undistort(xd, yd)
-        return np.stack([xn, yn], axis=-1)
+        xn, yn = lens.pixels_to_normalized(np.ascontiguousarray(xy.reshape(-1, 2)), self.numbers())
+        return np.stack([xn, yn], axis=-1).reshape(xy.shape)
 
     def pixel_to_ray(self, xy: np.ndarray) -> np.ndarray:
         """Unit rays (N, 3) in the camera frame for pixel positions (N, 2)."""
-        n = self.pixel_to_normalized(xy)
-        v = np.concatenate([n, np.ones(n.shape[:-1] + (1,))], axis=-1)
-        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+        xy = np.asarray(xy, dtype=np.float64)
+        rays = lens.pixel_rays(np.ascontiguousarray(xy.reshape(-1, 2)), self.numbers())
+        return rays.reshape(xy.shape[:-1] + (3,))
 
     def ray_to_pixel(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixel positions (N, 2) of camera-frame rays (N, 3), and a mask of rays in front (Z > 0)."""
         rays = np.asarray(rays, dtype=np.float64)
-        z = rays[..., 2]
-        front = z > 1e-9
-        zs = np.where(front, z, 1.0)
-        xd, yd = self.distort(rays[..., 0] / zs, rays[..., 1] / zs)
-        u = self.fx * xd + self.skew * yd + self.cx
-        v = self.fy * yd + self.cy
-        return np.stack([u, v], axis=-1), front
+        uv, front = lens.project_rays(np.ascontiguousarray(rays.reshape(-1, 3)), self.numbers())
+        return uv.reshape(rays.shape[:-1] + (2,)), front.reshape(rays.shape[:-1])
 
     def in_frame(self, xy: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """Mask of pixel positions inside the frame (pixel centres' extent ± 0.5 px, less a margin)."""

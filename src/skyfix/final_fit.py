@@ -21,6 +21,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from skyfix._kernels import lens, rotation
 from skyfix.attitude import attitude_covariance, solve_attitude
 from skyfix.calibrate import PRIOR_PARAMETERS, CameraPrior, fit_camera_with_prior
 from skyfix.camera import Camera
@@ -62,22 +63,9 @@ class FinalFit:
 
 def angles(b: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
     """Angles (rad) between observed rays ``b`` and catalogue vectors ``r`` rotated by ``A``."""
-    return _angles(np.ascontiguousarray(b, dtype=np.float64), np.ascontiguousarray(r, dtype=np.float64),
-                   np.ascontiguousarray(A, dtype=np.float64))
-
-
-@numba.njit(cache=True)
-def _angles(b, r, A):
-    """:func:`angles` in one pass (the kernels of this module call only each other: numba's
-    cache checks a kernel's own file only)."""
-    out = np.empty(b.shape[0])
-    for i in range(b.shape[0]):
-        chord2 = 0.0
-        for j in range(3):
-            d = b[i, j] - (r[i, 0] * A[j, 0] + r[i, 1] * A[j, 1] + r[i, 2] * A[j, 2])
-            chord2 += d * d
-        out[i] = 2.0 * np.arcsin(min(np.sqrt(chord2) / 2.0, 1.0))
-    return out
+    f64 = np.float64
+    return rotation.angles(np.ascontiguousarray(b, dtype=f64), np.ascontiguousarray(r, dtype=f64),
+                           np.ascontiguousarray(A, dtype=f64))
 
 
 def inliers(resid: np.ndarray, floor: float) -> np.ndarray:
@@ -145,11 +133,11 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
     mag = np.asarray(ident.catalog_mag, dtype=np.float64)
     A = np.ascontiguousarray(ident.A_icrs_to_cam, dtype=np.float64)
     xy_idx = np.ascontiguousarray(xy[idx], dtype=np.float64)
-    b, keep, n_kept = _rays_and_inliers(xy_idx, r, A, _camera_array(camera))
+    b, keep, n_kept = _rays_and_inliers(xy_idx, r, A, lens.camera_numbers(camera))
     if n_kept < len(keep):
         idx, ids, r, mag, b = idx[keep], ids[keep], r[keep], mag[keep], b[keep]
     A = solve_attitude(b, r, method=method)
-    resid = _angles(b, r, np.ascontiguousarray(A))
+    resid = rotation.angles(b, r, np.ascontiguousarray(A))
     # Per-axis σ from the fit's own residuals (3 attitude dof used), floored at 0.05 px
     # so a lucky tiny residual does not claim an impossible precision.
     dof = max(2 * len(idx) - 3, 1)
@@ -251,7 +239,8 @@ def _prior_starts(prior: CameraPrior) -> list[CameraPrior]:
     """Priors held tightly (:data:`_START_HOLD` of their σ) about points of the prior's
     aspect–k1 plane (:data:`_START_STEPS`), to start the camera fit of a sparse result from."""
     return [prior._replace(aspect=prior.aspect + a * prior.sigma_aspect, k1=prior.k1 + k * prior.sigma_k1,
-                           sigma_aspect=_START_HOLD * prior.sigma_aspect, sigma_k1=_START_HOLD * prior.sigma_k1)
+                           sigma_aspect=_START_HOLD * prior.sigma_aspect,
+                           sigma_k1=_START_HOLD * prior.sigma_k1)
             for a in _START_STEPS for k in _START_STEPS]
 
 
@@ -271,9 +260,9 @@ def _grow_from_start(xy: np.ndarray, n_use: int, verified: _Matches, camera: Cam
 def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> FinalFit:
     """The attitude by the chosen Wahba solver through the fitted camera, and the fit's
     covariance."""
-    b = _pixel_rays(np.ascontiguousarray(xy[cur.idx], dtype=np.float64), _camera_array(fit.camera))
+    b = lens.pixel_rays(np.ascontiguousarray(xy[cur.idx], dtype=np.float64), lens.camera_numbers(fit.camera))
     A = solve_attitude(b, cur.r, method=method)
-    resid = _angles(b, cur.r, np.ascontiguousarray(A))
+    resid = rotation.angles(b, cur.r, np.ascontiguousarray(A))
     return FinalFit(A, fit.camera, cur.idx, cur.ids, cur.r, cur.mag, resid, fit.covariance_rad2,
                     PRIOR_PARAMETERS, log_p)
 
@@ -351,67 +340,17 @@ def _drop_outliers(xy: np.ndarray, fit, m: _Matches, prior: CameraPrior):
     return fit, m
 
 
-def _camera_array(camera: Camera) -> np.ndarray:
-    """The camera's numbers for the kernels: (fx, fy, cx, cy, skew, k1, k2, k3, p1, p2)."""
-    return np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.skew, camera.k1, camera.k2, camera.k3,
-                     camera.p1, camera.p2], dtype=np.float64)
-
-
 @numba.njit(cache=True)
 def _rays_and_inliers(xy, r, A, cam):
-    """``camera.pixel_to_ray(xy)`` for the camera ``cam`` (:func:`_pixel_rays`), and the
+    """``camera.pixel_to_ray(xy)`` for the camera ``cam`` (:func:`skyfix._kernels.lens.pixel_rays`), and the
     :func:`inliers` of their :func:`angles` to ``r`` rotated by ``A`` (σ floored at a tenth of
     the plate scale), and how many those are."""
-    b = _pixel_rays(xy, cam)
-    keep = _inliers(_angles(b, r, A), 0.1 * (1.0 / np.sqrt(cam[0] * cam[1])))
+    b = lens.pixel_rays(xy, cam)
+    keep = _inliers(rotation.angles(b, r, A), 0.1 * (1.0 / np.sqrt(cam[lens.FX] * cam[lens.FY])))
     n_kept = 0
     for k in keep:
         n_kept += k
     return b, keep, n_kept
-
-
-@numba.njit(cache=True)
-def _pixel_rays(xy, cam):
-    """``camera.pixel_to_ray(xy)`` for the camera ``cam`` (:func:`_camera_array`), with the same
-    arithmetic: Brown–Conrady inverted by the same fixed-point iteration, stopped when no
-    pixel moves by 1e-5 px."""
-    fx, fy, cx, cy, skew, k1, k2, k3, p1, p2 = (cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6],
-                                                cam[7], cam[8], cam[9])
-    distorted = k1 != 0.0 or k2 != 0.0 or k3 != 0.0 or p1 != 0.0 or p2 != 0.0
-    tol = 1e-5 / max(fx, fy)
-    n = xy.shape[0]
-    xd = np.empty(n)
-    yd = np.empty(n)
-    for i in range(n):
-        yd[i] = (xy[i, 1] - cy) / fy
-        xd[i] = (xy[i, 0] - cx - skew * yd[i]) / fx
-    xn = xd.copy()
-    yn = yd.copy()
-    if distorted:
-        xs = np.empty(n)
-        ys = np.empty(n)
-        for _ in range(50):
-            step = 0.0
-            for i in range(n):
-                x, y = xn[i], yn[i]
-                r2 = x * x + y * y
-                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-                dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-                dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-                xs[i] = (xd[i] - dx) / radial
-                ys[i] = (yd[i] - dy) / radial
-                step = max(step, abs(xs[i] - x) + abs(ys[i] - y))
-            xn, xs = xs, xn
-            yn, ys = ys, yn
-            if step < tol:
-                break
-    b = np.empty((n, 3))
-    for i in range(n):
-        norm = np.sqrt(xn[i] * xn[i] + yn[i] * yn[i] + 1.0)
-        b[i, 0] = xn[i] / norm
-        b[i, 1] = yn[i] / norm
-        b[i, 2] = 1.0 / norm
-    return b
 
 
 def _star_tree(database) -> cKDTree:

@@ -1,4 +1,6 @@
-"""Unit vectors, RA/Dec, attitude matrices, quaternions and roll: the conventions of DESIGN.md.
+"""Unit vectors, RA/Dec, attitude matrices, quaternions and roll: the conventions of
+``docs/design.md#conventions`` (the arithmetic shared with the kernels is in
+:mod:`skyfix._kernels.rotation`).
 
 - ``A`` (``A_icrs_to_cam``) takes ICRS unit vectors into the camera frame, ``b = A @ r``;
   its rows are the camera axes expressed in ICRS.
@@ -13,6 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+
+from skyfix._kernels import rotation
 
 __all__ = [
     "radec_to_vector",
@@ -43,10 +47,11 @@ def radec_to_vector(ra: np.ndarray | float, dec: np.ndarray | float) -> np.ndarr
 
 def vector_to_radec(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Right ascension in [0, 2π) and declination in [-π/2, π/2] (radians) of vectors (..., 3)."""
-    v = normalize(v)
-    ra = np.mod(np.arctan2(v[..., 1], v[..., 0]), 2 * np.pi)
-    dec = np.arcsin(np.clip(v[..., 2], -1.0, 1.0))
-    return ra, dec
+    v = np.asarray(v, dtype=np.float64)
+    ra, dec = rotation.radec_of_vectors(np.ascontiguousarray(v.reshape(-1, 3)))
+    if v.ndim == 1:
+        return ra[0], dec[0]
+    return ra.reshape(v.shape[:-1]), dec.reshape(v.shape[:-1])
 
 
 def _east_north(ra: float, dec: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -76,16 +81,7 @@ def attitude_from_radec_roll(ra: float, dec: float, roll: float) -> np.ndarray:
 
 def radec_roll_from_attitude(A_icrs_to_cam: np.ndarray) -> tuple[float, float, float]:
     """Boresight (ra, dec) and roll, radians, of an attitude matrix; roll in [0, 2π)."""
-    A = np.asarray(A_icrs_to_cam, dtype=np.float64)
-    z = A[2]
-    ra, dec = vector_to_radec(z)
-    ra, dec = float(ra), float(dec)
-    east, north, _ = _east_north(ra, dec)
-    up = -A[1]
-    if abs(np.cos(dec)) < 1e-12:
-        # At a pole east/north are undefined; use the RA-independent limit of the frame.
-        north = np.array([-np.sign(dec) * np.cos(ra), -np.sign(dec) * np.sin(ra), 0.0])
-    roll = float(np.mod(np.arctan2(up @ east, up @ north), 2 * np.pi))
+    ra, dec, roll = rotation.pointing(np.ascontiguousarray(A_icrs_to_cam, dtype=np.float64))[:3].tolist()
     return ra, dec, roll
 
 
@@ -93,22 +89,9 @@ def quaternion_from_attitude(A_icrs_to_cam: np.ndarray) -> np.ndarray:
     """Scalar-last quaternion ``[x, y, z, w]`` of ``A`` (scipy's convention), with ``w >= 0``.
 
     Shepperd's method (the largest of the four squared components first, for accuracy);
-    equal to ``Rotation.from_matrix(A).as_quat()`` up to sign, at a tenth of its cost.
+    equal to ``Rotation.from_matrix(A).as_quat(canonical=True)``, at a tenth of its cost.
     """
-    m = np.asarray(A_icrs_to_cam, dtype=np.float64)
-    t = m[0, 0] + m[1, 1] + m[2, 2]
-    d = (m[0, 0], m[1, 1], m[2, 2], t)
-    k = max(range(4), key=d.__getitem__)
-    if k == 3:
-        q = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1], 1.0 + t])
-    elif k == 0:
-        q = np.array([1.0 + 2.0 * m[0, 0] - t, m[0, 1] + m[1, 0], m[0, 2] + m[2, 0], m[2, 1] - m[1, 2]])
-    elif k == 1:
-        q = np.array([m[0, 1] + m[1, 0], 1.0 + 2.0 * m[1, 1] - t, m[1, 2] + m[2, 1], m[0, 2] - m[2, 0]])
-    else:
-        q = np.array([m[0, 2] + m[2, 0], m[1, 2] + m[2, 1], 1.0 + 2.0 * m[2, 2] - t, m[1, 0] - m[0, 1]])
-    q /= np.linalg.norm(q)
-    return q if q[3] >= 0 else -q
+    return rotation.pointing(np.ascontiguousarray(A_icrs_to_cam, dtype=np.float64))[3:]
 
 
 def attitude_from_quaternion(quaternion_xyzw: np.ndarray) -> np.ndarray:

@@ -15,6 +15,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from skyfix._kernels import rotation
 from skyfix.camera import Camera
 from skyfix.errors import CameraError, InputError
 from skyfix.final_fit import final_fit
@@ -240,71 +241,23 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
 
 @numba.njit(cache=True)
 def _solution_numbers(A, xy, idx, v, mag, resid):
-    """The numbers of a solved Solution in one call: (RA, Dec, roll in degrees and quaternion
-    ``[x, y, z, w]`` (7,) from :func:`_pointing`; the matches' table (6, M) of x, y, RA and Dec
-    (degrees, :func:`skyfix.geometry.vector_to_radec`), magnitude and residual (arcsec); the
-    residuals' RMS (radians))."""
+    """The numbers of a solved Solution in one call: RA, Dec, roll in degrees and the quaternion
+    ``[x, y, z, w]`` (7,) (:func:`skyfix._kernels.rotation.pointing`); the matches' table
+    (6, M) of x, y, RA and Dec (degrees), magnitude and residual (arcsec); the residuals' RMS
+    (radians)."""
     n = v.shape[0]
     table = np.empty((6, n))
     ss = 0.0
     for i in range(n):
         table[0, i] = xy[idx[i], 0]
         table[1, i] = xy[idx[i], 1]
-        norm = np.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
-        a = np.arctan2(v[i, 1] / norm, v[i, 0] / norm)
-        if a < 0.0:
-            a += 2.0 * np.pi
-        table[2, i] = np.degrees(a + 0.0)
-        table[3, i] = np.degrees(np.arcsin(min(max(v[i, 2] / norm, -1.0), 1.0)))
+        ra, dec = rotation.vector_radec(v[i, 0], v[i, 1], v[i, 2])
+        table[2, i] = np.degrees(ra)
+        table[3, i] = np.degrees(dec)
         table[4, i] = mag[i]
         table[5, i] = resid[i] / _ARCSEC
         ss += resid[i] * resid[i]
-    return _pointing(A), table, np.sqrt(ss / n) if n else np.nan
-
-
-@numba.njit(cache=True)
-def _pointing(A):
-    """RA, Dec, roll (degrees) and quaternion ``[x, y, z, w]`` of an attitude: the arithmetic of
-    :func:`skyfix.geometry.radec_roll_from_attitude` and :func:`~skyfix.geometry.quaternion_from_attitude`
-    (which stay the reference; ``tests/test_final_fit_kernels.py`` holds them equal) in one call."""
-    out = np.empty(7)
-    norm = np.sqrt(A[2, 0] * A[2, 0] + A[2, 1] * A[2, 1] + A[2, 2] * A[2, 2])
-    ra = np.arctan2(A[2, 1] / norm, A[2, 0] / norm)
-    if ra < 0.0:
-        ra += 2.0 * np.pi
-    ra += 0.0
-    dec = np.arcsin(min(max(A[2, 2] / norm, -1.0), 1.0))
-    east = (-np.sin(ra), np.cos(ra), 0.0)
-    north = (-np.sin(dec) * np.cos(ra), -np.sin(dec) * np.sin(ra), np.cos(dec))
-    if abs(np.cos(dec)) < 1e-12:
-        # At a pole east/north are undefined; use the RA-independent limit of the frame.
-        north = (-np.sign(dec) * np.cos(ra), -np.sign(dec) * np.sin(ra), 0.0)
-    up = (-A[1, 0], -A[1, 1], -A[1, 2])
-    roll = np.arctan2(up[0] * east[0] + up[1] * east[1] + up[2] * east[2],
-                      up[0] * north[0] + up[1] * north[1] + up[2] * north[2])
-    if roll < 0.0:
-        roll += 2.0 * np.pi
-    roll += 0.0
-    out[0], out[1], out[2] = np.degrees(ra), np.degrees(dec), np.degrees(roll)
-    # Shepperd's method: the largest of the four squared components first.
-    t = A[0, 0] + A[1, 1] + A[2, 2]
-    k = 0
-    if A[1, 1] > A[k, k]:
-        k = 1
-    if A[2, 2] > A[k, k]:
-        k = 2
-    if t > A[k, k]:
-        k = 3
-    if k == 3:
-        q = (A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1], 1.0 + t)
-    elif k == 0:
-        q = (1.0 + 2.0 * A[0, 0] - t, A[0, 1] + A[1, 0], A[0, 2] + A[2, 0], A[2, 1] - A[1, 2])
-    elif k == 1:
-        q = (A[0, 1] + A[1, 0], 1.0 + 2.0 * A[1, 1] - t, A[1, 2] + A[2, 1], A[0, 2] - A[2, 0])
-    else:
-        q = (A[0, 2] + A[2, 0], A[1, 2] + A[2, 1], 1.0 + 2.0 * A[2, 2] - t, A[1, 0] - A[0, 1])
-    qn = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    sign = 1.0 if q[3] / qn >= 0 else -1.0
-    for i in range(4):
-        out[3 + i] = sign * (q[i] / qn)
-    return out
+    out = rotation.pointing(A)
+    for k in range(3):
+        out[k] = np.degrees(out[k])
+    return out, table, np.sqrt(ss / n) if n else np.nan

@@ -1,0 +1,148 @@
+"""Rotations, RA/Dec, roll and quaternions, once: the arithmetic behind :mod:`skyfix.geometry`
+and every kernel that needs it (the conventions of ``docs/design.md#conventions``).
+
+- ``A`` (``A_icrs_to_cam``) takes ICRS unit vectors into the camera frame, ``b = A @ r``.
+- Roll: position angle of image-up (camera ``−y``) from celestial north through east.
+- Quaternions are scalar-last ``[x, y, z, w]`` with ``w ≥ 0`` (Shepperd's method).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["angles", "pointing", "radec_of_vectors", "rodrigues", "spd_inverse", "vector_radec"]
+
+
+@numba.njit(cache=True, inline="always")
+def vector_radec(x, y, z):
+    """RA in [0, 2π) and Dec (radians) of the vector ``(x, y, z)`` (any length)."""
+    norm = np.sqrt(x * x + y * y + z * z)
+    ra = np.arctan2(y / norm, x / norm)
+    if ra < 0.0:
+        ra += 2.0 * np.pi
+    ra += 0.0  # −0.0 → 0.0
+    dec = np.arcsin(min(max(z / norm, -1.0), 1.0))
+    return ra, dec
+
+
+@numba.njit(cache=True)
+def radec_of_vectors(v):
+    """RA and Dec (two (N,) arrays, radians) of vectors ``v`` (N, 3): :func:`vector_radec`."""
+    n = v.shape[0]
+    ra = np.empty(n)
+    dec = np.empty(n)
+    for i in range(n):
+        ra[i], dec[i] = vector_radec(v[i, 0], v[i, 1], v[i, 2])
+    return ra, dec
+
+
+@numba.njit(cache=True)
+def pointing(A):
+    """RA, Dec, roll (radians, RA and roll in [0, 2π)) and the quaternion ``[x, y, z, w]``
+    (``w ≥ 0``) of an attitude matrix, as a (7,) array."""
+    out = np.empty(7)
+    ra, dec = vector_radec(A[2, 0], A[2, 1], A[2, 2])
+    east = (-np.sin(ra), np.cos(ra), 0.0)
+    north = (-np.sin(dec) * np.cos(ra), -np.sin(dec) * np.sin(ra), np.cos(dec))
+    if abs(np.cos(dec)) < 1e-12:
+        # At a pole east/north are undefined; use the RA-independent limit of the frame.
+        north = (-np.sign(dec) * np.cos(ra), -np.sign(dec) * np.sin(ra), 0.0)
+    up = (-A[1, 0], -A[1, 1], -A[1, 2])
+    roll = np.arctan2(up[0] * east[0] + up[1] * east[1] + up[2] * east[2],
+                      up[0] * north[0] + up[1] * north[1] + up[2] * north[2])
+    if roll < 0.0:
+        roll += 2.0 * np.pi
+    roll += 0.0
+    out[0], out[1], out[2] = ra, dec, roll
+    # Shepperd's method: the largest of the four squared components first.
+    t = A[0, 0] + A[1, 1] + A[2, 2]
+    k = 0
+    if A[1, 1] > A[k, k]:
+        k = 1
+    if A[2, 2] > A[k, k]:
+        k = 2
+    if t > A[k, k]:
+        k = 3
+    if k == 3:
+        q = (A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1], 1.0 + t)
+    elif k == 0:
+        q = (1.0 + 2.0 * A[0, 0] - t, A[0, 1] + A[1, 0], A[0, 2] + A[2, 0], A[2, 1] - A[1, 2])
+    elif k == 1:
+        q = (A[0, 1] + A[1, 0], 1.0 + 2.0 * A[1, 1] - t, A[1, 2] + A[2, 1], A[0, 2] - A[2, 0])
+    else:
+        q = (A[0, 2] + A[2, 0], A[1, 2] + A[2, 1], 1.0 + 2.0 * A[2, 2] - t, A[1, 0] - A[0, 1])
+    qn = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    sign = 1.0 if q[3] / qn >= 0 else -1.0
+    for i in range(4):
+        out[3 + i] = sign * (q[i] / qn)
+    return out
+
+
+@numba.njit(cache=True)
+def angles(b, r, A):
+    """Angles (rad) between rays ``b`` (N, 3) and catalogue vectors ``r`` (N, 3) rotated by
+    ``A``: ``2·asin(|b − A r| / 2)``, accurate at small angles."""
+    out = np.empty(b.shape[0])
+    for i in range(b.shape[0]):
+        chord2 = 0.0
+        for j in range(3):
+            d = b[i, j] - (r[i, 0] * A[j, 0] + r[i, 1] * A[j, 1] + r[i, 2] * A[j, 2])
+            chord2 += d * d
+        out[i] = 2.0 * np.arcsin(min(np.sqrt(chord2) / 2.0, 1.0))
+    return out
+
+
+@numba.njit(cache=True)
+def rodrigues(p):
+    """Rotation matrix of the rotation vector ``p[:3]``: ``I + sin θ/θ K + (1 − cos θ)/θ² K²``."""
+    theta = np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+    K = np.array([[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]])
+    a, b = 1.0, 0.0
+    if theta >= 1e-12:
+        a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta**2
+    R = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            KK = K[i, 0] * K[0, j] + K[i, 1] * K[1, j] + K[i, 2] * K[2, j]
+            R[i, j] = (1.0 if i == j else 0.0) + a * K[i, j] + b * KK
+    return R
+
+
+@numba.njit(cache=True)
+def spd_inverse(M):
+    """Inverse of a small symmetric positive definite matrix by Cholesky, and whether it was
+    (a pivot ≤ 0 returns False); a tenth of a LAPACK call's overhead at these sizes."""
+    k = M.shape[0]
+    L = np.zeros((k, k))
+    for j in range(k):
+        d = M[j, j]
+        for p in range(j):
+            d -= L[j, p] * L[j, p]
+        if not d > 0.0:
+            return L, False
+        L[j, j] = math.sqrt(d)
+        for i in range(j + 1, k):
+            t = M[i, j]
+            for p in range(j):
+                t -= L[i, p] * L[j, p]
+            L[i, j] = t / L[j, j]
+    Li = np.zeros((k, k))  # L⁻¹, lower triangular
+    for j in range(k):
+        Li[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, k):
+            t = 0.0
+            for p in range(j, i):
+                t -= L[i, p] * Li[p, j]
+            Li[i, j] = t / L[i, i]
+    inv = np.empty((k, k))  # M⁻¹ = L⁻ᵀ L⁻¹
+    for a in range(k):
+        for b in range(a, k):
+            t = 0.0
+            for p in range(b, k):
+                t += Li[p, a] * Li[p, b]
+            inv[a, b] = t
+            inv[b, a] = t
+    return inv, True

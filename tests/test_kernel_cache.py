@@ -1,0 +1,53 @@
+"""numba's on-disk cache checks only a kernel's own file: a cached kernel that inlined a helper
+from another file (``@njit(inline="always")``) keeps the old helper after it changes — with
+numba 0.68, editing ``lens.distort_jacobian`` left ``camera_fit.jacobian_rows`` loading its
+stale compiled code from the cache. skyfix's package-wide digest
+(:func:`skyfix._kernels.drop_stale_kernel_caches`, run when skyfix is imported) drops the
+cache when any kernel source changes.
+
+A copy of the package is run in fresh processes; between runs the helper is edited (its
+distorted x doubled). The second run must see the edit although ``camera_fit.py`` is unchanged
+and its compiled kernel is on disk.
+"""
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+import skyfix
+
+SCRIPT = """
+import numpy as np
+from skyfix._kernels import camera_fit, lens
+from skyfix.camera import Camera
+cam = Camera.from_fov(640, 480, 20.0)
+rays = cam.pixel_to_ray(np.array([[100.0, 200.0], [500.0, 50.0]]))
+J, res = camera_fit.jacobian_rows(np.zeros((2, 2)), rays, lens.camera_numbers(cam), 1.0,
+                                  np.array([camera_fit.F], dtype=np.int64))
+print(repr((res[:, 0] - cam.cx).tolist()))
+"""
+
+
+def _run(pkg: Path) -> list[float]:
+    out = subprocess.run([sys.executable, "-c", SCRIPT], cwd=pkg.parent, capture_output=True, text=True,
+                         env={"PYTHONPATH": str(pkg.parent), "PATH": "/usr/bin:/bin"}, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return eval(out.stdout.strip().splitlines()[-1])
+
+
+def test_an_edited_inlined_helper_is_seen_by_a_cached_kernel_in_another_file(tmp_path):
+    pkg = tmp_path / "skyfix"
+    shutil.copytree(Path(skyfix.__file__).parent, pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    before = _run(pkg)
+    assert list(pkg.rglob("camera_fit.jacobian_rows*.nbi")), "the kernel was not cached"
+    lens_py = pkg / "_kernels" / "lens.py"
+    text = lens_py.read_text()
+    old = "    return xd, yd, dxx, dxy, dxy, dyy, r2"
+    assert old in text
+    lens_py.write_text(text.replace(old, "    return 2.0 * xd, yd, dxx, dxy, dxy, dyy, r2"))
+    after = _run(pkg)
+    np.testing.assert_allclose(after, 2.0 * np.array(before), rtol=1e-12)
+    assert _run(pkg) == after  # and the fresh cache serves the next run
