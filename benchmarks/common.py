@@ -2,7 +2,7 @@
 
 The error metrics are written here from first principles (not imported from skyfix) so that a
 convention bug in skyfix.geometry cannot hide itself by being used on both sides of a comparison.
-Conventions are DESIGN.md's: ``A`` takes ICRS unit vectors into the camera frame (``b = A r``),
+Conventions are those of docs/design.md: ``A`` takes ICRS unit vectors into the camera frame (``b = A r``),
 its rows are the camera axes in ICRS; roll is the position angle of image-up (camera ``-y``)
 from north through east.
 """

@@ -4,7 +4,7 @@
 ``generate`` here is the fallback, with the same model.
 Each set is what a perfect detector would hand to a solver: the Hipparcos stars in view of a
 pinhole camera at a random attitude, with Gaussian centroid noise, dropouts and false stars,
-sorted brightest first. Positions follow DESIGN.md: (x, y) = (column, row), (0, 0) the centre
+sorted brightest first. Positions follow docs/design.md: (x, y) = (column, row), (0, 0) the centre
 of the top-left pixel.
 """
 

@@ -84,7 +84,8 @@ def test_presets_load():
 
 
 def test_thesis_000_pixel_to_unit_vector_corrected_form():
-    # SEEDS.md: thesis 000's pixel → unit vector is [x·P/F, y·P/F, 1] / sqrt(1 + (x²+y²)(P/F)²)
+    # thesis 000's pixel → unit vector (docs/seeds.md#thesis-000):
+    # [x·P/F, y·P/F, 1] / sqrt(1 + (x²+y²)(P/F)²)
     # with (x, y) from the principal point, P the pixel pitch and F the focal length.
     cam = Camera.from_optics(752, 480, focal_length_mm=8.5, pixel_pitch_um=6.0)
     rng = np.random.default_rng(4)

@@ -8,7 +8,7 @@ from skyfix.detect import Centroids, estimate_background, extract_centroids
 
 
 def render_stars(shape, xy, flux, sigma=1.2, sigma_y=None, background=100.0, noise=3.0, seed=0):
-    """Gaussian stars integrated over pixels (DESIGN.md pixel convention) + Gaussian noise.
+    """Gaussian stars integrated over pixels (the pixel convention of docs/design.md) + Gaussian noise.
 
     ``background`` may be a scalar or an (H, W) array. Independent of skyfix.simulate.
     """

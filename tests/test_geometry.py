@@ -1,4 +1,4 @@
-"""DESIGN.md's conventions: frames, quaternions and roll, pinned with numbers."""
+"""The conventions of docs/design.md: frames, quaternions and roll, pinned with numbers."""
 
 import numpy as np
 import pytest

@@ -1,7 +1,7 @@
 """Wahba's problem: the attitude that best rotates catalogue vectors onto observed ones.
 
 Every solver takes matched unit vectors ``b_cam`` (camera frame) and ``r_icrs`` (catalogue)
-and returns ``A_icrs_to_cam`` (DESIGN.md: ``b = A r``), minimising the loss
+and returns ``A_icrs_to_cam`` (docs/design.md#attitude-matrix: ``b = A r``), minimising the loss
 
     J(A) = ½ Σ w_i |b_i − A r_i|².
 
@@ -17,7 +17,7 @@ The solvers are chosen by name in :func:`solve_attitude`:
 - ``"triad"``    TRIAD on the first two vectors (thesis 004), anchored on the first.
 
 Quaternions here are Shuster's (scalar last, ``A(q) = (q4² − |v|²) I + 2 v vᵀ − 2 q4 [v×]``);
-they stay internal — the public quaternion of DESIGN.md is scipy's, from the returned matrix.
+they stay internal — the public quaternion (docs/design.md#quaternion) is scipy's, from the returned matrix.
 
 The covariance is the QUEST measurement model (Shuster & Oh 1981) in the camera frame:
 ``P = (Σ σ_i⁻² (I − b_i b_iᵀ))⁻¹`` for the small rotation ``δθ`` with ``A_est = R(δθ) A_true``

@@ -148,7 +148,7 @@ def fit_camera(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_cam
     Parameters
     ----------
     xy : (N, 2) array
-        Pixel positions of the stars (DESIGN.md convention).
+        Pixel positions of the stars (docs/design.md#pixel-coordinates).
     r_icrs : (N, 3) array
         Their catalogue unit vectors.
     camera : Camera

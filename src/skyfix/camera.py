@@ -1,6 +1,6 @@
 """Camera model: pinhole intrinsics + OpenCV Brown–Conrady distortion, pixel <-> ray, TOML I/O.
 
-Conventions (DESIGN.md): pixel ``(x, y)`` = (column, row), 0-based, ``(0, 0)`` is the centre
+Conventions (docs/design.md#conventions): pixel ``(x, y)`` = (column, row), 0-based, ``(0, 0)`` is the centre
 of the top-left pixel. Camera ``+z`` is the boresight, ``+x`` toward increasing column,
 ``+y`` toward increasing row. ``x_n = X/Z``, ``y_n = Y/Z``; distortion acts on ``(x_n, y_n)``;
 ``u = fx·x_d + s·y_d + cx``, ``v = fy·y_d + cy``.
@@ -156,7 +156,7 @@ class Camera:
 
     # --- TOML ---------------------------------------------------------------------------
     def to_toml(self) -> str:
-        """The ``[camera]`` table of DESIGN.md as TOML text."""
+        """The ``[camera]`` table (docs/design.md#camera-file-toml) as TOML text."""
         lines = ["[camera]"]
         if self.name:
             lines.append(f'name = "{self.name}"')
@@ -223,7 +223,7 @@ class Camera:
         return cls.from_toml(text)
 
 
-# The seeds' cameras (SEEDS.md); sizes and optics as the theses state them.
+# The seeds' cameras (docs/seeds.md#the-seed-cameras); sizes and optics as the theses state them.
 PRESETS: dict[str, dict] = {
     # Thesis 000: Aptina MT9V022 752×480, 6 µm pixels, 8.5 mm f/1.3.
     "mt9v022": dict(name="MT9V022 + 8.5 mm f/1.3", width=752, height=480,

@@ -220,7 +220,7 @@ def detect(
     json_out: bool = typer.Option(False, "--json", help="One JSON line per image with its centroids."),
     verbose: int = VERBOSE,
 ) -> None:
-    """Find stars and print their centroids (DESIGN.md pixels), brightest first."""
+    """Find stars and print their centroids (docs/design.md#pixel-coordinates), brightest first."""
     import json
 
     import numpy as np

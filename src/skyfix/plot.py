@@ -38,7 +38,7 @@ def plot_solution(image: np.ndarray, solution: Solution, path: str | Path, *, dp
     h, w = image.shape
     fig = plt.figure(figsize=(w / dpi, h / dpi), dpi=dpi)
     ax = fig.add_axes((0, 0, 1, 1))
-    # extent puts pixel centres at integer coordinates, DESIGN.md's convention.
+    # extent puts pixel centres at integer coordinates (docs/design.md#pixel-coordinates).
     ax.imshow(_display_stretch(image), cmap="gray", origin="upper", extent=(-0.5, w - 0.5, h - 0.5, -0.5))
     radius = max(6.0, 0.012 * max(w, h))
     for m in solution.matches:

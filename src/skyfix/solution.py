@@ -1,4 +1,4 @@
-"""The Solution that ``solve`` returns and ``skyfix solve --json`` prints (DESIGN.md)."""
+"""The Solution that ``solve`` returns and ``skyfix solve --json`` prints (docs/design.md#the-solution)."""
 
 from __future__ import annotations
 

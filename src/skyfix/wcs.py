@@ -1,6 +1,6 @@
 """FITS WCS of a solution: TAN projection about the optical axis, SIP for lens distortion.
 
-Pixels: skyfix ``(x, y)`` is 0-based (DESIGN.md); FITS pixel ``(p1, p2) = (x + 1, y + 1)``,
+Pixels: skyfix ``(x, y)`` is 0-based (docs/design.md); FITS pixel ``(p1, p2) = (x + 1, y + 1)``,
 with ``p2`` the array row as stored (row 0 first). So ``CRPIX = (cx + 1, cy + 1)``.
 
 Geometry. The pinhole's tangent point is the optical axis, camera ``+z`` = ``A[2]``: that is
@@ -140,7 +140,7 @@ def solution_wcs(A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.00
 
     Parameters
     ----------
-    A_icrs_to_cam : (3, 3) attitude matrix, ``b = A r`` (DESIGN.md).
+    A_icrs_to_cam : (3, 3) attitude matrix, ``b = A r`` (docs/design.md#attitude-matrix).
     camera : the camera model; with distortion the WCS is TAN-SIP.
     tol_px : worst SIP fit residual over the frame, pixels (sets the polynomial order).
 

@@ -199,7 +199,7 @@ class PsfField:
 
     Attributes
     ----------
-    x, y : (N,) — star positions, pixels (DESIGN.md convention).
+    x, y : (N,) — star positions, pixels (docs/design.md#pixel-coordinates).
     fwhm_px : (N,) — FWHM of the optical PSF, geometric mean of the axes, pixels.
     fwhm_major_px, fwhm_minor_px : (N,) — FWHM along the major and minor axes, pixels.
     ellipticity : (N,) — ``1 − minor/major``.

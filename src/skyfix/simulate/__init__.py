@@ -1,6 +1,6 @@
 """Star-image simulator: attitude → catalogue stars → camera model → PSF → sensor → image + truth.
 
-Thesis 002 chapter 3 with its corrections (SEEDS.md): PSF covariance ``diag(σ², σ²)``, pixel
+Thesis 002 ch. 3, corrected (docs/seeds.md#thesis-002-corrections): PSF covariance ``diag(σ², σ²)``, pixel
 integration instead of point sampling, Poisson shot and dark noise, stray light spread over the
 frame, full-well clipping, rolling shutter and continuous smear.
 

@@ -1,6 +1,6 @@
 """Point-spread function: Gaussians integrated over each pixel, added to an image.
 
-Pixel ``(col, row)`` covers ``[col - 0.5, col + 0.5] × [row - 0.5, row + 0.5]`` (DESIGN.md:
+Pixel ``(col, row)`` covers ``[col - 0.5, col + 0.5] × [row - 0.5, row + 0.5]`` (docs/design.md:
 ``(0, 0)`` is the centre of the top-left pixel). A round Gaussian is separable, so a pixel's
 share is a product of error-function differences, exact at any sub-pixel phase (thesis 002
 sampled a 5×5 grid and renormalised a truncated 5×5 stamp; both biases are gone here).

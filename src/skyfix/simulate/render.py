@@ -52,7 +52,7 @@ class SimulatedFrame:
         ``ra_deg``, ``dec_deg``, ``roll_deg``, ``quaternion_xyzw``, ``time`` (ISO UTC, mid-exposure),
         ``epoch_jyear``, ``exposure_s``, ``rate_rad_s``, ``seed``, ``frame_index``, ``camera``
         (the ``[camera]`` table), ``sensor``, ``optics``, ``noise``, ``stars``
-        (``[{id, x, y, mag, electrons}]``, x/y at the star's mid-exposure in DESIGN.md's pixel
+        (``[{id, x, y, mag, electrons}]``, x/y at the star's mid-exposure in docs/design.md#pixel-coordinates
         convention, electrons = expected photo-electrons before noise), ``false_stars``,
         ``cosmic_rays``, ``hot_pixels``, ``background_e``.
     expected_e : (H, W) float32 ndarray
