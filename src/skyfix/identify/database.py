@@ -24,7 +24,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -178,6 +178,8 @@ class PatternDatabase:
         return moved / np.linalg.norm(moved, axis=-1, keepdims=True)
 
     # --- build ----------------------------------------------------------------------------
+    # Over ten parameters: the build's settings, keywords with documented defaults (the options
+    # of ``skyfix database build``); _build takes them as one _BuildSettings.
     @classmethod
     def build(cls, fov_min_deg: float = 10.0, fov_max_deg: float = 30.0, *,
               catalog: Catalog | None = None, band_ratio: float = 1.35, stars_per_field: int = 8,
@@ -220,15 +222,15 @@ class PatternDatabase:
         if not 4 <= stars_per_field <= 16:
             raise DatabaseError("stars_per_field must be 4–16")
         with _reporter(progress, "building the pattern database") as report:
-            return cls._build(fov_min_deg, fov_max_deg, catalog, band_ratio, stars_per_field,
-                              field_radius, lattice_step, double_star_sep, pattern_mag_limit, n_bins,
-                              epoch, report)
+            settings = _BuildSettings(fov_min_deg, fov_max_deg, band_ratio, stars_per_field, field_radius,
+                                      lattice_step, double_star_sep, pattern_mag_limit, n_bins)
+            return cls._build(settings, catalog, epoch, report)
 
     @classmethod
-    def _build(cls, fov_min_deg: float, fov_max_deg: float, catalog: Catalog | None, band_ratio: float,
-               stars_per_field: int, field_radius: float, lattice_step: float, double_star_sep: float,
-               pattern_mag_limit: float, n_bins: int, epoch: float | None,
+    def _build(cls, settings: _BuildSettings, catalog: Catalog | None, epoch: float | None,
                report: ProgressCallback) -> PatternDatabase:
+        (fov_min_deg, fov_max_deg, band_ratio, stars_per_field, field_radius, lattice_step, double_star_sep,
+         pattern_mag_limit, n_bins) = settings
         report("reading the star catalogue", 0.0)
         epoch = epoch_now() if epoch is None else float(epoch)
         cat = load_hipparcos(epoch=epoch) if catalog is None else catalog
@@ -340,6 +342,20 @@ class PatternDatabase:
             # The verification scans only a z band of cells (verify.cell_band).
             raise DatabaseError(f"pattern database {path} is inconsistent (sky cells not ordered by z)")
         return db
+
+
+class _BuildSettings(NamedTuple):
+    """The settings of :meth:`PatternDatabase.build` (documented there)."""
+
+    fov_min_deg: float
+    fov_max_deg: float
+    band_ratio: float
+    stars_per_field: int
+    field_radius: float
+    lattice_step: float
+    double_star_sep: float
+    pattern_mag_limit: float
+    n_bins: int
 
 
 def readonly_view(a: np.ndarray) -> np.ndarray:
