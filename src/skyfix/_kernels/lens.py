@@ -15,6 +15,8 @@ Model (normalised coordinates ``x = X/Z``, ``y = Y/Z``, ``r² = x² + y²``)::
 
 from __future__ import annotations
 
+import operator
+
 import numba
 import numpy as np
 
@@ -31,9 +33,12 @@ UNDISTORT_TOLERANCE_PX = 1e-5
 UNDISTORT_ITERATIONS = 50
 
 
+_numbers_of = operator.attrgetter(*CAMERA_NUMBERS)
+
+
 def camera_numbers(camera) -> np.ndarray:
     """A :class:`~skyfix.camera.Camera`'s numbers (10,) float64 in :data:`CAMERA_NUMBERS` order."""
-    return np.array([getattr(camera, k) for k in CAMERA_NUMBERS], dtype=np.float64)
+    return np.array(_numbers_of(camera), dtype=np.float64)
 
 
 @numba.njit(cache=True, inline="always")
