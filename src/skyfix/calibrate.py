@@ -265,8 +265,9 @@ def _model_scores(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_
     codes, cols, n_cols = _model_blocks(models)
     rmax = math.hypot(camera.width, camera.height) / 2.0 / camera.fx
     cam = lens.camera_numbers(camera)
-    chosen, bic, rss, cov, ok, JtJ, Jtr, rr = kernels.score_models(xy, r, A, cam, rmax, codes, cols, n_cols,
-                                                            float(min_stars_per_number))
+    sc = kernels.score_models(xy, r, A, cam, rmax, codes, cols, n_cols, float(min_stars_per_number))
+    chosen, bic, rss, cov = sc.chosen, sc.bic, sc.rss, sc.covariance
+    ok, JtJ, Jtr, rr = sc.ok, sc.JtJ, sc.Jtr, sc.rr
     if not chosen.any():
         raise ValueError(f"too few stars ({len(xy)}) to fit a camera model")
     if not ok:  # a block not numerically positive definite: LU inverses (pseudo-inverse if singular)
@@ -464,36 +465,36 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     fixed = prior_numbers.copy()
     fixed[kernels.SIGMA_PP] = 1e-9 * prior.sigma_principal_point_px
     if principal_point == "fit":
-        A, cam, sigma2, inv, n_eff, res, chi2, _, moved = kernels.prior_gauss_newton(
-            xy, r, A0, cam0, half_diag, prior_numbers, bool(robust), int(iterations), float(sigma_floor_px),
-            prior_numbers)
+        gn = kernels.prior_gauss_newton(xy, r, A0, cam0, half_diag, prior_numbers, bool(robust),
+                                        int(iterations), float(sigma_floor_px), prior_numbers)
+        moved = gn.moved
     else:
         # Fit with the principal point held at the prior's; the posterior and one step with it
         # free come from the result: the step tells "auto" whether the stars pin it down
         # elsewhere.
         held = cam0.copy()
         held[lens.CX], held[lens.CY] = prior.cx, prior.cy
-        A, cam, sigma2, inv, n_eff, res, chi2, free_step, moved = kernels.prior_gauss_newton(
-            xy, r, A0, held, half_diag, fixed, bool(robust), int(iterations), float(sigma_floor_px),
-            prior_numbers)
+        gn = kernels.prior_gauss_newton(xy, r, A0, held, half_diag, fixed, bool(robust),
+                                        int(iterations), float(sigma_floor_px), prior_numbers)
+        moved = gn.moved
         if principal_point == "auto":
             # Moved only when the stars say so: the move against its posterior covariance beyond
             # _PP_CHI2 (2 dof: 1e-3 by chance) and the posterior σ a third of the prior's or less.
             x, y = kernels.STEP_CX, kernels.STEP_CY
-            (mx, my), (c00, c01, c11) = (free_step[x], free_step[y]), (inv[x, x], inv[x, y], inv[y, y])
+            inv = gn.covariance
+            (mx, my), (c00, c01, c11) = (gn.step[x], gn.step[y]), (inv[x, x], inv[x, y], inv[y, y])
             det = c00 * c11 - c01 * c01
             chi2_move = (c11 * mx * mx - 2.0 * c01 * mx * my + c00 * my * my) / det if det > 0 else 0.0
             principal_point = "hold"
-            pinned = 3.0 * math.sqrt(max(c00, c11)) * cam[0] < prior.sigma_principal_point_px
+            pinned = 3.0 * math.sqrt(max(c00, c11)) * gn.cam[lens.FX] < prior.sigma_principal_point_px
             if pinned and chi2_move > _PP_CHI2:
                 principal_point = "fit"
-                res_held = res
-                A1, cam, sigma2, inv, n_eff, res, chi2, _, _ = kernels.prior_gauss_newton(
-                    xy, r, A, cam, half_diag, prior_numbers, bool(robust), int(iterations),
-                    float(sigma_floor_px), prior_numbers)
-                moved += float(np.max(np.hypot(*(res - res_held).T)))
-                A = A1
-    camera = camera.replace(**dict(zip(lens.CAMERA_NUMBERS, cam.tolist(), strict=True)))
+                res_held = gn.residuals
+                gn = kernels.prior_gauss_newton(xy, r, gn.A, gn.cam, half_diag, prior_numbers, bool(robust),
+                                                int(iterations), float(sigma_floor_px), prior_numbers)
+                moved += float(np.max(np.hypot(*(gn.residuals - res_held).T)))
+    camera = camera.replace(**dict(zip(lens.CAMERA_NUMBERS, gn.cam.tolist(), strict=True)))
+    inv = gn.covariance
     # Attitude of the frame at the principal point's pixel: a shift (δcx, δcy) of the principal
     # point (scaled by fx) with no change of that pixel's sky direction is the rotation
     # (−δcy·fx/fy, δcx, 0) — take the covariance of rotation + that share of the shift.
@@ -502,7 +503,8 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     T[1, kernels.STEP_CX] = 1.0
     T[0, kernels.STEP_CY] = -camera.fx / camera.fy
     cov = T @ inv @ T.T
-    return PriorFit(camera, A, res, math.sqrt(sigma2), cov, n_eff, chi2, inv, float(moved))
+    return PriorFit(camera, gn.A, gn.residuals, math.sqrt(gn.sigma2), cov, gn.n_effective, gn.chi2, inv,
+                    float(moved))
 
 
 def frame_at_pixel(A_icrs_to_cam: np.ndarray, camera: Camera, pixel: tuple[float, float]) -> np.ndarray:

@@ -14,6 +14,7 @@ corner by about a focal length: ``f`` relative (``fx, fy ← f·(1 + p)``), ``as
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -22,8 +23,9 @@ from skyfix._kernels.lens import CX, CY, FX, FY, K1, K2, P1, P2, SKEW, distort, 
 from skyfix._kernels.rotation import rodrigues, spd_inverse
 
 __all__ = ["ASPECT", "F", "K1_TERM", "K2_TERM", "PRINCIPAL_POINT", "PRIOR_CODES", "PRIOR_NUMBERS",
-           "TANGENTIAL", "apply_step", "jacobian_rows", "normal_equations_at_start", "prior_gauss_newton",
-           "residuals_for_steps", "score_blocks", "score_models"]
+           "TANGENTIAL", "GaussNewtonResult", "ModelScores", "apply_step", "jacobian_rows",
+           "normal_equations_at_start", "prior_gauss_newton", "residuals_for_steps", "score_blocks",
+           "score_models"]
 
 # Kernel codes of the camera parameters (skyfix.calibrate.CAMERA_PARAMETERS names them).
 F, ASPECT, PRINCIPAL_POINT, K1_TERM, K2_TERM, TANGENTIAL = range(6)
@@ -37,6 +39,40 @@ PRIOR_CX, PRIOR_CY, SIGMA_PP, SIGMA_ASPECT, SIGMA_K1, SIGMA_K2, PRIOR_ASPECT, PR
 # sits in its step vector (after the three rotations).
 PRIOR_CODES = (F, ASPECT, PRINCIPAL_POINT, K1_TERM, K2_TERM)
 STEP_F, STEP_ASPECT, STEP_CX, STEP_CY, STEP_K1, STEP_K2 = 3, 4, 5, 6, 7, 8
+
+
+
+class ModelScores(NamedTuple):
+    """:func:`score_models`'s result: which models were scored (K,) bool, their BIC (K,), RSS
+    (K,) px² and attitude covariances (K, 3, 3) rad², whether every block inverted by Cholesky
+    (else the caller redoes them with numpy), and the union's ``JᵀJ``, ``Jᵀr``, ``rᵀr``."""
+
+    chosen: np.ndarray
+    bic: np.ndarray
+    rss: np.ndarray
+    covariance: np.ndarray
+    ok: bool
+    JtJ: np.ndarray
+    Jtr: np.ndarray
+    rr: float
+
+
+class GaussNewtonResult(NamedTuple):
+    """:func:`prior_gauss_newton`'s result: the attitude (3, 3), the camera numbers (10,), σ²
+    (px²), the posterior covariance (P, P) of the step at the result, the effective number of
+    fitted numbers, the residuals (N, 2) px, each star's studentised χ² (N,), the Gauss–Newton
+    step (P,) under ``prior_out`` from the result, and the largest distance (px) the fit moved
+    a star's predicted position."""
+
+    A: np.ndarray
+    cam: np.ndarray
+    sigma2: float
+    covariance: np.ndarray
+    n_effective: float
+    residuals: np.ndarray
+    chi2: np.ndarray
+    step: np.ndarray
+    moved: float
 
 
 @numba.njit(cache=True)
@@ -169,8 +205,9 @@ def normal_equations_at_start(xy, rays0, cam, rmax, codes):
 
 @numba.njit(cache=True)
 def score_models(xy, r, A, cam, rmax, codes, cols, n_cols, min_stars_per_number):
-    """Which models the stars support (see :func:`skyfix.calibrate.score_camera_models`; the first scorable
-    always), and their BIC, RSS and covariance (filled for those only)."""
+    """Which models the stars support (see :func:`skyfix.calibrate.score_camera_models`; the
+    first scorable always), and their BIC, RSS and covariance (filled for those only): a
+    :class:`ModelScores`."""
     n_stars = xy.shape[0]
     rays0 = np.empty((n_stars, 3))
     for i in range(n_stars):
@@ -186,7 +223,7 @@ def score_models(xy, r, A, cam, rmax, codes, cols, n_cols, min_stars_per_number)
         chosen[m] = True
         any_chosen = True
     bic, rss, cov, ok = score_blocks(JtJ, Jtr, rr, 2 * n_stars, cols, n_cols, chosen)
-    return chosen, bic, rss, cov, ok, JtJ, Jtr, rr
+    return ModelScores(chosen, bic, rss, cov, ok, JtJ, Jtr, rr)
 
 
 @numba.njit(cache=True)
@@ -235,7 +272,8 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, s
     (P,) under ``prior_out`` from the result (what freeing ``prior_out``'s parameters would do),
     and the largest distance (px) by which the fit moved a star's predicted position.
 
-    (Ten arguments: the stars, the start, the two priors and the fit's four settings.)"""
+    (Ten arguments: the stars, the start, the two priors and the fit's four settings.) Returns a
+    :class:`GaussNewtonResult`."""
     codes = np.array(PRIOR_CODES, dtype=np.int64)
     n = xy.shape[0]
     n_obs = 2 * n
@@ -348,4 +386,4 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, s
             rss_without = max(rss - q * sigma2, 1e-12 * sigma2)
             q = q * sigma2 / max(rss_without / max(n_obs - n_eff - 2.0, 1.0), sigma_floor**2)
         chi2[i] = q
-    return A, cam, sigma2, inv, n_eff, res, chi2, step, moved
+    return GaussNewtonResult(A, cam, sigma2, inv, n_eff, res, chi2, step, moved)
