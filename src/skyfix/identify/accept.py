@@ -57,8 +57,9 @@ The final fit (:func:`skyfix.final_fit.final_fit`), whose rules live beside the 
    (``tests/test_final_fit_kernels.py::test_inliers_drop_outliers_keep_half``).
 9. No camera: while the worst star's externally studentised χ² is beyond
    ``skyfix.final_fit._outlier_limit`` (a good star's chance 3.4e-4, ``_OUTLIER_CHI2``) it
-   is dropped and the camera refitted (``skyfix.final_fit._drop_outliers``;
-   ``tests/test_final_fit.py::test_issue_sunsat_frames_solve_right_with_honest_error_bars``).
+   is dropped and the camera refitted (``skyfix.final_fit._drop_outliers``). No test of the
+   default suite pins it: with it disabled, the sunsat, wrong-neighbour, sparse and crop tests
+   of ``tests/test_final_fit.py`` still pass.
 10. No camera: the stars re-matched through the fitted camera must be beyond chance with the
     camera's freedom paid for (*Freedom paid for* above, :func:`chance_log_probability`);
     otherwise the verified stars are kept.
