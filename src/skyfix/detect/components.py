@@ -165,36 +165,66 @@ def _one_pass(img: np.ndarray, s: _Settings, check_finite: bool) -> Centroids | 
     else:  # clear only what the last call labelled
         clear_boxes(frames.labels, ws.dirty)
     ws.dirty = None
-    comps = label_components(img, frames, sky, MAX_COMPONENTS)
-    ws.dirty = comps.box
-    n_comp = comps.area.size
+    plan = _Plan(
+        MAX_COMPONENTS, float(s.min_area), float(max_area), float(max_extent),
+        # a lone hot pixel holds nearly all of its component's light: dropped before the cap on
+        # measured candidates, so that a frame with thousands of hot pixels still measures its
+        # stars. Measure only the brightest candidates, with room for the clusters of hot
+        # pixels, blobs and noise that the tests remove (measuring costs ~1 µs per candidate).
+        s.min_sharpness > 0, max(4 * int(s.max_stars) + 50, 200),
+        s.deblend is not None,
+        DeblendRule(math.nan if s.deblend is None else float(s.deblend), _DEBLEND_MIN_SEP, _DEBLEND_MAX_PARTS,
+                    float(s.min_sharpness)),
+        float(saturation), float(s.min_sharpness),
+        Rejections(float(s.sigma), float(s.min_sharpness),
+                   math.inf if s.max_elongation is None else float(s.max_elongation), s.reject_tracks,
+                   math.nan if s.max_diffuseness is None else float(s.max_diffuseness),
+                   math.nan if s.max_noise_ratio is None else float(s.max_noise_ratio)),
+        int(s.max_stars))
+    stars, ws.dirty, n_comp, n_split = _find_stars(img, frames, sky, plan)
     if n_comp == 0:
         return Centroids.empty((h, w), level, noise, n_components=0)
-    # a lone hot pixel holds nearly all of its component's light: dropped before the cap on
-    # measured candidates, so that a frame with thousands of hot pixels still measures its stars.
-    # Measure only the brightest candidates, with room for the clusters of hot pixels, blobs and
-    # noise that the tests below remove (measuring costs ~1 µs per small candidate).
-    cap = max(4 * int(s.max_stars) + 50, 200)
-    drop_hot = s.min_sharpness > 0
-    cand = select_candidates(comps, float(s.min_area), float(max_area), float(max_extent), drop_hot, cap)
-    n_cand = cand.ids.size
-    n_split = 0
-    if s.deblend is not None and n_cand:
-        rule = DeblendRule(float(s.deblend), _DEBLEND_MIN_SEP, _DEBLEND_MAX_PARTS, float(s.min_sharpness))
-        cand = deblend(img, frames, cand, sky, n_comp + 1, rule)
-        n_split = cand.ids.size - n_cand
-    m = measure(img, frames.labels, cand, sky, float(saturation), float(s.min_sharpness))
-    rules = Rejections(
-        float(s.sigma), float(s.min_sharpness),
-        math.inf if s.max_elongation is None else float(s.max_elongation), s.reject_tracks,
-        math.nan if s.max_diffuseness is None else float(s.max_diffuseness),
-        math.nan if s.max_noise_ratio is None else float(s.max_noise_ratio))
-    stars = _star_table(m, screen(m, cand.is_part, sky, rules), int(s.max_stars))
     return Centroids(
         **stars._asdict(), image_shape=(h, w), background_level=level, noise=noise,
         meta={"n_components": int(n_comp), "n_deblended": int(n_split), "saturation": float(saturation),
               "tile": bg.tile},
     )
+
+
+class _Plan(NamedTuple):
+    """Steps 2–7's settings, as :func:`_find_stars` takes them."""
+
+    max_components: int
+    min_area: float
+    max_area: float
+    max_extent: float
+    drop_hot: bool  # drop lone hot pixels before the cap
+    cap: int  # measure at most this many candidates, the brightest
+    deblend: bool
+    rule: DeblendRule
+    saturation: float
+    min_sharpness: float
+    rejections: Rejections
+    max_stars: int
+
+
+@njit(cache=True)
+def _find_stars(img, frames, sky, plan):
+    """Steps 2–7 after the threshold pass: label, select, deblend, measure, screen and sort.
+
+    One kernel composes the steps, rather than Python calling each: an array returned from
+    numba to Python costs about a microsecond, and the candidates and their measurements
+    (twenty-odd arrays) are never needed there. Returns the :class:`_Stars`, the components'
+    boxes (what the next call clears), and the numbers of components and deblended parts.
+    """
+    comps = label_components(img, frames, sky, plan.max_components)
+    cand = select_candidates(comps, plan.min_area, plan.max_area, plan.max_extent, plan.drop_hot, plan.cap)
+    n_cand = cand.ids.size
+    if plan.deblend and n_cand > 0:
+        cand = deblend(img, frames, cand, sky, comps.area.size + 1, plan.rule)
+    m = measure(img, frames.labels, cand, sky, plan.saturation, plan.min_sharpness)
+    stars = _star_table(m, screen(m, cand.is_part, sky, plan.rejections), plan.max_stars)
+    return stars, comps.box, comps.area.size, cand.ids.size - n_cand
 
 
 class _Stars(NamedTuple):

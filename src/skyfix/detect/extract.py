@@ -25,11 +25,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from skyfix.detect import components
 from skyfix.detect._grid import sky_grid, values_near
 from skyfix.detect.background import Background, estimate_background
 from skyfix.detect.centroid import CENTROIDERS, GAUSSIAN, Refined, refine_centroids
 from skyfix.detect.centroids import Centroids, background_snr
+from skyfix.detect.components import OPTIONS as COMPONENT_OPTIONS
+from skyfix.detect.components import extract_components
 from skyfix.detect.hillclimb import extract_hillclimb
 from skyfix.detect.region_grow import extract_region_grow
 from skyfix.detect.regionprops import extract_regionprops
@@ -58,7 +59,7 @@ _SEED_OPTIONS = ("sigma", "max_stars", "saturation")
 
 #: Detection methods by name (``method=`` of :func:`extract_centroids`, ``skyfix detect --method``).
 METHODS: dict[str, Method] = {
-    "components": Method(components.extract_components, components.OPTIONS, raw_frames=True),
+    "components": Method(extract_components, COMPONENT_OPTIONS, raw_frames=True),
     "threshold_hillclimb": Method(extract_hillclimb, _SEED_OPTIONS),
     "region_grow": Method(extract_region_grow, _SEED_OPTIONS),
     "regionprops": Method(extract_regionprops, _SEED_OPTIONS),
@@ -66,7 +67,6 @@ METHODS: dict[str, Method] = {
 
 
 # One keyword per option, each documented below: a flat signature is the public API (and the CLI's).
-
 def extract_centroids(
     image: np.ndarray,
     *,
@@ -172,9 +172,9 @@ def extract_centroids(
         An unknown method or centroider, ``sigma`` not a positive number, ``max_stars`` not a
         whole number >= 1.
     """
-    if method not in METHODS:
+    if not isinstance(method, str) or method not in METHODS:
         raise InputError(f"unknown detection method {method!r}; choose one of {', '.join(METHODS)}")
-    if centroid not in CENTROIDERS:
+    if not isinstance(centroid, str) or centroid not in CENTROIDERS:
         raise InputError(f"unknown centroider {centroid!r}; choose one of {', '.join(CENTROIDERS)}")
     sigma = check_positive(sigma, "sigma")
     max_stars = check_count(max_stars, "max_stars")
