@@ -109,8 +109,8 @@ def _compile_kernels() -> None:
     tolerances = Tolerances(0.01, 1.0, 0.01)
     search_entry(tuple(image), breadth_first_combinations(4), 0, 1, tuple(focal), tuple(tolerances),
                  tuple(patterns), tuple(stars), tuple(VerifySettings(4, 5.0, -20.0)), 0)
-    refine = RefineSettings(True, 12, 4, 4, 5.0, 1.0, 1)
-    refine_entry(tuple(image), np.eye(3), 1000.0, tuple(refine), tuple(stars))
+    settings = RefineSettings(True, 12, 4, 4, 5.0, 1.0, 1)
+    refine_entry(tuple(image), np.eye(3), 1000.0, tuple(settings), tuple(stars))
     _COMPILED = True
 
 
@@ -245,7 +245,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                  key_tolerance=key_tolerance, check_mirror=False) if check_mirror else None
     log_threshold = math.log(prob_threshold)
     image = ImageStars(p, frame)
-    ctx = _Context(xy, kept, (int(width), int(height), cx, cy), camera, image,
+    ctx = _Context(kept, (int(width), int(height), cx, cy), camera, image,
                    RefineSettings(camera is None, 12, n_verify, min(n, refine_stars), float(radius),
                                   float(centroid_sigma_px), 3),
                    db, epoch, log_threshold, t0)
@@ -322,13 +322,12 @@ def _mirror_note(xy: np.ndarray, width: int, height: int, cx: float, retry: dict
 class _Context:
     """What :func:`identify` works out once per frame and :func:`_finish` needs.
 
-    xy : (N, 2) — the finite centroids; ``kept`` their indices in the caller's array (None: all).
+    kept : the indices of the finite centroids in the caller's array (None: all were finite).
     geometry : (width, height, cx, cy) — the frame and the principal point assumed.
     camera : the calibrated camera, or None (then the focal length and k1 are fitted).
     image : the centroids as the kernels see them; refit : the refit's settings.
     """
 
-    xy: np.ndarray
     kept: np.ndarray | None
     geometry: tuple[int, int, float, float]
     camera: Camera | None
