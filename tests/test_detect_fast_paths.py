@@ -145,11 +145,12 @@ def test_run_labelling_matches_scipy(density):
         comps = label_components(img, Frames(sm, mask, blocks, labels), sky, cap)
         expect = np.where(ref <= cap, ref, 0)
         np.testing.assert_array_equal(labels, expect)
-        assert comps.area.size == min(n, cap)
-        for k in range(comps.area.size):
+        assert comps.size == min(n, cap)
+        for k, comp in enumerate(comps):
             ys, xs = np.nonzero(ref == k + 1)
-            assert comps.area[k] == ys.size
-            assert tuple(comps.box[k]) == (ys.min(), ys.max(), xs.min(), xs.max())
+            assert comp["area"] == ys.size
+            box = (ys.min(), ys.max(), xs.min(), xs.max())
+            assert (comp["y0"], comp["y1"], comp["x0"], comp["x1"]) == box
             excess = float(sm[ys, xs].astype(np.float64).sum())
-            assert comps.excess[k] == pytest.approx(excess, rel=1e-9, abs=1e-9)
-            assert comps.peak[k] == img[ys, xs].max()
+            assert comp["excess"] == pytest.approx(excess, rel=1e-9, abs=1e-9)
+            assert comp["peak"] == img[ys, xs].max()

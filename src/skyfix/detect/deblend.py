@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from skyfix.detect._grid import grid_at
-from skyfix.detect.labelling import Candidates
+from skyfix.detect.labelling import CANDIDATE
 from skyfix.detect.measure import residual, sharpness
 
 __all__ = ["DeblendRule", "deblend"]
@@ -34,21 +34,21 @@ class DeblendRule(NamedTuple):
 
 @njit(cache=True)
 def deblend(img, frames, cand, sky, next_label, rule):
-    """Split candidates with several prominent maxima; returns the new :class:`Candidates`.
+    """Split candidates with several prominent maxima; returns the new candidates.
 
+    ``cand`` and the result are :data:`~skyfix.detect.labelling.CANDIDATE` arrays.
     ``frames`` as the labelling left them (``frames.labels`` is relabelled in place); ``rule``
     the :class:`DeblendRule`. New labels are allocated from ``next_label`` upward; the
     component keeps its label for the part around its highest maximum. Scratch arrays are
     allocated once, not per component.
     """
     sm, labels = frames.smooth, frames.labels
-    ids, boxes = cand.ids, cand.boxes
     contrast, min_sep, max_parts, min_sharpness = rule
     h, w = sm.shape
-    n_in = ids.size
+    n_in = cand.size
     cap = 1
     for c in range(n_in):
-        cap = max(cap, (boxes[c, 1] - boxes[c, 0] + 1) * (boxes[c, 3] - boxes[c, 2] + 1))
+        cap = max(cap, (cand[c].y1 - cand[c].y0 + 1) * (cand[c].x1 - cand[c].x0 + 1))
     my = np.empty(cap, np.int64)
     mx = np.empty(cap, np.int64)
     mv = np.empty(cap, sm.dtype)
@@ -58,14 +58,12 @@ def deblend(img, frames, cand, sky, next_label, rule):
     step = np.empty(cap, np.int64)
     root = np.empty(cap, np.int64)
     n_max_out = n_in * max(max_parts, 1)
-    ids_out = np.empty(n_max_out, np.int32)
-    boxes_out = np.empty((n_max_out, 4), np.int64)
-    split_out = np.zeros(n_max_out, np.bool_)
+    out = np.empty(n_max_out, CANDIDATE)
     n = 0
     nxt = next_label
     for c in range(n_in):
-        lab = ids[c]
-        y0, y1, x0, x1 = boxes[c, 0], boxes[c, 1], boxes[c, 2], boxes[c, 3]
+        lab = cand[c].id
+        y0, y1, x0, x1 = cand[c].y0, cand[c].y1, cand[c].x0, cand[c].x1
         nm = 0
         for y in range(y0, y1 + 1):
             for x in range(x0, x1 + 1):
@@ -119,9 +117,9 @@ def deblend(img, frames, cand, sky, next_label, rule):
         # no maximum, one, or more than a few prominent ones (texture: foliage, nebula, left for
         # the diffuseness test): the component stays whole
         if nm == 0 or nk < 2 or nk > max_parts:
-            ids_out[n] = lab
-            boxes_out[n, 0], boxes_out[n, 1], boxes_out[n, 2], boxes_out[n, 3] = y0, y1, x0, x1
-            split_out[n] = False
+            out[n].id = lab
+            out[n].y0, out[n].y1, out[n].x0, out[n].x1 = y0, y1, x0, x1
+            out[n].is_part = False
             n += 1
             continue
         first_new = nxt
@@ -176,11 +174,11 @@ def deblend(img, frames, cand, sky, next_label, rule):
                         by0, by1 = min(by0, y), max(by1, y)
                         bx0, bx1 = min(bx0, x), max(bx1, x)
             if by1 >= 0:
-                ids_out[n] = part_label[k]
-                boxes_out[n, 0], boxes_out[n, 1], boxes_out[n, 2], boxes_out[n, 3] = by0, by1, bx0, bx1
-                split_out[n] = True
+                out[n].id = part_label[k]
+                out[n].y0, out[n].y1, out[n].x0, out[n].x1 = by0, by1, bx0, bx1
+                out[n].is_part = True
                 n += 1
-    return Candidates(ids_out[:n].copy(), boxes_out[:n].copy(), split_out[:n].copy())
+    return out[:n].copy()
 
 
 @njit(cache=True)

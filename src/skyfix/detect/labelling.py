@@ -9,12 +9,10 @@ Steps 2–3 of the default extractor (:mod:`skyfix.detect.components`):
    maximum (saturation).
 2. :func:`label_components` — runs of set pixels along rows joined by union-find into
    8-connected components, skipping empty blocks; records each component's size, box and
-   summed excess (:class:`Components`).
+   summed excess (:data:`COMPONENT`).
 3. :func:`select_candidates` — components too small, too large or too extended (Moon, roof
    edges) are dropped, and lone hot pixels (nearly all the light in one pixel), before the cap
-   on measured candidates (:class:`Candidates`).
-
-Boxes are (y0, y1, x0, x1), inclusive, int64, one row per component.
+   on measured candidates (:data:`CANDIDATE`).
 """
 
 from __future__ import annotations
@@ -28,7 +26,7 @@ from numba import njit
 from skyfix.detect._grid import grid_at, grid_rows
 from skyfix.detect._smooth import column_sum, smooth_row
 
-__all__ = ["Frames", "Components", "Candidates", "MAX_COMPONENTS", "smooth_threshold", "label_components",
+__all__ = ["Frames", "COMPONENT", "CANDIDATE", "MAX_COMPONENTS", "smooth_threshold", "label_components",
            "select_candidates", "clear_boxes"]
 
 #: Components beyond this many (in raster order) stay unlabelled.
@@ -50,22 +48,20 @@ class Frames(NamedTuple):
     labels: np.ndarray  #: (H, W) int32 — component labels, 1-based (0: none)
 
 
-class Components(NamedTuple):
-    """The connected components of one frame, (K,) each, in label order (label = index + 1)."""
+# The per-object tables are structured arrays (one array between numba and Python, not one per
+# column: each array returned to Python costs about a microsecond).
 
-    area: np.ndarray  #: int64 — pixels above threshold
-    box: np.ndarray  #: (K, 4) int64 — bounding box (y0, y1, x0, x1)
-    excess: np.ndarray  #: float64 — summed excess of the smoothed frame over its sky
-    peak: np.ndarray  #: float64 — highest raw pixel above the sky
-    positive: np.ndarray  #: float64 — sum of the raw pixels above the sky (positive ones only)
-
-
-class Candidates(NamedTuple):
-    """Components chosen for measurement, (N,) each."""
-
-    ids: np.ndarray  #: int32 — label in ``Frames.labels``
-    boxes: np.ndarray  #: (N, 4) int64 — bounding box (y0, y1, x0, x1)
-    is_part: np.ndarray  #: bool — a part split off a component by deblending
+#: A connected component (:func:`label_components`), in label order (label = index + 1): pixels
+#: above threshold; bounding box rows ``y0..y1`` and columns ``x0..x1`` (inclusive); summed
+#: excess of the smoothed frame over its sky; highest raw pixel above the sky; sum of the raw
+#: pixels above the sky (the positive ones only).
+COMPONENT = np.dtype([("area", np.int64), ("y0", np.int64), ("y1", np.int64), ("x0", np.int64),
+                      ("x1", np.int64), ("excess", np.float64), ("peak", np.float64),
+                      ("positive", np.float64)])
+#: A candidate for measurement (:func:`select_candidates`, :func:`~skyfix.detect.deblend.deblend`):
+#: its label in ``Frames.labels``, bounding box, and whether deblending split it off a component.
+CANDIDATE = np.dtype([("id", np.int32), ("y0", np.int64), ("y1", np.int64), ("x0", np.int64),
+                      ("x1", np.int64), ("is_part", np.bool_)])
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
@@ -156,7 +152,7 @@ def label_components(img, frames, sky, max_components):
     from a raster scan numbers them); those beyond ``max_components`` stay unlabelled. Works on
     runs of set pixels along rows, joined to the touching runs of the row above by union-find:
     the frame is read row by row (a flood fill's scattered reads wait on memory).
-    Returns the :class:`Components`.
+    Returns the components, a :data:`COMPONENT` array.
     """
     sm, mask, blocks, labels = frames
     iy, fy = sky.weights.iy, sky.weights.fy
@@ -238,47 +234,47 @@ def label_components(img, frames, sky, max_components):
             rank[r] = k
             k += 1
     n_comp = min(k, max_components)
-    area = np.zeros(n_comp, np.int64)
-    box = np.empty((n_comp, 4), np.int64)
-    excess = np.zeros(n_comp)
-    peak = np.full(n_comp, -np.inf)
-    positive = np.zeros(n_comp)
+    comps = np.zeros(n_comp, COMPONENT)
     for c in range(n_comp):
-        box[c, 0], box[c, 1], box[c, 2], box[c, 3] = h, -1, w, -1
+        comps[c].y0 = h
+        comps[c].y1 = -1
+        comps[c].x0 = w
+        comps[c].x1 = -1
+        comps[c].peak = -np.inf
     for r in range(nr):
         c = rank[parent[r]]
         if c >= n_comp:
             continue
         y, x0, x1 = run_y[r], run_x0[r], run_x1[r]
-        area[c] += x1 - x0 + 1
-        box[c, 0] = min(box[c, 0], y)
-        box[c, 1] = max(box[c, 1], y)
-        box[c, 2] = min(box[c, 2], x0)
-        box[c, 3] = max(box[c, 3], x1)
-        excess[c] += run_excess[r]
-        peak[c] = max(peak[c], run_peak[r])
-        positive[c] += run_sum[r]
+        comps[c].area += x1 - x0 + 1
+        comps[c].y0 = min(comps[c].y0, y)
+        comps[c].y1 = max(comps[c].y1, y)
+        comps[c].x0 = min(comps[c].x0, x0)
+        comps[c].x1 = max(comps[c].x1, x1)
+        comps[c].excess += run_excess[r]
+        comps[c].peak = max(comps[c].peak, run_peak[r])
+        comps[c].positive += run_sum[r]
         for x in range(x0, x1 + 1):
             labels[y, x] = c + 1
-    return Components(area, box, excess, peak, positive)
-
+    return comps
 
 
 @njit(cache=True)
 def select_candidates(comps, min_area, max_area, max_extent, drop_hot, cap):
-    """The :class:`Candidates` worth measuring among :class:`Components`, by decreasing summed excess.
+    """The components worth measuring, by decreasing summed excess: a :data:`CANDIDATE` array.
 
-    Size and extent limits; with ``drop_hot``, lone hot pixels (nearly all of the component's
-    light in one pixel); at most ``cap``, the brightest (ties keep label order).
+    ``comps`` a :data:`COMPONENT` array. Size and extent limits; with ``drop_hot``, lone hot
+    pixels (nearly all of the component's light in one pixel); at most ``cap``, the brightest
+    (ties keep label order).
     """
-    n = comps.area.size
+    n = comps.size
     keep = np.empty(n, np.int64)
     k = 0
     for c in range(n):
-        area = comps.area[c]
-        extent = max(comps.box[c, 1] - comps.box[c, 0], comps.box[c, 3] - comps.box[c, 2]) + 1
+        area = comps[c].area
+        extent = max(comps[c].y1 - comps[c].y0, comps[c].x1 - comps[c].x0) + 1
         ok = area >= min_area and area <= max_area and extent <= max_extent
-        if drop_hot and not comps.peak[c] < _HOT_CONCENTRATION * max(comps.positive[c], 1e-30):
+        if drop_hot and not comps[c].peak < _HOT_CONCENTRATION * max(comps[c].positive, 1e-30):
             ok = False
         if ok:
             keep[k] = c
@@ -286,18 +282,22 @@ def select_candidates(comps, min_area, max_area, max_extent, drop_hot, cap):
     idx = keep[:k]
     order = np.argsort(-comps.excess[idx], kind="mergesort")  # stable
     idx = idx[order[:cap]]
-    ids = (idx + 1).astype(np.int32)
-    boxes = np.empty((idx.size, 4), np.int64)
+    cand = np.empty(idx.size, CANDIDATE)
     for i in range(idx.size):
-        for j in range(4):
-            boxes[i, j] = comps.box[idx[i], j]
-    return Candidates(ids, boxes, np.zeros(idx.size, np.bool_))
+        c = idx[i]
+        cand[i].id = c + 1
+        cand[i].y0 = comps[c].y0
+        cand[i].y1 = comps[c].y1
+        cand[i].x0 = comps[c].x0
+        cand[i].x1 = comps[c].x1
+        cand[i].is_part = False
+    return cand
 
 
 @njit(cache=True)
 def clear_boxes(labels, boxes):
-    """Zero ``labels`` inside each box (y0, y1, x0, x1) (what the last extraction labelled)."""
-    for k in range(boxes.shape[0]):
-        for y in range(boxes[k, 0], boxes[k, 1] + 1):
-            for x in range(boxes[k, 2], boxes[k, 3] + 1):
+    """Zero ``labels`` inside each box (records with ``y0, y1, x0, x1``: what the last call labelled)."""
+    for k in range(boxes.size):
+        for y in range(boxes[k].y0, boxes[k].y1 + 1):
+            for x in range(boxes[k].x0, boxes[k].x1 + 1):
                 labels[y, x] = 0

@@ -10,33 +10,24 @@ left out and the star measured again.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 from numba import njit
 
 from skyfix.detect._grid import grid_at
 from skyfix.detect._stats import sum_sq_dev
 
-__all__ = ["Measurements", "measure", "residual", "sharpness"]
+__all__ = ["MEASUREMENT", "measure", "residual", "sharpness"]
 
 
-class Measurements(NamedTuple):
-    """What :func:`measure` finds for each candidate, (N,) float64 each (zeros: nothing above the sky)."""
-
-    flux: np.ndarray  #: sum of the pixels minus the sky, ADU
-    x: np.ndarray  #: intensity-weighted centroid (positive residuals), pixels
-    y: np.ndarray
-    npix: np.ndarray  #: pixels measured
-    peak: np.ndarray  #: highest residual, ADU
-    sharpness: np.ndarray  #: of the peak (:func:`sharpness`)
-    mxx: np.ndarray  #: intensity-weighted second central moments, px²
-    myy: np.ndarray
-    mxy: np.ndarray
-    spread_x: np.ndarray  #: unweighted Σ(x − x̄)² and Σ(y − ȳ)² about the centroid, px²
-    spread_y: np.ndarray
-    nsat: np.ndarray  #: pixels at or above the saturation level
-    n_hot: np.ndarray  #: hot pixels left out
+#: What :func:`measure` finds for a candidate (all zeros: nothing above the sky), float64: the
+#: flux (sum of the pixels minus the sky, ADU); the intensity-weighted centroid ``x, y``
+#: (positive residuals, pixels); ``npix`` pixels measured; the ``peak`` residual (ADU) and its
+#: :func:`sharpness`; the intensity-weighted second central moments ``mxx, myy, mxy`` (px²);
+#: the unweighted spreads ``Σ(x − x̄)², Σ(y − ȳ)²`` about the centroid (px², for its noise σ);
+#: ``nsat`` pixels at or above the saturation level; ``n_hot`` hot pixels left out.
+MEASUREMENT = np.dtype([(name, np.float64) for name in (
+    "flux", "x", "y", "npix", "peak", "sharpness", "mxx", "myy", "mxy", "spread_x", "spread_y", "nsat",
+    "n_hot")])
 
 
 @njit(cache=True, inline="always")
@@ -73,24 +64,21 @@ def sharpness(img, sky, py, px, peak):
 def measure(img, labels, cand, sky, saturation, min_sharpness):
     """Centroid and moments of each candidate grown by one pixel, on the raw frame minus sky.
 
-    ``labels`` as the labelling (and deblending) left them; ``cand`` the :class:`Candidates`;
-    ``sky`` the :class:`~skyfix.detect._grid.SkyGrid` (its raw-frame level is subtracted). A
-    peak sharper than ``min_sharpness`` is a hot pixel: it is left out and the component
-    measured again (up to 3 times), so a hot pixel on a star does not take the star with it.
-    A candidate with no light above the sky keeps zeros. Returns the :class:`Measurements`.
+    ``labels`` as the labelling (and deblending) left them; ``cand`` the candidates (a
+    :data:`~skyfix.detect.labelling.CANDIDATE` array); ``sky`` the
+    :class:`~skyfix.detect._grid.SkyGrid` (its raw-frame level is subtracted). A peak sharper
+    than ``min_sharpness`` is a hot pixel: it is left out and the component measured again (up
+    to 3 times), so a hot pixel on a star does not take the star with it. A candidate with no
+    light above the sky keeps zeros. Returns a :data:`MEASUREMENT` array.
     """
     h, w = img.shape
-    ids, boxes = cand.ids, cand.boxes
-    n = ids.size
-    m = Measurements(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
-                     np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
-                     np.zeros(n))
+    m = np.zeros(cand.size, MEASUREMENT)
     skip_y = np.empty(4, np.int64)
     skip_x = np.empty(4, np.int64)
-    for c in range(ids.size):
-        lab = ids[c]
-        y0, y1 = max(boxes[c, 0] - 1, 0), min(boxes[c, 1] + 1, h - 1)
-        x0, x1 = max(boxes[c, 2] - 1, 0), min(boxes[c, 3] + 1, w - 1)
+    for c in range(cand.size):
+        lab = cand[c].id
+        y0, y1 = max(cand[c].y0 - 1, 0), min(cand[c].y1 + 1, h - 1)
+        x0, x1 = max(cand[c].x0 - 1, 0), min(cand[c].x1 + 1, w - 1)
         nskip = 0
         for _attempt in range(4):
             sw = swx = swy = swxx = swyy = swxy = 0.0
@@ -151,17 +139,17 @@ def measure(img, labels, cand, sky, saturation, min_sharpness):
         if sw <= 0.0:
             continue
         xc, yc = swx / sw, swy / sw
-        m.flux[c] = total
-        m.x[c] = xc
-        m.y[c] = yc
-        m.npix[c] = npix
-        m.peak[c] = peak
-        m.sharpness[c] = sharp
-        m.mxx[c] = max(swxx / sw - xc * xc, 0.0)
-        m.myy[c] = max(swyy / sw - yc * yc, 0.0)
-        m.mxy[c] = swxy / sw - xc * yc
-        m.spread_x[c] = sum_sq_dev(sxx, sx, npix, xc)
-        m.spread_y[c] = sum_sq_dev(syy, sy, npix, yc)
-        m.nsat[c] = nsat
-        m.n_hot[c] = nskip
+        m[c].flux = total
+        m[c].x = xc
+        m[c].y = yc
+        m[c].npix = npix
+        m[c].peak = peak
+        m[c].sharpness = sharp
+        m[c].mxx = max(swxx / sw - xc * xc, 0.0)
+        m[c].myy = max(swyy / sw - yc * yc, 0.0)
+        m[c].mxy = swxy / sw - xc * yc
+        m[c].spread_x = sum_sq_dev(sxx, sx, npix, xc)
+        m[c].spread_y = sum_sq_dev(syy, sy, npix, yc)
+        m[c].nsat = nsat
+        m[c].n_hot = nskip
     return m

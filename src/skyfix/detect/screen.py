@@ -52,24 +52,25 @@ class Screened(NamedTuple):
 def screen(m, is_part, sky, rules):
     """Noise, elongation and SNR of the measured candidates, and which of them are stars.
 
-    ``m`` are the :class:`~skyfix.detect.measure.Measurements`, ``is_part`` whether each is a
-    deblended part, ``sky`` the :class:`~skyfix.detect._grid.SkyGrid`, ``rules`` the
-    :class:`Rejections`. The tests run in this order, each on the survivors of the ones
-    before: flux > 0, sharpness, hot pixels, ``max_elongation``, particle tracks
-    (:func:`particle_tracks`), diffuse blobs (:func:`diffuse`), cluttered tiles
-    (:func:`cluttered`). Returns the :class:`Screened` candidates.
+    ``m`` are the measurements (a :data:`~skyfix.detect.measure.MEASUREMENT` array),
+    ``is_part`` whether each is a deblended part, ``sky`` the
+    :class:`~skyfix.detect._grid.SkyGrid`, ``rules`` the :class:`Rejections`. The tests run in
+    this order, each on the survivors of the ones before: flux > 0, sharpness, hot pixels,
+    ``max_elongation``, particle tracks (:func:`particle_tracks`), diffuse blobs
+    (:func:`diffuse`), cluttered tiles (:func:`cluttered`). Returns the :class:`Screened`
+    candidates.
     """
     sigma, min_sharpness, max_elongation, reject_tracks, max_diffuseness, max_noise_ratio = rules
-    n = m.flux.size
+    n = m.size
     noise_px = np.empty(n)
     elong = np.empty(n)
     snr = np.empty(n)
     minor = np.empty(n)
     good = np.zeros(n, np.bool_)
     for c in range(n):
-        flux, npix = m.flux[c], m.npix[c]
-        mxx, myy, mxy = m.mxx[c], m.myy[c], m.mxy[c]
-        noise_px[c] = value_near(sky.noise, sky.weights, m.x[c], m.y[c])
+        flux, npix = m[c].flux, m[c].npix
+        mxx, myy, mxy = m[c].mxx, m[c].myy, m[c].mxy
+        noise_px[c] = value_near(sky.noise, sky.weights, m[c].x, m[c].y)
         tr = mxx + myy
         det = math.sqrt(max((mxx - myy) * (mxx - myy) + 4.0 * (mxy * mxy), 0.0))
         # the 1/12 px² of a uniform pixel keeps a one-pixel object's minor axis above zero
@@ -79,8 +80,8 @@ def screen(m, is_part, sky, rules):
         snr[c] = background_snr(flux, noise_px[c], npix)
         # hot pixels: too sharp even after leaving out up to 3 of them, or nothing left but
         # noise; a deblended part around a hot pixel is only a neighbouring star's wing
-        good[c] = (flux > 0) and (m.sharpness[c] >= min_sharpness) and (
-            m.n_hot[c] == 0 or (snr[c] >= sigma and not is_part[c]))
+        good[c] = (flux > 0) and (m[c].sharpness >= min_sharpness) and (
+            m[c].n_hot == 0 or (snr[c] >= sigma and not is_part[c]))
         if elong[c] > max_elongation:
             good[c] = False
     if reject_tracks:
