@@ -21,7 +21,6 @@ Typical use::
   :func:`save_calibration` / :func:`load_calibration`.
 """
 
-from skyfix.detect._kernel_cache import drop_stale_cache
 from skyfix.detect.background import Background, estimate_background
 from skyfix.detect.calibrate_frames import (
     calibrate_frame,
@@ -67,7 +66,3 @@ __all__ = [
     "refine_centroids",
     "saturation_level",
 ]
-
-# The kernels call each other across files, which numba's cache does not track: drop a stale
-# cache before any kernel loads (kernels load on first call, never at import).
-drop_stale_cache()

@@ -24,11 +24,9 @@ that accept a candidate and its refit are those of :mod:`skyfix.identify.accept`
 
 from __future__ import annotations
 
-import hashlib
 import math
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -64,39 +62,11 @@ def _failure(reason: str, t0: float, n_tried: int = 0, n_cand: int = 0) -> Ident
 
 
 _COMPILED = False
-_KERNEL_MODULES = ("hashing.py", "search.py", "verify.py", "refine.py", "kernel_data.py", "accept.py")
-
-
-def _drop_stale_kernel_cache() -> None:
-    """Delete numba's on-disk cache of the kernels when any kernel source changed.
-
-    numba checks only the calling function's own file, so a cached ``search`` would keep an
-    old copy of a changed ``verify``; a digest of all kernel sources catches that.
-    """
-    here = Path(__file__).parent
-    cache = here / "__pycache__"
-    digest = hashlib.sha1(b"".join((here / m).read_bytes() for m in _KERNEL_MODULES)).hexdigest()
-    stamp = cache / "skyfix_kernels.sha1"
-    try:
-        if stamp.read_text() == digest:
-            return
-    except OSError:
-        pass
-    try:
-        cache.mkdir(exist_ok=True)
-        for f in cache.glob("*.nb[ic]"):
-            f.unlink(missing_ok=True)
-        stamp.write_text(digest)
-    except OSError:  # a read-only install: numba uses its user-wide cache, nothing to drop
-        pass
-
-
 def _compile_kernels() -> None:
     """Load (or compile) the numba kernels by running them once on a tiny dummy input."""
     global _COMPILED
     if _COMPILED:
         return
-    _drop_stale_kernel_cache()
     ro = readonly_view
     image = ImageStars(np.array([[0.0, 0.0], [100.0, 0.0], [0.0, 100.0], [70.0, 60.0]]),
                        np.array([-100.0, 100.0, -100.0, 100.0]))
