@@ -21,6 +21,11 @@ project's search: six of them cost more than the median search call's own work o
 frame). The kernels called from Python once per chunk of patterns therefore have a twin
 (``search_entry``, ``refine_entry``) that takes each NamedTuple as ``tuple(nt)`` — the same
 fields in the same order — and names them again inside the compiled code, at no cost.
+
+*Cached kernels.* numba's cache keys a kernel by its argument types, which name a NamedTuple's
+class and field types but not its field names: reordering two fields of one type here would let
+a cached ``@njit`` kernel read the wrong one. This file therefore counts as a kernel source for
+:func:`skyfix._kernels.drop_stale_kernel_caches` (it hashes the files that mention ``njit``).
 """
 
 from __future__ import annotations
