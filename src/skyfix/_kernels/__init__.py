@@ -4,9 +4,11 @@ quaternions) — and the package-wide check that keeps numba's on-disk cache hon
 
 numba caches a compiled kernel beside its source and checks only that file's timestamp: a
 kernel in ``final_fit.py`` that inlined a helper from ``_kernels/lens.py`` would keep running
-the old helper after the helper changed. :func:`drop_stale_kernel_caches` (run once when
-:mod:`skyfix` is imported) keeps a digest of every source file of the package that defines
-numba kernels, and deletes all of the package's cached kernels when it changes
+the old helper after the helper changed, and a cached kernel taking a NamedTuple defined in
+another file would read its fields by their old order (numba's cache key holds the fields'
+types, not their names). :func:`drop_stale_kernel_caches` (run once when :mod:`skyfix` is
+imported) keeps a digest of every source file of the package — any file may define what a
+kernel inlines or takes — and deletes all of the package's cached kernels when it changes
 (``tests/test_kernel_cache.py`` edits a helper in a copy of the package and sees the change).
 """
 
@@ -35,13 +37,13 @@ def _stat_line(package: Path, paths: list[Path]) -> str:
 
 
 def drop_stale_kernel_caches(package: Path = _PACKAGE) -> bool:
-    """Delete numba's cached kernels of ``package`` if any source file defining kernels changed
-    since the last call. Returns whether it deleted them.
+    """Delete numba's cached kernels of ``package`` if any of its source files changed since
+    the last call. Returns whether it deleted them.
 
     Fast path: the files' sizes and modification times, as last seen, are unchanged (one
-    ``stat`` per file). Otherwise the files that define kernels (``njit``) are hashed; a new
-    digest drops every ``*.nbi``/``*.nbc`` under the package's ``__pycache__`` folders (and
-    under ``NUMBA_CACHE_DIR`` when set). A read-only install is left alone: numba then caches in
+    ``stat`` per file). Otherwise every source file is hashed; a new digest drops every
+    ``*.nbi``/``*.nbc`` under the package's ``__pycache__`` folders (and under
+    ``NUMBA_CACHE_DIR`` when set). A read-only install is left alone: numba then caches in
     its user-wide folder, keyed by the (unchanging) installed files."""
     cache = package / "__pycache__"
     stamp = cache / _STAMP
@@ -56,9 +58,7 @@ def drop_stale_kernel_caches(package: Path = _PACKAGE) -> bool:
             return False
         h = hashlib.sha256()
         for p in paths:
-            data = p.read_bytes()
-            if b"njit" in data:
-                h.update(str(p.relative_to(package)).encode() + b"\0" + data + b"\0")
+            h.update(str(p.relative_to(package)).encode() + b"\0" + p.read_bytes() + b"\0")
         digest = h.hexdigest()
         dropped = digest != old_digest
         if dropped:
