@@ -38,7 +38,7 @@ from skyfix.detect._grid import bilinear, grid_weights
 from skyfix.detect._smooth import column_sum, smooth_at, smooth_row
 from skyfix.detect._stats import CLIP, median, median_inplace, robust_level_noise, tile_level_noise
 
-__all__ = ["Background", "estimate_background", "smooth3", "default_tile_size"]
+__all__ = ["METHODS", "Background", "estimate_background", "smooth3", "default_tile_size"]
 
 # Raw noise below this (in levels) on integer data counts as quantised.
 _QUANTISED_SIGMA = 1.0
@@ -115,6 +115,39 @@ def default_tile_size(shape: tuple[int, int]) -> int:
     return int(max(1, min(short, max(32, min(64, short // 16)))))
 
 
+class _Tiling(NamedTuple):
+    """How a background method cuts an H×W frame: tiles and the sampling steps in them, pixels."""
+
+    tile: int  # the size reported in Background.tile
+    ny: int  # tiles down and across
+    nx: int
+    step_y: int  # sampling lattice steps
+    step_x: int
+    # tiles are single rows: their levels are the raw rows' medians, which the smoothed frame
+    # sees mixed [1 2 1]/4 with the neighbouring rows, and no gradient is fitted inside them
+    per_row: bool = False
+
+
+def _tiled(h: int, w: int, tile: int | None) -> _Tiling:
+    t = default_tile_size((h, w)) if tile is None else int(max(1, min(tile, h, w)))
+    step = max(1, round(t / _SAMPLES_PER_SIDE))
+    return _Tiling(t, max(1, round(h / t)), max(1, round(w / t)), step, step)
+
+
+def _global(h: int, w: int, tile: int | None) -> _Tiling:
+    step = max(1, int(np.sqrt(h * w / 16384)))
+    return _Tiling(max(h, w), 1, 1, step, step)
+
+
+def _rows(h: int, w: int, tile: int | None) -> _Tiling:
+    return _Tiling(1, h, 1, 1, max(1, w // 128), per_row=True)
+
+
+#: Background models by name (``method=`` of :func:`estimate_background`), each a way to cut
+#: the frame into tiles, ``(h, w, tile) -> _Tiling``.
+METHODS = {"tiled": _tiled, "global": _global, "rows": _rows}
+
+
 def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter: int = 1,
                         smoothed: np.ndarray | None = None, method: str = "tiled") -> Background:
     """Sky level and noise of a frame: tiled (default), one global value, or one per row.
@@ -139,20 +172,11 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     -------
     Background
     """
+    if not isinstance(method, str) or method not in METHODS:
+        raise ValueError(f"unknown background method {method!r}; choose {', '.join(METHODS)}")
     img = _frame(image)
     h, w = img.shape
-    if method == "tiled":
-        t = default_tile_size(img.shape) if tile is None else int(max(1, min(tile, h, w)))
-        ny, nx = max(1, round(h / t)), max(1, round(w / t))
-        sy = sx = max(1, round(t / _SAMPLES_PER_SIDE))
-    elif method == "global":
-        t, ny, nx = max(h, w), 1, 1
-        sy = sx = max(1, int(np.sqrt(h * w / 16384)))
-    elif method == "rows":
-        t, ny, nx = 1, h, 1
-        sy, sx = 1, max(1, w // 128)
-    else:
-        raise ValueError(f"unknown background method {method!r}; choose tiled, global or rows")
+    t, ny, nx, sy, sx, per_row = METHODS[method](h, w, tile)
     edges_y, edges_x = _tile_edges(h, ny), _tile_edges(w, nx)
     # The statistics need the smoothed frame only on the sampling lattice: without a smoothed
     # frame from the caller, the 3×3 kernel is evaluated at those points alone (a tenth of the
@@ -162,9 +186,9 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     else:
         sm = np.ascontiguousarray(smoothed, dtype=np.float32)
     lattice = _Lattice(edges_y, edges_x, sy, sx)
-    samples = _lattice_samples(img, sm, lattice, method == "rows")
+    samples = _lattice_samples(img, sm, lattice, per_row)
     med = samples.median
-    if method == "rows":
+    if per_row:
         # levels of the raw rows; the smoothed frame sees each row mixed [1 2 1]/4 with its neighbours
         level_raw = med.reshape(ny, nx)
         padded = np.concatenate([level_raw[:1], level_raw, level_raw[-1:]])
@@ -176,13 +200,13 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     cy = 0.5 * (edges_y[:-1] + edges_y[1:]) - 0.5
     cx = 0.5 * (edges_x[:-1] + edges_x[1:]) - 0.5
     weights = grid_weights(cy, cx, (h, w))
-    if method != "rows":
+    if not per_row:
         level_raw = level
     # noise about the interpolated sky, not the tile median, so a gradient across a tile is
     # not taken for noise
     is_int = is_integer_valued(img)
-    stats, raw_res = _tile_noise(samples, lattice, level, level_raw, weights, is_int, method != "rows")
-    if method != "rows":  # rows are one pixel tall: no gradient inside them to correct for
+    stats, raw_res = _tile_noise(samples, lattice, level, level_raw, weights, is_int, not per_row)
+    if not per_row:  # rows are one pixel tall: no gradient inside them to correct for
         level = level + stats[..., 0]
         level_raw = level
     noise_s = stats[..., 1]

@@ -24,8 +24,8 @@ from skyfix.detect._stats import robust_level_noise
 from skyfix.errors import ImageReadError
 
 __all__ = [
-    "master_frame", "master_dark", "master_flat", "hot_pixel_map", "dead_pixel_map", "calibrate_frame",
-    "repair_pixels", "dark_report", "save_calibration", "load_calibration",
+    "COMBINES", "master_frame", "master_dark", "master_flat", "hot_pixel_map", "dead_pixel_map",
+    "calibrate_frame", "repair_pixels", "dark_report", "save_calibration", "load_calibration",
 ]
 
 
@@ -74,14 +74,23 @@ def master_frame(frames: Iterable[np.ndarray | str | Path] | np.ndarray, *, comb
     -------
     ndarray of float32, shape (H, W)
     """
-    stack = _stack(frames)
-    if combine == "mean":
-        return stack.mean(axis=0, dtype=np.float64).astype(np.float32)
+    if not isinstance(combine, str) or combine not in COMBINES:
+        raise ValueError(f"unknown combine {combine!r}; choose {', '.join(COMBINES)}")
+    return COMBINES[combine](_stack(frames), clip_sigma)
+
+
+def _mean(stack: np.ndarray, clip_sigma: float) -> np.ndarray:
+    return stack.mean(axis=0, dtype=np.float64).astype(np.float32)
+
+
+def _median(stack: np.ndarray, clip_sigma: float) -> np.ndarray:
+    return np.median(stack, axis=0).astype(np.float32)
+
+
+def _clipped_mean(stack: np.ndarray, clip_sigma: float) -> np.ndarray:
     med = np.median(stack, axis=0)
-    if combine == "median" or stack.shape[0] < 3:
+    if stack.shape[0] < 3:
         return med.astype(np.float32)
-    if combine != "clipped_mean":
-        raise ValueError(f"unknown combine {combine!r}; choose clipped_mean, median or mean")
     mad = np.median(np.abs(stack - med), axis=0)
     # quantised stacks have MAD 0 on quiet pixels: clip no tighter than one level there
     lim = clip_sigma * np.where(mad > 0, 1.4826 * mad, 1.0)
@@ -89,6 +98,10 @@ def master_frame(frames: Iterable[np.ndarray | str | Path] | np.ndarray, *, comb
     n = keep.sum(axis=0)
     total = np.where(keep, stack, 0.0).sum(axis=0, dtype=np.float64)
     return np.where(n > 0, total / np.maximum(n, 1), med).astype(np.float32)
+
+
+#: Ways to combine a stack pixel by pixel, by name (``combine=`` of :func:`master_frame`).
+COMBINES = {"clipped_mean": _clipped_mean, "median": _median, "mean": _mean}
 
 
 def master_dark(darks: Iterable[np.ndarray | str | Path] | np.ndarray, **kw) -> np.ndarray:

@@ -31,7 +31,7 @@ from skyfix.detect.centroids import Centroids, background_snr
 from skyfix.detect.hillclimb import global_background
 from skyfix.detect.saturation import saturation_level
 
-__all__ = ["extract_regionprops", "perona_malik"]
+__all__ = ["PREFILTERS", "extract_regionprops", "perona_malik"]
 
 
 def perona_malik(image: np.ndarray, iterations: int = 5, kappa: float | None = None,
@@ -57,6 +57,11 @@ def perona_malik(image: np.ndarray, iterations: int = 5, kappa: float | None = N
     return u
 
 
+#: Noise removal before the threshold, by name (``prefilter=`` of :func:`extract_regionprops`;
+#: ``None``: none).
+PREFILTERS = {"smooth": smooth3, "diffusion": perona_malik}
+
+
 def extract_regionprops(image: np.ndarray, *, sigma: float = 3.0, max_stars: int = 100, min_area: int = 4,
                         max_area: int | None = None, max_eccentricity: float | None = 0.95,
                         prefilter: str | None = None, saturation: float | None = None) -> Centroids:
@@ -79,16 +84,11 @@ def extract_regionprops(image: np.ndarray, *, sigma: float = 3.0, max_stars: int
     saturation : float, optional
         Saturation level for the flag (default: :func:`skyfix.detect.saturation_level`).
     """
+    if prefilter is not None and (not isinstance(prefilter, str) or prefilter not in PREFILTERS):
+        raise ValueError(f"unknown prefilter {prefilter!r}; choose None, 'smooth' or 'diffusion'")
     img = np.ascontiguousarray(image, dtype=np.float32)
     h, w = img.shape
-    if prefilter is None:
-        work = img
-    elif prefilter == "smooth":
-        work = smooth3(img)
-    elif prefilter == "diffusion":
-        work = perona_malik(img)
-    else:
-        raise ValueError(f"unknown prefilter {prefilter!r}; choose None, 'smooth' or 'diffusion'")
+    work = img if prefilter is None else PREFILTERS[prefilter](img)
     # the RMS noise floor is the sensor's (raw frame's); a prefilter only lowers the work image's
     level, noise = global_background(img)
     if not noise > 0:
