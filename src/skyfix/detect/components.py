@@ -61,20 +61,18 @@ from skyfix.detect.screen import Rejections, screen
 from skyfix.errors import ImageReadError
 from skyfix.io import as_image
 
-__all__ = ["OPTIONS", "extract_components"]
+__all__ = ["Options", "extract_components", "run"]
 
-#: The keywords of :func:`extract_components` (all of them :func:`~skyfix.detect.extract_centroids`'s).
-OPTIONS = ("sigma", "max_stars", "min_area", "max_area", "max_extent", "min_sharpness", "max_noise_ratio",
-           "max_diffuseness", "max_elongation", "saturation", "tile", "background", "deblend",
-           "reject_tracks")
 # Deblending: a second maximum is a star of its own at least this far (px) from a brighter one,
 # and a component with more than this many prominent maxima is texture.
 _DEBLEND_MIN_SEP = 2.0
 _DEBLEND_MAX_PARTS = 3
 
 
-class _Settings(NamedTuple):
-    """:func:`extract_components`'s keywords, as its two passes share them."""
+class Options(NamedTuple):
+    """The detection options of :func:`~skyfix.detect.extract_centroids` (documented there), as
+    every detection method of :data:`~skyfix.detect.METHODS` receives them: this extractor reads
+    them all, the seeds' detectors ``sigma``, ``max_stars`` and ``saturation``."""
 
     sigma: float
     max_stars: int
@@ -115,14 +113,19 @@ def extract_components(
 
     ``image`` is one (H, W) frame: 8/16-bit frames are used as they are, anything else as
     float32; non-finite pixels are found while smoothing and then replaced. The keywords are
-    :func:`~skyfix.detect.extract_centroids`'s (documented there), which calls this for
-    ``method="components"`` after checking them.
+    :func:`~skyfix.detect.extract_centroids`'s (documented there), which runs this method
+    (:func:`run`) for ``method="components"`` after checking them.
     """
+    return run(image, Options(sigma, max_stars, min_area, max_area, max_extent, min_sharpness,
+                              max_noise_ratio, max_diffuseness, max_elongation, saturation, tile,
+                              background, deblend, reject_tracks))
+
+
+def run(image: np.ndarray, s: Options) -> Centroids:
+    """:func:`extract_components` with its keywords as :class:`Options` (the registry's form)."""
     img = np.asarray(image)
     if not (img.dtype in (np.uint8, np.uint16) and img.flags.c_contiguous):
         img = np.ascontiguousarray(img, dtype=np.float32)
-    s = _Settings(sigma, max_stars, min_area, max_area, max_extent, min_sharpness, max_noise_ratio,
-                  max_diffuseness, max_elongation, saturation, tile, background, deblend, reject_tracks)
     c = _one_pass(img, s, check_finite=True)
     if c is None:  # NaN/Inf pixels (or an overflowing sum): replace them, then once more
         try:
@@ -133,7 +136,7 @@ def extract_components(
     return c
 
 
-def _one_pass(img: np.ndarray, s: _Settings, check_finite: bool) -> Centroids | None:
+def _one_pass(img: np.ndarray, s: Options, check_finite: bool) -> Centroids | None:
     """:func:`extract_components` on one frame; ``None`` if ``check_finite`` and a pixel is not finite."""
     h, w = img.shape
     # the background needs the smoothed frame only on its sampling lattice, so it comes first

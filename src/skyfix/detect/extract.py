@@ -29,8 +29,8 @@ from skyfix.detect._grid import sky_grid, values_near
 from skyfix.detect.background import Background, estimate_background
 from skyfix.detect.centroid import CENTROIDERS, GAUSSIAN, Refined, refine_centroids
 from skyfix.detect.centroids import Centroids, background_snr
-from skyfix.detect.components import OPTIONS as COMPONENT_OPTIONS
-from skyfix.detect.components import extract_components
+from skyfix.detect.components import Options
+from skyfix.detect.components import run as run_components
 from skyfix.detect.hillclimb import extract_hillclimb
 from skyfix.detect.region_grow import extract_region_grow
 from skyfix.detect.regionprops import extract_regionprops
@@ -39,30 +39,31 @@ from skyfix.errors import ImageReadError, InputError
 from skyfix.io import as_image
 from skyfix.validate import check_count, check_positive
 
-__all__ = ["METHODS", "Method", "extract_centroids", "saturation_level"]
+__all__ = ["METHODS", "Method", "Options", "extract_centroids", "saturation_level"]
 
 
 class Method(NamedTuple):
     """A detection method as :func:`extract_centroids` runs it."""
 
-    #: ``extract(frame, **options) -> Centroids``
-    extract: Callable[..., Centroids]
-    #: the keywords of :func:`extract_centroids` it is given (the others do not apply to it)
-    options: tuple[str, ...]
+    #: ``extract(frame, options) -> Centroids``, ``options`` the :class:`Options`
+    extract: Callable[[np.ndarray, Options], Centroids]
     #: takes frames with non-finite pixels (it finds them itself) and 8/16-bit frames as they
     #: are; the others get a finite float32 frame
     raw_frames: bool = False
 
 
-# the seeds' detectors: a threshold, a cap on the count, a saturation level
-_SEED_OPTIONS = ("sigma", "max_stars", "saturation")
+def _seed(extract: Callable[..., Centroids]) -> Method:
+    """A seed thesis's detector: it reads the threshold, the cap on the count and the saturation
+    level (the other options apply to ``"components"`` only)."""
+    return Method(lambda img, o: extract(img, sigma=o.sigma, max_stars=o.max_stars, saturation=o.saturation))
+
 
 #: Detection methods by name (``method=`` of :func:`extract_centroids`, ``skyfix detect --method``).
 METHODS: dict[str, Method] = {
-    "components": Method(extract_components, COMPONENT_OPTIONS, raw_frames=True),
-    "threshold_hillclimb": Method(extract_hillclimb, _SEED_OPTIONS),
-    "region_grow": Method(extract_region_grow, _SEED_OPTIONS),
-    "regionprops": Method(extract_regionprops, _SEED_OPTIONS),
+    "components": Method(run_components, raw_frames=True),
+    "threshold_hillclimb": _seed(extract_hillclimb),
+    "region_grow": _seed(extract_region_grow),
+    "regionprops": _seed(extract_regionprops),
 }
 
 
@@ -193,11 +194,9 @@ def extract_centroids(
     h, w = img.shape
     if h < 3 or w < 3:
         return Centroids.empty((h, w), reason="too small")
-    given = {"sigma": sigma, "max_stars": max_stars, "min_area": min_area, "max_area": max_area,
-             "max_extent": max_extent, "min_sharpness": min_sharpness, "max_noise_ratio": max_noise_ratio,
-             "max_diffuseness": max_diffuseness, "max_elongation": max_elongation, "saturation": saturation,
-             "tile": tile, "background": background, "deblend": deblend, "reject_tracks": reject_tracks}
-    c = detector.extract(img, **{name: given[name] for name in detector.options})
+    options = Options(sigma, max_stars, min_area, max_area, max_extent, min_sharpness, max_noise_ratio,
+                      max_diffuseness, max_elongation, saturation, tile, background, deblend, reject_tracks)
+    c = detector.extract(img, options)
     if centroid != "com" and len(c):
         c = _refine(img, c, centroid, gain, background, tile)
     return c
