@@ -205,7 +205,7 @@ def test_loaded_database_pickles_as_its_path(small_db):
 def test_false_match_probability_is_the_binomial_tail():
     from scipy.stats import binom
 
-    from skyfix.identify.verify import log_binom_sf
+    from skyfix._kernels.probability import log_binom_sf
 
     for k, n, p in [(3, 10, 0.01), (0, 5, 0.2), (12, 40, 0.03), (40, 40, 0.5), (7, 60, 1e-4)]:
         assert np.exp(log_binom_sf(k, n, p)) == pytest.approx(binom.sf(k - 1, n, p), rel=1e-9)

@@ -1,30 +1,45 @@
 """skyfix's shared numba helpers — each formula that a kernel and a readable function both need
 is written here once (:mod:`.lens`: the camera model; :mod:`.rotation`: rotations, RA/Dec, roll,
-quaternions) — and the package-wide check that keeps numba's on-disk cache honest.
+quaternions, chord angles; :mod:`.probability`: the binomial tail; :mod:`.camera_fit`: the camera
+fit) — and the check that keeps numba's on-disk cache honest.
 
 numba caches a compiled kernel beside its source and checks only that file's timestamp: a
 kernel in ``final_fit.py`` that inlined a helper from ``_kernels/lens.py`` would keep running
 the old helper after the helper changed, and a cached kernel taking a NamedTuple defined in
 another file would read its fields by their old order (numba's cache key holds the fields'
 types, not their names). :func:`drop_stale_kernel_caches` (run once when :mod:`skyfix` is
-imported) keeps a digest of every source file of the package — any file may define what a
-kernel inlines or takes — and deletes all of the package's cached kernels when it changes
+imported) gives every source file that holds kernels a digest of everything its kernels can
+depend on, and deletes that file's cached kernels when the digest changes:
+
+- the file itself and every skyfix module it imports, transitively (a kernel reaches another
+  file's helper or constant only through an import);
+- the NamedTuple definitions its callers can pass in: every file defining a NamedTuple among
+  the modules that import it and their own imports (a kernel's arguments are built by its
+  callers).
+
+Editing a file that no kernel file depends on (a command, a tracker, a report) drops nothing;
+editing ``_kernels/lens.py`` drops every kernel that inlines it
 (``tests/test_kernel_cache.py`` edits a helper in a copy of the package and sees the change).
 """
 
 from __future__ import annotations
 
+import ast
 import hashlib
+import json
 import os
+import re
 from pathlib import Path
 
 __all__ = ["drop_stale_kernel_caches"]
 
 _PACKAGE = Path(__file__).resolve().parent.parent
-_STAMP = "skyfix_kernels.sha256"
+_STAMP = "skyfix_kernels.json"
+_KERNEL = re.compile(rb"numba\.njit|@njit|numba\.jit|@jit\b|numba\.vectorize|numba\.guvectorize")
+_NAMED_TUPLE = re.compile(rb"\(\s*(typing\.)?NamedTuple\s*\)")
 
 
-def _kernel_sources(package: Path) -> list[Path]:
+def _sources(package: Path) -> list[Path]:
     return sorted(p for p in package.rglob("*.py") if "__pycache__" not in p.parts)
 
 
@@ -36,43 +51,129 @@ def _stat_line(package: Path, paths: list[Path]) -> str:
     return "\n".join(parts)
 
 
+def _module_file(package: Path, dotted: str) -> Path | None:
+    """The source file of module ``dotted`` (``skyfix.a.b``) inside ``package``, if any."""
+    parts = dotted.split(".")[1:]
+    base = package.joinpath(*parts)
+    for p in (base.with_suffix(".py"), base / "__init__.py"):
+        if p.is_file():
+            return p
+    return None
+
+
+def _imports(package: Path, path: Path, text: bytes) -> set[Path]:
+    """The package's source files that ``path`` imports (``import skyfix.x``, ``from skyfix.x
+    import y`` — ``y`` too when it is a module — and relative imports)."""
+    name = package.name
+    try:
+        tree = ast.parse(text)
+    except SyntaxError:
+        return set()
+    here = path.relative_to(package).with_suffix("").parts
+    if here[-1] == "__init__":
+        here = here[:-1]
+    mods: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            mods.update(a.name for a in node.names if a.name.split(".")[0] == name)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                pkg = here if path.name == "__init__.py" else here[:-1]
+                up = pkg[: len(pkg) - (node.level - 1)]
+                base = ".".join((name, *up, *((node.module,) if node.module else ())))
+            elif node.module and node.module.split(".")[0] == name:
+                base = node.module
+            else:
+                continue
+            mods.add(base)
+            mods.update(f"{base}.{a.name}" for a in node.names)
+    found = {_module_file(package, m) for m in mods}
+    found.discard(None)
+    found.discard(path)
+    return found  # type: ignore[return-value]
+
+
+def _closure(start: Path, graph: dict[Path, set[Path]]) -> set[Path]:
+    seen = {start}
+    todo = [start]
+    while todo:
+        for q in graph.get(todo.pop(), ()):
+            if q not in seen:
+                seen.add(q)
+                todo.append(q)
+    return seen
+
+
+def kernel_digests(package: Path = _PACKAGE) -> dict[str, str]:
+    """For each source file holding numba kernels, the digest of what its kernels depend on
+    (the module docstring says what that is)."""
+    paths = _sources(package)
+    text = {p: p.read_bytes() for p in paths}
+    graph = {p: _imports(package, p, text[p]) for p in paths}
+    named = {p for p in paths if _NAMED_TUPLE.search(text[p])}
+    importers: dict[Path, set[Path]] = {p: set() for p in paths}
+    for p, deps in graph.items():
+        for q in deps:
+            importers.setdefault(q, set()).add(p)
+    out = {}
+    for k in paths:
+        if not _KERNEL.search(text[k]):
+            continue
+        deps = _closure(k, graph)
+        for caller in importers.get(k, ()):
+            deps |= _closure(caller, graph) & named
+        h = hashlib.sha256()
+        for p in sorted(deps):
+            h.update(str(p.relative_to(package)).encode() + b"\0" + text[p] + b"\0")
+        out[str(k.relative_to(package))] = h.hexdigest()
+    return out
+
+
+def _drop(files: list[Path]) -> None:
+    for f in files:
+        f.unlink(missing_ok=True)
+
+
+def _cached_kernels_of(package: Path, rel: str) -> list[Path]:
+    src = package / rel
+    d = src.parent / "__pycache__"
+    if not d.is_dir():
+        return []
+    return [f for f in d.iterdir() if f.name.startswith(src.stem + ".") and f.suffix in (".nbi", ".nbc")]
+
+
 def drop_stale_kernel_caches(package: Path = _PACKAGE) -> bool:
-    """Delete numba's cached kernels of ``package`` if any of its source files changed since
-    the last call. Returns whether it deleted them.
+    """Delete numba's cached kernels of every source file of ``package`` whose dependencies
+    (:func:`kernel_digests`) changed since the last call. Returns whether it deleted any.
 
     Fast path: the files' sizes and modification times, as last seen, are unchanged (one
-    ``stat`` per file). Otherwise every source file is hashed; a new digest drops every
-    ``*.nbi``/``*.nbc`` under the package's ``__pycache__`` folders (and under
-    ``NUMBA_CACHE_DIR`` when set). A read-only install is left alone: numba then caches in
-    its user-wide folder, keyed by the (unchanging) installed files."""
+    ``stat`` per file). Otherwise the digests are recomputed and compared with the stamp's; a
+    changed or new digest drops that file's ``*.nbi``/``*.nbc`` (and, under ``NUMBA_CACHE_DIR``
+    when set, every cached kernel). A read-only install is left alone: numba then caches in its
+    user-wide folder, keyed by the (unchanging) installed files."""
     cache = package / "__pycache__"
     stamp = cache / _STAMP
     try:
-        paths = _kernel_sources(package)
-        stats = _stat_line(package, paths)
+        stats = _stat_line(package, _sources(package))
         try:
-            old_digest, old_stats = stamp.read_text().split("\n", 1)
-        except (OSError, ValueError):
-            old_digest, old_stats = "", ""
+            old = json.loads(stamp.read_text())
+            old_digests, old_stats = dict(old["digests"]), str(old["stats"])
+        except (OSError, ValueError, KeyError, TypeError):
+            old_digests, old_stats = {}, ""
         if stats == old_stats:
             return False
-        h = hashlib.sha256()
-        for p in paths:
-            h.update(str(p.relative_to(package)).encode() + b"\0" + p.read_bytes() + b"\0")
-        digest = h.hexdigest()
-        dropped = digest != old_digest
-        if dropped:
-            folders = [d for d in package.rglob("__pycache__")]
-            extra = os.environ.get("NUMBA_CACHE_DIR")
-            if extra and Path(extra).is_dir():
-                folders.append(Path(extra))
-            for d in folders:
-                for f in list(d.rglob("*.nbi")) + list(d.rglob("*.nbc")):
-                    f.unlink(missing_ok=True)
+        digests = kernel_digests(package)
+        stale = [rel for rel, d in digests.items() if old_digests.get(rel) != d]
+        for rel in stale:
+            _drop(_cached_kernels_of(package, rel))
+        extra = os.environ.get("NUMBA_CACHE_DIR")
+        if stale and extra and Path(extra).is_dir():
+            _drop(list(Path(extra).rglob("*.nbi")) + list(Path(extra).rglob("*.nbc")))
         cache.mkdir(exist_ok=True)
+        (cache / "skyfix_kernels.sha256").unlink(missing_ok=True)  # the package-wide stamp before
         tmp = cache / f".{_STAMP}.{os.getpid()}"
-        tmp.write_text(digest + "\n" + stats)
+        tmp.write_text(json.dumps({"stats": stats, "digests": digests}))
         os.replace(tmp, stamp)
-        return dropped
+        return bool(stale)
     except OSError:  # a read-only install: nothing of ours to drop
         return False

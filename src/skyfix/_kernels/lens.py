@@ -21,7 +21,7 @@ import numba
 import numpy as np
 
 __all__ = ["CAMERA_NUMBERS", "CX", "CY", "FX", "FY", "K1", "K2", "K3", "P1", "P2", "SKEW", "camera_numbers",
-           "distort", "distort_jacobian", "distort_points", "pixel_rays", "pixels_to_normalized",
+           "distort", "distort_jacobian", "k1_offset", "distort_points", "pixel_rays", "pixels_to_normalized",
            "project_rays", "undistort"]
 
 # The camera's numbers as kernels take them, in this order (Camera's field names).
@@ -34,6 +34,14 @@ UNDISTORT_ITERATIONS = 50
 
 
 _numbers_of = operator.attrgetter(*CAMERA_NUMBERS)
+
+
+@numba.njit(cache=True, inline="always")
+def k1_offset(xn, yn, f, k1):
+    """Pixel offset from the principal point of normalised ``(xn, yn)`` under identification's
+    reduced model — one focal length, radial ``k1`` only: ``(x, y) = f·(xn, yn)·(1 + k1 r²)``."""
+    radial = f * (1.0 + k1 * (xn * xn + yn * yn))
+    return xn * radial, yn * radial
 
 
 def camera_numbers(camera) -> np.ndarray:

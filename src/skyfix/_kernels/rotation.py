@@ -13,7 +13,8 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["angles", "pointing", "radec_of_vectors", "rodrigues", "spd_inverse", "vector_radec"]
+__all__ = ["angles", "chord_angle", "pointing", "radec_of_vectors", "rodrigues", "rotation_vector",
+           "spd_inverse", "vector_radec"]
 
 
 @numba.njit(cache=True, inline="always")
@@ -81,6 +82,13 @@ def pointing(A):
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def chord_angle(chord):
+    """Angle (radians) between unit vectors a chord ``|a − b|`` apart: ``2·asin(chord / 2)``,
+    accurate at small angles where ``acos(a·b)`` is not. Scalars or arrays."""
+    return 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0))
+
+
 @numba.njit(cache=True)
 def angles(b, r, A):
     """Angles (rad) between rays ``b`` (N, 3) and catalogue vectors ``r`` (N, 3) rotated by
@@ -91,7 +99,7 @@ def angles(b, r, A):
         for j in range(3):
             d = b[i, j] - (r[i, 0] * A[j, 0] + r[i, 1] * A[j, 1] + r[i, 2] * A[j, 2])
             chord2 += d * d
-        out[i] = 2.0 * np.arcsin(min(np.sqrt(chord2) / 2.0, 1.0))
+        out[i] = chord_angle(np.sqrt(chord2))
     return out
 
 
@@ -109,6 +117,20 @@ def rodrigues(p):
             KK = K[i, 0] * K[0, j] + K[i, 1] * K[1, j] + K[i, 2] * K[2, j]
             R[i, j] = (1.0 if i == j else 0.0) + a * K[i, j] + b * KK
     return R
+
+
+@numba.njit(cache=True)
+def rotation_vector(A):
+    """Rotation vector ``v`` (3,), ``|v| ≤ π``, of a rotation matrix: the inverse of
+    :func:`rodrigues`, ``R(v) = A``. From :func:`pointing`'s quaternion ``[q, w]`` (``w ≥ 0``):
+    ``v = 2·atan2(|q|, w) · q / |q|``, accurate at small angles and near 180°."""
+    quat = pointing(A)
+    s = np.sqrt(quat[3] * quat[3] + quat[4] * quat[4] + quat[5] * quat[5])
+    k = 2.0 / quat[6] if s == 0.0 else 2.0 * np.arctan2(s, quat[6]) / s
+    out = np.empty(3)
+    for i in range(3):
+        out[i] = k * quat[3 + i]
+    return out
 
 
 @numba.njit(cache=True)

@@ -15,7 +15,7 @@ is not known, but the sky direction of that pixel and the roll there are
 max(60″, 1 px) or the roll error 0.5°; the **normalised error** is the error divided by the
 reported σ, per axis (cross-boresight x, y and roll): honest error bars give an RMS near 1.
 
-``skyfix analyze blind`` and ``benchmarks/suite_blind.py`` run them; the slow test suite pins
+``benchmarks/suite_blind.py`` runs them (``benchmarks/run --suites e``); the slow test suite pins
 the results (``tests/test_blind_campaign.py``).
 """
 

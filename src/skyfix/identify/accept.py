@@ -76,7 +76,7 @@ import math
 import numba
 import numpy as np
 
-from skyfix.identify.verify import log_binom_sf
+from skyfix._kernels.probability import log_binom_sf
 
 __all__ = ["MAX_WRONG_PROBABILITY", "MIN_REFIT_PAIRS", "QUICK_CATALOG_STARS", "QUICK_CENTROIDS",
            "QUICK_LOG_P", "WRONG_BORESIGHT_ARCSEC", "WRONG_ROLL_DEG", "chance_log_probability",

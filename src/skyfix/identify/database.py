@@ -29,6 +29,7 @@ from typing import BinaryIO, NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
+from skyfix._kernels.rotation import chord_angle
 from skyfix.cache import CorruptFileError, cache_dir, exclusive_lock, notice, verify, write_npz
 from skyfix.catalog import Catalog, epoch_now, fibonacci_sphere, load_hipparcos
 from skyfix.errors import DatabaseError
@@ -371,7 +372,7 @@ def _cell_index(vectors: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarr
     dist, cell = cKDTree(centres).query(vectors)
     order = np.lexsort((np.arange(len(vectors)), cell))  # by cell, then brightness
     start = np.searchsorted(cell[order], np.arange(n_cells + 1)).astype(np.int64)
-    radius = 2.0 * math.asin(min(float(dist.max(initial=0.0)) / 2.0, 1.0))
+    radius = float(chord_angle(float(dist.max(initial=0.0))))
     return centres, start, order.astype(np.int32), radius
 
 

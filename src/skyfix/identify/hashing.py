@@ -17,6 +17,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skyfix._kernels.rotation import chord_angle
+
 __all__ = [
     "EDGE_PAIRS",
     "edge_angles",
@@ -44,7 +46,7 @@ def edge_angles(vectors: np.ndarray) -> np.ndarray:
     """
     v = np.asarray(vectors, dtype=np.float64)
     chord = np.linalg.norm(v[:, EDGE_PAIRS[:, 0]] - v[:, EDGE_PAIRS[:, 1]], axis=-1)
-    return 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0))
+    return chord_angle(chord)
 
 
 def edge_ratios(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

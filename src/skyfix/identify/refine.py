@@ -13,6 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skyfix._kernels.lens import k1_offset
 from skyfix.identify.kernel_data import ImageStars, RefineSettings, Refit, StarIndex, ViewBuffers
 from skyfix.identify.verify import gather_stars, grid_index, match_grid, project_stars, star_limit
 
@@ -85,9 +86,9 @@ def _residuals(A, f, k1, v, q, out):
         bz = A[2, 0] * v[t, 0] + A[2, 1] * v[t, 1] + A[2, 2] * v[t, 2]
         xn = (A[0, 0] * v[t, 0] + A[0, 1] * v[t, 1] + A[0, 2] * v[t, 2]) / bz
         yn = (A[1, 0] * v[t, 0] + A[1, 1] * v[t, 1] + A[1, 2] * v[t, 2]) / bz
-        radial = f * (1.0 + k1 * (xn * xn + yn * yn))
-        out[2 * t] = xn * radial - q[t, 0]
-        out[2 * t + 1] = yn * radial - q[t, 1]
+        x, y = k1_offset(xn, yn, f, k1)
+        out[2 * t] = x - q[t, 0]
+        out[2 * t + 1] = y - q[t, 1]
 
 
 @numba.njit(cache=True, error_model="numpy")

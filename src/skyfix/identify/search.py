@@ -17,6 +17,7 @@ from itertools import permutations
 import numba
 import numpy as np
 
+from skyfix._kernels.rotation import chord_angle
 from skyfix.identify.accept import (
     QUICK_CATALOG_STARS,
     QUICK_CENTROIDS,
@@ -78,7 +79,7 @@ def _pattern_edges(p: np.ndarray, combo: np.ndarray, f: float, out: np.ndarray) 
             dx = rays[a, 0] - rays[b, 0]
             dy = rays[a, 1] - rays[b, 1]
             dz = rays[a, 2] - rays[b, 2]
-            out[e] = 2.0 * np.arcsin(min(np.sqrt(dx * dx + dy * dy + dz * dz) / 2.0, 1.0))
+            out[e] = chord_angle(np.sqrt(dx * dx + dy * dy + dz * dz))
             e += 1
     out.sort()
 
@@ -121,7 +122,7 @@ def _angle_matrix(v: np.ndarray, out: np.ndarray) -> None:
             dy = v[a, 1] - v[b, 1]
             dz = v[a, 2] - v[b, 2]
             d = np.sqrt(dx * dx + dy * dy + dz * dz)
-            out[a, b] = out[b, a] = 2.0 * np.arcsin(min(d / 2.0, 1.0))
+            out[a, b] = out[b, a] = chord_angle(d)
 
 
 @numba.njit(cache=True)

@@ -17,49 +17,17 @@ Whether the match counted here is beyond chance is decided in :mod:`skyfix.ident
 
 from __future__ import annotations
 
-import math
-
 import numba
 import numpy as np
 
+from skyfix._kernels.lens import k1_offset
+from skyfix._kernels.probability import log_binom_sf
 from skyfix.identify.kernel_data import CentroidGrid
 
 _N_RADII = 5  # verification radii R, R/2, ..., R/16
 
-__all__ = ["cell_band", "log_binom_sf", "star_limit", "stars_in_view", "gather_stars", "project_stars",
+__all__ = ["cell_band", "star_limit", "stars_in_view", "gather_stars", "project_stars",
            "match_greedy", "grid_index", "match_grid", "verify_attitude"]
-
-
-# log n! for the binomial tails (the same ``math.lgamma`` values, looked up instead of recomputed).
-_N_LOG_FACT = 4096
-_LOG_FACT = np.array([math.lgamma(j + 1.0) for j in range(_N_LOG_FACT)])
-
-
-@numba.njit(cache=True, inline="always")
-def _log_fact(j: int) -> float:
-    return _LOG_FACT[j] if j < _N_LOG_FACT else math.lgamma(j + 1.0)
-
-
-@numba.njit(cache=True)
-def log_binom_sf(k: int, n: int, p: float) -> float:
-    """log P(X >= k) for X ~ Binomial(n, p)."""
-    if k <= 0:
-        return 0.0
-    if k > n:
-        return -np.inf
-    p = min(max(p, 1e-300), 1.0 - 1e-16)
-    lp, lq = np.log(p), np.log1p(-p)
-    base = _log_fact(n)
-    # Two passes over the terms (largest first, then the scaled sum): no scratch array.
-    best = -np.inf
-    for j in range(k, n + 1):
-        t = base - _log_fact(j) - _log_fact(n - j) + j * lp + (n - j) * lq
-        best = max(best, t)
-    acc = 0.0
-    for j in range(k, n + 1):
-        t = base - _log_fact(j) - _log_fact(n - j) + j * lp + (n - j) * lq
-        acc += np.exp(t - best)
-    return best + np.log(acc)
 
 
 @numba.njit(cache=True)
@@ -131,9 +99,7 @@ def stars_in_view(A, f, k1, frame, limit, stars, view):
                 continue
             xn = (A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2]) / bz
             yn = (A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2]) / bz
-            radial = f * (1.0 + k1 * (xn * xn + yn * yn))
-            x = xn * radial
-            y = yn * radial
+            x, y = k1_offset(xn, yn, f, k1)
             if x < x_lo or x > x_hi or y < y_lo or y > y_hi or n >= len(out_idx):
                 continue
             out_idx[n] = s
@@ -238,9 +204,7 @@ def project_stars(near, A, f, k1, frame, n_max, stars, view):
         bz = bz if front else 1.0  # a select, not a branch; the star is dropped anyway
         xn = (A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2]) / bz
         yn = (A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2]) / bz
-        radial = f * (1.0 + k1 * (xn * xn + yn * yn))
-        x = xn * radial
-        y = yn * radial
+        x, y = k1_offset(xn, yn, f, k1)
         inside = front & (x >= frame[0]) & (x <= frame[1]) & (y >= frame[2]) & (y <= frame[3])
         out_idx[n] = s
         out_x[n] = x
