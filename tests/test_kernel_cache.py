@@ -1,9 +1,9 @@
 """numba's on-disk cache checks only a kernel's own file: a cached kernel that inlined a helper
 from another file (``@njit(inline="always")``) keeps the old helper after it changes — with
 numba 0.68, editing ``lens.distort_jacobian`` left ``camera_fit.jacobian_rows`` loading its
-stale compiled code from the cache. skyfix's package-wide digest
+stale compiled code from the cache. skyfix's dependency digests
 (:func:`skyfix._kernels.drop_stale_kernel_caches`, run when skyfix is imported) drops the
-cache when any kernel source changes.
+cached kernels of every file that depends on a changed source, and only those.
 
 A copy of the package is run in fresh processes; between runs the helper is edited (its
 distorted x doubled). The second run must see the edit although ``camera_fit.py`` is unchanged
@@ -42,7 +42,14 @@ def test_an_edited_inlined_helper_is_seen_by_a_cached_kernel_in_another_file(tmp
     pkg = tmp_path / "skyfix"
     shutil.copytree(Path(skyfix.__file__).parent, pkg, ignore=shutil.ignore_patterns("__pycache__"))
     before = _run(pkg)
-    assert list(pkg.rglob("camera_fit.jacobian_rows*.nbi")), "the kernel was not cached"
+    cached = sorted(pkg.rglob("camera_fit.jacobian_rows*.nb[ic]"))
+    assert cached, "the kernel was not cached"
+    stamps = [f.stat().st_mtime_ns for f in cached]
+    # An edit to a file no kernel depends on (a command) keeps the compiled kernel.
+    cli = pkg / "cli.py"
+    cli.write_text(cli.read_text() + "\n# edited\n")
+    assert _run(pkg) == before
+    assert [f.stat().st_mtime_ns for f in cached] == stamps
     lens_py = pkg / "_kernels" / "lens.py"
     text = lens_py.read_text()
     old = "    return xd, yd, dxx, dxy, dxy, dyy, r2"
