@@ -30,6 +30,7 @@ import numba
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from skyfix._kernels.rotation import proper_rotation
 from skyfix.geometry import angle_between, normalize
 
 __all__ = [
@@ -225,9 +226,7 @@ def svd_attitude(b_cam: np.ndarray, r_icrs: np.ndarray, weights: np.ndarray | No
     if code:
         raise ValueError(_PREPARE_ERRORS[code].format(n_kept))
     if A.shape[0] != 3:  # two stars, or a degenerate field: from the SVD
-        U, _, Vt = np.linalg.svd(B)
-        d = np.linalg.det(U) * np.linalg.det(Vt)
-        A = U @ np.diag([1.0, 1.0, d]) @ Vt
+        A = proper_rotation(B)
     return A
 
 

@@ -168,3 +168,25 @@ def spd_inverse(M):
             inv[a, b] = t
             inv[b, a] = t
     return inv, True
+
+
+@numba.njit(cache=True, inline="always")
+def det3(M):
+    """Determinant of a 3 × 3 matrix, written out."""
+    return (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
+            - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+            + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
+
+
+@numba.njit(cache=True)
+def proper_rotation(B):
+    """The proper rotation nearest the attitude profile matrix ``B = Σ w b rᵀ`` (Markley's SVD
+    solution of Wahba's problem): ``U diag(1, 1, det U · det V) Vᵀ``, so det = +1 even for a
+    mirror image."""
+    U, _, Vt = np.linalg.svd(B)
+    d = 1.0 if det3(U) * det3(Vt) >= 0.0 else -1.0
+    A = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            A[i, j] = U[i, 0] * Vt[0, j] + U[i, 1] * Vt[1, j] + d * U[i, 2] * Vt[2, j]
+    return A

@@ -80,8 +80,8 @@ from skyfix._kernels.probability import log_binom_sf
 
 __all__ = ["MAX_WRONG_PROBABILITY", "MIN_REFIT_PAIRS", "QUICK_CATALOG_STARS", "QUICK_CENTROIDS",
            "QUICK_LOG_P", "WRONG_BORESIGHT_ARCSEC", "WRONG_ROLL_DEG", "chance_log_probability",
-           "focal_allowed", "is_beyond_chance", "is_verified", "log_prob_false", "pattern_fits",
-           "precision_failure", "quick_check_fails", "ratio_tolerance", "refit_accepted",
+           "focal_allowed", "is_beyond_chance", "is_verified", "log_prob_false", "no_rotation_fits",
+           "pattern_fits", "precision_failure", "quick_check_fails", "ratio_tolerance", "refit_accepted",
            "refit_focal_allowed", "wrong_probability"]
 
 # What makes an attitude wrong (the campaigns' and the benchmarks' bar): boresight error beyond
@@ -155,7 +155,7 @@ def pattern_fits(max_residual_rad: float, f_px: float, radius_px: float) -> bool
     Why: a mirror image or an inconsistent correspondence has the right edge lengths but no
     rotation that carries it onto the sky. Two shortcuts in the search reject such candidates
     before the SVD and reject nothing this rule would keep: an edge mismatch beyond twice the
-    allowed star error, and ``skyfix.identify.search._no_rotation_fits`` (triple products,
+    allowed star error, and ``no_rotation_fits`` (triple products,
     ``tests/test_identify.py::test_rotation_bound_rejects_mirror_images_only``). Correctness
     does not rest on it: without it the verification (rule 5) still rejects mirror images
     (``tests/test_identify.py::test_mirror_image_fails`` passes); it saves verifications. Its
@@ -278,3 +278,37 @@ def precision_failure(covariance_rad2: np.ndarray, plate_scale_rad: float) -> st
                 f"{WRONG_ROLL_DEG}°; the stars matched do not pin down an unknown camera: give "
                 "--camera FILE or --fov)")
     return ""
+
+
+@numba.njit(cache=True)
+def _cross_norm(u: np.ndarray, v: np.ndarray) -> float:
+    cx = u[1] * v[2] - u[2] * v[1]
+    cy = u[2] * v[0] - u[0] * v[2]
+    cz = u[0] * v[1] - u[1] * v[0]
+    return np.sqrt(cx * cx + cy * cy + cz * cz)
+
+
+@numba.njit(cache=True)
+def _triple(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> float:
+    return (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
+            + u[2] * (v[0] * w[1] - v[1] * w[0]))
+
+
+@numba.njit(cache=True)
+def no_rotation_fits(b: np.ndarray, r: np.ndarray, eps: float) -> bool:
+    """True if no proper rotation A brings every ``r[a]`` within ``eps`` (chord) of ``b[a]``: the
+    search's shortcut of rule 3 (:func:`pattern_fits`), rejecting nothing that rule would keep.
+
+    A rotation keeps each triangle's triple product ``det[v_i, v_j, v_k]``; moving the vectors
+    by at most ``eps`` changes it by at most ``eps·Σ|v×v'| + 3eps² + eps³``. A mirror image
+    flips the sign of every triple product, so it fails this test without an SVD.
+    """
+    for t in range(4):
+        i, j, k = (1, 2, 3) if t == 0 else ((0, 2, 3) if t == 1 else ((0, 1, 3) if t == 2 else (0, 1, 2)))
+        det_b = _triple(b[i], b[j], b[k])
+        det_r = _triple(r[i], r[j], r[k])
+        bound = (eps * (_cross_norm(r[j], r[k]) + _cross_norm(r[i], r[k]) + _cross_norm(r[i], r[j]))
+                 + 3.0 * eps * eps + eps * eps * eps)
+        if abs(det_b - det_r) > bound * (1.0 + 1e-9) + 1e-12:
+            return True
+    return False

@@ -17,13 +17,14 @@ from itertools import permutations
 import numba
 import numpy as np
 
-from skyfix._kernels.rotation import chord_angle
+from skyfix._kernels.rotation import chord_angle, proper_rotation
 from skyfix.identify.accept import (
     QUICK_CATALOG_STARS,
     QUICK_CENTROIDS,
     focal_allowed,
     is_verified,
     log_prob_false,
+    no_rotation_fits,
     pattern_fits,
     quick_check_fails,
     ratio_tolerance,
@@ -85,17 +86,10 @@ def _pattern_edges(p: np.ndarray, combo: np.ndarray, f: float, out: np.ndarray) 
 
 
 @numba.njit(cache=True)
-def _det3(M: np.ndarray) -> float:
-    return (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
-            - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
-            + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
-
-
-@numba.njit(cache=True)
 def _kabsch(b: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Proper rotation A minimising Σ|b − A r|² (SVD; det A = +1, so mirror images fit badly).
+    """Proper rotation A minimising Σ|b − A r|² (det A = +1, so mirror images fit badly).
 
-    The small products are written out: BLAS/LAPACK calls cost more than the arithmetic here.
+    The small products are written out: BLAS calls cost more than the arithmetic here.
     """
     B = np.zeros((3, 3))
     for i in range(3):
@@ -104,13 +98,7 @@ def _kabsch(b: np.ndarray, r: np.ndarray) -> np.ndarray:
             for a in range(len(b)):
                 acc += b[a, i] * r[a, j]
             B[i, j] = acc
-    U, _, Vt = np.linalg.svd(B)
-    d = 1.0 if _det3(U) * _det3(Vt) >= 0.0 else -1.0
-    A = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            A[i, j] = U[i, 0] * Vt[0, j] + U[i, 1] * Vt[1, j] + d * U[i, 2] * Vt[2, j]
-    return A
+    return proper_rotation(B)
 
 
 @numba.njit(cache=True)
@@ -123,39 +111,6 @@ def _angle_matrix(v: np.ndarray, out: np.ndarray) -> None:
             dz = v[a, 2] - v[b, 2]
             d = np.sqrt(dx * dx + dy * dy + dz * dz)
             out[a, b] = out[b, a] = chord_angle(d)
-
-
-@numba.njit(cache=True)
-def _cross_norm(u: np.ndarray, v: np.ndarray) -> float:
-    cx = u[1] * v[2] - u[2] * v[1]
-    cy = u[2] * v[0] - u[0] * v[2]
-    cz = u[0] * v[1] - u[1] * v[0]
-    return np.sqrt(cx * cx + cy * cy + cz * cz)
-
-
-@numba.njit(cache=True)
-def _triple(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> float:
-    return (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
-            + u[2] * (v[0] * w[1] - v[1] * w[0]))
-
-
-@numba.njit(cache=True)
-def _no_rotation_fits(b: np.ndarray, r: np.ndarray, eps: float) -> bool:
-    """True if no proper rotation A brings every ``r[a]`` within ``eps`` (chord) of ``b[a]``.
-
-    A rotation keeps each triangle's triple product ``det[v_i, v_j, v_k]``; moving the vectors
-    by at most ``eps`` changes it by at most ``eps·Σ|v×v'| + 3eps² + eps³``. A mirror image
-    flips the sign of every triple product, so it fails this test without an SVD.
-    """
-    for t in range(4):
-        i, j, k = (1, 2, 3) if t == 0 else ((0, 2, 3) if t == 1 else ((0, 1, 3) if t == 2 else (0, 1, 2)))
-        det_b = _triple(b[i], b[j], b[k])
-        det_r = _triple(r[i], r[j], r[k])
-        bound = (eps * (_cross_norm(r[j], r[k]) + _cross_norm(r[i], r[k]) + _cross_norm(r[i], r[j]))
-                 + 3.0 * eps * eps + eps * eps * eps)
-        if abs(det_b - det_r) > bound * (1.0 + 1e-9) + 1e-12:
-            return True
-    return False
 
 
 @numba.njit(cache=True)
@@ -311,7 +266,7 @@ def search(image, combos, start, stop, focal, tolerances, patterns, stars, verif
                     continue
                 for a in range(4):
                     rp[a] = r[perms[best, a]]
-                if _no_rotation_fits(b, rp, radius_px / f1):
+                if no_rotation_fits(b, rp, radius_px / f1):
                     continue  # a mirror image: accept rule 3 below would reject it
                 A = _kabsch(b, rp)
                 resid = 0.0
