@@ -105,17 +105,22 @@ def angles(b, r, A):
 
 @numba.njit(cache=True)
 def rodrigues(p):
-    """Rotation matrix of the rotation vector ``p[:3]``: ``I + sin θ/θ K + (1 − cos θ)/θ² K²``."""
-    theta = np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
-    K = np.array([[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]])
-    a, b = 1.0, 0.0
-    if theta >= 1e-12:
-        a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta**2
+    """Rotation matrix of the rotation vector ``p[:3]``: ``I + a K + b K²`` with ``K = [p×]``,
+    ``a = sin θ/θ``, ``b = (1 − cos θ)/θ²`` (their limits 1 and ½ below θ = 1e-12), written out."""
+    th2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2]
+    if th2 < 1e-24:
+        a, b = 1.0, 0.5
+    else:
+        th = np.sqrt(th2)
+        a, b = np.sin(th) / th, (1.0 - np.cos(th)) / th2
+    x, y, z = p[0], p[1], p[2]
     R = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            KK = K[i, 0] * K[0, j] + K[i, 1] * K[1, j] + K[i, 2] * K[2, j]
-            R[i, j] = (1.0 if i == j else 0.0) + a * K[i, j] + b * KK
+    R[0, 0] = 1.0 - b * (y * y + z * z)
+    R[1, 1] = 1.0 - b * (x * x + z * z)
+    R[2, 2] = 1.0 - b * (x * x + y * y)
+    R[0, 1], R[1, 0] = -a * z + b * x * y, a * z + b * x * y
+    R[0, 2], R[2, 0] = a * y + b * x * z, -a * y + b * x * z
+    R[1, 2], R[2, 1] = -a * x + b * y * z, a * x + b * y * z
     return R
 
 

@@ -161,7 +161,7 @@ def median_inplace(a, n, guess=np.nan):
     """
     k = n // 2
     if math.isnan(guess):
-        upper = _select(a, 0, n, k)
+        upper = _select(a, np.int64(0), n, k)  # a typed 0: one compiled _select, not two
     else:
         upper = _select_around(a, n, k, guess)
     if n % 2 == 1:
@@ -228,7 +228,7 @@ def _select_around(a, n, k, guess):
         a[store] = e
         store += e < guess
     if k < store:
-        return _select(a, 0, store, k)
+        return _select(a, np.int64(0), store, k)
     eq = store
     for i in range(store, n):
         e = a[i]

@@ -14,6 +14,7 @@ import numba
 import numpy as np
 
 from skyfix._kernels.lens import k1_offset
+from skyfix._kernels.rotation import rodrigues
 from skyfix.identify.kernel_data import ImageStars, RefineSettings, Refit, StarIndex, ViewBuffers
 from skyfix.identify.verify import gather_stars, grid_index, match_grid, project_stars, star_limit
 
@@ -26,26 +27,6 @@ _RU, _RV, _W = 0, 1, 2
 _DU = 3  # _DU + 0..2: ∂u/∂δ; _DU + 3: ∂u/∂f; _DU + 4: ∂u/∂k1
 _DV = 8  # the same for v
 _J_ROWS = 13
-
-
-@numba.njit(cache=True)
-def _rotation(d):
-    """Rotation matrix of the rotation vector ``d`` (Rodrigues)."""
-    th2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
-    if th2 < 1e-24:
-        a, b = 1.0, 0.5
-    else:
-        th = np.sqrt(th2)
-        a, b = np.sin(th) / th, (1.0 - np.cos(th)) / th2
-    x, y, z = d[0], d[1], d[2]
-    R = np.empty((3, 3))
-    R[0, 0] = 1.0 - b * (y * y + z * z)
-    R[1, 1] = 1.0 - b * (x * x + z * z)
-    R[2, 2] = 1.0 - b * (x * x + y * y)
-    R[0, 1], R[1, 0] = -a * z + b * x * y, a * z + b * x * y
-    R[0, 2], R[2, 0] = a * y + b * x * z, -a * y + b * x * z
-    R[1, 2], R[2, 1] = -a * x + b * y * z, a * x + b * y * z
-    return R
 
 
 @numba.njit(cache=True)
@@ -174,7 +155,7 @@ def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
         step, ok = _solve_spd(N, -g)
         if not ok:
             break
-        A = _rotation(step[:3]) @ A
+        A = rodrigues(step[:3]) @ A
         if n_params > 3:
             f += step[3]
         if n_params > 4:
@@ -259,13 +240,15 @@ def refine(image, A, f, settings, stars):
         res = np.empty(2 * n_pairs)
         cauchy = radius / 1.5
         if not fit_focal:
-            A_cur, f, k1 = _gauss_newton(A_cur, f, k1, v, q, 3, 8, cauchy)
+            # np.int64(): typed ints, not literals, so that every call shares one compiled
+            # _gauss_newton (each literal pair compiled a copy of its own: ~7 s of first-solve time)
+            A_cur, f, k1 = _gauss_newton(A_cur, f, k1, v, q, np.int64(3), np.int64(8), cauchy)
         else:
             if use_k1 == 1:
-                A_cur, f, k1 = _gauss_newton(A_cur, f, k1, v, q, 5, 8, cauchy)
+                A_cur, f, k1 = _gauss_newton(A_cur, f, k1, v, q, np.int64(5), np.int64(8), cauchy)
                 A4, f4 = A_cur, f
             else:
-                A4, f4, _ = _gauss_newton(A_cur, f, 0.0, v, q, 4, 8, cauchy)
+                A4, f4, _ = _gauss_newton(A_cur, f, 0.0, v, q, np.int64(4), np.int64(8), cauchy)
                 A_cur, f, k1 = A4, f4, 0.0
             if use_k1 < 0 and it > 0 and n_pairs >= fit_k1_min:
                 use_k1 = 0
@@ -277,11 +260,11 @@ def refine(image, A, f, settings, stars):
                 # One step with k1 free predicts the full fit's gain (the full gain was at most
                 # 1.8 times the one-step gain on 1200 trials, synthetic and real): the full fit
                 # only when a gain of 4 times the step's could pass (Δχ² > 25 χ²/(dof + 25)).
-                A1, f1, k1_step = _gauss_newton(A4, f4, 0.0, v, q, 5, 1, cauchy)
+                A1, f1, k1_step = _gauss_newton(A4, f4, 0.0, v, q, np.int64(5), np.int64(1), cauchy)
                 _residuals(A1, f1, k1_step, v, q, res)
                 gain_step = chi4 - np.sum(res**2 / (1.0 + res**2 / cauchy**2))
                 if 4.0 * gain_step > 25.0 * chi4 / (dof + 25):
-                    A5, f5, k5 = _gauss_newton(A4, f4, 0.0, v, q, 5, 8, cauchy)
+                    A5, f5, k5 = _gauss_newton(A4, f4, 0.0, v, q, np.int64(5), np.int64(8), cauchy)
                     _residuals(A5, f5, k5, v, q, res)
                     chi5 = np.sum(res**2 / (1.0 + res**2 / cauchy**2))
                     if chi4 - chi5 > 25.0 * chi5 / dof:

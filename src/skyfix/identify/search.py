@@ -282,7 +282,9 @@ def search(image, combos, start, stop, focal, tolerances, patterns, stars, verif
                 # A quick first stage (the 15 brightest against 30 centroids) rejects most false
                 # candidates at a third of the cost; the pattern's own stars are not counted.
                 n_img1 = min(n_img, QUICK_CENTROIDS)
-                logp1, _, n1_ = verify_attitude(A, f1, image, QUICK_CATALOG_STARS, n_img1, radius_px,
+                # np.int64(): a typed int, not a literal: both calls share one compiled verify_attitude
+                n_cat1 = np.int64(QUICK_CATALOG_STARS)
+                logp1, _, n1_ = verify_attitude(A, f1, image, n_cat1, n_img1, radius_px,
                                                 pattern_stars[q], combo, stars, view)
                 if quick_check_fails(n1_, logp1):  # accept rule 4
                     continue
