@@ -28,9 +28,8 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from skyfix._kernels.rotation import proper_rotation
+from skyfix._kernels.rotation import proper_rotation, rotation_vector
 from skyfix.geometry import angle_between, normalize
 
 __all__ = [
@@ -533,7 +532,7 @@ def attitude_error(A_true: np.ndarray, A_est: np.ndarray) -> np.ndarray:
     ``q_err = q_est ⊗ q_true⁻¹`` — the inverse that thesis 003's Eq. 7.15 omits.
     """
     dA = np.asarray(A_est, dtype=np.float64) @ np.asarray(A_true, dtype=np.float64).T
-    return Rotation.from_matrix(dA).as_rotvec()
+    return rotation_vector(np.ascontiguousarray(dA))
 
 
 def covariance_to_arcsec2(P_rad2: np.ndarray) -> np.ndarray:

@@ -527,13 +527,4 @@ def frame_rotation_at_pixel(A: np.ndarray, camera: Camera, A_ref: np.ndarray, ca
     ``camera_ref``) give at ``pixel`` (:func:`frame_at_pixel`) to the camera frame of ``A``.
     For ``pixel`` at ``camera``'s principal point it is the error of ``A`` when the reference is
     the truth."""
-    return _rotation_vector(A @ frame_at_pixel(A_ref, camera_ref, pixel).T)
-
-
-def _rotation_vector(R: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) of a rotation matrix not near 180° (the errors compared here)."""
-    angle = math.acos(min(max((float(np.trace(R)) - 1.0) / 2.0, -1.0), 1.0))
-    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if angle < 1e-8:
-        return axis / 2.0
-    return axis * (angle / (2.0 * math.sin(angle)))
+    return rotation.rotation_vector(np.ascontiguousarray(A @ frame_at_pixel(A_ref, camera_ref, pixel).T))
