@@ -164,6 +164,17 @@ class _Matches(NamedTuple):
                 and np.array_equal(self.ids[a], other.ids[b]))
 
 
+class _Rematch(NamedTuple):
+    """What re-matching the catalogue through a fitted camera needs (:func:`_grow`)."""
+
+    prior: CameraPrior  # the camera prior the fits are under
+    database: object  # PatternDatabase: its star index
+    epoch: float | None
+    area_px2: float  # the frame's area, for the chance probability
+    log_threshold: float  # matches must be beyond chance at this log probability
+    n_use: int  # re-match against the brightest this many centroids
+
+
 def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, method: str,
                         log_threshold: float, n_img: int) -> FinalFit:
     """No camera given: fit every camera parameter under its prior
@@ -206,19 +217,18 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
         new, _, _ = _match_catalogue(xy[:n_use], fit, database, epoch)
         if new.same_as(cur):
             return _final(xy, fit, cur, log_p, method)
-    best = _grow(xy[:n_use], fit, cur, prior, database, epoch, area, log_threshold,
-                 log_p)
+    rematch = _Rematch(prior, database, epoch, area, log_threshold, n_use)
+    best = _grow(xy[:n_use], fit, cur, rematch, log_p)
     if len(best[1].idx) < _ROBUST_MIN_STARS and len(verified.idx) > 4:
         for i in range(len(verified.idx)):
             m = verified.take(np.arange(len(verified.idx)) != i)
             fit_i = _prior_fit(xy[m.idx], m.r, cam0, ident.A_icrs_to_cam, prior)
-            grown = _grow(xy[:n_use], fit_i, m, prior, database, epoch, area, log_threshold, math.inf)
+            grown = _grow(xy[:n_use], fit_i, m, rematch, math.inf)
             if grown[2] <= log_threshold and len(grown[1].idx) >= len(best[1].idx) + 2:
                 best = grown
     if len(best[1].idx) < _ROBUST_MIN_STARS and len(best[1].idx) < _EXPLAINED * n_use:
         for start in _prior_starts(prior):
-            grown = _grow_from_start(xy, n_use, verified, cam0, ident.A_icrs_to_cam, start, prior, database,
-                                     epoch, area, log_threshold)
+            grown = _grow_from_start(xy, verified, cam0, ident.A_icrs_to_cam, start, rematch)
             if grown[2] <= log_threshold and len(grown[1].idx) >= len(best[1].idx) + 2:
                 best = grown
     return _final(xy, *best, method)
@@ -244,17 +254,16 @@ def _prior_starts(prior: CameraPrior) -> list[CameraPrior]:
             for a in _START_STEPS for k in _START_STEPS]
 
 
-def _grow_from_start(xy: np.ndarray, n_use: int, verified: _Matches, camera: Camera, A: np.ndarray,
-                     start: CameraPrior, prior: CameraPrior, database, epoch: float | None, area: float,
-                     log_threshold: float):
+def _grow_from_start(xy: np.ndarray, verified: _Matches, camera: Camera, A: np.ndarray,
+                     start: CameraPrior, rematch: _Rematch):
     """The verified stars fitted with the camera held near ``start`` (aspect, k1), those that
-    miss it dropped (:func:`_drop_outliers`), then grown under the real ``prior``
-    (:func:`_grow`, against the brightest ``n_use`` centroids): a wrong neighbour that the free
-    fit bent the camera to fit misses a held camera near the true one and is dropped."""
+    miss it dropped (:func:`_drop_outliers`), then grown under the real prior (:func:`_grow`,
+    against the brightest ``rematch.n_use`` centroids): a wrong neighbour that the free fit
+    bent the camera to fit misses a held camera near the true one and is dropped."""
     cam = replace(camera, fy=camera.fx * start.aspect, k1=start.k1)
     fit = fit_camera_with_prior(xy[verified.idx], verified.r, cam, A, start, principal_point="hold")
     fit, cur = _drop_outliers(xy, fit, verified, start)
-    return _grow(xy[:n_use], fit, cur, prior, database, epoch, area, log_threshold, math.inf)
+    return _grow(xy[:rematch.n_use], fit, cur, rematch, math.inf)
 
 
 def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> FinalFit:
@@ -267,26 +276,25 @@ def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> Fin
                     PRIOR_PARAMETERS, log_p)
 
 
-def _grow(xy: np.ndarray, fit, cur: _Matches, prior: CameraPrior, database, epoch: float | None,
-          area: float, log_threshold: float, log_p: float):
+def _grow(xy: np.ndarray, fit, cur: _Matches, rematch: _Rematch, log_p: float):
     """Re-match through ``fit`` and refit (least squares and :func:`_drop_outliers`) until the
     matches stop changing, as long as each re-match is beyond chance with the fitted camera paid
     for.
     Returns (fit, matches, log P(chance)) of the last accepted step (``log_p`` for the start)."""
     for _ in range(6):
-        new, n_cat, radius = _match_catalogue(xy, fit, database, epoch)
+        new, n_cat, radius = _match_catalogue(xy, fit, rematch.database, rematch.epoch)
         if len(new.idx) < 3:
             break
         n_extra = fit.n_effective - 4.0  # beyond the rotations and the focal length
-        log_p_new = chance_log_probability(len(new.idx), n_cat, len(xy), radius, area, n_extra)
-        if log_p_new > log_threshold:
+        log_p_new = chance_log_probability(len(new.idx), n_cat, len(xy), radius, rematch.area_px2, n_extra)
+        if log_p_new > rematch.log_threshold:
             break  # these matches are not beyond chance: keep the last ones that were
         log_p = log_p_new
         if new.same_as(cur):
             break
         # Matched within the model's own gates: least squares and the outlier test suffice.
-        fit, cur = _drop_outliers(xy, _prior_fit(xy[new.idx], new.r, fit.camera, fit.A_icrs_to_cam, prior),
-                                  new, prior)
+        fit, cur = _drop_outliers(xy, _prior_fit(xy[new.idx], new.r, fit.camera, fit.A_icrs_to_cam,
+                                                 rematch.prior), new, rematch.prior)
     return fit, cur, log_p
 
 
