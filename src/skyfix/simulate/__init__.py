@@ -9,12 +9,16 @@ frame, full-well clipping, rolling shutter and continuous smear.
 >>> A = attitude_from_radec_roll(1.4, 0.1, 0.0)
 >>> frame = render(A, "has2", exposure_s=0.1, epoch=2025.0, seed=1)   # doctest: +SKIP
 >>> write_frame(frame, "sim.fits")                                     # doctest: +SKIP
+
+Sequences: :func:`render_sequence` with an attitude profile (:data:`PROFILES`: constant,
+inertial-axis, slew, pendulum), each frame's truth holding its attitude, rate and time.
 """
 
 from skyfix.simulate.motion import attitude_at
 from skyfix.simulate.optics import Optics
 from skyfix.simulate.photometry import sky_electrons_per_pixel, star_electrons
 from skyfix.simulate.presets import load_preset, preset_names
+from skyfix.simulate.profiles import PROFILES, Profile, make_profile
 from skyfix.simulate.render import SimulatedFrame, render, resolve_setup
 from skyfix.simulate.sensor import NOISE_SOURCES, Sensor, conversion_gain_e_per_adu
 from skyfix.simulate.sequence import render_sequence
@@ -26,6 +30,9 @@ __all__ = [
     "SimulatedFrame",
     "render",
     "render_sequence",
+    "PROFILES",
+    "Profile",
+    "make_profile",
     "write_frame",
     "read_truth",
     "truth_path",

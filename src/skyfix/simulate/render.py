@@ -17,7 +17,7 @@ import numpy as np
 from skyfix.camera import Camera, camera_from_preset
 from skyfix.catalog import Catalog
 from skyfix.errors import SimulationError, SkyfixError
-from skyfix.geometry import quaternion_from_attitude, radec_roll_from_attitude
+from skyfix.geometry import quaternion_from_attitude, radec_roll_from_attitude, rotation_angle_between
 from skyfix.simulate.motion import star_tracks
 from skyfix.simulate.optics import Optics
 from skyfix.simulate.photometry import sky_electrons_per_pixel, star_electrons
@@ -152,8 +152,8 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
            rate_rad_s=None, seed: int = 0, catalog: Catalog | None = None, mag_limit: float | None = None,
            false_stars: int = 0, false_star_mags: tuple[float, float] = (3.0, 8.0), hot_pixels: int = 0,
            cosmic_rays: int = 0, stray_light: Mapping | None = None, sky_mag_arcsec2: float | None = 22.0,
-           observer_velocity_km_s=None, noise: bool | Mapping[str, bool] = True, frame_index: int = 0
-           ) -> SimulatedFrame:
+           observer_velocity_km_s=None, noise: bool | Mapping[str, bool] = True, frame_index: int = 0,
+           motion=None) -> SimulatedFrame:
     """Render a star-camera frame and its truth.
 
     Parameters
@@ -171,7 +171,12 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
         bit-for-bit repeatable frames (proper motion is applied to this epoch).
     rate_rad_s : (3,) array, optional
         Body rate about the camera x, y, z axes, rad/s: smear during the exposure (and rolling
-        shutter skew when ``sensor.line_time_s > 0``).
+        shutter skew when ``sensor.line_time_s > 0``), and the truth's ``rate_rad_s``.
+    motion : callable, optional
+        The attitude at times relative to this frame's reference time, ``motion(t_s) ->
+        (..., 3, 3)`` with ``motion(0) = A`` (an attitude profile seen from the frame, as
+        :func:`~skyfix.simulate.render_sequence` passes it): the smear and the rolling shutter
+        follow it instead of the constant ``rate_rad_s``, which then only goes into the truth.
     seed : int
         Seed of the temporal noise streams.
     catalog : Catalog, optional
@@ -203,6 +208,8 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
     rate = None if rate_rad_s is None else np.asarray(rate_rad_s, dtype=np.float64).reshape(3)
     if rate is not None and not np.all(np.isfinite(rate)):
         raise SimulationError("rate_rad_s must be three finite numbers")
+    if motion is not None and not (callable(motion) and rotation_angle_between(A, motion(0.0)) < 1e-9):
+        raise SimulationError("motion must be a function of time whose attitude at 0 is A")
     counts = (("false_stars", false_stars), ("hot_pixels", hot_pixels), ("cosmic_rays", cosmic_rays))
     for name, value in counts:
         if int(value) < 0:
@@ -222,6 +229,8 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
     sigma_max = optics.psf_sigma_px * (1 + optics.ellipticity_edge) + optics.defocus_px
     extra = ((np.linalg.norm(rate) * span_s if rate is not None else 0.0)
              + (8 * sigma_max + 2) * camera.plate_scale_rad)
+    if motion is not None:  # how far the profile turns within the rows' exposures
+        extra += max(rotation_angle_between(A, motion(s)) for s in (-span_s, span_s))
     pm_margin = 1e-4 * (1.0 + abs(catalog.epoch - epoch_jy))  # > 20″/yr: no star moves farther
     idx = candidate_stars(A, camera, catalog, extra + pm_margin)
     catalog = catalog.subset(idx)  # only the stars near the field are moved to the exact epoch
@@ -229,7 +238,8 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
         catalog = catalog.at_epoch(epoch_jy)
     idx = np.arange(len(catalog))
     vectors = aberrate(catalog.vectors, observer_velocity_km_s)
-    xy_mid, front, tracks, b_mid = star_tracks(A, rate, vectors, camera, exposure_s, sensor.line_time_s)
+    xy_mid, front, tracks, b_mid = star_tracks(A, rate if motion is None else motion, vectors, camera,
+                                               exposure_s, sensor.line_time_s)
     margin = -(6 * sigma_max + 1)  # stars just outside still spill light in
     near = front & camera.in_frame(xy_mid, margin=margin) & np.all(np.isfinite(tracks), axis=(0, 2))
     idx, xy_mid, tracks, b_mid = idx[near], xy_mid[near], tracks[:, near], b_mid[near]

@@ -1,0 +1,412 @@
+"""Streaks: stars smeared by the camera's turn during the exposure, and the time each is seen.
+
+At a body rate ``ω`` a star crosses ``|ω|·τ·f`` pixels in an exposure ``τ`` (2 °/s, 50 ms and
+85 px/° make a streak 8.5 px long): its light is a line of PSFs, not a spot. Tracking predicts
+where each star is and how it moves, so the window can be made to hold the whole streak:
+
+- :func:`streak_motion` — a star's predicted displacement over the exposure (start to end),
+  pixels, from the body rate: its positions at ``∓τ/2`` under ``b(t) = R(−ω t) b``.
+- :func:`centroid_streaks` — one centroid per predicted streak, in a window stretched to hold
+  it. ``method="streak"`` (the default) fits the streak's own shape: in a rectangle around the
+  predicted segment (grown along x and along y by half the displacement, on top of the margin
+  ``half_size``), the model is a Gaussian PSF of σ ``s`` swept along the predicted motion,
+  ``A·[erf((a + L/2)/√2s) − erf((a − L/2)/√2s)]·exp(−b²/2s²)`` at ``a`` along and ``b``
+  across the motion from the centre, with the sky from the window's border. A few steps of the
+  centre of gravity weighted by that shape, twice as wide (the prediction may be a pixel or two
+  off), start a Gauss–Newton fit of the amplitude and the centre, weighted by each pixel's
+  variance; the centre's covariance is ``(JᵀWJ)⁻¹`` with the gain, the sandwich estimate
+  without. The flat middle of a streak says nothing about where it is along the motion, its
+  two ends do: the fit weighs the pixels by what they say, where a centre of mass weighs the
+  middle's noise as much as the ends' light, and a threshold cuts a faint streak's wings.
+  ``"com"``, ``"iwcog"`` and ``"gaussian"`` run the centroiders of
+  :mod:`skyfix.detect.centroid` in the square window of
+  :func:`~skyfix.detect.centroid_windows` grown to hold the streak. For a constant rate the
+  star sweeps its segment at constant speed, so the streak is symmetric about its middle and its
+  intensity centroid is the star's position at mid-exposure (every method here is symmetric,
+  so none is biased). The projection bends the path only to second order: the centroid is off
+  mid-exposure by ``ẍ·τ²/24`` (10⁻⁴ px at 2 °/s, 50 ms, 15°); an acceleration ``α`` during the
+  exposure makes the streak brighter at its slow end, and moves the centre of mass (the mean
+  position over the exposure) by ``α·τ²/24`` in angle, the fit by less.
+- :func:`star_times` — the time of each star's mid-exposure. A rolling-shutter sensor exposes
+  row ``r`` at ``t_r = t_frame + (r − (H − 1)/2)·line_time`` (the frame's time is the centre
+  row's mid-exposure, as the simulator defines it: :func:`skyfix.simulate.motion.star_tracks`
+  calls this function), so a star centroided at row ``y`` was seen at ``t_frame + (y − (H −
+  1)/2)·line_time``; a global shutter (``line_time = 0``) sees every star at ``t_frame``.
+
+A star moving along y while the rows are read sweeps rows whose times differ, but only by
+``line_time`` per row crossed (microseconds), against an exposure of milliseconds.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from skyfix._kernels.rotation import rodrigues
+from skyfix.detect._stats import robust_level_noise
+from skyfix.detect.centroid import CENTROIDERS, centroid_windows
+from skyfix.detect.centroids import Centroids, background_snr
+from skyfix.errors import InputError
+
+__all__ = ["STREAK_CENTROIDERS", "centroid_streaks", "star_times", "streak_motion", "streak_half_sizes"]
+
+#: Centroiders of :func:`centroid_streaks`: the matched streak weight, then those of
+#: :data:`skyfix.detect.CENTROIDERS` in a grown square window.
+STREAK_CENTROIDERS = ("streak", *CENTROIDERS)
+
+_ARRAYS = ("x", "y", "flux", "area", "snr", "elongation", "peak", "sigma_x", "sigma_y", "cov_xy")
+# The columns of the matched kernel's (N, 12) table.
+(_X, _Y, _FLUX, _PEAK, _SIGMA_X, _SIGMA_Y, _COV_XY, _NPIX, _ELONGATION, _OK, _NOISE, _SKY) = range(12)
+_NCOL = 12
+# The streak model is taken as zero beyond this many σ of its segment (3e-4 of its peak).
+_REACH = 4.0
+
+
+def star_times(xy: np.ndarray, t_frame_s: float, line_time_s: float, height: int) -> np.ndarray:
+    """Mid-exposure time of stars at pixel positions ``xy`` (N, 2) on a rolling-shutter sensor:
+    ``t_frame_s + (y − (height − 1)/2)·line_time_s`` (s), (N,).
+
+    ``t_frame_s`` is the frame's time (the centre row's mid-exposure), ``line_time_s`` the delay
+    from one row to the next (0: a global shutter), ``height`` the frame's rows.
+    """
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    line = float(line_time_s)
+    if not (math.isfinite(line) and line >= 0):
+        raise InputError(f"line_time_s must be a non-negative number of seconds, got {line_time_s!r}")
+    if not (float(height) == int(height) and int(height) >= 1):
+        raise InputError(f"height must be a whole number of rows >= 1, got {height!r}")
+    return t_frame_s + (xy[:, 1] - (int(height) - 1) / 2.0) * line
+
+
+def streak_motion(camera, xy: np.ndarray, rate_rad_s: np.ndarray, exposure_s: float) -> np.ndarray:
+    """Predicted displacement (N, 2), pixels, of stars at ``xy`` (N, 2, their mid-exposure
+    positions) over an exposure ``exposure_s`` under the body rate ``rate_rad_s`` (camera
+    frame): the end position minus the start position, ``b(±τ/2) = R(∓ω τ/2)·b``."""
+    rate = np.asarray(rate_rad_s, dtype=np.float64).reshape(3)
+    half = 0.5 * float(exposure_s)
+    if not (np.all(np.isfinite(rate)) and math.isfinite(half) and half >= 0):
+        raise InputError("streak_motion needs a finite rate and a non-negative exposure")
+    b = camera.pixel_to_ray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
+    end = camera.ray_to_pixel(b @ rodrigues(-rate * half).T)[0]
+    start = camera.ray_to_pixel(b @ rodrigues(rate * half).T)[0]
+    return end - start
+
+
+def streak_half_sizes(motion_px: np.ndarray, half_size: int) -> np.ndarray:
+    """Half sizes (N,) of the square windows that hold streaks of displacement ``motion_px``
+    (N, 2): the margin ``half_size`` plus half the longer of the displacement's x and y."""
+    m = np.abs(np.asarray(motion_px, dtype=np.float64).reshape(-1, 2))
+    return int(half_size) + np.ceil(np.max(m, axis=1, initial=0.0) / 2).astype(np.int64)
+
+
+def centroid_streaks(
+    image: np.ndarray,
+    xy_pred: np.ndarray,
+    motion_px: np.ndarray,
+    half_size: int = 6,
+    *,
+    method: str = "streak",
+    sigma: float = 3.0,
+    psf_sigma: float | None = None,
+    gain: float | None = None,
+) -> Centroids:
+    """Centroid the streak of each star predicted at ``xy_pred`` moving by ``motion_px``.
+
+    Parameters
+    ----------
+    image : (H, W) array
+        The frame, ADU.
+    xy_pred : (N, 2) array
+        Predicted mid-exposure positions ``(x, y)``, pixels (docs/design.md#pixel-coordinates).
+    motion_px : (N, 2) or (2,) array
+        Each star's predicted displacement over the exposure, end minus start, pixels
+        (:func:`streak_motion`); one (2,) row for all.
+    half_size : int
+        The margin around the streak for the PSF and the prediction's error, pixels.
+        ``"streak"``: the window is the rectangle ``x ± (half_size + ⌈|Δx|/2⌉)``,
+        ``y ± (half_size + ⌈|Δy|/2⌉)`` about the rounded prediction; the others: the square
+        window of :func:`~skyfix.detect.centroid_windows` with half size
+        ``half_size + ⌈max(|Δx|, |Δy|)/2⌉`` (stars of one size centroided together).
+    method : {"streak", "com", "iwcog", "gaussian"}
+        The fit of the streak's shape (module docstring), or a centroider of
+        :func:`~skyfix.detect.centroid_windows`.
+    sigma : float
+        ``"com"``'s threshold, in noise σ.
+    psf_sigma : float, optional
+        PSF σ, pixels: the width of ``"streak"``'s model across the motion (default 1 px,
+        widened by the pixel's 1/12 px²; a wrong width costs a little precision, not a bias),
+        and as for ``centroid_windows``.
+    gain : float, optional
+        Electrons per ADU: the star's shot noise then enters the weights and the centroid's σ
+        (without it, ``"streak"``'s σ is the sandwich estimate from the residuals).
+
+    Returns
+    -------
+    Centroids
+        One entry per prediction, in the order given: ``x, y`` the streak's centroid (its
+        mid-exposure position), ``sigma_x, sigma_y, cov_xy`` its error, ``elongation`` the
+        streak's long over short axis, ``angle`` the direction of the predicted motion; NaN
+        where no centroid was found (a window off the frame, no light, or a fit that left it).
+    """
+    xy = np.asarray(xy_pred, dtype=np.float64).reshape(-1, 2)
+    motion = np.asarray(motion_px, dtype=np.float64)
+    try:
+        motion = np.broadcast_to(motion.reshape(-1, 2), xy.shape)
+    except ValueError:
+        raise InputError(f"motion_px must be (2,) or one (dx, dy) per star ({len(xy)}), got shape "
+                         f"{np.shape(motion_px)}") from None
+    if not np.all(np.isfinite(motion)):
+        raise InputError("motion_px must be finite")
+    if not (float(half_size) == int(half_size) and int(half_size) >= 2):
+        raise InputError(f"half_size must be a whole number of pixels >= 2, got {half_size!r}")
+    if method not in STREAK_CENTROIDERS:
+        known = ", ".join(STREAK_CENTROIDERS)
+        raise InputError(f"unknown streak centroider {method!r}; choose one of {known}")
+    img = np.asarray(image)
+    if img.ndim != 2:
+        raise InputError(f"image must be 2-D, got shape {img.shape}")
+    img = np.ascontiguousarray(img, dtype=np.float32)
+    angle = np.arctan2(motion[:, 1], motion[:, 0])
+    angle = np.where(angle > np.pi / 2, angle - np.pi, np.where(angle <= -np.pi / 2, angle + np.pi, angle))
+    if method == "streak":
+        return _fit_streaks(img, xy, motion, int(half_size), psf_sigma, gain, angle)
+    n = len(xy)
+    half = streak_half_sizes(motion, int(half_size))
+    cols = {name: np.full(n, np.nan) for name in _ARRAYS}
+    saturated = np.zeros(n, bool)
+    sky, noise = np.zeros(n), np.zeros(n)
+    for h in np.unique(half):  # one call per window size (a frame's streaks share a few)
+        sel = np.flatnonzero(half == h)
+        c = centroid_windows(img, xy[sel], int(h), method=method, sigma=sigma, psf_sigma=psf_sigma, gain=gain)
+        for name in _ARRAYS:
+            cols[name][sel] = getattr(c, name)
+        saturated[sel] = c.saturated
+        sky[sel], noise[sel] = c.background_level, c.noise
+    return Centroids(**cols, saturated=saturated, image_shape=img.shape,
+                     background_level=float(np.median(sky)) if n else 0.0,
+                     noise=float(np.median(noise)) if n else 0.0,
+                     angle=angle, meta={"ordered": True, "half_size": half})
+
+
+def _fit_streaks(img, xy, motion, half_size, psf_sigma, gain, angle) -> Centroids:
+    """``centroid_streaks(method="streak")``: the kernel, then its table as Centroids."""
+    s = 1.0 if psf_sigma is None else float(psf_sigma)
+    if not (math.isfinite(s) and s > 0):
+        raise InputError(f"psf_sigma must be a positive number of pixels, got {psf_sigma!r}")
+    if gain is not None and not (math.isfinite(float(gain)) and float(gain) > 0):
+        raise InputError(f"gain must be a positive number of electrons per ADU, got {gain!r}")
+    length = np.hypot(motion[:, 0], motion[:, 1])
+    unit = np.where(length[:, None] > 0, motion / np.maximum(length, 1e-300)[:, None], [1.0, 0.0])
+    m = np.abs(motion)
+    hx = half_size + np.ceil(m[:, 0] / 2).astype(np.int64)
+    hy = half_size + np.ceil(m[:, 1] / 2).astype(np.int64)
+    s_model = math.sqrt(s * s + 1.0 / 12.0)  # a Gaussian PSF integrated over a pixel, nearly
+    out = _streaks(img, xy[:, 0].copy(), xy[:, 1].copy(), unit[:, 0].copy(), unit[:, 1].copy(), length,
+                   hx, hy, s_model, 0.0 if gain is None else 1.0 / float(gain))
+    bad = out[:, _OK] == 0
+    flux, area = out[:, _FLUX], out[:, _NPIX]
+    columns = dict(x=_X, y=_Y, sigma_x=_SIGMA_X, sigma_y=_SIGMA_Y, elongation=_ELONGATION)
+    nan_if_bad = {name: np.where(bad, np.nan, out[:, col]) for name, col in columns.items()}
+    n = len(xy)
+    return Centroids(**nan_if_bad, flux=np.where(bad, 0.0, flux), area=area,
+                     snr=np.where(bad, 0.0, background_snr(flux, out[:, _NOISE], area)), peak=out[:, _PEAK],
+                     saturated=np.zeros(n, bool), image_shape=img.shape,
+                     cov_xy=np.where(bad, 0.0, out[:, _COV_XY]),
+                     background_level=float(np.median(out[:, _SKY])) if n else 0.0,
+                     noise=float(np.median(out[:, _NOISE])) if n else 0.0, angle=angle,
+                     meta={"ordered": True, "half_size": np.column_stack([hx, hy])})
+
+
+# --- the streak kernels -----------------------------------------------------------------------------
+
+
+class _Shape(NamedTuple):
+    """A predicted streak: the motion's unit vector, half its length, 1/length, the PSF σ."""
+
+    ux: float
+    uy: float
+    half_len: float
+    inv_len: float
+    s: float
+
+
+class _Box(NamedTuple):
+    """A streak's window, rows y0..y1 and columns x0..x1 inclusive, with its sky and noise σ."""
+
+    y0: int
+    y1: int
+    x0: int
+    x1: int
+    sky: float
+    noise: float
+
+
+@njit(cache=True, inline="always")
+def _weight(dx, dy, shape):
+    """The streak profile (a Gaussian of σ ``s`` swept over ``±half_len`` along ``u``, divided by
+    the length; it integrates to ``2√(2π)·s``) at the offset ``(dx, dy)`` from its centre, and its
+    gradient by the offset."""
+    ux, uy, half_len, inv_len, s = shape
+    a, b = dx * ux + dy * uy, dy * ux - dx * uy  # along and across the motion
+    if abs(b) > _REACH * s or abs(a) > half_len + _REACH * s:
+        return 0.0, 0.0, 0.0  # beyond the streak's light
+    q = 1.0 / (math.sqrt(2.0) * s)
+    g = math.exp(-0.5 * (b / s) ** 2)
+    e = (math.erf((a + half_len) * q) - math.erf((a - half_len) * q)) * inv_len
+    de = (2.0 / math.sqrt(math.pi)) * q * (math.exp(-((a + half_len) * q) ** 2)
+                                            - math.exp(-((a - half_len) * q) ** 2)) * inv_len
+    da, db = de * g, -e * g * b / (s * s)
+    return e * g, da * ux - db * uy, da * uy + db * ux
+
+
+@njit(cache=True)
+def _weighted_centre(img, box, shape, xc, yc, reach_x, reach_y):
+    """A few steps of the streak-weighted centre of gravity from ``(xc, yc)``, with a weight twice
+    as wide as the streak (the prediction may be a pixel or two off): the fit's start. ``ok``
+    False if it has no light or leaves ``±reach`` of the start."""
+    x_start, y_start = xc, yc
+    for scale in (2.0,):
+        wide = _Shape(shape.ux, shape.uy, shape.half_len, shape.inv_len, shape.s * scale)
+        for _ in range(4):
+            sw = swx = swy = 0.0
+            for y in range(box.y0, box.y1 + 1):
+                for x in range(box.x0, box.x1 + 1):
+                    v = (img[y, x] - box.sky) * _weight(x - xc, y - yc, wide)[0]
+                    sw += v
+                    swx += v * x
+                    swy += v * y
+            if not sw > 0.0:
+                return xc, yc, False
+            nx_, ny_ = swx / sw, swy / sw
+            if abs(nx_ - x_start) > reach_x or abs(ny_ - y_start) > reach_y:
+                return xc, yc, False
+            done = abs(nx_ - xc) < 0.05 and abs(ny_ - yc) < 0.05
+            xc, yc = nx_, ny_
+            if done:
+                break
+    return xc, yc, True
+
+
+@njit(cache=True)
+def _normal(img, box, shape, p, ig, jtj, jtr, meat):
+    """The fit's weighted normal equations at ``p`` (amplitude, x, y) and the sandwich's meat."""
+    jtj[:, :] = 0.0
+    jtr[:] = 0.0
+    meat[:, :] = 0.0
+    v0 = box.noise * box.noise if box.noise > 0 else 1.0
+    j = np.empty(3)
+    for y in range(box.y0, box.y1 + 1):
+        for x in range(box.x0, box.x1 + 1):
+            wt, gx, gy = _weight(x - p[1], y - p[2], shape)
+            mu = p[0] * wt
+            d = img[y, x] - box.sky - mu
+            inv_var = 1.0 / (v0 + max(mu, 0.0) * ig)
+            j[0], j[1], j[2] = wt, -p[0] * gx, -p[0] * gy  # ∂μ/∂(A, x, y)
+            for a in range(3):
+                jtr[a] += inv_var * j[a] * d
+                for b in range(3):
+                    jtj[a, b] += inv_var * j[a] * j[b]
+                    meat[a, b] += (inv_var * d) ** 2 * j[a] * j[b]
+
+
+@njit(cache=True)
+def _fit(img, box, shape, xc, yc, ig):
+    """Gauss–Newton fit of the streak model from the weighted centre: (amplitude, x, y), its
+    covariance ((JᵀWJ)⁻¹ with a gain, else the sandwich), and whether it converged near the start."""
+    p = np.array([0.0, xc, yc])
+    sww = swv = 0.0
+    for y in range(box.y0, box.y1 + 1):  # the amplitude by linear least squares
+        for x in range(box.x0, box.x1 + 1):
+            wt = _weight(x - xc, y - yc, shape)[0]
+            sww += wt * wt
+            swv += wt * (img[y, x] - box.sky)
+    p[0] = swv / sww if sww > 0 else 0.0
+    jtj, jtr, meat = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
+    cov = np.zeros((3, 3))
+    if not p[0] > 0:
+        return p, cov, False
+    for _ in range(15):
+        _normal(img, box, shape, p, ig, jtj, jtr, meat)
+        step = np.linalg.solve(jtj, jtr)
+        big = max(abs(step[1]), abs(step[2]))
+        if big > 0.5:  # at most half a pixel a step
+            step *= 0.5 / big
+        p += step
+        if not p[0] > 0 or abs(p[1] - xc) > 2.0 or abs(p[2] - yc) > 2.0:
+            return p, cov, False  # lost the star
+        if big < 1e-4:
+            break
+    inv = np.linalg.pinv(jtj)  # at the last step's start, 1e-4 px away
+    cov = inv if ig > 0 else inv @ meat @ inv
+    return p, cov, True
+
+
+@njit(cache=True)
+def _streaks(img, xs, ys, ux, uy, lengths, hx, hy, s, ig):
+    """The (N, 12) table of :func:`centroid_streaks` ``method="streak"`` (columns ``_X`` …)."""
+    h, w = img.shape
+    n = xs.size
+    out = np.zeros((n, _NCOL))
+    for i in range(n):
+        if not (np.isfinite(xs[i]) and np.isfinite(ys[i])):
+            continue
+        cx, cy = int(round(xs[i])), int(round(ys[i]))
+        y0, y1 = max(cy - hy[i], 0), min(cy + hy[i], h - 1)
+        x0, x1 = max(cx - hx[i], 0), min(cx + hx[i], w - 1)
+        if y1 - y0 < 2 or x1 - x0 < 2:
+            continue
+        buf = np.empty(2 * (x1 - x0 + 1) + 2 * (y1 - y0 - 1))  # the sky from the window's border
+        m = 0
+        for x in range(x0, x1 + 1):
+            buf[m] = img[y0, x]
+            buf[m + 1] = img[y1, x]
+            m += 2
+        for y in range(y0 + 1, y1):
+            buf[m] = img[y, x0]
+            buf[m + 1] = img[y, x1]
+            m += 2
+        sky, noise = robust_level_noise(buf, 0.0, False)
+        out[i, _SKY] = sky
+        out[i, _NOISE] = noise
+        box = _Box(y0, y1, x0, x1, sky, noise)
+        half_len = max(0.5 * lengths[i], 5e-4)  # a still star: the limit, a Gaussian along too
+        shape = _Shape(ux[i], uy[i], half_len, 0.5 / half_len, s)
+        xc, yc, ok = _weighted_centre(img, box, shape, xs[i], ys[i], hx[i], hy[i])
+        if not ok:
+            continue
+        p, cov, ok = _fit(img, box, shape, xc, yc, ig)
+        if not ok:
+            continue
+        wmax = _weight(0.0, 0.0, shape)[0]
+        npix = 0
+        peak = -np.inf
+        sv = sxx = syy = sxy = 0.0
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
+                v = img[y, x] - sky
+                peak = max(peak, v)
+                dx, dy = x - p[1], y - p[2]
+                if v > 0.0 and _weight(dx, dy, shape)[0] >= 0.01 * wmax:  # the streak's footprint
+                    npix += 1
+                    sv += v
+                    sxx += v * dx * dx
+                    syy += v * dy * dy
+                    sxy += v * dx * dy
+        out[i, _X] = p[1]
+        out[i, _Y] = p[2]
+        out[i, _FLUX] = p[0] * 2.0 * math.sqrt(2.0 * math.pi) * s  # the model's integral
+        out[i, _PEAK] = peak
+        out[i, _SIGMA_X] = math.sqrt(max(cov[1, 1], 0.0))
+        out[i, _SIGMA_Y] = math.sqrt(max(cov[2, 2], 0.0))
+        out[i, _COV_XY] = cov[1, 2]
+        out[i, _NPIX] = npix
+        if sv > 0.0:  # long over short axis of the second moments
+            mxx, myy, mxy = sxx / sv, syy / sv, sxy / sv
+            root = math.sqrt(max(0.25 * (mxx - myy) ** 2 + mxy * mxy, 0.0))
+            big, small = 0.5 * (mxx + myy) + root, 0.5 * (mxx + myy) - root
+            out[i, _ELONGATION] = math.sqrt(big / max(small, 1e-12))
+        out[i, _OK] = 1.0
+    return out
