@@ -50,9 +50,10 @@ def solve(
     dark: np.ndarray | None = None,
     flat: np.ndarray | None = None,
     bad_pixels: np.ndarray | None = None,
+    attitude_hint=None,
     **identify_options,
 ) -> Solution:
-    """Solve one sky image, lost in space.
+    """Solve one sky image, lost in space or near a known attitude.
 
     Parameters
     ----------
@@ -79,6 +80,14 @@ def solve(
     max_stars : int
         Brightest centroids kept: identification tries patterns among the brightest and
         verifies against all of them, and every verified star enters the attitude fit.
+    attitude_hint : optional
+        A rough attitude: ``"RA,DEC,ROLL[,UNCERTAINTY_DEG]"`` or a sequence of those numbers
+        (degrees), a 3×3 ``A_icrs_to_cam``, or a :class:`skyfix.identify.hint.AttitudeHint`
+        (the uncertainty, the largest rotation from the truth, defaults to 1°). The stars are
+        then first identified near it (:func:`skyfix.identify.hint.identify_near`, no pattern
+        search; the Solution's ``method`` is ``"attitude-hint"``) and the same acceptance rules
+        decide; when that fails, or when neither ``camera`` nor ``fov_deg`` gives the scale the
+        hint needs, the frame is solved lost in space (``method`` says which path solved it).
 
     Returns
     -------
@@ -102,6 +111,7 @@ def solve(
     max_stars = check_count(max_stars, "max_stars")
     _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_method,
                    identify_options)
+    hint = _checked_hint(attitude_hint)
     t0 = time.perf_counter()
     label = name if name is not None else (str(image) if isinstance(image, (str, Path)) else "<array>")
     data = raw = read_image(image)
@@ -117,7 +127,7 @@ def solve(
     sol = solve_centroids(
         centroids.xy, data.shape[1], data.shape[0], fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
         camera=camera, database=database, epoch=epoch, attitude_method=attitude_method,
-        identify_method=identify_method, name=label, **identify_options,
+        identify_method=identify_method, name=label, attitude_hint=hint, **identify_options,
     )
     if not sol.solved and (problem := frame_problem(raw)):  # blank, saturated, too small: say which
         sol.reason = f"{sol.reason}: {problem}"
@@ -145,6 +155,7 @@ def solve_centroids(
     attitude_method: str = "svd",
     identify_method: str = "quad-hash",
     name: str = "",
+    attitude_hint=None,
     **identify_options,
 ) -> Solution:
     """Identify centroids (N, 2) (pixels, brightest first) and fit the attitude.
@@ -158,13 +169,28 @@ def solve_centroids(
     width, height = check_frame_size(width, height)
     _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_method,
                    identify_options)
+    hint = _checked_hint(attitude_hint)
     sol = Solution(image=name, n_detected=len(xy))
     if camera is not None and (camera.width, camera.height) != (width, height):
         raise CameraError(f"camera is {camera.width}×{camera.height} but the image is {width}×{height}")
     if len(xy) < 3:
         sol.reason = f"too few stars detected ({len(xy)}; need at least 3)"
         return sol
+    fit_options = dict(camera_given=camera is not None, database=database, epoch=epoch,
+                       prob_threshold=identify_options.get("prob_threshold", 1e-9),
+                       n_img=identify_options.get("refine_stars", 200))
     t0 = time.perf_counter()
+    hint_failure = ""
+    if hint is not None:
+        hint_failure = _solve_near(sol, xy, width, height, hint, fov_deg, fov_tolerance_deg, camera, database,
+                                   epoch, attitude_method, identify_options, fit_options)
+        if not hint_failure:
+            sol.time_ms["total"] = 1e3 * (time.perf_counter() - t0)
+            log.info("%s: solved near the attitude hint with %d stars, P(false) %.2g, rmse %.2f″", name,
+                     sol.n_matched, sol.prob_false, sol.rmse_arcsec)
+            return sol
+        log.info("%s: not solved near the attitude hint (%s): solving lost in space", name, hint_failure)
+        sol = Solution(image=name, n_detected=len(xy))
     ident = identify(xy, width, height, method=identify_method, fov_deg=fov_deg,
                      fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database, epoch=epoch,
                      **identify_options)
@@ -172,18 +198,56 @@ def solve_centroids(
     sol.time_ms = {"identify": 1e3 * (t1 - t0)}
     sol.method = ident.method
     if not ident.success:
-        sol.reason = ident.reason
+        sol.reason = ident.reason + (f"; attitude hint: {hint_failure}" if hint_failure else "")
         log.info("%s: identification failed: %s", name, ident.reason)
         return sol
-    _fill_attitude(sol, xy, ident, attitude_method, camera_given=camera is not None, database=database,
-                   epoch=epoch, prob_threshold=identify_options.get("prob_threshold", 1e-9),
-                   n_img=identify_options.get("refine_stars", 200))
+    _fill_attitude(sol, xy, ident, attitude_method, **fit_options)
     sol.time_ms["attitude"] = 1e3 * (time.perf_counter() - t1)
     sol.time_ms["total"] = 1e3 * (time.perf_counter() - t0)
     if sol.solved:
         log.info("%s: solved with %d stars, P(false) %.2g, rmse %.2f″", name, sol.n_matched,
                  sol.prob_false, sol.rmse_arcsec)
+    elif hint_failure:
+        sol.reason += f"; attitude hint: {hint_failure}"
     return sol
+
+
+# The options of identify_near that lost in space's default method shares (same names, same meaning).
+_HINT_OPTIONS = ("prob_threshold", "verify_stars", "refine_stars", "match_radius", "centroid_sigma_px")
+
+
+def _checked_hint(attitude_hint):
+    """The attitude hint as an :class:`~skyfix.identify.hint.AttitudeHint` (None: no hint)."""
+    if attitude_hint is None:
+        return None
+    from skyfix.identify.hint import check_attitude_hint
+
+    return check_attitude_hint(attitude_hint)
+
+
+def _solve_near(sol: Solution, xy: np.ndarray, width: int, height: int, hint, fov_deg, fov_tolerance_deg,
+                camera, database, epoch, attitude_method: str, identify_options: dict,
+                fit_options: dict) -> str:
+    """Solve near the attitude ``hint`` into ``sol`` (:func:`skyfix.identify.hint.identify_near`,
+    then the final fit and the precision rule as lost in space's); returns why not ("" when solved)."""
+    from skyfix.identify.hint import identify_near
+
+    if camera is None and fov_deg is None:
+        return "no camera or FOV given: the hint needs the image scale"
+    t0 = time.perf_counter()
+    near = identify_near(xy, camera if camera is not None else Camera.from_fov(width, height, fov_deg),
+                         hint.A_icrs_to_cam, hint.uncertainty_rad, database=database, epoch=epoch,
+                         fit_camera=camera is None, fov_tolerance_deg=fov_tolerance_deg,
+                         **{k: identify_options[k] for k in _HINT_OPTIONS if k in identify_options})
+    t1 = time.perf_counter()
+    sol.time_ms = {"identify": 1e3 * (t1 - t0)}
+    if not near.ok:
+        return near.reason
+    ident = near.identification()
+    sol.method = ident.method
+    _fill_attitude(sol, xy, ident, attitude_method, **fit_options)
+    sol.time_ms["attitude"] = 1e3 * (time.perf_counter() - t1)
+    return "" if sol.solved else sol.reason
 
 
 def _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_method,
