@@ -92,13 +92,18 @@ def solve(
     calibration: Path = typer.Option(None, "--calibration", help="Maps from `skyfix calibrate frames`."),
     dark: Path = typer.Option(None, "--dark", help="Master dark image to subtract."),
     flat: Path = typer.Option(None, "--flat", help="Master flat image to divide by (normalised to 1)."),
+    attitude_hint: str = typer.Option(
+        None, "--attitude-hint", metavar="RA,DEC,ROLL[,UNCERTAINTY_DEG]",
+        help="A rough attitude, degrees (uncertainty: the largest error, default 1): identify the stars "
+             "near it first, falling back to lost in space. Needs --camera or --fov for the scale."),
     verbose: int = VERBOSE,
 ) -> None:
-    """Solve sky images lost in space: print RA, Dec, roll and the error bars."""
+    """Solve sky images lost in space (or near --attitude-hint): print RA, Dec, roll and the error bars."""
     add_verbosity(verbose)
     # Every option is checked, and every output folder made, before any work.
     check_solve_options(fov, fov_tolerance, epoch, method,
                         ("--fov", "--fov-tolerance", "--epoch", "--attitude"))
+    hint = _attitude_hint(attitude_hint)
     wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
     prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
     maps = _calibration_maps(calibration, dark, flat)
@@ -107,6 +112,9 @@ def solve(
     except SkyfixError as exc:
         fail(error_line(exc, camera_file))
     database = load_database(database_file)
+    if hint is not None and camera is None and fov is None:
+        typer.echo("skyfix: note: --attitude-hint needs the image scale (--camera or --fov); "
+                   "solving lost in space", err=True)
 
     from skyfix.pipeline import solve as solve_image
 
@@ -116,7 +124,8 @@ def solve(
         for path, wcs_path, plot_path in zip(images, wcs_paths, plot_paths, strict=True):
             try:
                 sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
-                                  database=database, epoch=epoch, attitude_method=method, **maps)
+                                  database=database, epoch=epoch, attitude_method=method, attitude_hint=hint,
+                                  **maps)
                 any_failed |= not sol.solved
                 typer.echo(sol.to_json() if json_out else _summary(sol))
                 if sol.solved and wcs_path is not None:
@@ -136,6 +145,15 @@ def solve(
     if progress is not None:
         progress.stop()
     raise typer.Exit(2 if any_error else 1 if any_failed else 0)
+
+
+def _attitude_hint(text: str | None):
+    """``--attitude-hint RA,DEC,ROLL[,UNCERTAINTY_DEG]`` checked before any work (None: no hint)."""
+    if text is None:
+        return None
+    from skyfix.identify.hint import check_attitude_hint
+
+    return check_attitude_hint(text, "--attitude-hint")
 
 
 def _count_flag_hint(exc: BaseException, path: Path) -> str:
@@ -178,12 +196,13 @@ def _progress(n: int, quiet: bool):
 def _summary(sol) -> str:
     if not sol.solved:
         return f"{sol.image}: failed: {sol.reason}"
+    path = " | near the attitude hint" if sol.method == "attitude-hint" else ""
     sig = [v**0.5 for v in (sol.covariance_arcsec2[0][0], sol.covariance_arcsec2[1][1],
                             sol.covariance_arcsec2[2][2])]
     return (f"{sol.image}: solved RA {sol.ra_deg:.5f}° Dec {sol.dec_deg:+.5f}° roll {sol.roll_deg:.3f}° "
             f"FOV {sol.fov_deg:.3f}° | {sol.n_matched}/{sol.n_detected} stars, rmse {sol.rmse_arcsec:.1f}″, "
             f"σ(x,y,roll) {sig[0]:.1f}″ {sig[1]:.1f}″ {sig[2]:.0f}″, P(false) {sol.prob_false:.1e} | "
-            f"{sol.time_ms.get('total', 0):.1f} ms")
+            f"{sol.time_ms.get('total', 0):.1f} ms{path}")
 
 
 @database_app.command("build")
