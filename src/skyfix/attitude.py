@@ -29,7 +29,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from skyfix._kernels.rotation import proper_rotation, rotation_vector
+from skyfix._kernels.rotation import proper_rotation, rotation_vector, triad
 from skyfix.geometry import angle_between, normalize
 
 __all__ = [
@@ -404,17 +404,11 @@ def triad_attitude(b_cam: np.ndarray, r_icrs: np.ndarray,
     """
     b, r, w = _prepare(b_cam, r_icrs, weights)
     order = np.argsort(-w, kind="stable")[:2]
-    b, r = b[order], r[order]
-
-    def triad(v: np.ndarray) -> np.ndarray:
-        t2 = np.cross(v[0], v[1])
-        n = np.linalg.norm(t2)
-        if n < _COLLINEAR_SIN:
-            raise ValueError("TRIAD is undetermined: its two vectors are collinear")
-        t2 = t2 / n
-        return np.column_stack([v[0], t2, np.cross(v[0], t2)])
-
-    return triad(b) @ triad(r).T
+    b, r = np.ascontiguousarray(b[order]), np.ascontiguousarray(r[order])
+    A, ok = triad(b[0], b[1], r[0], r[1], _COLLINEAR_SIN)
+    if not ok:
+        raise ValueError("TRIAD is undetermined: its two vectors are collinear")
+    return A
 
 
 METHODS = {

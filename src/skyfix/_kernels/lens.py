@@ -21,8 +21,8 @@ import numba
 import numpy as np
 
 __all__ = ["CAMERA_NUMBERS", "CX", "CY", "FX", "FY", "K1", "K2", "K3", "P1", "P2", "SKEW", "camera_numbers",
-           "distort", "distort_jacobian", "k1_offset", "distort_points", "pixel_rays", "pixels_to_normalized",
-           "project_rays", "undistort"]
+           "distort", "distort_jacobian", "distort_points", "k1_offset", "offset_ray", "pixel_rays",
+           "pixels_to_normalized", "project_rays", "undistort"]
 
 # The camera's numbers as kernels take them, in this order (Camera's field names).
 CAMERA_NUMBERS = ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "k3", "p1", "p2")
@@ -34,6 +34,16 @@ UNDISTORT_ITERATIONS = 50
 
 
 _numbers_of = operator.attrgetter(*CAMERA_NUMBERS)
+
+
+@numba.njit(cache=True, inline="always")
+def offset_ray(x, y, f):
+    """Unit camera ray of the pixel offset ``(x, y)`` from the principal point at focal length
+    ``f`` (identification's square-pixel pinhole): ``(x/f, y/f, 1) / |(x/f, y/f, 1)|``."""
+    xn = x / f
+    yn = y / f
+    n = np.sqrt(xn * xn + yn * yn + 1.0)
+    return xn / n, yn / n, 1.0 / n
 
 
 @numba.njit(cache=True, inline="always")

@@ -13,8 +13,8 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["angles", "chord_angle", "pointing", "radec_of_vectors", "rodrigues", "rotation_vector",
-           "spd_inverse", "vector_radec"]
+__all__ = ["angles", "chord_angle", "det3", "pointing", "proper_rotation", "radec_of_vectors", "rodrigues",
+           "rotation_vector", "spd_inverse", "triad", "vector_radec"]
 
 
 @numba.njit(cache=True, inline="always")
@@ -195,3 +195,26 @@ def proper_rotation(B):
         for j in range(3):
             A[i, j] = U[i, 0] * Vt[0, j] + U[i, 1] * Vt[1, j] + d * U[i, 2] * Vt[2, j]
     return A
+
+
+@numba.njit(cache=True)
+def triad(b1, b2, r1, r2, min_sin):
+    """TRIAD (Black 1963; thesis 004 §4.5): the attitude ``A`` with ``b1 = A r1`` exactly and
+    ``b2`` in the plane of ``A r1``, ``A r2``, from the triads ``(v1, v1×v2/|v1×v2|, v1×t2)``
+    of both pairs: ``A = Σ t_b t_rᵀ``. Returns ``(A, ok)``; ``ok`` is False when either pair is
+    collinear (``|v1 × v2| < min_sin``)."""
+    cb = np.cross(b1, b2)
+    cr = np.cross(r1, r2)
+    nb = np.sqrt(cb[0] * cb[0] + cb[1] * cb[1] + cb[2] * cb[2])
+    nr = np.sqrt(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2])
+    A = np.zeros((3, 3))
+    if nb < min_sin or nr < min_sin:
+        return A, False
+    cb /= nb
+    cr /= nr
+    tb = np.cross(b1, cb)
+    tr = np.cross(r1, cr)
+    for i in range(3):
+        for j in range(3):
+            A[i, j] = b1[i] * r1[j] + cb[i] * cr[j] + tb[i] * tr[j]
+    return A, True

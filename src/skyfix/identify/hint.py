@@ -24,8 +24,8 @@ with the hint's uncertainty (``docs/seeds.md``). :func:`identify_near` does it:
    star ``t``, ``a`` and ``b`` at least ``min_baseline`` apart) whose chord in the image
    matches the catalogue's (centroid noise and, with the field of view only guessed, 0.8 % for
    unmodelled distortion; the focal length the pair implies must be in the allowed range:
-   accept rule 2) gives an attitude by TRIAD (:func:`triad`, thesis 004 §4.5), kept only when
-   it is within the uncertainty of the hint. It is scored by how many of the brightest
+   accept rule 2) gives an attitude by TRIAD (``_kernels.rotation.triad``, thesis 004 §4.5),
+   kept only when it is within the uncertainty of the hint. It is scored by how many of the brightest
    catalogue stars it puts on the brightest centroids (:func:`skyfix.identify.verify.match_grid`);
    the best-scoring attitude wins. Pairings that the best attitude already matches are not
    scored again (a good hint scores one or two attitudes).
@@ -67,7 +67,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from skyfix._kernels.rotation import det3
+from skyfix._kernels.lens import offset_ray
+from skyfix._kernels.rotation import det3, triad
 from skyfix.camera import Camera
 from skyfix.errors import InputError
 from skyfix.identify.accept import (
@@ -268,35 +269,10 @@ class HintSearch(NamedTuple):
     n_catalog: int
 
 
-@numba.njit(cache=True)
-def triad(b1, b2, r1, r2):
-    """TRIAD (Black 1963; thesis 004 §4.5) in kernel form: the attitude ``A`` with ``b1 = A r1``
-    exactly and ``b2`` in the plane of ``A r1``, ``A r2`` — :func:`skyfix.attitude.triad_attitude`
-    for two unit vectors. Returns ``(A, ok)``; ``ok`` is False for (nearly) parallel vectors."""
-    cb = np.cross(b1, b2)
-    cr = np.cross(r1, r2)
-    nb = np.sqrt(cb[0] * cb[0] + cb[1] * cb[1] + cb[2] * cb[2])
-    nr = np.sqrt(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2])
-    A = np.zeros((3, 3))
-    if nb < 1e-12 or nr < 1e-12:
-        return A, False
-    cb /= nb
-    cr /= nr
-    tb = np.cross(b1, cb)
-    tr = np.cross(r1, cr)
-    for i in range(3):
-        for j in range(3):
-            A[i, j] = b1[i] * r1[j] + cb[i] * cr[j] + tb[i] * tr[j]
-    return A, True
-
-
 @numba.njit(cache=True, inline="always")
 def _ray(p, i, f, out):
     """The unit camera ray of offset ``p[i]`` at focal length ``f`` into ``out``."""
-    x = p[i, 0] / f
-    y = p[i, 1] / f
-    n = np.sqrt(x * x + y * y + 1.0)
-    out[0], out[1], out[2] = x / n, y / n, 1.0 / n
+    out[0], out[1], out[2] = offset_ray(p[i, 0], p[i, 1], f)
 
 
 @numba.njit(cache=True, inline="always")
@@ -394,7 +370,7 @@ def search_near(image, A_hint, settings, stars):
                     if not s.fit_focal:
                         ba[:] = rays0[a]
                         bb[:] = rays0[b]
-                    A, ok = triad(ba, bb, pc_v[cs], pc_v[ct])
+                    A, ok = triad(ba, bb, pc_v[cs], pc_v[ct], 1e-12)
                     if not ok:
                         continue
                     # Within the uncertainty of the hint, plus what two noisy stars leave of the roll.

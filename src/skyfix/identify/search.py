@@ -17,6 +17,7 @@ from itertools import permutations
 import numba
 import numpy as np
 
+from skyfix._kernels.lens import offset_ray
 from skyfix._kernels.rotation import chord_angle, proper_rotation
 from skyfix.identify.accept import (
     QUICK_CATALOG_STARS,
@@ -68,12 +69,7 @@ def _pattern_edges(p: np.ndarray, combo: np.ndarray, f: float, out: np.ndarray) 
     """Sorted six edge angles (radians) of image stars ``combo`` at focal length ``f`` (pixels)."""
     rays = np.empty((4, 3))
     for a in range(4):
-        x = p[combo[a], 0] / f
-        y = p[combo[a], 1] / f
-        n = np.sqrt(x * x + y * y + 1.0)
-        rays[a, 0] = x / n
-        rays[a, 1] = y / n
-        rays[a, 2] = 1.0 / n
+        rays[a, 0], rays[a, 1], rays[a, 2] = offset_ray(p[combo[a], 0], p[combo[a], 1], f)
     e = 0
     for a in range(4):
         for b in range(a + 1, 4):
