@@ -12,6 +12,9 @@ Typical use::
   "threshold_hillclimb" (thesis 000), "region_grow" (thesis 004), "regionprops" (thesis 003);
   ``centroid=`` "com" (default), "iwcog", "gaussian".
 - :func:`centroid_windows` — tracking: one star per predicted position, O(N·window²).
+- :func:`centroid_streaks` — tracking at high rates: a PSF swept along each star's predicted
+  motion (:func:`streak_motion`), centred on its mid-exposure position; :func:`star_times` —
+  each star's time on a rolling-shutter sensor.
 - :func:`estimate_background` — tiled (default), global or per-row sky and noise.
 - :func:`frame_problem` — why a frame holds no usable stars (blank, saturated, too small).
 - :func:`cramer_rao_centroid`, :func:`measure_psf` — bounds and PSF shape (the study of every
@@ -43,6 +46,7 @@ from skyfix.detect.centroids import Centroids
 from skyfix.detect.diagnose import frame_problem
 from skyfix.detect.extract import METHODS, extract_centroids
 from skyfix.detect.saturation import saturation_level
+from skyfix.detect.streak import centroid_streaks, star_times, streak_motion
 
 __all__ = [
     "CENTROIDERS",
@@ -58,6 +62,7 @@ __all__ = [
     "master_dark",
     "master_flat",
     "save_calibration",
+    "centroid_streaks",
     "centroid_windows",
     "cramer_rao_centroid",
     "estimate_background",
@@ -65,4 +70,6 @@ __all__ = [
     "frame_problem",
     "refine_centroids",
     "saturation_level",
+    "star_times",
+    "streak_motion",
 ]
