@@ -615,6 +615,15 @@ def _simulate_progress(n: int):
     return progress
 
 
+def _register_track() -> None:
+    from skyfix.track.cli import register
+
+    register(app, _load_camera)  # `skyfix track`: skyfix/track/cli.py, with the camera loader of --camera
+
+
+_register_track()
+
+
 def main() -> None:  # pragma: no cover - console entry point
     app()
 

@@ -48,6 +48,11 @@ class Solution:
     prob_false: float | None = None
     rmse_arcsec: float | None = None
     method: str = ""
+    # Tracking (skyfix.track.Tracker) only; None, and left out of the JSON, from solve().
+    mode: str | None = None  #: "lost", "acquiring" or "tracking": the tracker state that made it
+    frame_time_s: float | None = None  #: the frame's time as given to Tracker.update, seconds
+    rate_dps: list[float] | None = None  #: body rate about camera x, y, z, degrees per second
+    rate_covariance_dps2: list[list[float]] | None = None  #: its 3 × 3 covariance, (°/s)²
     time_ms: dict[str, float] = field(default_factory=dict)
     matches: list[Match] = field(default_factory=list)
     # Not part of the JSON: the full numeric results for the API.
@@ -83,10 +88,16 @@ class Solution:
         d["matches"] = matches
         if not self.reason:
             d.pop("reason")
+        for key in _TRACKING_FIELDS:
+            if d[key] is None:
+                del d[key]
         return _clean(d)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), separators=(", ", ": "))
+
+
+_TRACKING_FIELDS = ("mode", "frame_time_s", "rate_dps", "rate_covariance_dps2")
 
 
 def _clean(obj):

@@ -1,0 +1,584 @@
+"""The Tracker: follow the sky from frame to frame (docs/tracking.md).
+
+``Tracker(camera).update(image, t_s)`` takes one frame at a time with its mid-exposure time and
+returns a :class:`~skyfix.solution.Solution` whose ``mode`` says which of three states made it
+(thesis 002 §2.6's state machine 1 → 10 → 2, with its reset-on-error rules, made better):
+
+``"lost"`` (thesis state 1)
+    A full lost-in-space solve (:func:`skyfix.pipeline.solve` with the tracker's camera,
+    database and epoch). Solved: the predictor starts from its attitude and covariance and the
+    next frame is *acquiring* — or *tracking* straight away when gyro rates give the rate.
+``"acquiring"`` (state 10)
+    An attitude but no rate yet: the frame is tracked as below with the rate unknown (σ
+    ``max_rate_dps / 3`` per axis), so the windows are wide; the fit's attitude and the first
+    one give the rate (the filter's update). Failed: lost again.
+``"tracking"`` (state 2)
+    One update, in :meth:`Tracker.update`'s order: the predictor propagates the attitude to the
+    frame time; the catalogue stars in the frame are projected (the database's star index, the
+    camera model, the epoch — so stars entering the field are picked up and those leaving
+    dropped each frame); 10–20 isolated stars spread over the frame get windows sized from the
+    predicted covariance; each window is centroided and matched to its own star (gate,
+    magnitude, pairwise distances: :mod:`skyfix.track.windows`); the attitude is refitted with
+    its covariance (:mod:`skyfix.attitude`), outliers dropped; the fit is verified (at least
+    ``min_stars`` stars, residuals consistent with the centroids, the filter's NIS) and
+    updates the predictor. The Solution reports the filter's attitude, covariance and rate.
+
+A frame the windows cannot track (blank, clouded, a jump, too few stars) is solved lost in
+space at once: an attitude that agrees with the prediction updates the filter; one that does
+not (a jump) restarts it (acquiring next). When that fails too the tracker *coasts*: it reports
+the prediction (status ``solved``, no stars, ``reason`` says why) for up to
+``max_coast_frames`` frames while the prediction stays precise enough for windows
+(``k_sigma`` σ of the boresight within ``max_window_px``), then it is lost.
+
+Bad input raises a one-line :mod:`skyfix.errors` exception and leaves the state unchanged:
+a time that is not after the last frame's (out of order, repeated), not finite, or missing;
+a frame whose size is not the camera's; gyro rates that are not three finite numbers.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from skyfix.camera import Camera
+from skyfix.detect import refine_centroids
+from skyfix.detect.centroid import Refined
+from skyfix.detect.centroids import background_snr
+from skyfix.errors import CameraError, InputError
+from skyfix.identify.kernel_data import StarIndex
+from skyfix.solution import Match, Solution
+from skyfix.track import windows as win
+from skyfix.track.filter import innovation
+
+__all__ = ["DEFAULT_ACCEL_PSD", "MODES", "Tracker", "TrackSettings"]
+
+#: The tracker's states, the ``mode`` of its Solutions.
+MODES = ("lost", "acquiring", "tracking")
+
+_ARCSEC = math.pi / (180 * 3600)
+_DEG = math.pi / 180
+_ARCSEC2_PER_RAD2 = 1.0 / _ARCSEC ** 2
+_DEG_PER_RAD = 1.0 / _DEG
+#: The MEKF's white angular-acceleration density the Tracker gives it, rad²/s³: its rate wanders
+#: 0.06 °/s in 1 s (q ≳ α² Δt: accelerations to ~0.2 °/s² at 10 Hz), so at a steady rate the
+#: filter averages many frames. A harder manoeuvre (a slew's ramp) is caught by the NIS: the
+#: stars outvote the prediction and the filter restarts from their fit with the rate's σ the
+#: miss implies (:meth:`Tracker._track`). ``predictor_options={"accel_psd": …}`` overrides it.
+DEFAULT_ACCEL_PSD = 1e-6
+_VIEW_CAP = 4096  # catalogue stars projected per frame at most (the selection needs the brightest)
+_LOCAL_MARGIN_RAD = math.radians(2.0)  # the local catalogue reaches this far beyond the frame
+_OUTLIER_SIGMA = 5.0  # a fitted star whose residual exceeds this many σ is dropped
+_STREAK_PX = 2.0  # the streak centroider for streaks at least this long (a round star: the CoM)
+_GATE_FLOOR_PX = 0.3  # the gate's allowance for what the motion model leaves out (an acceleration)
+_STRONG_FIT = 6  # stars in a fit that outvote the prediction (a manoeuvre, not a wrong match)
+
+
+class TrackSettings(NamedTuple):
+    """The Tracker's settings (the keywords of :class:`Tracker`, documented there)."""
+
+    n_windows: int
+    centroid: str
+    gain: float | None
+    psf_sigma_px: float | None
+    k_sigma: float
+    min_stars: int
+    max_coast_frames: int
+    max_rate_dps: float
+    exposure_s: float | None
+    line_time_s: float
+    star_radius_px: float
+    max_window_px: float
+    min_snr: float
+    floor_px: float
+    mag_tolerance: float
+    nis_gate: float
+
+
+class _Fit(NamedTuple):
+    """A frame's star fit: the attitude, its covariance and the stars in it."""
+
+    A_icrs_to_cam: np.ndarray
+    covariance_rad2: np.ndarray
+    xy: np.ndarray          # (n, 2) centroids
+    index: np.ndarray       # (n,) catalogue indices
+    b: np.ndarray           # (n, 3) rays at the frame time
+    sigma_rad: np.ndarray   # (n,) σ per axis of each ray
+    n_found: int            # windows with a centroid
+    n_windows: int
+    prob_false: float
+
+
+class Tracker:
+    """Track a camera's attitude over a sequence of frames (module docstring).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera model (frames must be its size).
+    database : PatternDatabase, optional
+        Catalogue and star index for lost-in-space and the windows (default: the cached default).
+    predictor : str
+        A name of :data:`skyfix.track.predictors.PREDICTORS` (``"mekf"``: the Kalman filter).
+    epoch : float, optional
+        Julian year for proper motion (default: the database's epoch, as :func:`skyfix.solve`).
+    n_windows : int
+        Windows per frame (10–20: enough stars for the fit, a fraction of a millisecond).
+    centroid : str
+        Centroider in the windows: ``"streak"`` (the default: the streak-matched weighted centre
+        of :func:`skyfix.detect.streak.centroid_streaks`, a star's PSF swept along its predicted
+        motion; thresholded centre of mass where the prediction is too uncertain to centre the
+        weight on), or one of :data:`skyfix.detect.CENTROIDERS`.
+    gain : float, optional
+        Electrons per ADU, for the centroids' shot noise.
+    psf_sigma_px : float, optional
+        The PSF's σ for the streak weight, pixels (default 1).
+    k_sigma : float
+        Windows reach, and gates accept, this many predicted σ.
+    min_stars : int
+        Fewest stars in a fit (3 pin all three axes).
+    max_coast_frames : int
+        Frames reported from the prediction alone before the tracker is lost.
+    max_rate_dps : float
+        The fastest body rate expected, °/s: 3 σ of the unknown rate while acquiring.
+    exposure_s : float, optional
+        Exposure time, for the smear (default: the time since the last frame, an upper bound).
+    line_time_s : float
+        Rolling shutter: the time between the readout of two rows (0: a global shutter).
+    star_radius_px : float
+        How far a star's light reaches from its centre, pixels.
+    max_window_px : float
+        Largest search half-size; beyond it the frame is solved lost in space.
+    min_snr, floor_px, mag_tolerance : float
+        A window's centroid counts above this SNR; a σ floor (px) added to every centroid's;
+        the largest brightness mismatch against the catalogue, magnitudes.
+    nis_gate : float
+        A fit whose normalised innovation squared exceeds this disagrees with the prediction.
+    predictor_options : dict, optional
+        Keywords for the predictor (e.g. ``accel_psd`` of the MEKF).
+    solve_options : dict, optional
+        Keywords for the lost-in-space :func:`skyfix.solve`.
+    """
+
+    def __init__(self, camera: Camera, *, database=None, predictor: str = "mekf", epoch: float | None = None,
+                 n_windows: int = 16, centroid: str = "streak", gain: float | None = None,
+                 psf_sigma_px: float | None = None, k_sigma: float = 4.0,
+                 min_stars: int = 3, max_coast_frames: int = 5, max_rate_dps: float = 3.0,
+                 exposure_s: float | None = None, line_time_s: float = 0.0, star_radius_px: float = 3.0,
+                 max_window_px: float = 60.0, min_snr: float = 5.0, floor_px: float = 0.02,
+                 mag_tolerance: float = 1.5, nis_gate: float = 25.0, predictor_options: dict | None = None,
+                 solve_options: dict | None = None) -> None:
+        from skyfix.detect import CENTROIDERS
+        from skyfix.identify import PatternDatabase, default_database
+        from skyfix.track.predictors import make_predictor
+        from skyfix.validate import check_count, check_epoch, check_positive
+
+        if not isinstance(camera, Camera):
+            raise InputError(f"camera must be a Camera (Camera.load(path)), got {type(camera).__name__}")
+        if database is not None and not isinstance(database, PatternDatabase):
+            raise InputError(f"database must be a PatternDatabase, got {type(database).__name__}")
+        if centroid != "streak" and centroid not in CENTROIDERS:
+            raise InputError(f"unknown centroider {centroid!r}; known: streak, {', '.join(CENTROIDERS)}")
+        if not (isinstance(line_time_s, (int, float)) and math.isfinite(line_time_s) and line_time_s >= 0):
+            raise InputError(f"line_time_s must be a number >= 0 (seconds per row), got {line_time_s!r}")
+        self.settings = TrackSettings(
+            n_windows=check_count(n_windows, "n_windows"), centroid=centroid,
+            gain=None if gain is None else check_positive(gain, "gain"),
+            psf_sigma_px=None if psf_sigma_px is None else check_positive(psf_sigma_px, "psf_sigma_px"),
+            k_sigma=check_positive(k_sigma, "k_sigma"),
+            min_stars=check_count(min_stars, "min_stars", minimum=3),
+            max_coast_frames=check_count(max_coast_frames, "max_coast_frames", minimum=0),
+            max_rate_dps=check_positive(max_rate_dps, "max_rate_dps"),
+            exposure_s=None if exposure_s is None else check_positive(exposure_s, "exposure_s"),
+            line_time_s=float(line_time_s), star_radius_px=check_positive(star_radius_px, "star_radius_px"),
+            max_window_px=check_positive(max_window_px, "max_window_px"),
+            min_snr=check_positive(min_snr, "min_snr"), floor_px=check_positive(floor_px, "floor_px"),
+            mag_tolerance=check_positive(mag_tolerance, "mag_tolerance"),
+            nis_gate=check_positive(nis_gate, "nis_gate"))
+        self.camera = camera
+        self.database = default_database() if database is None else database
+        self.epoch = check_epoch(epoch)
+        self.predictor_name = predictor
+        self._predictor_options = dict(predictor_options or {})
+        self._predictor_options.setdefault("rate_sigma_rad_s", self.settings.max_rate_dps * _DEG / 3.0)
+        if predictor == "mekf":
+            self._predictor_options.setdefault("accel_psd", DEFAULT_ACCEL_PSD)
+        self._make_predictor = make_predictor
+        # a bad name or option: InputError now, not at the first solved frame
+        make_predictor(predictor, np.eye(3), 0.0, np.eye(3) * 1e-10, **self._predictor_options)
+        self._solve_options = dict(solve_options or {})
+        r_star = self.settings.star_radius_px
+        self._window_settings = win.WindowSettings(
+            self.settings.n_windows, self.settings.k_sigma, r_star, min_half_px=r_star + 1.0,
+            max_half_px=self.settings.max_window_px, max_spread_px=4.0 * r_star, neighbour_dmag=3.0,
+            per_box=0)
+        self._match_settings = win.MatchSettings(self.settings.min_snr, self.settings.k_sigma ** 2,
+                                                 self.settings.floor_px, _GATE_FLOOR_PX,
+                                                 self.settings.mag_tolerance, pair_k=5.0)
+        self._setup_catalog()
+        self._cam = camera.numbers()
+        self._plate = camera.plate_scale_rad
+        self._view = win.View.empty(_VIEW_CAP)
+        self._sel = win.Selection.empty(self.settings.n_windows)
+        self._max_tile = int(math.ceil(self.settings.max_window_px + 3 * self.settings.star_radius_px))
+        self._tiles = np.zeros(self.settings.n_windows * (2 * self._max_tile) ** 2, np.float32)
+        self._origin = np.zeros((self.settings.n_windows, 2), np.int64)
+        self._sky = np.zeros(self.settings.n_windows)
+        self._noise = np.zeros(self.settings.n_windows)
+        self._mosaic_xy = np.zeros((self.settings.n_windows, 2))
+        self._no_xy, self._no_b, self._no_mag = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0)
+        self._fov_deg = camera.fov_deg
+        self._rows = np.arange(self.settings.n_windows)
+        self._zeros = np.zeros(self.settings.n_windows)
+        self.reset()
+
+    def _setup_catalog(self) -> None:
+        """The star index (vectors moved to the epoch when it is not the database's), magnitudes
+        and HIP numbers; the cone around the boresight that holds the frame and its margin."""
+        db = self.database
+        ids, mags, _ = db.star_arrays()
+        index = db.star_index()
+        if self.epoch is not None and abs(self.epoch - db.epoch) > 1e-3:
+            moved = np.ascontiguousarray(db.vectors_at(np.arange(len(ids)), self.epoch))
+            shift = float(np.max(np.linalg.norm(moved - index.vectors, axis=1)))  # stars leave their cells
+            index = StarIndex(moved, *index[1:4], index.cell_radius_rad + shift)
+        self._stars = index
+        self._star_ids = ids
+        self._mags = np.ascontiguousarray(mags, dtype=np.float64)
+        cam = self.camera
+        corners = cam.pixel_to_ray(np.array([[-0.5, -0.5], [cam.width - 0.5, -0.5], [-0.5, cam.height - 0.5],
+                                             [cam.width - 0.5, cam.height - 0.5]]))
+        margin = (self.settings.max_window_px + 3 * self.settings.star_radius_px) * cam.plate_scale_rad
+        self._cone = float(np.arccos(np.clip(corners[:, 2], -1, 1)).max()) + margin
+
+    def reset(self) -> None:
+        """Forget everything: the next frame is solved lost in space."""
+        self.mode = "lost"
+        self._predictor = None
+        self._t_last: float | None = None
+        self._coast = 0
+        self._zero_point = math.nan
+        self._select_mag = 7.0
+        self._faintest = math.inf
+        self._local: win.Local | None = None
+        self._local_z = np.zeros(3)
+
+    # --- input checks ----------------------------------------------------------------------
+    def _check_time(self, t_s) -> float:
+        if t_s is None or isinstance(t_s, bool) or not isinstance(t_s, (int, float, np.integer, np.floating)):
+            raise InputError(f"a frame needs its time in seconds, got {t_s!r}")
+        t = float(t_s)
+        if not math.isfinite(t):
+            raise InputError(f"frame time must be a finite number of seconds, got {t_s!r}")
+        if self._t_last is not None and not t > self._t_last:
+            what = "repeated" if t == self._t_last else "out of order"
+            raise InputError(f"frame time {t:.6g} s is not after the previous frame's {self._t_last:.6g} s "
+                             f"({what} frame)")
+        return t
+
+    def _check_image(self, image) -> np.ndarray:
+        if isinstance(image, (str, os.PathLike)):
+            from skyfix.io import read_image
+
+            image = read_image(image)
+        if not isinstance(image, np.ndarray):
+            raise InputError(f"a frame is a 2-D array or an image file, got {type(image).__name__}")
+        if image.ndim != 2 or image.dtype.kind not in "uif":
+            raise InputError(f"a frame must be a 2-D array of numbers, got shape {image.shape} "
+                             f"of {image.dtype}")
+        h, w = image.shape
+        if (w, h) != (self.camera.width, self.camera.height):
+            raise CameraError(f"frame is {w}×{h} but the camera is {self.camera.width}×{self.camera.height}")
+        return image if image.flags.c_contiguous else np.ascontiguousarray(image)
+
+    @staticmethod
+    def _check_gyro(gyro) -> np.ndarray | None:
+        if gyro is None:
+            return None
+        g = np.asarray(gyro, dtype=np.float64).reshape(-1)
+        if g.shape != (3,) or not np.isfinite(g).all():
+            raise InputError("gyro_rate_rad_s must be three finite numbers (rad/s about camera x, y, z)")
+        return g
+
+    # --- one frame -------------------------------------------------------------------------
+    def update(self, image, t_s: float, *, gyro_rate_rad_s=None) -> Solution:
+        """Process one frame taken at ``t_s`` (seconds, mid-exposure; each frame later than
+        the last) and return its Solution with ``mode``, ``frame_time_s``, and in tracking
+        ``rate_dps`` and ``rate_covariance_dps2``.
+
+        Parameters
+        ----------
+        image : (H, W) array or path
+            The frame, the camera's size (any real dtype; never copied whole while tracking).
+        t_s : float
+            Its time, seconds (any origin; only differences matter).
+        gyro_rate_rad_s : (3,) array, optional
+            The gyro's body rate over the interval since the last frame, camera frame.
+
+        Raises
+        ------
+        skyfix.errors.InputError
+            A missing, non-finite, repeated or out-of-order time; bad gyro rates; not a 2-D frame.
+        skyfix.errors.CameraError
+            A frame of another size than the camera's.
+        """
+        t0 = time.perf_counter()
+        t = self._check_time(t_s)
+        name = str(image) if isinstance(image, (str, os.PathLike)) else "<array>"
+        img = self._check_image(image)
+        gyro = self._check_gyro(gyro_rate_rad_s)
+        if self._predictor is None:
+            sol = self._lost(img, t, gyro)
+        else:
+            sol = self._track(img, t, gyro, t0)
+        self._t_last = t
+        sol.image = name
+        sol.frame_time_s = t
+        sol.time_ms["total"] = 1e3 * (time.perf_counter() - t0)
+        return sol
+
+    # --- lost in space ---------------------------------------------------------------------
+    def _solve_lost(self, img: np.ndarray) -> Solution:
+        from skyfix.pipeline import solve
+
+        return solve(img, camera=self.camera, database=self.database, epoch=self.epoch, **self._solve_options)
+
+    def _lost(self, img: np.ndarray, t: float, gyro) -> Solution:
+        sol = self._solve_lost(img)
+        sol.mode = "lost"
+        if sol.solved:
+            self._start(sol, t, gyro)
+        return sol
+
+    def _start(self, sol: Solution, t: float, gyro) -> None:
+        """(Re)start the predictor from a lost-in-space Solution at ``t``."""
+        P = np.asarray(sol.covariance_arcsec2) * _ARCSEC ** 2
+        stars = None
+        if self.predictor_name == "small-angle":  # it measures the rate from the stars' motion
+            stars = (np.array([(m.x, m.y) for m in sol.matches]).reshape(-1, 2),
+                     np.array([m.id for m in sol.matches], np.int64))
+        self._restart(sol.A_icrs_to_cam, t, P, gyro, None, None, stars)
+        mags = [m.mag for m in sol.matches]
+        if mags:
+            self._select_mag = max(float(np.max(mags)), 4.0)
+            self._local = None  # made again at this depth
+        self.mode = "tracking" if gyro is not None else "acquiring"
+
+    def _restart(self, A: np.ndarray, t: float, P: np.ndarray, gyro, rate, rate_sigma, stars=None) -> None:
+        """A new predictor from the attitude ``A`` (covariance ``P``) at ``t``; the MEKF also
+        takes a rate and its σ (default: unknown, σ ``max_rate_dps``/3)."""
+        opts = dict(self._predictor_options, gyro=gyro is not None)
+        if rate_sigma is not None:
+            opts["rate_sigma_rad_s"] = rate_sigma
+        if rate is not None and gyro is None and self.predictor_name == "mekf":
+            opts["rate_rad_s"] = rate
+        if stars is not None:
+            opts["xy"], opts["ids"] = stars
+        self._predictor = self._make_predictor(self.predictor_name, A, t, P, **opts)
+        self._coast = 0
+
+    # --- tracking --------------------------------------------------------------------------
+    def _track(self, img: np.ndarray, t: float, gyro, t0: float) -> Solution:
+        pred = self._predictor.predict(t, gyro_rate_rad_s=gyro)
+        t_pred = time.perf_counter()
+        fit, why = self._measure(img, t, pred)
+        t_fit = time.perf_counter()
+        if fit is not None:
+            inn = innovation(pred.A_icrs_to_cam, pred.attitude_cov_rad2, fit.A_icrs_to_cam,
+                             fit.covariance_rad2)
+            if inn.nis <= self.settings.nis_gate:
+                post = self._predictor.update(t, fit.A_icrs_to_cam, fit.covariance_rad2, xy=fit.xy,
+                                              ids=self._star_ids[fit.index], camera=self.camera,
+                                              gyro_rate_rad_s=gyro)
+                return self._tracked(post, fit, (t0, t_pred, t_fit))
+            if len(fit.index) >= _STRONG_FIT:
+                # The stars agree among themselves, not with the prediction: a manoeuvre the
+                # motion model did not expect. Restart the predictor from the fit, keeping the
+                # predicted rate with the uncertainty the miss implies (2|z|/Δt, a constant
+                # acceleration's over the interval).
+                dt = t - self._t_last
+                rate_sigma = max(2.0 * float(np.linalg.norm(inn.residual_rad)) / dt,
+                                 math.sqrt(float(np.max(np.diagonal(pred.rate_cov_rad2_s2)))))
+                self._restart(fit.A_icrs_to_cam, t, fit.covariance_rad2, gyro, pred.rate_rad_s, rate_sigma)
+                post = self._predictor.predict(t, gyro_rate_rad_s=gyro)
+                return self._tracked(post, fit, (t0, t_pred, t_fit))
+            why = f"the star fit disagrees with the prediction (NIS {inn.nis:.3g})"
+        return self._recover(img, t, gyro, pred, why, t0)
+
+    def _tracked(self, post, fit: _Fit, times) -> Solution:
+        """The Solution of a frame tracked in windows (``post``: the predictor's estimate after it)."""
+        mode = self.mode
+        self.mode = "tracking"
+        self._coast = 0
+        t_end = time.perf_counter()
+        t0, t_pred, t_fit = times
+        sol = self._solution(post, mode, fit)
+        sol.time_ms = {"predict": 1e3 * (t_pred - t0), "measure": 1e3 * (t_fit - t_pred),
+                       "filter": 1e3 * (t_end - t_fit)}
+        return sol
+
+    def _recover(self, img: np.ndarray, t: float, gyro, pred, why: str, t0: float) -> Solution:
+        """A frame the windows could not track: lost in space at once; an attitude that agrees
+        with the prediction updates the predictor (the rate survives), one that does not is a
+        jump (start again). No attitude: coast while allowed, else lost."""
+        lis = self._solve_lost(img)
+        if lis.solved:
+            P = np.asarray(lis.covariance_arcsec2) * _ARCSEC ** 2
+            nis = innovation(pred.A_icrs_to_cam, pred.attitude_cov_rad2, lis.A_icrs_to_cam, P).nis
+            if nis <= self.settings.nis_gate:
+                xy = np.array([(m.x, m.y) for m in lis.matches]).reshape(-1, 2)
+                ids = np.array([m.id for m in lis.matches], np.int64)
+                post = self._predictor.update(t, lis.A_icrs_to_cam, P, xy=xy, ids=ids, camera=self.camera,
+                                              gyro_rate_rad_s=gyro)
+                lis.mode = self.mode
+                self.mode = "tracking"
+                self._coast = 0
+                lis.rate_dps = (np.asarray(post.rate_rad_s) / _DEG).tolist()
+                lis.rate_covariance_dps2 = (np.asarray(post.rate_cov_rad2_s2) / _DEG ** 2).tolist()
+                return lis
+            lis.mode = "lost"  # a jump: start again from here
+            self._start(lis, t, gyro)
+            return lis
+        coast = self.mode == "tracking" and self._coast < self.settings.max_coast_frames
+        if coast and self._windows_fit(pred):
+            self._coast += 1
+            sol = self._solution(pred, "tracking", None)
+            sol.reason = (f"coasting on the prediction ({self._coast} of {self.settings.max_coast_frames}): "
+                          f"{why}; lost in space: {lis.reason}")
+            sol.time_ms = dict(lis.time_ms)
+            return sol
+        lis.mode = self.mode
+        self.mode = "lost"
+        self._predictor = None
+        lis.reason = f"{why}; lost in space: {lis.reason}"
+        return lis
+
+    def _windows_fit(self, pred) -> bool:
+        """Whether windows of ``max_window_px`` still reach ``k_sigma`` predicted σ of the
+        boresight's error: the prediction is good enough to coast on and track from."""
+        P = pred.attitude_cov_rad2
+        sigma_px = math.sqrt(max(P[0, 0] + P[1, 1], 0.0)) / self._plate
+        return self.settings.k_sigma * sigma_px + self.settings.star_radius_px <= self.settings.max_window_px
+
+    def _measure(self, img: np.ndarray, t: float, pred) -> tuple[_Fit | None, str]:
+        """The star fit of one frame from windows around the predicted stars (module
+        docstring), or None and why not."""
+        s = self.settings
+        exposure = s.exposure_s if s.exposure_s is not None else min(t - self._t_last, 1.0)
+        rate = np.ascontiguousarray(pred.rate_rad_s, dtype=np.float64)
+        select_mag = min(self._select_mag, self._faintest + 1.0)
+        c = np.ascontiguousarray
+        A = c(pred.A_icrs_to_cam)
+        plan = win.plan_windows(A, c(pred.attitude_cov_rad2), rate, c(pred.rate_cov_rad2_s2), exposure,
+                                self._local_catalog(A[2]), select_mag, self._cam, self.camera.width,
+                                self.camera.height, self._window_settings, self._view, self._sel)
+        n = plan.n
+        # next frame: stars down to a magnitude fainter than the faintest chosen (all, when short)
+        self._faintest = plan.faintest_mag if n == s.n_windows else math.inf
+        if n < s.min_stars:
+            if plan.too_wide:
+                return None, (f"attitude too uncertain for windows ({plan.too_wide} stars need more than "
+                              f"{s.max_window_px:g} px)")
+            return None, f"{n} catalogue stars to track in the frame (need {s.min_stars})"
+        dt = self._row_times(n, t, rate)
+        size, x, y, sx, sy, flux, snr = self._centroid(img, n)
+        sel = self._sel
+        res = win.fit_windows(n, x, y, sx, sy, flux, snr, self._origin, size, sel, self._stars.vectors,
+                              self._zero_point, self._match_settings, self._cam, rate, dt, plan.n_view,
+                              float(self.camera.width * self.camera.height), s.min_stars, _OUTLIER_SIGMA)
+        if not res.ok:
+            if res.n_gated < s.min_stars:
+                return None, f"{res.n_gated} of {n} windows hold their star ({res.n_found} found a star)"
+            return None, f"{int(res.use.sum())} of {res.n_gated} stars agree in the pair check and the fit " \
+                         f"(need {s.min_stars})"
+        if res.zero_point == res.zero_point:  # not NaN
+            zp = self._zero_point
+            self._zero_point = res.zero_point if zp != zp else 0.8 * zp + 0.2 * res.zero_point
+        use = res.use
+        return _Fit(res.A_icrs_to_cam, res.covariance_rad2, res.xy[use], sel.index[:n][use], res.b[use],
+                    res.sigma_rad[use], res.n_found, n, math.exp(res.log_chance)), ""
+
+    def _local_catalog(self, z: np.ndarray) -> win.Local:
+        """The catalogue within the frame's cone plus :data:`_LOCAL_MARGIN_RAD` of the boresight
+        ``z``, down to what the windows can choose or be crowded by; made again when the
+        boresight has moved half that margin."""
+        if self._local is None or float(z @ self._local_z) < math.cos(0.5 * _LOCAL_MARGIN_RAD):
+            limit = int(np.searchsorted(self._mags, self._select_mag + self._window_settings.neighbour_dmag,
+                                        side="right"))
+            self._local = win.local_catalog(z, self._cone + _LOCAL_MARGIN_RAD, limit, self._stars, self._mags)
+            self._local_z = z.copy()
+        return self._local
+
+    def _centroid(self, img: np.ndarray, n: int):
+        """Cut the windows' tiles into one mosaic and centroid them: the tile size and the
+        centroids' (x, y, σx, σy, flux, SNR), x and y in the mosaic."""
+        sky, noise, local = self._sky[:n], self._noise[:n], self._mosaic_xy[:n]
+        tile_half, recentred, streak = win.cut_tiles(img, self._sel, n, self._max_tile, self._tiles,
+                                                     self._origin, local, sky, noise)
+        size = 2 * tile_half
+        mosaic = self._tiles[:n * size * size].reshape(n * size, size)
+        how = self.settings.centroid
+        if how == "streak" and not recentred and streak >= _STREAK_PX:
+            from skyfix.detect.streak import centroid_streaks
+
+            margin = min(  # the star and a pixel; the tile holds it
+                tile_half - int(math.ceil(streak / 2)) - 1, int(math.ceil(self.settings.star_radius_px)) + 1)
+            c = centroid_streaks(mosaic, local, self._sel.smear[:n], max(2, margin), method="streak",
+                                 psf_sigma=self.settings.psf_sigma_px, gain=self.settings.gain)
+            return size, c.x, c.y, c.sigma_x, c.sigma_y, c.flux, c.snr
+        # the windows' own sky and noise: refine_centroids, the kernel of centroid_windows
+        # without its Centroids (a fifth of the cost at 16 windows)
+        r = Refined.of(refine_centroids(mosaic, local, sky, noise, tile_half,
+                                        method="com" if how == "streak" else how, sigma=3.0,
+                                        psf_sigma=self.settings.psf_sigma_px, gain=self.settings.gain))
+        found = r.ok > 0
+        snr = np.where(found, background_snr(r.flux, r.noise, r.npix), 0.0)
+        return size, np.where(found, r.x, np.nan), r.y, r.sigma_x, r.sigma_y, r.flux, snr
+
+    # --- rolling shutter -------------------------------------------------------------------
+    def _row_times(self, n: int, t: float, rate: np.ndarray) -> np.ndarray:
+        """Each window's star seen at its row's time, ``t + dt[i]`` (a global shutter: 0); the
+        predictions moved to it by ``J ω Δt`` (windows docstring)."""
+        if self.settings.line_time_s == 0:
+            return self._zeros[:n]
+        from skyfix.detect.streak import star_times
+
+        sel = self._sel
+        dt = star_times(np.column_stack((sel.x[:n], sel.y[:n])), t, self.settings.line_time_s,
+                        self.camera.height) - t
+        shift = np.einsum("nij,j->ni", sel.jac[:n], rate) * dt[:, None]
+        sel.x[:n] += shift[:, 0]
+        sel.y[:n] += shift[:, 1]
+        return np.ascontiguousarray(dt, dtype=np.float64)
+
+    # --- the Solution ----------------------------------------------------------------------
+    def _solution(self, est, mode: str, fit: _Fit | None) -> Solution:
+        """A Solution for the estimate ``est`` (a Prediction: attitude, covariances, rate) and
+        the fit that made it (None: coasting on the prediction)."""
+        A = np.ascontiguousarray(est.A_icrs_to_cam)
+        if fit is None:
+            head, table, rmse = win.solution_numbers(A, self._no_xy, self._no_b, self._no_b, self._no_mag)
+        else:
+            head, table, rmse = win.solution_numbers(A, fit.xy, fit.b, self._stars.vectors[fit.index],
+                                                     self._mags[fit.index])
+        head = head.tolist()
+        cam = self.camera
+        sol = Solution(image="<array>", status="solved", ra_deg=head[0], dec_deg=head[1], roll_deg=head[2],
+                       boresight_px=[cam.cx, cam.cy], fov_deg=self._fov_deg, quaternion_xyzw=head[3:],
+                       covariance_arcsec2=(est.attitude_cov_rad2 * _ARCSEC2_PER_RAD2).tolist(),
+                       method="track", mode=mode, rate_dps=(est.rate_rad_s * _DEG_PER_RAD).tolist(),
+                       rate_covariance_dps2=(est.rate_cov_rad2_s2 * _DEG_PER_RAD ** 2).tolist())
+        sol.A_icrs_to_cam = A
+        sol.camera = cam
+        if fit is None:
+            return sol
+        sol.n_detected = fit.n_found
+        sol.n_matched = len(fit.index)
+        sol.prob_false = fit.prob_false
+        sol.rmse_arcsec = float(rmse)
+        x, y, ra, dec, mag, resid = table.tolist()
+        sol.matches = list(map(Match, x, y, self._star_ids[fit.index].tolist(), ra, dec, mag, resid))
+        return sol
