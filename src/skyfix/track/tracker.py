@@ -9,9 +9,10 @@ returns a :class:`~skyfix.solution.Solution` whose ``mode`` says which of three 
     database and epoch). Solved: the predictor starts from its attitude and covariance and the
     next frame is *acquiring* — or *tracking* straight away when gyro rates give the rate.
 ``"acquiring"`` (state 10)
-    An attitude but no rate yet: the frame is tracked as below with the rate unknown (σ
-    ``max_rate_dps / 3`` per axis), so the windows are wide; the fit's attitude and the first
-    one give the rate (the filter's update). Failed: lost again.
+    An attitude but no rate yet (σ ``max_rate_dps / 3`` per axis): the frame is tracked as below
+    when the windows can hold the unknown smear (short exposures), else solved lost in space;
+    either attitude, if it agrees with the prediction, and the first one give the rate (the
+    filter's update). Failed: lost again.
 ``"tracking"`` (state 2)
     One update, in :meth:`Tracker.update`'s order: the predictor propagates the attitude to the
     frame time; the catalogue stars in the frame are projected (the database's star index, the
@@ -19,9 +20,11 @@ returns a :class:`~skyfix.solution.Solution` whose ``mode`` says which of three 
     dropped each frame); 10–20 isolated stars spread over the frame get windows sized from the
     predicted covariance; each window is centroided and matched to its own star (gate,
     magnitude, pairwise distances: :mod:`skyfix.track.windows`); the attitude is refitted with
-    its covariance (:mod:`skyfix.attitude`), outliers dropped; the fit is verified (at least
-    ``min_stars`` stars, residuals consistent with the centroids, the filter's NIS) and
-    updates the predictor. The Solution reports the filter's attitude, covariance and rate.
+    its covariance (``windows.fit_attitude``, :mod:`skyfix.attitude`'s formulas), outliers
+    dropped; the fit is verified (at least ``min_stars`` stars, residuals consistent with the
+    centroids, the filter's NIS) and updates the predictor — or, when at least 6 stars agree
+    with each other but not with the prediction (a manoeuvre), restarts it from the fit. The
+    Solution reports the filter's attitude, covariance and rate.
 
 A frame the windows cannot track (blank, clouded, a jump, too few stars) is solved lost in
 space at once: an attitude that agrees with the prediction updates the filter; one that does
@@ -218,11 +221,15 @@ class Tracker:
         self._match_settings = win.MatchSettings(self.settings.min_snr, self.settings.k_sigma ** 2,
                                                  self.settings.floor_px, _GATE_FLOOR_PX,
                                                  self.settings.mag_tolerance, pair_k=5.0)
+        self._window_settings_t = tuple(self._window_settings)
+        self._match_settings_t = tuple(self._match_settings)
         self._setup_catalog()
         self._cam = camera.numbers()
         self._plate = camera.plate_scale_rad
         self._view = win.View.empty(_VIEW_CAP)
+        self._view_t = tuple(self._view)
         self._sel = win.Selection.empty(self.settings.n_windows)
+        self._sel_t = tuple(self._sel)
         self._max_tile = int(math.ceil(self.settings.max_window_px + 3 * self.settings.star_radius_px))
         self._tiles = np.zeros(self.settings.n_windows * (2 * self._max_tile) ** 2, np.float32)
         self._origin = np.zeros((self.settings.n_windows, 2), np.int64)
@@ -472,9 +479,10 @@ class Tracker:
         select_mag = min(self._select_mag, self._faintest + 1.0)
         c = np.ascontiguousarray
         A = c(pred.A_icrs_to_cam)
-        plan = win.plan_windows(A, c(pred.attitude_cov_rad2), rate, c(pred.rate_cov_rad2_s2), exposure,
-                                self._local_catalog(A[2]), select_mag, self._cam, self.camera.width,
-                                self.camera.height, self._window_settings, self._view, self._sel)
+        self._local_catalog(A[2])
+        plan = win.plan_entry(A, c(pred.attitude_cov_rad2), rate, c(pred.rate_cov_rad2_s2), exposure,
+                              self._local_t, select_mag, self._cam, self.camera.width, self.camera.height,
+                              self._window_settings_t, self._view_t, self._sel_t)
         n = plan.n
         # next frame: stars down to a magnitude fainter than the faintest chosen (all, when short)
         self._faintest = plan.faintest_mag if n == s.n_windows else math.inf
@@ -486,9 +494,9 @@ class Tracker:
         dt = self._row_times(n, t, rate)
         size, x, y, sx, sy, flux, snr = self._centroid(img, n)
         sel = self._sel
-        res = win.fit_windows(n, x, y, sx, sy, flux, snr, self._origin, size, sel, self._stars.vectors,
-                              self._zero_point, self._match_settings, self._cam, rate, dt, plan.n_view,
-                              float(self.camera.width * self.camera.height), s.min_stars, _OUTLIER_SIGMA)
+        res = win.fit_entry(n, x, y, sx, sy, flux, snr, self._origin, size, self._sel_t, self._stars.vectors,
+                            self._zero_point, self._match_settings_t, self._cam, rate, dt, plan.n_view,
+                            float(self.camera.width * self.camera.height), s.min_stars, _OUTLIER_SIGMA)
         if not res.ok:
             if res.n_gated < s.min_stars:
                 return None, f"{res.n_gated} of {n} windows hold their star ({res.n_found} found a star)"
@@ -509,6 +517,7 @@ class Tracker:
             limit = int(np.searchsorted(self._mags, self._select_mag + self._window_settings.neighbour_dmag,
                                         side="right"))
             self._local = win.local_catalog(z, self._cone + _LOCAL_MARGIN_RAD, limit, self._stars, self._mags)
+            self._local_t = tuple(self._local)
             self._local_z = z.copy()
         return self._local
 
@@ -516,7 +525,7 @@ class Tracker:
         """Cut the windows' tiles into one mosaic and centroid them: the tile size and the
         centroids' (x, y, σx, σy, flux, SNR), x and y in the mosaic."""
         sky, noise, local = self._sky[:n], self._noise[:n], self._mosaic_xy[:n]
-        tile_half, recentred, streak = win.cut_tiles(img, self._sel, n, self._max_tile, self._tiles,
+        tile_half, recentred, streak = win.cut_entry(img, self._sel_t, n, self._max_tile, self._tiles,
                                                      self._origin, local, sky, noise)
         size = 2 * tile_half
         mosaic = self._tiles[:n * size * size].reshape(n * size, size)

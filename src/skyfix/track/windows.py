@@ -51,8 +51,9 @@ from skyfix.detect._stats import robust_level_noise
 from skyfix.identify.verify import gather_stars
 
 __all__ = ["Local", "MatchSettings", "Plan", "Selection", "View", "WindowFit", "WindowSettings", "crowding",
-           "cut_tiles", "fit_attitude", "fit_windows", "local_catalog", "match_windows", "pair_check",
-           "pixel_jacobian", "plan_windows", "project_view", "select_windows", "solution_numbers"]
+           "cut_entry", "cut_tiles", "fit_attitude", "fit_entry", "fit_windows", "local_catalog",
+           "match_windows", "pair_check", "pixel_jacobian", "plan_entry", "plan_windows", "project_view",
+           "select_windows", "solution_numbers"]
 
 
 class WindowSettings(NamedTuple):
@@ -706,3 +707,31 @@ def solution_numbers(A, xy, b, r, mags):
         table[5, i] = resid[i] / _ARCSEC
         ss += table[5, i] * table[5, i]
     return out, table, np.sqrt(ss / n) if n else np.nan
+
+
+# --- the tracker's calls ---------------------------------------------------------------------
+# numba types a NamedTuple argument in Python, ~1.6 µs each per call, but a plain tuple in its C
+# dispatcher (skyfix/identify/kernel_data.py says the same of the search): the tracker calls
+# these twins with ``tuple(nt)`` of the same fields, named again inside at no cost.
+
+
+@numba.njit(cache=True)
+def plan_entry(A, P, rate, P_rate, exposure_s, local_t, select_mag, cam, width, height, settings_t, view_t,
+               sel_t):
+    """:func:`plan_windows` with its NamedTuples as plain tuples."""
+    return plan_windows(A, P, rate, P_rate, exposure_s, Local(*local_t), select_mag, cam, width, height,
+                        WindowSettings(*settings_t), View(*view_t), Selection(*sel_t))
+
+
+@numba.njit(cache=True)
+def cut_entry(img, sel_t, n, max_half, tiles, origin, local, sky, noise):
+    """:func:`cut_tiles` with the :class:`Selection` as a plain tuple."""
+    return cut_tiles(img, Selection(*sel_t), n, max_half, tiles, origin, local, sky, noise)
+
+
+@numba.njit(cache=True)
+def fit_entry(n, x, y, sx, sy, flux, snr, origin, size, sel_t, vectors, zero_point, settings_t, cam, rate, dt,
+              n_view, frame_area, min_stars, outlier_k):
+    """:func:`fit_windows` with its NamedTuples as plain tuples."""
+    return fit_windows(n, x, y, sx, sy, flux, snr, origin, size, Selection(*sel_t), vectors, zero_point,
+                       MatchSettings(*settings_t), cam, rate, dt, n_view, frame_area, min_stars, outlier_k)
