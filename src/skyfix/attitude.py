@@ -30,6 +30,7 @@ import numba
 import numpy as np
 
 from skyfix._kernels.rotation import proper_rotation, rotation_vector, triad
+from skyfix._kernels.wahba import information_matrix, profile_matrix
 from skyfix.geometry import angle_between, normalize
 
 __all__ = [
@@ -235,14 +236,9 @@ def _checked_profile_polar(b, r, w):
     and its orthogonal polar factor (:func:`_polar_newton`), in one call: (error code, vectors
     kept, B, factor or an empty (0, 3) array)."""
     code, n_kept, bu, ru, wu = _checked_unit_vectors(b, r, w)
-    B = np.zeros((3, 3))
     if code:
-        return code, n_kept, B, np.empty((0, 3))
-    for i in range(bu.shape[0]):
-        for j in range(3):
-            bw = bu[i, j] * wu[i]
-            for k in range(3):
-                B[j, k] += bw * ru[i, k]
+        return code, n_kept, np.zeros((3, 3)), np.empty((0, 3))
+    B = profile_matrix(bu, ru, wu)
     return code, n_kept, B, _polar_newton(B)
 
 
@@ -484,7 +480,7 @@ def attitude_covariance(A_icrs_to_cam: np.ndarray, b_cam: np.ndarray, sigma_rad:
     info_w = 1.0 / sig**2
     if weights is not None:
         info_w = info_w * np.asarray(weights, dtype=np.float64)
-    F = _information_matrix(np.ascontiguousarray(b), np.ascontiguousarray(info_w, dtype=np.float64))
+    F = information_matrix(np.ascontiguousarray(b), np.ascontiguousarray(info_w, dtype=np.float64))
     if not (np.all(np.isfinite(F)) and np.linalg.cond(F) <= 1e14):
         raise ValueError("attitude covariance is unbounded: fewer than two distinct directions")
     P = np.linalg.inv(F)
@@ -495,27 +491,6 @@ def attitude_covariance(A_icrs_to_cam: np.ndarray, b_cam: np.ndarray, sigma_rad:
         A = np.asarray(A_icrs_to_cam, dtype=np.float64)
         return A.T @ P @ A
     raise ValueError(f"unknown covariance frame {frame!r}; use 'camera' or 'icrs'")
-
-
-@numba.njit(cache=True)
-def _information_matrix(b, info_w):
-    """``F = Σ w_i (I − b̂_i b̂_iᵀ)`` (3, 3) with ``b̂ = b / |b|``, in one pass."""
-    F = np.zeros((3, 3))
-    total = 0.0
-    for i in range(b.shape[0]):
-        nb = np.sqrt(b[i, 0] * b[i, 0] + b[i, 1] * b[i, 1] + b[i, 2] * b[i, 2])
-        u0, u1, u2 = b[i, 0] / nb, b[i, 1] / nb, b[i, 2] / nb
-        total += info_w[i]
-        F[0, 0] -= info_w[i] * u0 * u0
-        F[0, 1] -= info_w[i] * u0 * u1
-        F[0, 2] -= info_w[i] * u0 * u2
-        F[1, 1] -= info_w[i] * u1 * u1
-        F[1, 2] -= info_w[i] * u1 * u2
-        F[2, 2] -= info_w[i] * u2 * u2
-    F[1, 0], F[2, 0], F[2, 1] = F[0, 1], F[0, 2], F[1, 2]
-    for k in range(3):
-        F[k, k] += total
-    return F
 
 
 def attitude_error(A_true: np.ndarray, A_est: np.ndarray) -> np.ndarray:

@@ -1,7 +1,8 @@
 """skyfix's shared numba helpers — each formula that a kernel and a readable function both need
 is written here once (:mod:`.lens`: the camera model; :mod:`.rotation`: rotations, RA/Dec, roll,
-quaternions, chord angles; :mod:`.probability`: the binomial tail; :mod:`.camera_fit`: the camera
-fit) — and the check that keeps numba's on-disk cache honest.
+quaternions, chord angles, TRIAD; :mod:`.wahba`: the attitude profile and information matrices;
+:mod:`.probability`: the binomial tail; :mod:`.camera_fit`: the camera fit) — and the check
+that keeps numba's on-disk cache honest.
 
 numba caches a compiled kernel beside its source and checks only that file's timestamp: a
 kernel in ``final_fit.py`` that inlined a helper from ``_kernels/lens.py`` would keep running

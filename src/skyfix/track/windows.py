@@ -47,6 +47,7 @@ import numpy as np
 from skyfix._kernels.lens import CX, CY, FX, FY, SKEW, distort, distort_jacobian, pixel_rays
 from skyfix._kernels.probability import log_binom_sf
 from skyfix._kernels.rotation import angles, pointing, proper_rotation, spd_inverse, vector_radec
+from skyfix._kernels.wahba import information_matrix, profile_matrix
 from skyfix.detect._stats import robust_level_noise
 from skyfix.identify.verify import gather_stars
 
@@ -548,8 +549,9 @@ def fit_attitude(b, r, sigma_rad, keep, pair_k, outlier_k, min_stars):
     stars, the star with the largest residual beyond ``outlier_k`` σ dropped and the fit
     repeated (never below ``min_stars``), and the covariance of
     :func:`skyfix.attitude.attitude_covariance`, ``(Σ (I − b bᵀ)/σ²)⁻¹``, with σ scaled up by
-    ``√(χ²/dof)`` when the residuals exceed their σ (never down). Written here, compiled, because
-    those two public functions cost a tenth of a tracking update in their argument checks
+    ``√(χ²/dof)`` when the residuals exceed their σ (never down). The sums are theirs
+    (:mod:`skyfix._kernels.wahba`); only the loop is here, compiled, because those two public
+    functions cost a tenth of a tracking update in their argument checks
     (``tests/test_track.py`` checks this kernel against them).
 
     Returns ``(ok, A, P, scale)``; ``keep`` marks the stars in the fit."""
@@ -563,14 +565,11 @@ def fit_attitude(b, r, sigma_rad, keep, pair_k, outlier_k, min_stars):
             count += 1 if keep[i] else 0
         if count < min_stars:
             return False, A, P, 0.0
-        B = np.zeros((3, 3))
+        w = np.zeros(n)
         for i in range(n):
             if keep[i]:
-                w = 1.0 / (sigma_rad[i] * sigma_rad[i])
-                for j in range(3):
-                    for k in range(3):
-                        B[j, k] += w * b[i, j] * r[i, k]
-        A = proper_rotation(B)
+                w[i] = 1.0 / (sigma_rad[i] * sigma_rad[i])
+        A = proper_rotation(profile_matrix(b, r, w))
         e = angles(b, r, A)
         chi2 = 0.0
         worst = -1
@@ -584,15 +583,7 @@ def fit_attitude(b, r, sigma_rad, keep, pair_k, outlier_k, min_stars):
             keep[worst] = False
             continue
         scale2 = max(1.0, chi2 / (2 * count - 3))
-        F = np.zeros((3, 3))
-        for i in range(n):
-            if keep[i]:
-                w = 1.0 / (sigma_rad[i] * sigma_rad[i] * scale2)
-                for j in range(3):
-                    F[j, j] += w
-                    for k in range(3):
-                        F[j, k] -= w * b[i, j] * b[i, k]
-        P, ok = spd_inverse(F)
+        P, ok = spd_inverse(information_matrix(b, w / scale2))
         return ok, A, P, math.sqrt(scale2)
 
 
