@@ -203,11 +203,11 @@ def test_pixel_jacobian_is_the_derivative_of_the_projection():
 
 
 def test_compiled_fit_is_the_attitude_modules():
-    """windows.fit_attitude (compiled for the tracking loop) gives svd_attitude's attitude and
+    """track.fit.fit_attitude (compiled for the tracking loop) gives svd_attitude's attitude and
     attitude_covariance's covariance (σ scaled up by √(χ²/dof) when the residuals exceed σ)."""
     from skyfix.attitude import attitude_covariance, svd_attitude
     from skyfix.geometry import radec_to_vector
-    from skyfix.track.windows import fit_attitude
+    from skyfix.track.fit import fit_attitude
 
     rng = np.random.default_rng(4)
     r = radec_to_vector(rng.uniform(1.4, 1.6, 12), rng.uniform(-0.1, 0.1, 12))

@@ -20,7 +20,7 @@ returns a :class:`~skyfix.solution.Solution` whose ``mode`` says which of three 
     dropped each frame); 10–20 isolated stars spread over the frame get windows sized from the
     predicted covariance; each window is centroided and matched to its own star (gate,
     magnitude, pairwise distances: :mod:`skyfix.track.windows`); the attitude is refitted with
-    its covariance (``windows.fit_attitude``, :mod:`skyfix.attitude`'s formulas), outliers
+    its covariance (``track.fit.fit_attitude``, :mod:`skyfix.attitude`'s formulas), outliers
     dropped; the fit is verified (at least ``min_stars`` stars, residuals consistent with the
     centroids, the filter's NIS) and updates the predictor — or, when at least 6 stars agree
     with each other but not with the prediction (a manoeuvre), restarts it from the fit. The
