@@ -8,6 +8,7 @@
   c  accuracy on frames from an independent renderer      suite_accuracy.py
   d  extraction ms/MP, end-to-end time, database build/load suite_speed.py
   e  blind solves: wrong attitudes, honest error bars (skyfix) suite_blind.py  (not in the default set)
+  f  tracking update vs lost in space on the same frames      suite_track.py  (not in the default set)
 """
 
 from __future__ import annotations
@@ -165,6 +166,12 @@ def main(argv: list[str] | None = None) -> int:
                     n_blind=args.n_blind or (500 if args.quick else 10_000),
                     n_preset=args.n_preset or (20 if args.quick else 500))
                 write_json("blind", results["blind"])
+            elif key == "f":
+                import suite_track
+
+                results["tracking"] = suite_track.run(n_frames=10 if args.quick else 20,
+                                                      repeats=2 if args.quick else 5)
+                write_json("tracking", results["tracking"])
             else:
                 say(f"unknown suite {key!r}")
                 continue
