@@ -311,7 +311,7 @@ def _weighted_centre(img, box, shape, xc, yc, reach_x, reach_y):
     x_start, y_start = xc, yc
     for scale in (2.0,):
         wide = _Shape(shape.ux, shape.uy, shape.half_len, shape.inv_len, shape.s * scale)
-        for _ in range(4):
+        for _ in range(2):
             sw = swx = swy = 0.0
             for y in range(box.y0, box.y1 + 1):
                 lo, hi = _span(y, box, wide, xc, yc)
@@ -356,6 +356,25 @@ def _normal(img, box, shape, p, ig, jtj, jtr, meat):
 
 
 @njit(cache=True)
+def _inverse3(m):
+    """The inverse of a 3×3 matrix by its adjugate (a tenth of ``pinv``'s 3 µs), ``pinv`` when it
+    is singular or badly conditioned."""
+    adj = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            r0, r1 = (j + 1) % 3, (j + 2) % 3
+            c0, c1 = (i + 1) % 3, (i + 2) % 3
+            adj[i, j] = m[r0, c0] * m[r1, c1] - m[r0, c1] * m[r1, c0]
+    det = m[0, 0] * adj[0, 0] + m[0, 1] * adj[1, 0] + m[0, 2] * adj[2, 0]
+    scale = abs(m[0, 0] * m[1, 1] * m[2, 2])
+    if not abs(det) > 1e-12 * scale:
+        adj[:, :] = np.linalg.pinv(m)
+    else:
+        adj /= det
+    return adj
+
+
+@njit(cache=True)
 def _fit(img, box, shape, xc, yc, ig):
     """Gauss–Newton fit of the streak model from the weighted centre: (amplitude, x, y), its
     covariance ((JᵀWJ)⁻¹ with a gain, else the sandwich), and whether it converged near the start."""
@@ -383,7 +402,7 @@ def _fit(img, box, shape, xc, yc, ig):
             return p, cov, False  # lost the star
         if big < 1e-3:
             break
-    inv = np.linalg.pinv(jtj)  # at the last step's start, 1e-4 px away
+    inv = _inverse3(jtj)  # at the last step's start, 1e-3 px away
     cov = inv if ig > 0 else inv @ meat @ inv
     return p, cov, True
 
