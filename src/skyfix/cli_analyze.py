@@ -1,4 +1,5 @@
-"""``skyfix analyze``: centroid accuracy vs. the Cramér–Rao bound, PSF across the field, photometry.
+"""``skyfix analyze``: centroid accuracy vs. the Cramér–Rao bound, PSF across the field, photometry,
+tracking against lost in space and thesis 002.
 
 Registered in :mod:`skyfix.cli` with ``app.add_typer(analyze_app, name="analyze")``. Errors are
 one line, as everywhere in the CLI (:mod:`skyfix.cli_support`).
@@ -26,7 +27,7 @@ from skyfix.validate import check_count, check_epoch, check_fov, check_positive
 
 analyze_app = typer.Typer(no_args_is_help=True, pretty_exceptions_enable=False,
                           help="Analyses: centroid accuracy vs. the Cramér–Rao bound, PSF over the field, "
-                               "photometry against the catalogue.")
+                               "photometry against the catalogue, tracking against lost in space.")
 
 
 def _progress(total: int, quiet: bool):
@@ -76,6 +77,37 @@ def centroids(
         study = cs.run_study(names, sigmas, snrs, n_trials=trials, seed=seed,
                              progress=lambda what: bar.update(task, advance=1, description=what))
     paths = cs.write_study(study, out, command=command)
+    typer.echo(paths[1].read_text())
+    for p in paths:
+        typer.echo(f"wrote {p}")
+
+
+@analyze_app.command()
+@guarded
+def tracking(
+    out: Path = typer.Option(Path("tracking-study"), "--out", help="Output directory (JSON, Markdown, PNG)."),
+    quick: bool = typer.Option(False, "--quick", help="16-frame sequences, 24 pendulum frames, 3 ROIs "
+                               "(a smoke run, ~25 s on 2 cores)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed (pointings, noise)."),
+    workers: int = typer.Option(2, "--workers", min=1, help="Processes for the sequences."),
+    verbose: int = VERBOSE,
+) -> None:
+    """Tracking against lost in space and its own error bars, and thesis 002's findings (prediction
+    error vs. rate and acceleration, windowed vs. full-frame time) with skyfix's numbers beside."""
+    from skyfix.analysis import tracking_study as ts
+
+    add_verbosity(verbose)
+    workers = check_count(workers, "--workers", minimum=1)
+    settings = (ts.QUICK if quick else ts.FULL)._replace(seed=int(seed), workers=workers)
+    n_steps = (sum(s.n_frames for s in ts.sequence_specs(settings))
+               + len(settings.rois) * len(settings.star_counts))
+    command = ("skyfix analyze tracking" + (" --quick" if quick else "") + (f" --seed {seed}" if seed else "")
+               + (f" --workers {workers}" if workers != 2 else ""))
+    prepare_outputs({"--out": [out / "tracking_study.json"]})
+    with _progress(n_steps, False) as bar, compile_notice(bar):
+        task = bar.add_task("tracking study", total=n_steps)
+        study = ts.run_study(settings, progress=lambda what: bar.update(task, advance=1, description=what))
+    paths = ts.write_study(study, out, command=command)
     typer.echo(paths[1].read_text())
     for p in paths:
         typer.echo(f"wrote {p}")
