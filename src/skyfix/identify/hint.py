@@ -81,7 +81,7 @@ from skyfix.identify.accept import (
 from skyfix.identify.database import PatternDatabase, default_database
 from skyfix.identify.kernel_data import ImageStars, RefineSettings, Refit, StarIndex, ViewBuffers
 from skyfix.identify.refine import refine
-from skyfix.identify.result import Identification
+from skyfix.identify.result import Identification, finite_centroids
 from skyfix.identify.verify import (
     gather_stars,
     grid_index,
@@ -548,11 +548,7 @@ def identify_near(xy: np.ndarray, camera: Camera, A_hint: np.ndarray, uncertaint
     A_hint = _rotation_matrix(A_hint, "A_hint")
     _check_uncertainty(_degrees_or_nan(uncertainty_rad), "uncertainty_rad")
     theta = float(uncertainty_rad)
-    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    finite = np.isfinite(xy).all(axis=1)
-    kept = None if finite.all() else np.flatnonzero(finite)  # maps back to the caller's indices
-    if kept is not None:
-        xy = xy[kept]
+    xy, kept = finite_centroids(xy)  # kept maps back to the caller's indices
     n = len(xy)
     if n < 4:
         return _failure(f"too few stars ({n} detected, need 4)", t0)

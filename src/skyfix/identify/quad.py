@@ -45,7 +45,7 @@ from skyfix.identify.kernel_data import (
     VerifySettings,
 )
 from skyfix.identify.refine import refine_entry
-from skyfix.identify.result import Identification
+from skyfix.identify.result import Identification, finite_centroids
 from skyfix.identify.search import breadth_first_combinations, search_entry
 
 __all__ = ["METHOD", "identify"]
@@ -149,11 +149,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     """
     _compile_kernels()  # once per process; not counted against the time limit
     t0 = time.perf_counter()
-    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    finite = np.isfinite(xy).all(axis=1)
-    kept = None if finite.all() else np.flatnonzero(finite)  # maps back to the caller's indices
-    if kept is not None:
-        xy = xy[kept]
+    xy, kept = finite_centroids(xy)  # kept maps back to the caller's indices
     n = len(xy)
     if n < 4:
         return _failure(f"too few stars ({n} detected, need 4)", t0)

@@ -8,7 +8,7 @@ import numpy as np
 
 from skyfix.camera import Camera
 
-__all__ = ["Identification"]
+__all__ = ["Identification", "finite_centroids"]
 
 
 @dataclass(frozen=True)
@@ -52,3 +52,13 @@ class Identification:
     @property
     def n_matched(self) -> int:
         return 0 if self.star_index is None else len(self.star_index)
+
+
+def finite_centroids(xy) -> tuple[np.ndarray, np.ndarray | None]:
+    """The centroids an identification method can use: ``xy`` as (N, 2) float64 without its
+    non-finite rows, and the indices of the rows kept (``None`` when all were), to map its
+    results back to the caller's indices."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    finite = np.isfinite(xy).all(axis=1)
+    kept = None if finite.all() else np.flatnonzero(finite)
+    return (xy if kept is None else xy[kept]), kept
