@@ -14,6 +14,7 @@ from skyfix.detect.streak import centroid_streaks, star_times, streak_motion
 from skyfix.errors import InputError
 from skyfix.geometry import attitude_from_radec_roll
 from skyfix.simulate import Sensor, make_profile, render, render_sequence
+from skyfix.simulate.psf import add_gaussians
 
 EPOCH = 2025.0
 A0 = attitude_from_radec_roll(math.radians(120.0), math.radians(35.0), math.radians(10.0))
@@ -93,6 +94,47 @@ def test_streak_centroid_with_noise():
     assert 0.75 < np.sqrt(np.mean(z**2)) < 1.3
     com = centroid_streaks(f.image, pred, motion, method="com")
     assert np.sqrt(np.nanmean(np.sum((com.xy - xy) ** 2, axis=1))) > 1.2 * rms
+
+
+def synthetic_streaks(seed, n=300, tile=32, electrons=3000.0, sky_e=30.0, read_e=3.0, gain=2.0):
+    """``n`` streaks, one per ``tile``² tile: each 41 pixel-integrated Gaussians (σ 1 px) spread
+    evenly along a segment 0–12 px long in a random direction (not the fit's model: that sweeps a
+    widened Gaussian), Poisson electrons on a flat sky plus read noise; predictions ~1 px off
+    (N(0, 1 px) a axis, cut at 2.5 px). The image (ADU), truth, predictions and motions."""
+    rng = np.random.default_rng(seed)
+    cols = 20
+    h, w = -(-n // cols) * tile, cols * tile
+    k = np.arange(n)
+    xy = np.column_stack([k % cols, k // cols]) * tile + (tile - 1) / 2 + rng.uniform(-0.5, 0.5, (n, 2))
+    length, angle = rng.uniform(0.0, 12.0, n), rng.uniform(-np.pi, np.pi, n)
+    motion = length[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
+    t = (np.arange(41) + 0.5) / 41 - 0.5
+    lam = np.full((h, w), sky_e)
+    add_gaussians(lam, (xy[:, :1] + t * motion[:, :1]).ravel(), (xy[:, 1:] + t * motion[:, 1:]).ravel(),
+                  electrons / 41, 1.0, 1.0, 0.0, strips=1)
+    image = ((rng.poisson(lam) + rng.normal(0.0, read_e, lam.shape)) / gain).astype(np.float32)
+    pred = xy + np.clip(rng.normal(0.0, 1.0, xy.shape), -2.5, 2.5)
+    return image, xy, pred, motion
+
+
+@pytest.mark.parametrize("gain", [None, 2.0])
+def test_streak_fit_against_truth(gain):
+    """300 synthetic streaks, 3000 e⁻ each (1–12 px long, σ 1 px, sky 30 e⁻, read noise 3 e⁻),
+    predictions up to 2.5 px off: every streak is found, the centres are within 0.075 px RMS of
+    the truth and the reported σ is honest (normalised error RMS per axis between 0.7 and 1.4;
+    without the gain it is the sandwich estimate). Measured: 0.065 px RMS, 0.128 px at the 95th
+    percentile, normalised error RMS 1.22 (x) and 1.14 (y) without the gain; 0.061, 0.119, 1.05
+    and 0.94 with it."""
+    image, xy, pred, motion = synthetic_streaks(7)
+    c = centroid_streaks(image, pred, motion, 4, psf_sigma=1.0, gain=gain)
+    err = c.xy - xy
+    assert np.all(np.isfinite(err))
+    r = np.hypot(*err.T)
+    rms, p95 = np.sqrt(np.mean(r**2)), np.percentile(r, 95)
+    assert rms < 0.075 and p95 < 0.15, (rms, p95)
+    z = err / np.column_stack([c.sigma_x, c.sigma_y])
+    z_rms = np.sqrt(np.mean(z**2, axis=0))
+    assert np.all((0.7 < z_rms) & (z_rms < 1.4)), z_rms
 
 
 def test_rolling_shutter_star_times_put_each_star_at_its_own_time():
