@@ -333,26 +333,57 @@ def _weighted_centre(img, box, shape, xc, yc, reach_x, reach_y):
 
 
 @njit(cache=True)
-def _normal(img, box, shape, p, ig, jtj, jtr, meat):
-    """The fit's weighted normal equations at ``p`` (amplitude, x, y) and the sandwich's meat."""
-    jtj[:, :] = 0.0
-    jtr[:] = 0.0
-    meat[:, :] = 0.0
+def _sums(img, box, shape, xc, yc, amp, ig):
+    """One pass over the streak's reach at the centre ``(xc, yc)``: the sums of the weighted
+    normal equations with the amplitude left out (the model is linear in it, :func:`_scaled`):
+    ``Σ wᵢ·jᵢ·jₖ`` (6: ``j = (profile, ∂x, ∂y)``, the gradient of the profile without the
+    amplitude's −A), ``Σ wᵢ·jᵢ·vᵢ`` (3), and the sandwich's meat ``Σ (wᵢ·dᵢ)²·jᵢ·jₖ`` (6) with
+    the residual ``d`` at ``amp`` (zero unless ``amp > 0``). The weights ``wᵢ`` are the pixels'
+    inverse variances, their shot noise at ``amp`` with the gain's inverse ``ig``."""
     v0 = box.noise * box.noise if box.noise > 0 else 1.0
-    j = np.empty(3)
+    meat = amp > 0.0 and ig == 0.0
+    s00 = s01 = s02 = s11 = s12 = s22 = t0 = t1 = t2 = 0.0
+    m00 = m01 = m02 = m11 = m12 = m22 = 0.0
     for y in range(box.y0, box.y1 + 1):
-        lo, hi = _span(y, box, shape, p[1], p[2])
+        lo, hi = _span(y, box, shape, xc, yc)
         for x in range(lo, hi + 1):
-            wt, gx, gy = _weight(x - p[1], y - p[2], shape)
-            mu = p[0] * wt
-            d = img[y, x] - box.sky - mu
-            inv_var = 1.0 / (v0 + max(mu, 0.0) * ig)
-            j[0], j[1], j[2] = wt, -p[0] * gx, -p[0] * gy  # ∂μ/∂(A, x, y)
-            for a in range(3):
-                jtr[a] += inv_var * j[a] * d
-                for b in range(3):
-                    jtj[a, b] += inv_var * j[a] * j[b]
-                    meat[a, b] += (inv_var * d) ** 2 * j[a] * j[b]
+            w, gx, gy = _weight(x - xc, y - yc, shape)
+            mu = amp * w
+            v = img[y, x] - box.sky
+            iv = 1.0 / (v0 + max(mu, 0.0) * ig)
+            s00 += iv * w * w
+            s01 += iv * w * gx
+            s02 += iv * w * gy
+            s11 += iv * gx * gx
+            s12 += iv * gx * gy
+            s22 += iv * gy * gy
+            t0 += iv * w * v
+            t1 += iv * gx * v
+            t2 += iv * gy * v
+            if meat:
+                r = iv * (v - mu)
+                r *= r
+                m00 += r * w * w
+                m01 += r * w * gx
+                m02 += r * w * gy
+                m11 += r * gx * gx
+                m12 += r * gx * gy
+                m22 += r * gy * gy
+    return (s00, s01, s02, s11, s12, s22), (t0, t1, t2), (m00, m01, m02, m11, m12, m22)
+
+
+@njit(cache=True, inline="always")
+def _scaled(six, amp):
+    """The symmetric 3×3 ``Σ w·Jᵢ·Jₖ`` of the Jacobian ``J = (j₀, −A·j₁, −A·j₂)`` from the six
+    amplitude-free sums of :func:`_sums`."""
+    c = (1.0, -amp, -amp)
+    m = np.empty((3, 3))
+    k = 0
+    for i in range(3):
+        for j in range(i, 3):
+            m[i, j] = m[j, i] = c[i] * c[j] * six[k]
+            k += 1
+    return m
 
 
 @njit(cache=True)
@@ -377,33 +408,36 @@ def _inverse3(m):
 @njit(cache=True)
 def _fit(img, box, shape, xc, yc, ig):
     """Gauss–Newton fit of the streak model from the weighted centre: (amplitude, x, y), its
-    covariance ((JᵀWJ)⁻¹ with a gain, else the sandwich), and whether it converged near the start."""
+    covariance ((JᵀWJ)⁻¹ with a gain, else the sandwich), and whether it converged near the start.
+    The first pass has no amplitude yet: it takes the linear least-squares one at the start (the
+    model is linear in it) and weighs the pixels by the sky's noise alone; the covariance is
+    from a later pass, at the amplitude and centre of the last step's start."""
     p = np.array([0.0, xc, yc])
-    sww = swv = 0.0
-    for y in range(box.y0, box.y1 + 1):  # the amplitude by linear least squares
-        lo, hi = _span(y, box, shape, xc, yc)
-        for x in range(lo, hi + 1):
-            wt = _profile(x - xc, y - yc, shape)
-            sww += wt * wt
-            swv += wt * (img[y, x] - box.sky)
-    p[0] = swv / sww if sww > 0 else 0.0
-    jtj, jtr, meat = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
     cov = np.zeros((3, 3))
-    if not p[0] > 0:
-        return p, cov, False
-    for _ in range(15):
-        _normal(img, box, shape, p, ig, jtj, jtr, meat)
-        step = np.linalg.solve(jtj, jtr)
+    inv = cov
+    for it in range(15):
+        six, tv, meat6 = _sums(img, box, shape, p[1], p[2], p[0], ig)
+        if it == 0:
+            p[0] = tv[0] / six[0] if six[0] > 0 else 0.0
+            if not p[0] > 0:
+                return p, cov, False
+        amp = p[0]
+        jtj = _scaled(six, amp)
+        jtr = np.array([tv[0] - amp * six[0], -amp * (tv[1] - amp * six[1]), -amp * (tv[2] - amp * six[2])])
+        inv = _inverse3(jtj)
+        step = inv @ jtr
         big = max(abs(step[1]), abs(step[2]))
         if big > 0.5:  # at most half a pixel a step
             step *= 0.5 / big
         p += step
         if not p[0] > 0 or abs(p[1] - xc) > 2.0 or abs(p[2] - yc) > 2.0:
             return p, cov, False  # lost the star
-        if big < 1e-3:
+        if big < 1e-3 and it > 0:
             break
-    inv = _inverse3(jtj)  # at the last step's start, 1e-3 px away
-    cov = inv if ig > 0 else inv @ meat @ inv
+    if ig > 0:  # at the last step's start, 1e-3 px away
+        cov = inv
+    else:
+        cov = inv @ _scaled(meat6, amp) @ inv
     return p, cov, True
 
 
