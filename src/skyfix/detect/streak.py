@@ -14,10 +14,11 @@ where each star is and how it moves, so the window can be made to hold the whole
   across the motion from the centre, with the sky from the window's border. A few steps of the
   centre of gravity weighted by that shape, twice as wide (the prediction may be a pixel or two
   off), start a Gauss–Newton fit of the amplitude and the centre, weighted by each pixel's
-  variance; the centre's covariance is ``(JᵀWJ)⁻¹`` with the gain, the sandwich estimate
-  without. The flat middle of a streak says nothing about where it is along the motion, its
-  two ends do: the fit weighs the pixels by what they say, where a centre of mass weighs the
-  middle's noise as much as the ends' light, and a threshold cuts a faint streak's wings.
+  variance, that stops at a step under a tenth of σ (it gains under 0.01 in χ²) or 1e-3 px;
+  the centre's covariance is ``(JᵀWJ)⁻¹`` with the gain, the sandwich estimate without. The
+  flat middle of a streak says nothing about where it is along the motion, its two ends do:
+  the fit weighs the pixels by what they say, where a centre of mass weighs the middle's noise
+  as much as the ends' light, and a threshold cuts a faint streak's wings.
   ``"com"``, ``"iwcog"`` and ``"gaussian"`` run the centroiders of
   :mod:`skyfix.detect.centroid` in the square window of
   :func:`~skyfix.detect.centroid_windows` grown to hold the streak. For a constant rate the
@@ -63,6 +64,8 @@ _ARRAYS = ("x", "y", "flux", "area", "snr", "elongation", "peak", "sigma_x", "si
 _NCOL = 12
 # The streak model is taken as zero beyond this many σ of its segment (3e-4 of its peak).
 _REACH = 4.0
+# Gauss–Newton stops at a step that gains less χ² than this (a step under 0.1 σ), or under 1e-3 px.
+_TOL_CHI2 = 0.01
 
 
 def star_times(xy: np.ndarray, t_frame_s: float, line_time_s: float, height: int) -> np.ndarray:
@@ -426,13 +429,14 @@ def _fit(img, box, shape, xc, yc, ig):
         jtr = np.array([tv[0] - amp * six[0], -amp * (tv[1] - amp * six[1]), -amp * (tv[2] - amp * six[2])])
         inv = _inverse3(jtj)
         step = inv @ jtr
+        small = step @ jtr < _TOL_CHI2  # the χ² the step gains: under 0.1 σ in the fit's metric
         big = max(abs(step[1]), abs(step[2]))
         if big > 0.5:  # at most half a pixel a step
             step *= 0.5 / big
         p += step
         if not p[0] > 0 or abs(p[1] - xc) > 2.0 or abs(p[2] - yc) > 2.0:
             return p, cov, False  # lost the star
-        if big < 1e-3 and it > 0:
+        if (small or big < 1e-3) and it > 0:
             break
     if ig > 0:  # at the last step's start, 1e-3 px away
         cov = inv
