@@ -96,6 +96,10 @@ def solve(
         None, "--attitude-hint", metavar="RA,DEC,ROLL[,UNCERTAINTY_DEG]",
         help="A rough attitude, degrees (uncertainty: the largest error, default 1): identify the stars "
              "near it first, falling back to lost in space. Needs --camera or --fov for the scale."),
+    smear: str = typer.Option(
+        None, "--smear", metavar="DX,DY",
+        help="The stars' streak over the exposure when the camera turned, pixels (a gyro's rate × the "
+             "exposure): stars are found in the frame averaged along it."),
     verbose: int = VERBOSE,
 ) -> None:
     """Solve sky images lost in space (or near --attitude-hint): print RA, Dec, roll and the error bars."""
@@ -104,6 +108,7 @@ def solve(
     check_solve_options(fov, fov_tolerance, epoch, method,
                         ("--fov", "--fov-tolerance", "--epoch", "--attitude"))
     hint = _attitude_hint(attitude_hint)
+    smear_px = _smear(smear)
     wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
     prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
     maps = _calibration_maps(calibration, dark, flat)
@@ -125,7 +130,7 @@ def solve(
             try:
                 sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
                                   database=database, epoch=epoch, attitude_method=method, attitude_hint=hint,
-                                  **maps)
+                                  smear_px=smear_px, **maps)
                 any_failed |= not sol.solved
                 typer.echo(sol.to_json() if json_out else _summary(sol))
                 if sol.solved and wcs_path is not None:
@@ -154,6 +159,19 @@ def _attitude_hint(text: str | None):
     from skyfix.identify.hint import check_attitude_hint
 
     return check_attitude_hint(text, "--attitude-hint")
+
+
+def _smear(text: str | None):
+    """``--smear DX,DY`` checked before any work (None: no smear)."""
+    if text is None:
+        return None
+    try:
+        parts = [float(p) for p in text.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) != 2 or not all(math.isfinite(p) for p in parts):
+        fail(f"--smear wants two numbers of pixels DX,DY, got {text!r}")
+    return parts
 
 
 def _count_flag_hint(exc: BaseException, path: Path) -> str:

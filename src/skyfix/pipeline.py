@@ -51,6 +51,7 @@ def solve(
     flat: np.ndarray | None = None,
     bad_pixels: np.ndarray | None = None,
     attitude_hint=None,
+    smear_px=None,
     **identify_options,
 ) -> Solution:
     """Solve one sky image, lost in space or near a known attitude.
@@ -112,6 +113,10 @@ def solve(
     _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_method,
                    identify_options)
     hint = _checked_hint(attitude_hint)
+    if smear_px is not None:
+        from skyfix.detect.smear import smear_offsets
+
+        smear_offsets(smear_px)  # checked before any work
     t0 = time.perf_counter()
     label = name if name is not None else (str(image) if isinstance(image, (str, Path)) else "<array>")
     data = raw = read_image(image)
@@ -120,6 +125,10 @@ def solve(
 
         data = calibrate_frame(data, dark=dark, flat=flat, bad_pixels=bad_pixels)
     t_read = time.perf_counter()
+    if smear_px is not None:  # a part of the extraction
+        from skyfix.detect.smear import smear_filter
+
+        data = smear_filter(data, smear_px)
     centroids = extract_centroids(data, max_stars=max_stars)
     t_extract = time.perf_counter()
     log.info("%s: %d×%d image, %d centroids (noise %.3g)", label, data.shape[1], data.shape[0],
