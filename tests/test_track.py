@@ -161,6 +161,42 @@ def test_jump_of_90_degrees_then_recovery(frames_at_rest):
         assert np.hypot(*_error_arcsec(f, s)[:2]) < 5.0
 
 
+def test_jump_while_turning_at_2_deg_s_recovers_at_once():
+    """At 2 °/s (17 px streaks) the plain lost-in-space solve often fails; after a 90° jump the
+    tracker solves the frame along its predicted streaks, keeps the rate and tracks the next."""
+    rate = np.radians(2.0 * RATES_DPS["1 deg/s"] / np.linalg.norm(RATES_DPS["1 deg/s"]))
+    before = _frames(A0, rate, 6, seed=11)
+    jumped = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]) @ A0
+    after = _frames(jumped, rate, 3, seed=12)
+    tracker = Tracker(CAMERA, epoch=EPOCH, exposure_s=0.1)
+    frames = before + after
+    t_last = before[-1].truth["t_s"]
+    times = [f.truth["t_s"] for f in before] + [t_last + 0.1 + f.truth["t_s"] for f in after]
+    sols = [tracker.update(f.image, t) for f, t in zip(frames, times, strict=True)]
+    jump, nxt = sols[6], sols[7]
+    assert jump.solved and jump.mode == "lost" and jump.method == "quad-hash", jump.reason
+    assert nxt.mode == "tracking" and nxt.method == "track" and nxt.n_matched >= 8, nxt.reason
+    assert sols[8].mode == "tracking" and sols[8].method == "track"
+    np.testing.assert_allclose(nxt.rate_dps, np.degrees(rate), atol=0.05)
+    for f, s in zip(frames, sols, strict=True):
+        if s.solved:  # never a wrong attitude: the jump frame is not coasted on the old pointing
+            assert np.hypot(*_error_arcsec(f, s)[:2]) < 60.0, (s.mode, s.method, s.reason)
+
+
+def test_stars_the_prediction_cannot_explain_are_not_coasted(frames_at_rest):
+    """A frame full of stars none of which is where the prediction puts one (here the frame
+    mirrored: no sky looks like it, so lost in space fails too) is not coasted on: failed, lost."""
+    frames = frames_at_rest
+    tracker = Tracker(CAMERA, epoch=EPOCH)
+    sols = []
+    for k, f in enumerate(frames[:6]):
+        image = np.ascontiguousarray(f.image[:, ::-1]) if k == 4 else f.image
+        sols.append(tracker.update(image, f.truth["t_s"]))
+    bad = sols[4]
+    assert bad.status == "failed" and bad.mode == "tracking" and "not coasting" in bad.reason, bad.reason
+    assert sols[5].mode == "lost" and sols[5].solved
+
+
 def test_times_out_of_order_or_repeated_are_errors(frames_at_rest):
     frames = frames_at_rest
     tracker = Tracker(CAMERA, epoch=EPOCH)

@@ -27,11 +27,17 @@ returns a :class:`~skyfix.solution.Solution` whose ``mode`` says which of three 
     Solution reports the filter's attitude, covariance and rate.
 
 A frame the windows cannot track (blank, clouded, a jump, too few stars) is solved lost in
-space at once: an attitude that agrees with the prediction updates the filter; one that does
-not (a jump) restarts it (acquiring next). When that fails too the tracker *coasts*: it reports
-the prediction (status ``solved``, no stars, ``reason`` says why) for up to
-``max_coast_frames`` frames while the prediction stays precise enough for windows
-(``k_sigma`` σ of the boresight within ``max_window_px``), then it is lost.
+space at once — when the estimated rate draws streaks, first in the frame averaged along them
+(``solve(smear_px=…)``, :mod:`skyfix.detect.smear`), where the plain extraction breaks streaks
+up: an attitude that agrees with the prediction updates the filter; one that does not (a jump)
+restarts it, acquiring next, or tracking next with the rate kept (σ 10 % of it) when the
+streaks bore it out. When no attitude comes, the tracker *coasts* on a frame that shows no
+stars (blank, covered, blinded: fewer than ``min_stars`` detected): it reports the prediction
+(status ``solved``, no stars, ``reason`` says why) for up to ``max_coast_frames`` frames while
+the prediction stays precise enough for windows (``k_sigma`` σ of the boresight within
+``max_window_px``). A frame with stars that neither the prediction nor lost in space explains
+is never coasted on — the prediction may be what is wrong — and, like the end of coasting,
+leaves the tracker lost (status ``failed``).
 
 Bad input raises a one-line :mod:`skyfix.errors` exception and leaves the state unchanged:
 a time that is not after the last frame's (out of order, repeated), not finite, or missing;
@@ -78,6 +84,10 @@ _OUTLIER_SIGMA = 5.0  # a fitted star whose residual exceeds this many σ is dro
 _STREAK_PX = 2.0  # the streak centroider for streaks at least this long (a round star: the CoM)
 _GATE_FLOOR_PX = 0.3  # the gate's allowance for what the motion model leaves out (an acceleration)
 _STRONG_FIT = 6  # stars in a fit that outvote the prediction (a manoeuvre, not a wrong match)
+#: After a jump solved along the predicted streaks, the rate is kept with at least this
+#: fraction of its size as σ: windows then hold a streak 4σ = 40 % longer or shorter than
+#: predicted; a rate further off fails the next frame's windows, which is solved again.
+_JUMP_RATE_SIGMA = 0.1
 
 
 class TrackSettings(NamedTuple):
@@ -348,31 +358,62 @@ class Tracker:
         return sol
 
     # --- lost in space ---------------------------------------------------------------------
-    def _solve_lost(self, img: np.ndarray) -> Solution:
+    def _solve_lost(self, img: np.ndarray, rate=None, t: float | None = None) -> tuple[Solution, bool]:
+        """Lost in space; with a body rate ``rate`` (rad/s, camera frame) whose streaks are at
+        least :data:`_STREAK_PX` long, first in the frame averaged along them (``solve``'s
+        ``smear_px``: the streaks' matched filter), then as it is. The Solution, and whether
+        the smeared frame solved it (the streaks bore the rate out)."""
         from skyfix.pipeline import solve
 
-        return solve(img, camera=self.camera, database=self.database, epoch=self.epoch, **self._solve_options)
+        options = dict(camera=self.camera, database=self.database, epoch=self.epoch, **self._solve_options)
+        if rate is not None:
+            smear = self._smear_px(np.asarray(rate, dtype=np.float64), t)
+            if math.hypot(smear[0], smear[1]) >= _STREAK_PX:
+                sol = solve(img, smear_px=smear, **options)
+                if sol.solved:
+                    return sol, True
+        return solve(img, **options), False
+
+    def _smear_px(self, rate: np.ndarray, t: float | None) -> np.ndarray:
+        """A star's streak at the frame's centre under the body rate ``rate`` over the exposure."""
+        from skyfix.detect.streak import streak_motion
+
+        cam = self.camera
+        return streak_motion(cam, np.array([[cam.cx, cam.cy]]), rate, self._exposure(t))[0]
+
+    def _exposure(self, t: float | None) -> float:
+        """The exposure: the setting, else the time since the last frame (at most 1 s)."""
+        if self.settings.exposure_s is not None:
+            return self.settings.exposure_s
+        if t is None or self._t_last is None:
+            return 0.0
+        return min(t - self._t_last, 1.0)
 
     def _lost(self, img: np.ndarray, t: float, gyro) -> Solution:
-        sol = self._solve_lost(img)
+        sol, _ = self._solve_lost(img, gyro, t)
         sol.mode = "lost"
         if sol.solved:
             self._start(sol, t, gyro)
         return sol
 
-    def _start(self, sol: Solution, t: float, gyro) -> None:
-        """(Re)start the predictor from a lost-in-space Solution at ``t``."""
+    def _start(self, sol: Solution, t: float, gyro, rate=None, rate_sigma=None) -> None:
+        """(Re)start the predictor from a lost-in-space Solution at ``t``: acquiring next, or
+        tracking when the rate is known (gyro rates, or a ``rate`` with its σ ``rate_sigma``
+        kept for the Kalman filter)."""
         P = np.asarray(sol.covariance_arcsec2) * _ARCSEC ** 2
         stars = None
         if self.predictor_name == "small-angle":  # it measures the rate from the stars' motion
             stars = (np.array([(m.x, m.y) for m in sol.matches]).reshape(-1, 2),
                      np.array([m.id for m in sol.matches], np.int64))
-        self._restart(sol.A_icrs_to_cam, t, P, gyro, None, None, stars)
+        keep = rate is not None and self.predictor_name == "mekf"
+        if not keep:
+            rate = rate_sigma = None
+        self._restart(sol.A_icrs_to_cam, t, P, gyro, rate, rate_sigma, stars)
         mags = [m.mag for m in sol.matches]
         if mags:
             self._select_mag = max(float(np.max(mags)), 4.0)
             self._local = None  # made again at this depth
-        self.mode = "tracking" if gyro is not None else "acquiring"
+        self.mode = "tracking" if gyro is not None or keep else "acquiring"
 
     def _restart(self, A: np.ndarray, t: float, P: np.ndarray, gyro, rate, rate_sigma, stars=None) -> None:
         """A new predictor from the attitude ``A`` (covariance ``P``) at ``t``; the MEKF also
@@ -428,10 +469,13 @@ class Tracker:
         return sol
 
     def _recover(self, img: np.ndarray, t: float, gyro, pred, why: str, t0: float) -> Solution:
-        """A frame the windows could not track: lost in space at once; an attitude that agrees
-        with the prediction updates the predictor (the rate survives), one that does not is a
-        jump (start again). No attitude: coast while allowed, else lost."""
-        lis = self._solve_lost(img)
+        """A frame the windows could not track: lost in space at once (along the predicted
+        streaks first, :meth:`_solve_lost`); an attitude that agrees with the prediction updates
+        the predictor (the rate survives), one that does not is a jump: start again from it,
+        keeping the rate when the streaks bore it out. No attitude: coast, while allowed, only
+        on a frame that shows no stars (blank, covered, blinded) — stars the prediction does not
+        explain mean it is wrong — else lost."""
+        lis, aided = self._solve_lost(img, pred.rate_rad_s, t)
         if lis.solved:
             P = np.asarray(lis.covariance_arcsec2) * _ARCSEC ** 2
             nis = innovation(pred.A_icrs_to_cam, pred.attitude_cov_rad2, lis.A_icrs_to_cam, P).nis
@@ -447,9 +491,16 @@ class Tracker:
                 lis.rate_covariance_dps2 = (np.asarray(post.rate_cov_rad2_s2) / _DEG ** 2).tolist()
                 return lis
             lis.mode = "lost"  # a jump: start again from here
-            self._start(lis, t, gyro)
+            if aided:
+                rate = np.asarray(pred.rate_rad_s, dtype=np.float64)
+                sigma = max(math.sqrt(float(np.max(np.diagonal(pred.rate_cov_rad2_s2)))),
+                            _JUMP_RATE_SIGMA * float(np.linalg.norm(rate)))
+                self._start(lis, t, gyro, rate, sigma)
+            else:
+                self._start(lis, t, gyro)
             return lis
-        coast = self.mode == "tracking" and self._coast < self.settings.max_coast_frames
+        dark = lis.n_detected < self.settings.min_stars  # nothing in the frame contradicts the prediction
+        coast = dark and self.mode == "tracking" and self._coast < self.settings.max_coast_frames
         if coast and self._windows_fit(pred):
             self._coast += 1
             sol = self._solution(pred, "tracking", None)
@@ -461,6 +512,8 @@ class Tracker:
         self.mode = "lost"
         self._predictor = None
         lis.reason = f"{why}; lost in space: {lis.reason}"
+        if not dark:
+            lis.reason += f" ({lis.n_detected} stars the prediction does not explain: not coasting)"
         return lis
 
     def _windows_fit(self, pred) -> bool:
@@ -474,7 +527,7 @@ class Tracker:
         """The star fit of one frame from windows around the predicted stars (module
         docstring), or None and why not."""
         s = self.settings
-        exposure = s.exposure_s if s.exposure_s is not None else min(t - self._t_last, 1.0)
+        exposure = self._exposure(t)
         rate = np.ascontiguousarray(pred.rate_rad_s, dtype=np.float64)
         select_mag = min(self._select_mag, self._faintest + 1.0)
         c = np.ascontiguousarray
