@@ -197,6 +197,30 @@ def test_stars_the_prediction_cannot_explain_are_not_coasted(frames_at_rest):
     assert sols[5].mode == "lost" and sols[5].solved
 
 
+def test_predict_between_frames():
+    """``Tracker.predict(t)`` at 1 °/s: the attitude of a frame not yet given, within its error
+    bars, and the rate; the state is unchanged (the frame then tracks as usual)."""
+    rate = _rate("1 deg/s")
+    frames = _frames(A0, rate, 8, seed=13)
+    tracker = Tracker(CAMERA, epoch=EPOCH)
+    with pytest.raises(InputError, match="lost"):
+        tracker.predict(0.0)
+    for f in frames[:6]:
+        tracker.update(f.image, f.truth["t_s"])
+    with pytest.raises(InputError, match="before the last frame"):
+        tracker.predict(frames[4].truth["t_s"])
+    with pytest.raises(InputError, match="finite"):
+        tracker.predict(float("inf"))
+    nxt = frames[7]  # two frame periods ahead
+    p = tracker.predict(nxt.truth["t_s"])
+    e = attitude_error(_truth(nxt), p.A_icrs_to_cam)
+    sigma = np.sqrt(np.diag(p.attitude_cov_rad2))
+    assert np.hypot(e[0], e[1]) / ARCSEC < 10.0 and np.all(np.abs(e) < 4 * sigma), (e / ARCSEC, sigma / ARCSEC)
+    np.testing.assert_allclose(p.rate_rad_s, rate, atol=np.radians(0.02))
+    sol = tracker.update(frames[6].image, frames[6].truth["t_s"])
+    assert sol.mode == "tracking" and sol.method == "track" and sol.n_matched >= 10
+
+
 def test_times_out_of_order_or_repeated_are_errors(frames_at_rest):
     frames = frames_at_rest
     tracker = Tracker(CAMERA, epoch=EPOCH)

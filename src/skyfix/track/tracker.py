@@ -284,12 +284,17 @@ class Tracker:
         self._local_z = np.zeros(3)
 
     # --- input checks ----------------------------------------------------------------------
-    def _check_time(self, t_s) -> float:
+    @staticmethod
+    def _finite_time(t_s, what: str) -> float:
         if t_s is None or isinstance(t_s, bool) or not isinstance(t_s, (int, float, np.integer, np.floating)):
-            raise InputError(f"a frame needs its time in seconds, got {t_s!r}")
+            raise InputError(f"{what} needs its time in seconds, got {t_s!r}")
         t = float(t_s)
         if not math.isfinite(t):
-            raise InputError(f"frame time must be a finite number of seconds, got {t_s!r}")
+            raise InputError(f"{what}: the time must be a finite number of seconds, got {t_s!r}")
+        return t
+
+    def _check_time(self, t_s) -> float:
+        t = self._finite_time(t_s, "a frame")
         if self._t_last is not None and not t > self._t_last:
             what = "repeated" if t == self._t_last else "out of order"
             raise InputError(f"frame time {t:.6g} s is not after the previous frame's {self._t_last:.6g} s "
@@ -356,6 +361,29 @@ class Tracker:
         sol.frame_time_s = t
         sol.time_ms["total"] = 1e3 * (time.perf_counter() - t0)
         return sol
+
+    def predict(self, t_s: float, *, gyro_rate_rad_s=None):
+        """The attitude and body rate the tracker expects at ``t_s`` (not before the last frame),
+        with their covariances — e.g. for a controller between frames; the state is unchanged.
+
+        Returns
+        -------
+        skyfix.track.predictors.Prediction
+            ``A_icrs_to_cam`` (3, 3), ``attitude_cov_rad2`` (3, 3, of δθ in the camera frame),
+            ``rate_rad_s`` (3,, camera frame) and ``rate_cov_rad2_s2`` (3, 3).
+
+        Raises
+        ------
+        skyfix.errors.InputError
+            The tracker has no attitude (lost), or ``t_s`` is not a finite time at or after the
+            last frame's.
+        """
+        if self._predictor is None:
+            raise InputError("the tracker is lost: no attitude to predict until a frame is solved")
+        t = self._finite_time(t_s, "predict")
+        if t < self._t_last:
+            raise InputError(f"predict({t:.6g} s) is before the last frame ({self._t_last:.6g} s)")
+        return self._predictor.predict(t, gyro_rate_rad_s=self._check_gyro(gyro_rate_rad_s))
 
     # --- lost in space ---------------------------------------------------------------------
     def _solve_lost(self, img: np.ndarray, rate=None, t: float | None = None) -> tuple[Solution, bool]:
