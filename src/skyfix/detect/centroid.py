@@ -197,9 +197,19 @@ def refine_centroids(
     img = np.ascontiguousarray(image, dtype=np.float32)
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     n = len(xy)
-    return _refine(img, xy[:, 0].copy(), xy[:, 1].copy(), np.broadcast_to(background, n).astype(np.float64),
-                   np.broadcast_to(noise, n).astype(np.float64),
-                   np.broadcast_to(half_size, n).astype(np.int64), how)
+    return _refine(img, xy[:, 0].copy(), xy[:, 1].copy(), _per_star(background, n, np.float64),
+                   _per_star(noise, n, np.float64), _per_star(half_size, n, np.int64), how)
+
+
+def _per_star(value, n: int, dtype) -> np.ndarray:
+    """``value`` as a contiguous (n,) array of ``dtype``: as it is when it already is one (a
+    tracker's per-window buffers: no copy), else broadcast (a scalar for every star)."""
+    a = np.asarray(value)
+    if a.shape == (n,) and a.dtype == dtype and a.flags.c_contiguous:
+        return a
+    if a.ndim == 0:
+        return np.full(n, a, dtype)
+    return np.ascontiguousarray(np.broadcast_to(a, (n,)), dtype=dtype)
 
 
 def measure_psf(image: np.ndarray, xy: np.ndarray, half_size: int = 8) -> dict[str, np.ndarray]:
