@@ -14,11 +14,12 @@ where each star is and how it moves, so the window can be made to hold the whole
   across the motion from the centre, with the sky from the window's border. A few steps of the
   centre of gravity weighted by that shape, twice as wide (the prediction may be a pixel or two
   off), start a Gauss–Newton fit of the amplitude and the centre, weighted by each pixel's
-  variance, that stops at a step under a tenth of σ (it gains under 0.01 in χ²) or 1e-3 px;
-  the centre's covariance is ``(JᵀWJ)⁻¹`` with the gain, the sandwich estimate without. The
-  flat middle of a streak says nothing about where it is along the motion, its two ends do:
-  the fit weighs the pixels by what they say, where a centre of mass weighs the middle's noise
-  as much as the ends' light, and a threshold cuts a faint streak's wings.
+  variance, that stops when the step, or the distance left (the last step times ρ/(1 − ρ), ρ
+  the ratio of the last two steps), is under a tenth of σ (0.01 in χ²), or the step under
+  1e-3 px; the centre's covariance is ``(JᵀWJ)⁻¹`` with the gain, the sandwich estimate
+  without. The flat middle of a streak says nothing about where it is along the motion, its
+  two ends do: the fit weighs the pixels by what they say, where a centre of mass weighs the
+  middle's noise as much as the ends' light, and a threshold cuts a faint streak's wings.
   ``"com"``, ``"iwcog"`` and ``"gaussian"`` run the centroiders of
   :mod:`skyfix.detect.centroid` in the square window of
   :func:`~skyfix.detect.centroid_windows` grown to hold the streak. For a constant rate the
@@ -64,7 +65,7 @@ _ARRAYS = ("x", "y", "flux", "area", "snr", "elongation", "peak", "sigma_x", "si
 _NCOL = 12
 # The streak model is taken as zero beyond this many σ of its segment (3e-4 of its peak).
 _REACH = 4.0
-# Gauss–Newton stops at a step that gains less χ² than this (a step under 0.1 σ), or under 1e-3 px.
+# Gauss–Newton stops when the step or the distance left (extrapolated) is under 0.1 σ (χ² 0.01).
 _TOL_CHI2 = 0.01
 
 
@@ -487,6 +488,7 @@ def _fit(img, box, shape, xc, yc, ig):
     p = np.array([0.0, xc, yc])
     cov = np.zeros((3, 3))
     inv = cov
+    last = 0.0
     for it in range(15):
         six, tv, meat6 = _sums(img, box, shape, p[1], p[2], p[0], ig)
         if it == 0:
@@ -498,7 +500,13 @@ def _fit(img, box, shape, xc, yc, ig):
         jtr = np.array([tv[0] - amp * six[0], -amp * (tv[1] - amp * six[1]), -amp * (tv[2] - amp * six[2])])
         inv = _inverse3(jtj)
         step = inv @ jtr
-        small = step @ jtr < _TOL_CHI2  # the χ² the step gains: under 0.1 σ in the fit's metric
+        # the χ² the step gains (its length², in σ of the fit's metric), and the distance left,
+        # extrapolated from the ratio ρ of the last two steps (Gauss–Newton converges linearly):
+        # ρ/(1 − ρ) steps
+        gain = step @ jtr
+        rho = math.sqrt(gain / last) if last > 0.0 else 1.0
+        small = gain < _TOL_CHI2 or (rho < 1.0 and gain * (rho / (1.0 - rho)) ** 2 < _TOL_CHI2)
+        last = gain
         big = max(abs(step[1]), abs(step[2]))
         if big > 0.5:  # at most half a pixel a step
             step *= 0.5 / big
