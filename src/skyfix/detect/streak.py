@@ -404,20 +404,26 @@ def _weighted_centre(img, box, shape, xc, yc, reach_x, reach_y):
 
 
 @njit(cache=True)
-def _sums(img, box, shape, xc, yc, amp, ig):
+def _sums(img, box, shape, xc, yc, amp, ig, wmin):
     """One pass over the streak's reach at the centre ``(xc, yc)``: the sums of the weighted
     normal equations with the amplitude left out (the model is linear in it, :func:`_scaled`):
     ``Σ wᵢ·jᵢ·jₖ`` (6: ``j = (profile, ∂x, ∂y)``, the gradient of the profile without the
     amplitude's −A), ``Σ wᵢ·jᵢ·vᵢ`` (3), and the sandwich's meat ``Σ (wᵢ·dᵢ)²·jᵢ·jₖ`` (6) with
-    the residual ``d`` at ``amp`` (zero unless ``amp > 0``). The weights ``wᵢ`` are the pixels'
-    inverse variances, their shot noise at ``amp`` with the gain's inverse ``ig``."""
+    the residual ``d`` at ``amp``. The weights ``wᵢ`` are the pixels' inverse variances, their
+    shot noise at ``amp`` with the gain's inverse ``ig``. With ``amp > 0`` (a pass that may be
+    the last), also the streak's footprint (the pixels above the sky where the profile is at
+    least ``wmin``): its count and ``Σ v``, ``Σ v·dx``, ``Σ v·dy``, ``Σ v·dx²``, ``Σ v·dy²``,
+    ``Σ v·dx·dy`` about ``(xc, yc)``; the meat only without the gain."""
     v0 = box.noise * box.noise if box.noise > 0 else 1.0
-    meat = amp > 0.0 and ig == 0.0
+    last = amp > 0.0
+    meat = last and ig == 0.0
     s00 = s01 = s02 = s11 = s12 = s22 = t0 = t1 = t2 = 0.0
     m00 = m01 = m02 = m11 = m12 = m22 = 0.0
+    n = sv = svx = svy = svxx = svyy = svxy = 0.0
     for y in range(box.y0, box.y1 + 1):
         lo, hi = _span(y, box, shape, xc, yc)
-        walk = _row_start(lo - xc, y - yc, shape)
+        dy = y - yc
+        walk = _row_start(lo - xc, dy, shape)
         for x in range(lo, hi + 1):
             w, gx, gy = _weight(walk, shape)
             walk = _row_next(walk, shape)
@@ -442,7 +448,17 @@ def _sums(img, box, shape, xc, yc, amp, ig):
                 m11 += r * gx * gx
                 m12 += r * gx * gy
                 m22 += r * gy * gy
-    return (s00, s01, s02, s11, s12, s22), (t0, t1, t2), (m00, m01, m02, m11, m12, m22)
+            if last and v > 0.0 and w >= wmin:
+                dx = x - xc
+                n += 1.0
+                sv += v
+                svx += v * dx
+                svy += v * dy
+                svxx += v * dx * dx
+                svyy += v * dy * dy
+                svxy += v * dx * dy
+    return ((s00, s01, s02, s11, s12, s22), (t0, t1, t2), (m00, m01, m02, m11, m12, m22),
+            (n, sv, svx, svy, svxx, svyy, svxy))
 
 
 @njit(cache=True, inline="always")
@@ -481,7 +497,9 @@ def _inverse3(m):
 @njit(cache=True)
 def _fit(img, box, shape, xc, yc, ig):
     """Gauss–Newton fit of the streak model from the weighted centre: (amplitude, x, y), its
-    covariance ((JᵀWJ)⁻¹ with a gain, else the sandwich), and whether it converged near the start.
+    covariance ((JᵀWJ)⁻¹ with a gain, else the sandwich), whether it converged near the start,
+    and the footprint of :func:`_sums` at the last pass, its moments moved to the fit's centre
+    (the count, ``Σ v``, ``Σ v·dx²``, ``Σ v·dy²``, ``Σ v·dx·dy``).
     The first pass has no amplitude yet: it takes the linear least-squares one at the start (the
     model is linear in it) and weighs the pixels by the sky's noise alone; the covariance is
     from a later pass, at the amplitude and centre of the last step's start."""
@@ -489,12 +507,15 @@ def _fit(img, box, shape, xc, yc, ig):
     cov = np.zeros((3, 3))
     inv = cov
     last = 0.0
+    wmin = 0.01 * _profile(_row_start(0.0, 0.0, shape), shape)  # the footprint: 1 % of the peak
+    nothing = (0.0, 0.0, 0.0, 0.0, 0.0)
     for it in range(15):
-        six, tv, meat6 = _sums(img, box, shape, p[1], p[2], p[0], ig)
+        at_x, at_y = p[1], p[2]
+        six, tv, meat6, foot = _sums(img, box, shape, at_x, at_y, p[0], ig, wmin)
         if it == 0:
             p[0] = tv[0] / six[0] if six[0] > 0 else 0.0
             if not p[0] > 0:
-                return p, cov, False
+                return p, cov, False, nothing
         amp = p[0]
         jtj = _scaled(six, amp)
         jtr = np.array([tv[0] - amp * six[0], -amp * (tv[1] - amp * six[1]), -amp * (tv[2] - amp * six[2])])
@@ -512,14 +533,17 @@ def _fit(img, box, shape, xc, yc, ig):
             step *= 0.5 / big
         p += step
         if not p[0] > 0 or abs(p[1] - xc) > 2.0 or abs(p[2] - yc) > 2.0:
-            return p, cov, False  # lost the star
+            return p, cov, False, nothing  # lost the star
         if (small or big < 1e-3) and it > 0:
             break
     if ig > 0:  # at the last step's start, 1e-3 px away
         cov = inv
     else:
         cov = inv @ _scaled(meat6, amp) @ inv
-    return p, cov, True
+    n, sv, svx, svy, svxx, svyy, svxy = foot
+    ex, ey = p[1] - at_x, p[2] - at_y  # Σ v·(dx − ex)² …
+    return p, cov, True, (n, sv, svxx - 2.0 * ex * svx + ex * ex * sv, svyy - 2.0 * ey * svy + ey * ey * sv,
+                          svxy - ex * svy - ey * svx + ex * ey * sv)
 
 
 @njit(cache=True)
@@ -555,29 +579,13 @@ def _streaks(img, xs, ys, ux, uy, lengths, hx, hy, s, ig):
         xc, yc, ok = _weighted_centre(img, box, shape, xs[i], ys[i], hx[i], hy[i])
         if not ok:
             continue
-        p, cov, ok = _fit(img, box, shape, xc, yc, ig)
+        p, cov, ok, (npix, sv, sxx, syy, sxy) = _fit(img, box, shape, xc, yc, ig)
         if not ok:
             continue
-        wmax = _profile(_row_start(0.0, 0.0, shape), shape)
-        npix = 0
         peak = -np.inf
-        sv = sxx = syy = sxy = 0.0
         for y in range(y0, y1 + 1):
             for x in range(x0, x1 + 1):
                 peak = max(peak, img[y, x] - sky)
-            lo, hi = _span(y, box, shape, p[1], p[2])
-            walk = _row_start(lo - p[1], y - p[2], shape)
-            for x in range(lo, hi + 1):
-                v = img[y, x] - sky
-                dx, dy = x - p[1], y - p[2]
-                wt = _profile(walk, shape)
-                walk = _row_next(walk, shape)
-                if v > 0.0 and wt >= 0.01 * wmax:  # the streak's footprint
-                    npix += 1
-                    sv += v
-                    sxx += v * dx * dx
-                    syy += v * dy * dy
-                    sxy += v * dx * dy
         out[i, _X] = p[1]
         out[i, _Y] = p[2]
         out[i, _FLUX] = p[0] * 2.0 * math.sqrt(2.0 * math.pi) * s  # the model's integral
