@@ -60,9 +60,9 @@ __all__ = ["STREAK_CENTROIDERS", "centroid_streaks", "star_times", "streak_motio
 STREAK_CENTROIDERS = ("streak", *CENTROIDERS)
 
 _ARRAYS = ("x", "y", "flux", "area", "snr", "elongation", "peak", "sigma_x", "sigma_y", "cov_xy")
-# The columns of the matched kernel's (N, 12) table.
-(_X, _Y, _FLUX, _PEAK, _SIGMA_X, _SIGMA_Y, _COV_XY, _NPIX, _ELONGATION, _OK, _NOISE, _SKY) = range(12)
-_NCOL = 12
+# The rows of the streak kernel's (11, N) table: Centroids' columns, each star's sky and noise.
+(_X, _Y, _FLUX, _AREA, _PEAK, _SIGMA_X, _SIGMA_Y, _COV_XY, _ELONGATION, _NOISE, _SKY) = range(11)
+_NCOL = 11
 # The streak model is taken as zero beyond this many σ of its segment (3e-4 of its peak).
 _REACH = 4.0
 # Gauss–Newton stops when the step or the distance left (extrapolated) is under 0.1 σ (χ² 0.01).
@@ -158,11 +158,13 @@ def centroid_streaks(
     xy = np.asarray(xy_pred, dtype=np.float64).reshape(-1, 2)
     motion = np.asarray(motion_px, dtype=np.float64)
     try:
-        motion = np.broadcast_to(motion.reshape(-1, 2), xy.shape)
+        motion = motion.reshape(-1, 2)
+        if motion.shape != xy.shape:
+            motion = np.broadcast_to(motion, xy.shape)
     except ValueError:
         raise InputError(f"motion_px must be (2,) or one (dx, dy) per star ({len(xy)}), got shape "
                          f"{np.shape(motion_px)}") from None
-    if not np.all(np.isfinite(motion)):
+    if not np.isfinite(motion).all():
         raise InputError("motion_px must be finite")
     if not (float(half_size) == int(half_size) and int(half_size) >= 2):
         raise InputError(f"half_size must be a whole number of pixels >= 2, got {half_size!r}")
@@ -173,8 +175,7 @@ def centroid_streaks(
     if img.ndim != 2:
         raise InputError(f"image must be 2-D, got shape {img.shape}")
     img = np.ascontiguousarray(img, dtype=np.float32)
-    angle = np.arctan2(motion[:, 1], motion[:, 0])
-    angle = np.where(angle > np.pi / 2, angle - np.pi, np.where(angle <= -np.pi / 2, angle + np.pi, angle))
+    angle = _directions(np.ascontiguousarray(motion))
     if method == "streak":
         return _fit_streaks(img, xy, motion, int(half_size), psf_sigma, gain, angle)
     n = len(xy)
@@ -202,29 +203,27 @@ def _fit_streaks(img, xy, motion, half_size, psf_sigma, gain, angle) -> Centroid
         raise InputError(f"psf_sigma must be a positive number of pixels, got {psf_sigma!r}")
     if gain is not None and not (math.isfinite(float(gain)) and float(gain) > 0):
         raise InputError(f"gain must be a positive number of electrons per ADU, got {gain!r}")
-    length = np.hypot(motion[:, 0], motion[:, 1])
-    unit = np.where(length[:, None] > 0, motion / np.maximum(length, 1e-300)[:, None], [1.0, 0.0])
-    m = np.abs(motion)
-    hx = half_size + np.ceil(m[:, 0] / 2).astype(np.int64)
-    hy = half_size + np.ceil(m[:, 1] / 2).astype(np.int64)
     s_model = math.sqrt(s * s + 1.0 / 12.0)  # a Gaussian PSF integrated over a pixel, nearly
-    out = _streaks(img, xy[:, 0].copy(), xy[:, 1].copy(), unit[:, 0].copy(), unit[:, 1].copy(), length,
-                   hx, hy, s_model, 0.0 if gain is None else 1.0 / float(gain))
-    bad = out[:, _OK] == 0
-    flux, area = out[:, _FLUX], out[:, _NPIX]
-    columns = dict(x=_X, y=_Y, sigma_x=_SIGMA_X, sigma_y=_SIGMA_Y, elongation=_ELONGATION)
-    nan_if_bad = {name: np.where(bad, np.nan, out[:, col]) for name, col in columns.items()}
-    n = len(xy)
-    return Centroids(**nan_if_bad, flux=np.where(bad, 0.0, flux), area=area,
-                     snr=np.where(bad, 0.0, background_snr(flux, out[:, _NOISE], area)), peak=out[:, _PEAK],
-                     saturated=np.zeros(n, bool), image_shape=img.shape,
-                     cov_xy=np.where(bad, 0.0, out[:, _COV_XY]),
-                     background_level=float(np.median(out[:, _SKY])) if n else 0.0,
-                     noise=float(np.median(out[:, _NOISE])) if n else 0.0, angle=angle,
-                     meta={"ordered": True, "half_size": np.column_stack([hx, hy])})
+    t, half, sky, noise = _streaks(img, np.ascontiguousarray(xy), np.ascontiguousarray(motion),
+                                   np.int64(half_size), s_model, 0.0 if gain is None else 1.0 / float(gain))
+    return Centroids(x=t[_X], y=t[_Y], flux=t[_FLUX], area=t[_AREA], elongation=t[_ELONGATION], peak=t[_PEAK],
+                     snr=background_snr(t[_FLUX], t[_NOISE], t[_AREA]),  # 0 where no centroid (no flux)
+                     sigma_x=t[_SIGMA_X], sigma_y=t[_SIGMA_Y], cov_xy=t[_COV_XY],
+                     saturated=np.zeros(len(xy), bool), image_shape=img.shape, background_level=sky,
+                     noise=noise, angle=angle, meta={"ordered": True, "half_size": half})
 
 
 # --- the streak kernels -----------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _directions(motion):
+    """The direction of each motion (N, 2) from +x toward +y, radians in (−π/2, π/2]."""
+    angle = np.empty(len(motion))
+    for i in range(len(motion)):
+        a = math.atan2(motion[i, 1], motion[i, 0])
+        angle[i] = a - math.pi if a > math.pi / 2 else (a + math.pi if a <= -math.pi / 2 else a)
+    return angle
 
 
 class _Shape(NamedTuple):
@@ -547,17 +546,27 @@ def _fit(img, box, shape, xc, yc, ig):
 
 
 @njit(cache=True)
-def _streaks(img, xs, ys, ux, uy, lengths, hx, hy, s, ig):
-    """The (N, 12) table of :func:`centroid_streaks` ``method="streak"`` (columns ``_X`` …)."""
+def _streaks(img, xy, motion, half_size, s, ig):
+    """:func:`centroid_streaks` ``method="streak"``: the (11, N) table (rows ``_X`` …; NaN
+    centre, σ and elongation, zero flux, area and covariance where no centroid was found), the
+    windows' half sizes (N, 2), the median sky and noise."""
     h, w = img.shape
-    n = xs.size
-    out = np.zeros((n, _NCOL))
+    n = len(xy)
+    out = np.zeros((_NCOL, n))
+    for row in (_X, _Y, _SIGMA_X, _SIGMA_Y, _ELONGATION):
+        out[row, :] = np.nan
+    half = np.empty((n, 2), np.int64)
     for i in range(n):
-        if not (np.isfinite(xs[i]) and np.isfinite(ys[i])):
+        dx, dy = motion[i, 0], motion[i, 1]
+        length = math.hypot(dx, dy)
+        hx, hy = half_size + int(math.ceil(abs(dx) / 2)), half_size + int(math.ceil(abs(dy) / 2))
+        half[i, 0], half[i, 1] = hx, hy
+        xs, ys = xy[i, 0], xy[i, 1]
+        if not (np.isfinite(xs) and np.isfinite(ys)):
             continue
-        cx, cy = int(round(xs[i])), int(round(ys[i]))
-        y0, y1 = max(cy - hy[i], 0), min(cy + hy[i], h - 1)
-        x0, x1 = max(cx - hx[i], 0), min(cx + hx[i], w - 1)
+        cx, cy = int(round(xs)), int(round(ys))
+        y0, y1 = max(cy - hy, 0), min(cy + hy, h - 1)
+        x0, x1 = max(cx - hx, 0), min(cx + hx, w - 1)
         if y1 - y0 < 2 or x1 - x0 < 2:
             continue
         buf = np.empty(2 * (x1 - x0 + 1) + 2 * (y1 - y0 - 1))  # the sky from the window's border
@@ -571,12 +580,13 @@ def _streaks(img, xs, ys, ux, uy, lengths, hx, hy, s, ig):
             buf[m + 1] = img[y, x1]
             m += 2
         sky, noise = robust_level_noise(buf, 0.0, False)
-        out[i, _SKY] = sky
-        out[i, _NOISE] = noise
+        out[_SKY, i] = sky
+        out[_NOISE, i] = noise
         box = _Box(y0, y1, x0, x1, sky, noise)
-        half_len = max(0.5 * lengths[i], 5e-4)  # a still star: the limit, a Gaussian along too
-        shape = _shape(ux[i], uy[i], half_len, s)
-        xc, yc, ok = _weighted_centre(img, box, shape, xs[i], ys[i], hx[i], hy[i])
+        half_len = max(0.5 * length, 5e-4)  # a still star: the limit, a Gaussian along too
+        ux, uy = (dx / length, dy / length) if length > 0 else (1.0, 0.0)
+        shape = _shape(ux, uy, half_len, s)
+        xc, yc, ok = _weighted_centre(img, box, shape, xs, ys, hx, hy)
         if not ok:
             continue
         p, cov, ok, (npix, sv, sxx, syy, sxy) = _fit(img, box, shape, xc, yc, ig)
@@ -586,18 +596,20 @@ def _streaks(img, xs, ys, ux, uy, lengths, hx, hy, s, ig):
         for y in range(y0, y1 + 1):
             for x in range(x0, x1 + 1):
                 peak = max(peak, img[y, x] - sky)
-        out[i, _X] = p[1]
-        out[i, _Y] = p[2]
-        out[i, _FLUX] = p[0] * 2.0 * math.sqrt(2.0 * math.pi) * s  # the model's integral
-        out[i, _PEAK] = peak
-        out[i, _SIGMA_X] = math.sqrt(max(cov[1, 1], 0.0))
-        out[i, _SIGMA_Y] = math.sqrt(max(cov[2, 2], 0.0))
-        out[i, _COV_XY] = cov[1, 2]
-        out[i, _NPIX] = npix
+        out[_X, i] = p[1]
+        out[_Y, i] = p[2]
+        out[_FLUX, i] = p[0] * 2.0 * math.sqrt(2.0 * math.pi) * s  # the model's integral
+        out[_PEAK, i] = peak
+        out[_SIGMA_X, i] = math.sqrt(max(cov[1, 1], 0.0))
+        out[_SIGMA_Y, i] = math.sqrt(max(cov[2, 2], 0.0))
+        out[_COV_XY, i] = cov[1, 2]
+        out[_AREA, i] = npix
+        out[_ELONGATION, i] = 0.0
         if sv > 0.0:  # long over short axis of the second moments
             mxx, myy, mxy = sxx / sv, syy / sv, sxy / sv
             root = math.sqrt(max(0.25 * (mxx - myy) ** 2 + mxy * mxy, 0.0))
             big, small = 0.5 * (mxx + myy) + root, 0.5 * (mxx + myy) - root
-            out[i, _ELONGATION] = math.sqrt(big / max(small, 1e-12))
-        out[i, _OK] = 1.0
-    return out
+            out[_ELONGATION, i] = math.sqrt(big / max(small, 1e-12))
+    if n == 0:
+        return out, half, 0.0, 0.0
+    return out, half, np.median(out[_SKY]), np.median(out[_NOISE])
