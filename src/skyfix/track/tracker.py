@@ -574,21 +574,20 @@ class Tracker:
             return None, f"{n} catalogue stars to track in the frame (need {s.min_stars})"
         dt = self._row_times(n, t, rate)
         size, x, y, sx, sy, flux, snr = self._centroid(img, n)
-        sel = self._sel
         res = win.fit_entry(n, x, y, sx, sy, flux, snr, self._origin, size, self._sel_t, self._stars.vectors,
                             self._zero_point, self._match_settings_t, self._cam, rate, dt, plan.n_view,
                             float(self.camera.width * self.camera.height), s.min_stars, _OUTLIER_SIGMA)
         if not res.ok:
             if res.n_gated < s.min_stars:
                 return None, f"{res.n_gated} of {n} windows hold their star ({res.n_found} found a star)"
-            return None, f"{int(res.use.sum())} of {res.n_gated} stars agree in the pair check and the fit " \
+            return None, f"{res.n_fit} of {res.n_gated} stars agree in the pair check and the fit " \
                          f"(need {s.min_stars})"
         if res.zero_point == res.zero_point:  # not NaN
             zp = self._zero_point
             self._zero_point = res.zero_point if zp != zp else 0.8 * zp + 0.2 * res.zero_point
-        use = res.use
-        return _Fit(res.A_icrs_to_cam, res.covariance_rad2, res.xy[use], sel.index[:n][use], res.b[use],
-                    res.sigma_rad[use], res.n_found, n, math.exp(res.log_chance)), ""
+        k = res.n_fit
+        return _Fit(res.A_icrs_to_cam, res.covariance_rad2, res.xy[:k], res.index[:k], res.b[:k],
+                    res.sigma_rad[:k], res.n_found, n, math.exp(res.log_chance)), ""
 
     def _local_catalog(self, z: np.ndarray) -> win.Local:
         """The catalogue within the frame's cone plus :data:`_LOCAL_MARGIN_RAD` of the boresight

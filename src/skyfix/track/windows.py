@@ -186,9 +186,11 @@ class WindowFit(NamedTuple):
     A_icrs_to_cam, covariance_rad2 : (3, 3) — the fit and its covariance.
     zero_point : float — the frame's median ``m_inst − m_cat`` (NaN: no star gated).
     log_chance : float — log P(so many windows hold a star inside their gates by chance).
-    use : (n,) bool — the windows in the fit.
-    xy : (n, 2) — their centroids, frame pixels; b : (n, 3) — their rays at the frame time;
-    sigma_rad : (n,) — the rays' σ per axis.
+    n_fit : int — the windows in the fit; the m ≥ ``n_fit`` rows below, the first ``n_fit`` of
+        them those stars (the rest: gated but dropped by the pair check or as outliers):
+    index : (m,) — their catalogue indices (rows of the star index);
+    xy : (m, 2) — their centroids, frame pixels; b : (m, 3) — their rays at the frame time;
+    sigma_rad : (m,) — the rays' σ per axis.
     """
 
     ok: bool
@@ -198,7 +200,8 @@ class WindowFit(NamedTuple):
     covariance_rad2: np.ndarray
     zero_point: float
     log_chance: float
-    use: np.ndarray
+    n_fit: int
+    index: np.ndarray
     xy: np.ndarray
     b: np.ndarray
     sigma_rad: np.ndarray
@@ -545,26 +548,25 @@ def fit_windows(n, x, y, sx, sy, flux, snr, origin, size, sel, vectors, zero_poi
     m_inst = np.empty(n)
     n_gated, zp, gate_area = match_windows(n, cx, cy, sx, sy, flux, snr, sel, zero_point, settings, keep,
                                            chi2, m_inst)
-    use = np.zeros(n, np.bool_)
-    xy_all = np.full((n, 2), np.nan)
-    b_all = np.full((n, 3), np.nan)
-    sigma_all = np.full(n, np.nan)
     A = np.eye(3)
     P = np.zeros((3, 3))
     if n_gated < min_stars:
-        return WindowFit(False, n_found, n_gated, A, P, zp, 0.0, use, xy_all, b_all, sigma_all)
+        return WindowFit(False, n_found, n_gated, A, P, zp, 0.0, 0, np.zeros(0, np.int64), np.zeros((0, 2)),
+                         np.zeros((0, 3)), np.zeros(0))
     idx = np.flatnonzero(keep)
     m = idx.size
     xy = np.empty((m, 2))
     sigma = np.empty(m)
     r = np.empty((m, 3))
+    index = np.empty(m, np.int64)
     floor2 = settings.floor_px * settings.floor_px
     plate = 1.0 / math.sqrt(cam[FX] * cam[FY])
     for j in range(m):
         i = idx[j]
         xy[j, 0], xy[j, 1] = cx[i], cy[i]
         sigma[j] = math.sqrt(0.5 * (sx[i] * sx[i] + sy[i] * sy[i]) + floor2) * plate
-        r[j] = vectors[sel.index[i]]
+        index[j] = sel.index[i]
+        r[j] = vectors[index[j]]
     b = pixel_rays(xy, cam)
     for j in range(m):
         d = dt[idx[j]]
@@ -576,18 +578,12 @@ def fit_windows(n, x, y, sx, sy, flux, snr, origin, size, sel, vectors, zero_poi
             b[j, 0], b[j, 1], b[j, 2] = b0 / norm, b1 / norm, b2 / norm
     fitted = np.ones(m, np.bool_)
     ok, A, P, _ = fit_attitude(b, r, sigma, fitted, settings.pair_k, outlier_k, min_stars)
-    n_fit = 0
-    for j in range(m):
-        if fitted[j]:
-            i = idx[j]
-            use[i] = True
-            xy_all[i] = xy[j]
-            b_all[i] = b[j]
-            sigma_all[i] = sigma[j]
-            n_fit += 1
+    order = np.argsort(~fitted, kind="mergesort")  # the fitted stars first, in window order
+    n_fit = int(fitted.sum())
     p_chance = min(1.0, n_view * gate_area / frame_area)
     log_chance = log_binom_sf(n_fit, n, p_chance) if ok else 0.0
-    return WindowFit(ok, n_found, n_gated, A, P, zp, log_chance, use, xy_all, b_all, sigma_all)
+    return WindowFit(ok, n_found, n_gated, A, P, zp, log_chance, n_fit, index[order], xy[order], b[order],
+                     sigma[order])
 
 
 _ARCSEC = np.pi / (180.0 * 3600.0)
