@@ -343,9 +343,9 @@ def _weight(walk, shape):
     if not inside:
         return 0.0, 0.0, 0.0
     _, b, gp, _, gm, _, _, _ = walk
-    ux, uy, s, q = shape.ux, shape.uy, shape.s, shape.q
+    ux, uy, q = shape.ux, shape.uy, shape.q
     de = (2.0 / math.sqrt(math.pi)) * q * (gp - gm) * shape.inv_len
-    da, db = de * g, -e * g * b / (s * s)
+    da, db = de * g, -e * g * b * (2.0 * q * q)  # 1/s² = 2q²
     return e * g, da * ux - db * uy, da * uy + db * ux
 
 
@@ -428,7 +428,7 @@ def _sums(img, box, shape, xc, yc, amp, ig, wmin):
             walk = _row_next(walk, shape)
             mu = amp * w
             v = img[y, x] - box.sky
-            iv = 1.0 / (v0 + max(mu, 0.0) * ig)
+            iv = 1.0 / v0 if ig == 0.0 else 1.0 / (v0 + max(mu, 0.0) * ig)
             s00 += iv * w * w
             s01 += iv * w * gx
             s02 += iv * w * gy
