@@ -404,7 +404,9 @@ def accuracy_summary(seq: SequenceResult) -> dict:
     mode with stars), and which frames that should be tracked were not.
 
     A frame should be tracked when it shows ≥ 3 visible stars and is neither the first two of
-    the sequence nor the two after the jump (lost in space, then acquiring, by design)."""
+    the sequence nor the two after the jump (lost in space, then acquiring, by design — but the
+    frame after the jump is tracked when the jump frame was solved along the predicted streaks,
+    which keeps the rate)."""
     n = len(seq.t_s)
     starting = np.zeros(n, bool)
     starting[:2] = True
