@@ -11,6 +11,12 @@ kernels rather than each keeping a copy.
   thousands of times per frame, in place. Both clip with :func:`clipped_rms`.
 - :func:`percentile_linear` — ``np.percentile`` (linear) inside a kernel.
 - :func:`sum_sq_dev` — ``Σ(v − c)²`` from the running sums ``Σv²``, ``Σv`` and ``n``.
+
+Typed zeros: numba compiles a kernel once per argument types, and a literal ``0`` has a type
+of its own (``Literal[int](0)``) — so has a counter that starts at ``0``, as numba's type
+inference first sees it, before the increments make it ``int64``. ``f(a, 0)`` or ``f(a, k)``
+after ``k = 0`` would compile ``f`` twice (and everything it calls), so a zero that reaches a
+kernel call is ``np.int64(0)`` in the detect kernels.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ def median(v):
     """Median of a 1-D float64 array (NaN if empty), leaving it untouched."""
     if v.size == 0:
         return np.nan
-    return median_inplace(v.copy(), v.size)
+    return median_inplace(v.copy(), v.size, np.nan)
 
 
 @njit(cache=True)
@@ -64,7 +70,7 @@ def robust_level_noise(v, quantum=0.0, lower=False, guess=np.nan):
     else:
         dev = np.abs(v - med)
     scratch = dev.copy()
-    s0 = max(1.4826 * median_inplace(scratch, dev.size), quantum)
+    s0 = max(1.4826 * median_inplace(scratch, dev.size, np.nan), quantum)
     return med, clipped_rms(dev, dev.size, s0)
 
 
@@ -82,7 +88,7 @@ def tile_level_noise(a, n, quantum, guess=np.nan, guess_lower=np.nan):
         return 0.0, 0.0, np.nan
     med = median_inplace(a, n, guess)
     # the values ≤ median: the first n//2 after the select, plus any ties above (branch-free)
-    m = 0
+    m = np.int64(0)  # typed (module docstring)
     for i in range(n):
         e = a[i]
         a[i] = a[m]
@@ -161,7 +167,7 @@ def median_inplace(a, n, guess=np.nan):
     """
     k = n // 2
     if math.isnan(guess):
-        upper = _select(a, np.int64(0), n, k)  # a typed 0: one compiled _select, not two
+        upper = _select(a, np.int64(0), n, k)  # typed (module docstring)
     else:
         upper = _select_around(a, n, k, guess)
     if n % 2 == 1:
@@ -221,7 +227,7 @@ def _select_around(a, n, k, guess):
     for the next: the selection then works on the few values beside it (on quantised data the
     guess is often the median itself and two passes find it).
     """
-    store = 0
+    store = np.int64(0)  # typed (module docstring)
     for i in range(n):
         e = a[i]
         a[i] = a[store]

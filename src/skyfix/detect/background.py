@@ -430,7 +430,7 @@ def _tile_noise(samples, lattice, level, level_raw, weights, is_int, same_level)
         for tx in range(nx):
             t = ty * nx + tx
             pool = t % pool_every == 0
-            k = 0
+            k = np.int64(0)  # typed (skyfix.detect._stats)
             for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], sy), edges_y[ty + 1], sy):
                 i = iy[y]
                 i1 = min(i + 1, ny - 1)

@@ -111,7 +111,7 @@ def smooth_threshold(img, bits, float_bits, thr_grid, sky, frames):
             for x in range(w):
                 m[x] = out[x] > _threshold_at(thr_grid, sky, y, x, h, w)
         else:
-            m[0] = out[0] > _threshold_at(thr_grid, sky, y, 0, h, w)
+            m[0] = out[0] > _threshold_at(thr_grid, sky, y, np.int64(0), h, w)  # typed (skyfix.detect._stats)
             m[w - 1] = out[w - 1] > _threshold_at(thr_grid, sky, y, w - 1, h, w)
         words = m.view(np.uint64)
         for c in range(blocks.shape[1]):

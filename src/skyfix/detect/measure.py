@@ -87,7 +87,7 @@ def measure(img, labels, cand, sky, saturation, min_sharpness):
             npix = 0
             nsat = 0
             peak = -np.inf
-            py = px = 0
+            py, px = y0, x0  # (not a literal 0: sharpness would compile for it too)
             for y in range(y0, y1 + 1):
                 for x in range(x0, x1 + 1):
                     lv = labels[y, x]
