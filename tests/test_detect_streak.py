@@ -122,8 +122,8 @@ def test_streak_fit_against_truth(gain):
     """300 synthetic streaks, 3000 e⁻ each (1–12 px long, σ 1 px, sky 30 e⁻, read noise 3 e⁻),
     predictions up to 2.5 px off: every streak is found, the centres are within 0.075 px RMS of
     the truth and the reported σ is honest (normalised error RMS per axis between 0.7 and 1.4;
-    without the gain it is the sandwich estimate). Measured: 0.065 px RMS, 0.128 px at the 95th
-    percentile, normalised error RMS 1.22 (x) and 1.14 (y) without the gain; 0.061, 0.119, 1.05
+    without the gain it is the sandwich estimate). Measured: 0.065 px RMS, 0.127 px at the 95th
+    percentile, normalised error RMS 1.22 (x) and 1.14 (y) without the gain; 0.061, 0.118, 1.05
     and 0.94 with it."""
     image, xy, pred, motion = synthetic_streaks(7)
     c = centroid_streaks(image, pred, motion, 4, psf_sigma=1.0, gain=gain)

@@ -320,11 +320,10 @@ def _erf(z, g):
 def _along_across(walk, shape):
     """At the row walk's pixel: the along profile ``e`` (the erf difference over the length) and
     the Gaussian across ``g``; ``inside`` False (and both zero) beyond the streak's light."""
-    a, b, _, _, _, _, gb, _ = walk
+    a, b, gp, _, gm, _, gb, _ = walk
     h, s, q = shape.half_len, shape.s, shape.q
     if abs(b) > _REACH * s or abs(a) > h + _REACH * s:
         return False, 0.0, 0.0
-    a, b, gp, _, gm, _, gb, _ = walk
     return True, (_erf((a + h) * q, gp) - _erf((a - h) * q, gm)) * shape.inv_len, gb
 
 
@@ -524,7 +523,7 @@ def _fit(img, box, shape, xc, yc, ig):
         # extrapolated from the ratio ρ of the last two steps (Gauss–Newton converges linearly):
         # ρ/(1 − ρ) steps
         gain = step @ jtr
-        rho = math.sqrt(gain / last) if last > 0.0 else 1.0
+        rho = math.sqrt(gain / last) if last > 0.0 and gain > 0.0 else 1.0
         small = gain < _TOL_CHI2 or (rho < 1.0 and gain * (rho / (1.0 - rho)) ** 2 < _TOL_CHI2)
         last = gain
         big = max(abs(step[1]), abs(step[2]))
@@ -535,7 +534,7 @@ def _fit(img, box, shape, xc, yc, ig):
             return p, cov, False, nothing  # lost the star
         if (small or big < 1e-3) and it > 0:
             break
-    if ig > 0:  # at the last step's start, 1e-3 px away
+    if ig > 0:  # at the last step's start, under 0.1 σ away
         cov = inv
     else:
         cov = inv @ _scaled(meat6, amp) @ inv
