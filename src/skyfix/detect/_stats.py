@@ -9,7 +9,9 @@ kernels rather than each keeping a copy.
 - :func:`robust_level_noise` — median and clipped RMS of a sample (the frame-wide and window
   estimates); :func:`tile_level_noise` the lower-side variant the tiled background runs
   thousands of times per frame, in place. Both clip with :func:`clipped_rms`.
-- :func:`percentile_linear` — ``np.percentile`` (linear) inside a kernel.
+- :func:`percentile_linear` — ``np.percentile`` (linear) inside a kernel, by selection;
+  :func:`argsort_descending` — a stable argsort, largest first. Neither calls numpy's sorts,
+  which numba compiles afresh for each kind and dtype (2–2.5 s each on a fresh cache).
 - :func:`sum_sq_dev` — ``Σ(v − c)²`` from the running sums ``Σv²``, ``Σv`` and ``n``.
 
 Typed zeros: numba compiles a kernel once per argument types, and a literal ``0`` has a type
@@ -27,7 +29,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["CLIP", "median", "median_inplace", "robust_level_noise", "tile_level_noise", "clipped_rms",
-           "percentile_linear", "sum_sq_dev"]
+           "percentile_linear", "argsort_descending", "sum_sq_dev"]
 
 #: Half-width of the clip of :func:`clipped_rms`, in σ.
 CLIP = 3.0
@@ -139,18 +141,58 @@ def clipped_rms(dev, n, s0):
 
 @njit(cache=True)
 def percentile_linear(v, q):
-    """``np.percentile(v, 100·q)`` (linear method), with numpy's arithmetic."""
-    a = np.sort(v)
+    """``np.percentile(v, 100·q)`` (linear method), with numpy's arithmetic.
+
+    The two order statistics it needs are found by selection (:func:`_select`), not by
+    ``np.sort``, whose compile (~2 s on a fresh cache) only this function needed.
+    """
+    a = v.astype(np.float64)  # a copy: the selection reorders it
     n = a.size
     vi = (n - 1) * q
+    lo = min(int(math.floor(vi)), n - 1)
+    below = _select(a, np.int64(0), n, lo)
     if vi >= n - 1:
-        return a[n - 1]
-    lo = int(math.floor(vi))
+        return below
+    above = a[lo + 1:].min()  # the selection left a[lo + 1:] ≥ a[lo]: their least is the next one
     gamma = vi - lo
-    diff = a[lo + 1] - a[lo]
+    diff = above - below
     if gamma >= 0.5:
-        return a[lo + 1] - diff * (1.0 - gamma)
-    return a[lo] + diff * gamma
+        return above - diff * (1.0 - gamma)
+    return below + diff * gamma
+
+
+@njit(cache=True)
+def argsort_descending(v):
+    """Indices that order ``v`` from largest to smallest, equal values in index order (NaN last).
+
+    ``np.argsort(-v, kind="mergesort")`` written out (a bottom-up merge sort): numba's merge
+    sort takes ~2.5 s to compile on a fresh cache, and the extractor needs only this one.
+    """
+    n = v.size
+    idx = np.arange(n)
+    tmp = np.empty(n, np.int64)
+    width = 1
+    while width < n:
+        for lo in range(0, n, 2 * width):
+            mid, hi = min(lo + width, n), min(lo + 2 * width, n)
+            i, j = lo, mid
+            for k in range(lo, hi):
+                # the right run's value goes first only if it is strictly larger (stable)
+                if j < hi and (i == mid or _larger(v[idx[j]], v[idx[i]])):
+                    tmp[k] = idx[j]
+                    j += 1
+                else:
+                    tmp[k] = idx[i]
+                    i += 1
+        idx, tmp = tmp, idx
+        width *= 2
+    return idx
+
+
+@njit(cache=True, inline="always")
+def _larger(a, b):
+    """Whether ``a`` goes before ``b`` in decreasing order with NaN last."""
+    return a > b or (math.isnan(b) and not math.isnan(a))
 
 
 @njit(cache=True, inline="always")

@@ -44,6 +44,7 @@ import numpy as np
 from numba import njit
 
 from skyfix.detect._grid import sky_grid
+from skyfix.detect._stats import argsort_descending
 from skyfix.detect.background import Background, estimate_background
 from skyfix.detect.centroids import Centroids
 from skyfix.detect.deblend import DeblendRule, deblend
@@ -233,7 +234,7 @@ def _star_table(m, screened, max_stars):
     flux (ties keep candidate order), at most ``max_stars``; their centroid σ is the noise
     times the unweighted spread over the flux."""
     sel = np.flatnonzero(screened.good)
-    sel = sel[np.argsort(-m.flux[sel], kind="mergesort")][:max_stars]
+    sel = sel[argsort_descending(m.flux[sel])][:max_stars]
     flux = m.flux[sel]
     nz = screened.noise[sel]
     sigma_x = nz * np.sqrt(m.spread_x[sel]) / flux

@@ -25,6 +25,7 @@ from numba import njit
 
 from skyfix.detect._grid import grid_at, grid_rows
 from skyfix.detect._smooth import column_sum, smooth_row
+from skyfix.detect._stats import argsort_descending
 
 __all__ = ["Frames", "COMPONENT", "CANDIDATE", "MAX_COMPONENTS", "smooth_threshold", "label_components",
            "select_candidates", "clear_boxes"]
@@ -280,7 +281,7 @@ def select_candidates(comps, min_area, max_area, max_extent, drop_hot, cap):
             keep[k] = c
             k += 1
     idx = keep[:k]
-    order = np.argsort(-comps.excess[idx], kind="mergesort")  # stable
+    order = argsort_descending(comps.excess[idx])  # stable
     idx = idx[order[:cap]]
     cand = np.empty(idx.size, CANDIDATE)
     for i in range(idx.size):
