@@ -48,7 +48,7 @@ class Screened(NamedTuple):
     good: np.ndarray
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def screen(m, is_part, sky, rules):
     """Noise, elongation and SNR of the measured candidates, and which of them are stars.
 
@@ -58,7 +58,8 @@ def screen(m, is_part, sky, rules):
     this order, each on the survivors of the ones before: flux > 0, sharpness, hot pixels,
     ``max_elongation``, particle tracks (:func:`particle_tracks`), diffuse blobs
     (:func:`diffuse`), cluttered tiles (:func:`cluttered`). Returns the :class:`Screened`
-    candidates.
+    candidates. Written into its one caller, the extractor's kernel
+    (:func:`~skyfix.detect.components._measure_and_screen` says why).
     """
     sigma, min_sharpness, max_elongation, reject_tracks, max_diffuseness, max_noise_ratio = rules
     n = m.size
