@@ -22,6 +22,7 @@ from skyfix.errors import CameraError, InputError
 from skyfix.geometry import attitude_from_quaternion, attitude_from_radec_roll
 from skyfix.simulate import render_sequence
 from skyfix.track import Tracker
+from skyfix.track.tracker import window_fit_agrees
 from skyfix.track.windows import pixel_jacobian
 
 CAMERA = Camera.from_fov(1280, 960, 15.0)
@@ -239,6 +240,11 @@ def test_gyro_rates_track_from_the_second_frame():
     for f, s in zip(frames, sols, strict=True):
         assert s.solved and s.n_matched >= 10 and np.hypot(*_error_arcsec(f, s)[:2]) < 5.0
     assert np.all(np.abs(np.asarray(sols[-1].rate_dps) - np.degrees(rate)) < 0.01), sols[-1].rate_dps
+
+
+def test_a_fit_of_a_minority_of_the_windows_is_not_trusted():
+    assert window_fit_agrees(16, 16) and window_fit_agrees(8, 16) and window_fit_agrees(3, 5)
+    assert not window_fit_agrees(7, 16) and not window_fit_agrees(3, 7)
 
 
 def test_times_out_of_order_or_repeated_are_errors(frames_at_rest):

@@ -20,7 +20,10 @@ def pair_check(b, r, sigma_rad, keep, k):
     """Thesis 004's distance check over every pair of kept stars: the angle between rays
     ``b[i]``, ``b[j]`` must equal that between catalogue vectors ``r[i]``, ``r[j]`` within
     ``k·√(σ_i² + σ_j²)`` (the rays' σ per axis, radians). The star in the most disagreeing pairs
-    is dropped (``keep[i] = False``) until every pair agrees; returns how many were dropped."""
+    is dropped (``keep[i] = False``) until every pair agrees — of stars in equally many, the
+    least precise (largest σ): two groups that disagree with each other, one of bright stars and
+    one of faint ones biased alike, would otherwise lose the bright ones first, as the windows
+    come brightest first. Returns how many were dropped."""
     n = b.shape[0]
     bad = np.zeros(n, np.int64)
     dropped = 0
@@ -43,7 +46,8 @@ def pair_check(b, r, sigma_rad, keep, k):
                     bad[i] += 1
                     bad[j] += 1
         for i in range(n):
-            if keep[i] and bad[i] > 0 and (worst < 0 or bad[i] > bad[worst]):
+            if keep[i] and bad[i] > 0 and (worst < 0 or bad[i] > bad[worst]
+                                           or (bad[i] == bad[worst] and sigma_rad[i] > sigma_rad[worst])):
                 worst = i
         if worst < 0:
             return dropped

@@ -22,7 +22,8 @@ returns a :class:`~skyfix.solution.Solution` whose ``mode`` says which of three 
     magnitude, pairwise distances: :mod:`skyfix.track.windows`); the attitude is refitted with
     its covariance (``track.fit.fit_attitude``, :mod:`skyfix.attitude`'s formulas), outliers
     dropped; the fit is verified (at least ``min_stars`` stars, residuals consistent with the
-    centroids, the filter's NIS) and updates the predictor — or, when at least 6 stars agree
+    centroids, at least half of the windows that found a star in it:
+    :func:`window_fit_agrees`, the filter's NIS) and updates the predictor — or, when at least 6 stars agree
     with each other but not with the prediction (a manoeuvre), restarts it from the fit. The
     Solution reports the filter's attitude, covariance and rate.
 
@@ -63,7 +64,7 @@ from skyfix.solution import Match, Solution
 from skyfix.track import windows as win
 from skyfix.track.filter import innovation
 
-__all__ = ["DEFAULT_ACCEL_PSD", "MODES", "Tracker", "TrackSettings"]
+__all__ = ["DEFAULT_ACCEL_PSD", "MODES", "TrackSettings", "Tracker", "window_fit_agrees"]
 
 #: The tracker's states, the ``mode`` of its Solutions.
 MODES = ("lost", "acquiring", "tracking")
@@ -88,6 +89,15 @@ _STRONG_FIT = 6  # stars in a fit that outvote the prediction (a manoeuvre, not 
 #: fraction of its size as σ: windows then hold a streak 4σ = 40 % longer or shorter than
 #: predicted; a rate further off fails the next frame's windows, which is solved again.
 _JUMP_RATE_SIGMA = 0.1
+
+
+def window_fit_agrees(n_fit: int, n_found: int) -> bool:
+    """Whether a windows' fit speaks for the frame: at least half of the windows that found a
+    star are in it. Tracking, nearly every window's star fits; when most do not, the prediction
+    has put the windows where the stars are not quite (a manoeuvre, a wrong rate): the few that
+    agree may agree on a biased attitude — in one simulated slew, 7 of 16 agreed on one 65″ off
+    at 6σ — so the frame is solved lost in space instead."""
+    return 2 * n_fit >= n_found
 
 
 class TrackSettings(NamedTuple):
@@ -582,6 +592,9 @@ class Tracker:
                 return None, f"{res.n_gated} of {n} windows hold their star ({res.n_found} found a star)"
             return None, f"{res.n_fit} of {res.n_gated} stars agree in the pair check and the fit " \
                          f"(need {s.min_stars})"
+        if not window_fit_agrees(res.n_fit, res.n_found):
+            return None, (f"only {res.n_fit} of the {res.n_found} windows that found a star agree on "
+                          "the attitude")
         if res.zero_point == res.zero_point:  # not NaN
             zp = self._zero_point
             self._zero_point = res.zero_point if zp != zp else 0.8 * zp + 0.2 * res.zero_point
