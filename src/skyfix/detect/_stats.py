@@ -11,7 +11,8 @@ kernels rather than each keeping a copy.
   thousands of times per frame, in place. Both clip with :func:`clipped_rms`.
 - :func:`percentile_linear` — ``np.percentile`` (linear) inside a kernel, by selection;
   :func:`argsort_descending` — a stable argsort, largest first. Neither calls numpy's sorts,
-  which numba compiles afresh for each kind and dtype (2–2.5 s each on a fresh cache).
+  which numba compiles afresh for each kind and dtype (2–2.5 s each on a fresh cache); a
+  solve's identification still compiles the float64 sort, numba's merge sort no more.
 - :func:`sum_sq_dev` — ``Σ(v − c)²`` from the running sums ``Σv²``, ``Σv`` and ``n``.
 
 Typed zeros: numba compiles a kernel once per argument types, and a literal ``0`` has a type
@@ -144,7 +145,8 @@ def percentile_linear(v, q):
     """``np.percentile(v, 100·q)`` (linear method), with numpy's arithmetic.
 
     The two order statistics it needs are found by selection (:func:`_select`), not by
-    ``np.sort``, whose compile (~2 s on a fresh cache) only this function needed.
+    ``np.sort``, whose float64 sort (~2 s to compile on a fresh cache) an extraction needed
+    for this alone (a solve compiles it all the same, for the pattern search's edge angles).
     """
     a = v.astype(np.float64)  # a copy: the selection reorders it
     n = a.size
