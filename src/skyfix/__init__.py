@@ -15,7 +15,7 @@ from skyfix._kernels import drop_stale_kernel_caches as _drop_stale_kernel_cache
 
 _drop_stale_kernel_caches()
 
-__all__ = ["solve", "solve_centroids", "Camera", "Solution", "load_hipparcos"]
+__all__ = ["solve", "solve_centroids", "Camera", "Solution", "load_hipparcos", "load_gaia"]
 
 _LAZY = {
     "solve": "skyfix.pipeline",
@@ -23,6 +23,7 @@ _LAZY = {
     "Camera": "skyfix.camera",
     "Solution": "skyfix.solution",
     "load_hipparcos": "skyfix.catalog",
+    "load_gaia": "skyfix.catalog",
 }
 
 
