@@ -16,6 +16,7 @@ import pytest
 
 import skyfix.cache
 import skyfix.catalog
+import skyfix.identify.bands as bands_module
 import skyfix.identify.database as database_module
 from skyfix.cache import CorruptFileError, verify, write_npz
 from skyfix.catalog import load_hipparcos
@@ -33,7 +34,7 @@ def cold_cache(tmp_path, monkeypatch):
     cache = tmp_path / "cache"
     monkeypatch.setenv("SKYFIX_CACHE", str(cache))
     monkeypatch.setattr(skyfix.catalog, "_RAW", None)
-    monkeypatch.setattr(database_module, "_DEFAULT", {})
+    monkeypatch.setattr(bands_module, "_LOADED", {})
     monkeypatch.setattr(database_module, "epoch_now", lambda: EPOCH)
     return cache
 
@@ -191,7 +192,7 @@ def test_damaged_database_cache_is_rebuilt(cached_db, monkeypatch, damage):
     fresh = {k: v.copy() for k, v in _arrays(db).items()}
     del db
     damage(path)
-    monkeypatch.setattr(database_module, "_DEFAULT", {})
+    monkeypatch.setattr(bands_module, "_LOADED", {})
     again = default_database(FOV, FOV, progress=False)
     for name, value in fresh.items():
         assert np.array_equal(np.asarray(getattr(again, name)), value), name

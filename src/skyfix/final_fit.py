@@ -191,6 +191,8 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
     cam0: Camera = ident.camera
     prior = CameraPrior.uncalibrated(cam0.width, cam0.height)
     if database is None:
+        database = ident.database
+    if database is None:
         from skyfix.identify import default_database
 
         database = default_database()

@@ -14,9 +14,10 @@
 - :mod:`skyfix.identify.accept` — the rules that decide that a match is an identification.
 """
 
-from skyfix.identify.database import PatternDatabase, default_database, default_database_path
+from skyfix.identify.bands import BANDS, Band, band_database, default_database, default_database_path
+from skyfix.identify.database import PatternDatabase
 from skyfix.identify.methods import DEFAULT_METHOD, METHODS, get_method, identify, method_options
 from skyfix.identify.result import Identification
 
-__all__ = ["DEFAULT_METHOD", "METHODS", "Identification", "PatternDatabase", "default_database",
-           "default_database_path", "get_method", "identify", "method_options"]
+__all__ = ["BANDS", "Band", "DEFAULT_METHOD", "METHODS", "Identification", "PatternDatabase", "band_database",
+           "default_database", "default_database_path", "get_method", "identify", "method_options"]

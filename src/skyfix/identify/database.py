@@ -14,7 +14,6 @@ with a checksum that is checked on load (:mod:`skyfix.cache`).
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import math
@@ -30,20 +29,22 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from skyfix._kernels.rotation import chord_angle
-from skyfix.cache import CorruptFileError, cache_dir, exclusive_lock, notice, verify, write_npz
+from skyfix.cache import CorruptFileError, verify, write_npz
 from skyfix.catalog import Catalog, epoch_now, fibonacci_sphere, load_hipparcos
 from skyfix.errors import DatabaseError
 from skyfix.identify.hashing import build_table, edge_ratios, key_codes
 from skyfix.identify.kernel_data import PatternTable, StarIndex
 
-__all__ = ["PatternDatabase", "default_database", "default_database_path", "DATABASE_VERSION",
-           "ProgressCallback"]
+__all__ = ["PatternDatabase", "DATABASE_VERSION", "ProgressCallback", "readonly_view"]
 
 DATABASE_VERSION = 3
 _ARRAYS = ("star_ids", "star_vectors", "star_mag", "star_pm", "pattern_stars", "pattern_ratios",
            "pattern_largest", "key_codes", "key_start", "table", "cell_centres", "cell_start",
            "cell_stars")
-_N_CELLS = 3072  # sky cells of the star index used in verification (~3.7° apart)
+# Sky cells of the star index used in verification: 3072 (~3.7° apart) per 120,000 stars, so a
+# cell holds ~40 stars whatever the catalogue (Hipparcos: 3072; Gaia to G 10: 12,288, ~1.8° apart).
+_N_CELLS = 3072
+_STARS_PER_N_CELLS = 120_000
 # Build in chunks, so the peak memory is a few times the database's own size: lattice fields
 # per chunk ((fields, 70, 4) int32 combinations, ~18 MB at 8 stars per field) and patterns per
 # chunk of the edge-ratio computation (~200 bytes of float64 temporaries per pattern).
@@ -186,7 +187,8 @@ class PatternDatabase:
               catalog: Catalog | None = None, band_ratio: float = 1.35, stars_per_field: int = 8,
               field_radius: float = 0.4, lattice_step: float = 0.5, double_star_sep: float = 1 / 150,
               pattern_mag_limit: float = 8.5, n_bins: int = 25, epoch: float | None = None,
-              progress: bool | ProgressCallback = False) -> PatternDatabase:
+              progress: bool | ProgressCallback = False,
+              catalog_source: str = "hipparcos") -> PatternDatabase:
         """Build the database for cameras whose horizontal FOV is ``fov_min_deg``–``fov_max_deg``.
 
         Parameters
@@ -214,6 +216,9 @@ class PatternDatabase:
         progress : bool or callable
             True: a progress bar on stderr when it is a terminal (else log messages);
             a callable: called as ``progress(what, fraction_done)``.
+        catalog_source : str
+            What ``catalog`` is, recorded in ``meta`` (``"hipparcos"``, ``"gaia"``): a cached
+            database built from another is rebuilt (:mod:`skyfix.identify.bands`).
         """
         from skyfix.validate import check_fov_range  # the range solve and the CLI accept too
 
@@ -225,7 +230,14 @@ class PatternDatabase:
         with _reporter(progress, "building the pattern database") as report:
             settings = _BuildSettings(fov_min_deg, fov_max_deg, band_ratio, stars_per_field, field_radius,
                                       lattice_step, double_star_sep, pattern_mag_limit, n_bins)
-            return cls._build(settings, catalog, epoch, report)
+            db = cls._build(settings, catalog, epoch, report)
+            db.meta["catalog_source"] = catalog_source
+            return db
+
+    @staticmethod
+    def n_bands(fov_min_deg: float, fov_max_deg: float, band_ratio: float) -> int:
+        """How many FOV bands a build splits ``fov_min_deg``–``fov_max_deg`` into."""
+        return max(1, math.ceil(math.log(fov_max_deg / fov_min_deg) / math.log(band_ratio) - 1e-9) + 1)
 
     @classmethod
     def _build(cls, settings: _BuildSettings, catalog: Catalog | None, epoch: float | None,
@@ -235,7 +247,7 @@ class PatternDatabase:
         report("reading the star catalogue", 0.0)
         epoch = epoch_now() if epoch is None else float(epoch)
         cat = load_hipparcos(epoch=epoch) if catalog is None else catalog
-        n_bands = max(1, math.ceil(math.log(fov_max_deg / fov_min_deg) / math.log(band_ratio) - 1e-9) + 1)
+        n_bands = cls.n_bands(fov_min_deg, fov_max_deg, band_ratio)
         fovs = (np.geomspace(fov_min_deg, fov_max_deg, n_bands) if n_bands > 1
                 else np.array([fov_min_deg]))
         bright = np.flatnonzero(cat.mag <= pattern_mag_limit)
@@ -280,7 +292,8 @@ class PatternDatabase:
             ratios[part], largest[part] = edge_ratios(cat.vectors[quads[part]])
             report("edge ratios of the patterns", 0.92 + 0.06 * part.stop / len(quads))
         report("star index", 0.98)
-        cell_centres, cell_start, cell_stars, cell_radius = _cell_index(cat.vectors, _N_CELLS)
+        cell_centres, cell_start, cell_stars, cell_radius = _cell_index(
+            cat.vectors, _N_CELLS * max(1, round(len(cat.vectors) / _STARS_PER_N_CELLS)))
         meta = dict(version=DATABASE_VERSION, cell_radius=cell_radius, fov_min_deg=float(fov_min_deg),
                     fov_max_deg=float(fov_max_deg), band_fovs_deg=[float(f) for f in fovs],
                     n_bins=int(n_bins), epoch=epoch, stars_per_field=stars_per_field,
@@ -534,63 +547,3 @@ def _mmap_npz(fh: BinaryIO, path: Path) -> tuple[dict[str, np.ndarray], dict]:
                                       order="F" if fortran else "C") if nbytes else
                             np.zeros(shape, dtype))
     return arrays, meta
-
-
-def default_database_path(fov_min_deg: float = 10.0, fov_max_deg: float = 30.0) -> Path:
-    """Where the default database for a FOV range lives in the user cache."""
-    return cache_dir() / f"patterns_v{DATABASE_VERSION}_{fov_min_deg:g}-{fov_max_deg:g}deg.npz"
-
-
-_DEFAULT: dict[Path, PatternDatabase] = {}
-
-
-def default_database(fov_min_deg: float = 10.0, fov_max_deg: float = 30.0, *,
-                     progress: bool | ProgressCallback = True) -> PatternDatabase:
-    """The cached default database (built, with a progress bar, and saved if absent).
-
-    A cached file that is corrupt, truncated or unreadable is removed and rebuilt. Processes
-    that need the same missing database build it once: the others wait for it (a lock).
-    ``progress`` is as for :meth:`PatternDatabase.build`.
-    """
-    path = default_database_path(fov_min_deg, fov_max_deg)
-    if path in _DEFAULT:
-        return _DEFAULT[path]
-    db = _load_cached(path, remove_bad=False)
-    if db is None:
-        with exclusive_lock(path, lambda: _tell(progress, "waiting for another skyfix process to build "
-                                                          f"the pattern database {path.name}")):
-            db = _load_cached(path, remove_bad=True)  # another process may have built it
-            if db is None:
-                log.info("building the pattern database %s (first use)", path)  # the bar says so too
-                db = PatternDatabase.build(fov_min_deg, fov_max_deg, progress=progress)
-                try:
-                    db.save(path)
-                    db = PatternDatabase.load(path)
-                except (OSError, DatabaseError) as exc:  # unwritable cache: use the one in memory
-                    log.warning("cannot cache the pattern database in %s: %s", path, exc)
-    _DEFAULT[path] = db
-    return db
-
-
-def _tell(progress: bool | ProgressCallback, message: str) -> None:
-    """A message while waiting: to the progress callable, or a notice if ``progress`` is True."""
-    if callable(progress):
-        progress(message, 0.0)
-    elif progress:
-        notice(message)
-    else:
-        log.info("%s", message)
-
-
-def _load_cached(path: Path, *, remove_bad: bool) -> PatternDatabase | None:
-    """The database cached at ``path``, or None if absent or unusable (then removed if ``remove_bad``)."""
-    if not path.exists():
-        return None
-    try:
-        return PatternDatabase.load(path)
-    except DatabaseError as exc:
-        if remove_bad:
-            log.warning("rebuilding the cached pattern database: %s", exc)
-            with contextlib.suppress(OSError):  # then the new file is renamed over it
-                path.unlink(missing_ok=True)
-        return None

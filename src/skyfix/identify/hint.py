@@ -78,7 +78,8 @@ from skyfix.identify.accept import (
     refit_accepted,
     refit_focal_allowed,
 )
-from skyfix.identify.database import PatternDatabase, default_database
+from skyfix.identify.bands import database_for_fov
+from skyfix.identify.database import PatternDatabase
 from skyfix.identify.kernel_data import ImageStars, RefineSettings, Refit, StarIndex, ViewBuffers
 from skyfix.identify.refine import refine
 from skyfix.identify.result import Identification, finite_centroids
@@ -507,8 +508,8 @@ def identify_near(xy: np.ndarray, camera: Camera, A_hint: np.ndarray, uncertaint
         (0 < it ≤ 30°). The gate, and with it the work and the chance matches to beat, grow
         with it.
     database : PatternDatabase, optional
-        Whose star index is matched (default: :func:`~skyfix.identify.default_database`, as
-        lost in space).
+        Whose star index is matched (default: the default FOV band's that serves the camera,
+        :func:`~skyfix.identify.bands.database_for_fov`).
     epoch : float, optional
         Julian year of the catalogue positions returned (default: the database's).
     mag_limit : float, optional
@@ -552,7 +553,7 @@ def identify_near(xy: np.ndarray, camera: Camera, A_hint: np.ndarray, uncertaint
     n = len(xy)
     if n < 4:
         return _failure(f"too few stars ({n} detected, need 4)", t0)
-    db = default_database() if database is None else database
+    db = database_for_fov(camera.fov_deg) if database is None else database
     stars = db.star_index()
     if mag_limit is not None:  # the kernels read no star beyond len(vectors)
         n_bright = int(np.searchsorted(db.star_arrays()[1], mag_limit, side="right"))

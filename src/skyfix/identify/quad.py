@@ -27,13 +27,15 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
 from skyfix.identify.accept import refit_accepted, refit_focal_allowed
-from skyfix.identify.database import PatternDatabase, default_database, readonly_view
+from skyfix.identify.bands import BANDS, band_database, bands_for, served_fov_deg
+from skyfix.identify.database import PatternDatabase, readonly_view
 from skyfix.identify.kernel_data import (
     FocalRange,
     ImageStars,
@@ -51,7 +53,6 @@ from skyfix.identify.search import breadth_first_combinations, search_entry
 __all__ = ["METHOD", "identify"]
 
 METHOD = "quad-hash"
-_FOV_MARGIN = 1.35  # FOVs served beyond the database range (ratio)
 
 
 def _failure(reason: str, t0: float, n_tried: int = 0, n_cand: int = 0) -> Identification:
@@ -115,7 +116,9 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     camera : Camera, optional
         Calibrated camera (intrinsics and distortion used as given; overrides ``fov_deg``).
     database : PatternDatabase, optional
-        Default: :func:`~skyfix.identify.database.default_database`.
+        Default: the default FOV bands' databases (:mod:`skyfix.identify.bands`): those that serve
+        the FOV hint or the camera; with neither, all of them, the standard band first. Each is
+        built the first time a search reaches it.
     max_patterns : int
         Work bound: image 4-star combinations looked up.
     time_limit_s : float
@@ -155,33 +158,35 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         return _failure(f"too few stars ({n} detected, need 4)", t0)
     if fov_deg is not None and not 0.01 < fov_deg < 170.0:
         raise CameraError(f"impossible field of view {fov_deg}° (must be 0.01°–170°)")
-    db = default_database() if database is None else database
 
-    # Camera model and allowed focal-length range: the lattice fields let the database serve
-    # fields up to ~1.35× beyond its nominal FOV range.
-    f_db_lo = _focal_from_fov(width, db.fov_max_deg * _FOV_MARGIN)
-    f_db_hi = _focal_from_fov(width, db.fov_min_deg / _FOV_MARGIN)
+    # The focal lengths allowed, and the databases (or default FOV bands) that serve them.
     if camera is not None:
         f0 = float(camera.fx)
         f_lo, f_hi = f0 / 1.03, f0 * 1.03
+    elif fov_deg is not None:
+        tol = 0.1 * fov_deg if fov_tolerance_deg is None else fov_tolerance_deg
+        f0 = _focal_from_fov(width, fov_deg)
+        f_lo = _focal_from_fov(width, min(fov_deg + tol, 179.0))
+        f_hi = _focal_from_fov(width, max(fov_deg - tol, 1e-3))
     else:
-        if fov_deg is not None:
-            tol = 0.1 * fov_deg if fov_tolerance_deg is None else fov_tolerance_deg
-            f0 = _focal_from_fov(width, fov_deg)
-            f_lo = _focal_from_fov(width, min(fov_deg + tol, 179.0))
-            f_hi = _focal_from_fov(width, max(fov_deg - tol, 1e-3))
-        else:
-            f0 = math.sqrt(f_db_lo * f_db_hi)
-            f_lo, f_hi = f_db_lo, f_db_hi
-    if f_hi < f_db_lo or f_lo > f_db_hi:
-        fovs = [2 * math.degrees(math.atan(width / 2 / f)) for f in (f0, f_hi, f_lo)]
-        return _failure(_outside_database_reason(*fovs, db), t0)
+        f0, f_lo, f_hi = math.nan, 0.0, math.inf
+    hinted = (_fov_from_focal(width, f_hi), _fov_from_focal(width, f_lo)) if f_hi < math.inf else (None, None)
+    sources = [database] if database is not None else bands_for(*hinted)
+    passes = []
+    for source in sources:
+        served = served_fov_deg(source) if isinstance(source, PatternDatabase) else source.served_fov_deg
+        lo = max(f_lo, _focal_from_fov(width, min(served[1], 179.0)))
+        hi = min(f_hi, _focal_from_fov(width, served[0]))
+        if lo <= hi:
+            passes.append((source, (f0 if math.isfinite(f0) else math.sqrt(lo * hi), lo, hi)))
+    if not passes:
+        fov = camera.fov_deg if camera is not None else fov_deg
+        return _failure(_outside_reason(fov, *hinted, sources), t0)
     free_fov = camera is None and fov_deg is None
-    # Image stars as undistorted offsets from the principal point, scaled by f0.
+    # Image stars as undistorted offsets from the principal point (scaled by each pass's f0).
     n_pat = min(n, pattern_stars)
     n_p = max(n_pat, min(n, max(verify_stars, refine_stars)))
     cx, cy = (camera.cx, camera.cy) if camera is not None else ((width - 1) / 2.0, (height - 1) / 2.0)
-    p = camera.pixel_to_normalized(xy[:n_p]) * f0 if camera is not None else xy[:n_p] - np.array([cx, cy])
     combos = breadth_first_combinations(n_pat)
     n_verify = min(n, verify_stars)
     radius = match_radius * max(width, height)
@@ -193,79 +198,136 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                   ratio_tolerance if ratio_tolerance is not None else 0.006)]
     else:
         tiers = [(0.008, 0.002), (0.015 if free_fov else 0.010, 0.008 if camera is None else 0.004)]
-    # The frame's extent in p (undistorted at its corners: a bounding box, good enough for
-    # deciding which catalogue stars to expect).
-    if camera is not None:
-        corners = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [-0.5, height - 0.5],
-                            [width - 0.5, height - 0.5]])
-        c_p = camera.pixel_to_normalized(corners) * f0
-        frame = np.array([c_p[:, 0].min(), c_p[:, 0].max(), c_p[:, 1].min(), c_p[:, 1].max()])
-    else:
-        frame = np.array([-0.5 - cx, width - 0.5 - cx, -0.5 - cy, height - 0.5 - cy])
+    tiers = [tuple(Tolerances(float(eps_key), float(centroid_sigma_px), float(model_err)))
+             for eps_key, model_err in tiers]
     # on failure the frame is tried mirrored, briefly, with these options (see check_mirror)
-    retry = dict(fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=db,
+    retry = dict(fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database,
                  max_patterns=min(max_patterns, 200), time_limit_s=min(time_limit_s, 0.25), epoch=epoch,
                  pattern_stars=pattern_stars, verify_stars=verify_stars, refine_stars=refine_stars,
                  match_radius=match_radius, prob_threshold=prob_threshold,
                  centroid_sigma_px=centroid_sigma_px, ratio_tolerance=ratio_tolerance,
                  key_tolerance=key_tolerance, check_mirror=False) if check_mirror else None
     log_threshold = math.log(prob_threshold)
-    image = ImageStars(p, frame)
-    ctx = _Context(kept, (int(width), int(height), cx, cy), camera, image,
-                   RefineSettings(camera is None, 12, n_verify, min(n, refine_stars), float(radius),
-                                  float(centroid_sigma_px), 3),
-                   db, epoch, log_threshold, t0)
-    # The kernels' NamedTuple arguments as plain tuples (search_entry: kernel_data says why).
-    plain = dict(image=tuple(image), focal=tuple(FocalRange(f0, f_lo, f_hi, camera is not None)),
-                 patterns=tuple(db.pattern_table()), stars=tuple(db.star_index()),
-                 verification=tuple(VerifySettings(n_verify, float(radius), log_threshold)))
-    tiers = [tuple(Tolerances(float(eps_key), float(centroid_sigma_px), float(model_err)))
-             for eps_key, model_err in tiers]
+    refit = RefineSettings(camera is None, 12, n_verify, min(n, refine_stars), float(radius),
+                           float(centroid_sigma_px), 3)
+    verification = tuple(VerifySettings(n_verify, float(radius), log_threshold))
+    searches = [_Search(source, focal, camera, xy[:n_p], (int(width), int(height), cx, cy), len(tiers),
+                        16 if i == 0 else 4) for i, (source, focal) in enumerate(passes)]
     total = min(len(combos), max_patterns)
-    pos = [0] * len(tiers)
     n_lookups = n_cand = 0
-    chunk = 16
     while True:
+        # The database that has taken the least time so far goes next (the first one, the common
+        # case, first), one chunk of patterns longer than its last: a database whose wrong
+        # candidates are cheap to reject gets through more patterns in the same time.
+        search = min((s for s in searches if s.pos[0] < total), key=lambda s: s.spent_s, default=None)
+        if search is None:
+            break
+        t_start = time.perf_counter()
+        target = min(total, search.pos[0] + search.chunk)
+        search.chunk = min(2 * search.chunk, 512)
         for tier, tolerances in enumerate(tiers):
-            if tier == 0:
-                target = min(total, pos[0] + chunk)
-                chunk = min(chunk * 2, 512)
-            else:
-                target = total if pos[0] >= total else pos[0] // 4
-            while pos[tier] < target:
+            # the loose tier lags the tight one by a factor of 4 in patterns
+            goal = target if tier == 0 or target >= total else target // 4
+            while search.pos[tier] < goal:
                 if n_lookups and time.perf_counter() - t0 > time_limit_s:
-                    return _failure(f"time limit {time_limit_s:g} s reached after {max(pos)} patterns"
-                                    + _mirror_note(xy, width, height, cx, retry), t0, max(pos), n_cand)
-                start = pos[tier]
-                stop = min(target, start + 512)
-                hit = search_entry(plain["image"], combos, start, stop, plain["focal"], tolerances,
-                                   plain["patterns"], plain["stars"], plain["verification"], n_cand)
-                pos[tier] = start + hit.n_done
+                    n_tried = max(s.pos[0] for s in searches)
+                    return _failure(f"time limit {time_limit_s:g} s reached after {n_tried} patterns"
+                                    + _mirror_note(xy, width, height, cx, retry), t0, n_tried, n_cand)
+                start = search.pos[tier]
+                stop = min(goal, start + 512)
+                plain = search.plain()
+                hit = search_entry(plain.image, combos, start, stop, plain.focal, tolerances,
+                                   plain.patterns, plain.stars, verification, n_cand)
+                search.pos[tier] = start + hit.n_done
                 n_lookups += hit.n_done
                 n_cand += hit.n_candidates
                 if hit.found:
-                    res = _finish(ctx, hit, max(pos), n_cand)
-                    if res is not None and refit_focal_allowed(res.camera.fx, f_lo, f_hi):  # accept rule 7
+                    ctx = _Context(kept, search.geometry, camera, plain.image_stars, refit, search.database(),
+                                   epoch, log_threshold, t0)
+                    res = _finish(ctx, hit, max(s.pos[0] for s in searches), n_cand)
+                    if res is not None and refit_focal_allowed(res.camera.fx, *search.focal[1:]):  # rule 7
                         return res
                     # A refit that fails or leaves the allowed range: search on.
-        if all(q >= total for q in pos):
-            break
-    n_tried = max(pos)
+        search.spent_s += time.perf_counter() - t_start
+    n_tried = max(s.pos[0] for s in searches)
     return _failure(f"no match after {n_tried} patterns ({n_cand} candidates verified)"
                     + _mirror_note(xy, width, height, cx, retry), t0, n_tried, n_cand)
 
 
-def _outside_database_reason(fov: float, fov_lo: float, fov_hi: float, db: PatternDatabase) -> str:
-    """The failure reason for a FOV (allowed ``fov_lo``–``fov_hi``) the database cannot serve, with
+class _Plain(NamedTuple):
+    """One search's kernel arguments, the NamedTuples as plain tuples (kernel_data says why)."""
+
+    image_stars: ImageStars
+    image: tuple
+    focal: tuple
+    patterns: tuple
+    stars: tuple
+
+
+class _Search:
+    """The 4-star search of one frame in one database: where it stands (``pos``: image patterns
+    looked up at each tolerance tier; ``spent_s``: time taken; ``chunk``: patterns in its next
+    turn) and, loaded on first use (a default band's database is built then, the first time one
+    is needed), the kernels' arguments."""
+
+    def __init__(self, source, focal: tuple[float, float, float], camera: Camera | None, xy: np.ndarray,
+                 geometry: tuple[int, int, float, float], n_tiers: int, first_chunk: int) -> None:
+        self.source, self.focal, self.camera, self.xy, self.geometry = source, focal, camera, xy, geometry
+        self.pos = [0] * n_tiers
+        self.spent_s = 0.0
+        self.chunk = first_chunk
+        self._plain: _Plain | None = None
+
+    def database(self) -> PatternDatabase:
+        return self.source if isinstance(self.source, PatternDatabase) else band_database(self.source)
+
+    def plain(self) -> _Plain:
+        if self._plain is None:
+            self._plain = self._arguments()
+        return self._plain
+
+    def _arguments(self) -> _Plain:
+        width, height, cx, cy = self.geometry
+        f0 = self.focal[0]
+        camera = self.camera
+        if camera is not None:
+            p = camera.pixel_to_normalized(self.xy) * f0
+            # The frame's extent in p (undistorted at its corners: a bounding box, good enough
+            # for deciding which catalogue stars to expect).
+            corners = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [-0.5, height - 0.5],
+                                [width - 0.5, height - 0.5]])
+            c_p = camera.pixel_to_normalized(corners) * f0
+            frame = np.array([c_p[:, 0].min(), c_p[:, 0].max(), c_p[:, 1].min(), c_p[:, 1].max()])
+        else:
+            p = self.xy - np.array([cx, cy])
+            frame = np.array([-0.5 - cx, width - 0.5 - cx, -0.5 - cy, height - 0.5 - cy])
+        db = self.database()
+        image = ImageStars(p, frame)
+        return _Plain(image, tuple(image), tuple(FocalRange(*self.focal, camera is not None)),
+                      tuple(db.pattern_table()), tuple(db.star_index()))
+
+
+def _fov_from_focal(width: int, f: float) -> float:
+    return 2.0 * math.degrees(math.atan(width / 2.0 / f))
+
+
+def _outside_reason(fov: float | None, fov_lo: float | None, fov_hi: float | None, sources: list) -> str:
+    """The failure reason for a FOV (allowed ``fov_lo``–``fov_hi``) no database can serve, with
     the commands that build and use one that can."""
     from skyfix.validate import FOV_RANGE_DEG
 
+    if not sources:
+        lo_all, hi_all = BANDS[1].served_fov_deg[0], BANDS[2].served_fov_deg[1]
+        return (f"field of view {fov:.3g}° is outside every default FOV band (they serve "
+                f"{lo_all:.3g}–{hi_all:.3g}°)")
+    db = sources[0]
     lo = max(FOV_RANGE_DEG[0], math.floor(fov_lo + 1e-9))
     hi = min(FOV_RANGE_DEG[1], math.ceil(fov_hi - 1e-9))
     out = f"patterns-{lo:g}-{hi:g}deg.npz"
+    served = served_fov_deg(db)
     return (f"field of view {fov:.3g}° is outside the pattern database's range "
-            f"{db.fov_min_deg:g}–{db.fov_max_deg:g}° (it serves {db.fov_min_deg / _FOV_MARGIN:.3g}–"
-            f"{db.fov_max_deg * _FOV_MARGIN:.3g}°); build one that covers it: "
+            f"{db.fov_min_deg:g}–{db.fov_max_deg:g}° (it serves {served[0]:.3g}–"
+            f"{served[1]:.3g}°); build one that covers it: "
             f"`skyfix database build --fov-min {lo:g} --fov-max {hi:g} -o {out}`, "
             f"then `skyfix solve --database {out} ...`")
 
@@ -330,4 +392,4 @@ def _finish(ctx: _Context, hit: SearchResult, n_tried: int, n_cand: int) -> Iden
     return Identification(
         True, "", star_index, star_ids[cat_index], db.vectors_at(cat_index, ctx.epoch), star_mag[cat_index],
         fit.A_icrs_to_cam, camera, float(min(math.exp(hit.log_prob_false), 1.0)), n_tried, n_cand, METHOD,
-        time.perf_counter() - ctx.t0, r_final)
+        time.perf_counter() - ctx.t0, r_final, database=db)

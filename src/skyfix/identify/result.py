@@ -32,6 +32,8 @@ class Identification:
     method : str — the method's name in :data:`skyfix.identify.METHODS`.
     time_s : float — wall time of the identification (attitude fit included).
     match_radius_px : float — radius of the last matching pass of the refit, px.
+    database : PatternDatabase or None — the database whose catalogue stars were matched (the
+        final fit re-matches against the same stars).
     """
 
     success: bool
@@ -48,6 +50,7 @@ class Identification:
     method: str = ""
     time_s: float = 0.0
     match_radius_px: float = 0.0
+    database: object = None
 
     @property
     def n_matched(self) -> int:
