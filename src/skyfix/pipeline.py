@@ -6,6 +6,7 @@ of its own module; this one only composes them, times them and fills in the Solu
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -244,15 +245,19 @@ def _solve_near(sol: Solution, xy: np.ndarray, width: int, height: int, hint, fo
     if camera is None and fov_deg is None:
         return "no camera or FOV given: the hint needs the image scale"
     t0 = time.perf_counter()
-    near = identify_near(xy, camera if camera is not None else Camera.from_fov(width, height, fov_deg),
-                         hint.A_icrs_to_cam, hint.uncertainty_rad, database=database, epoch=epoch,
+    cam = camera if camera is not None else Camera.from_fov(width, height, fov_deg)
+    if database is None:
+        from skyfix.identify.bands import database_for_fov
+
+        database = database_for_fov(cam.fov_deg)
+    near = identify_near(xy, cam, hint.A_icrs_to_cam, hint.uncertainty_rad, database=database, epoch=epoch,
                          fit_camera=camera is None, fov_tolerance_deg=fov_tolerance_deg,
                          **{k: identify_options[k] for k in _HINT_OPTIONS if k in identify_options})
     t1 = time.perf_counter()
     sol.time_ms = {"identify": 1e3 * (t1 - t0)}
     if not near.ok:
         return near.reason
-    ident = near.identification()
+    ident = dataclasses.replace(near.identification(), database=database)
     sol.method = ident.method
     _fill_attitude(sol, xy, ident, attitude_method, **fit_options)
     sol.time_ms["attitude"] = 1e3 * (time.perf_counter() - t1)
@@ -308,6 +313,10 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     sol.rmse_arcsec = rmse / _ARCSEC
     sol.A_icrs_to_cam = A
     sol.camera = camera
+    db = ident.database if ident.database is not None else database
+    if db is not None:
+        sol.catalog = str(db.meta.get("catalog", ""))
+        sol.catalog_epoch = float(epoch if epoch is not None else db.epoch)
     x, y, ra, dec, mag, resid = table.tolist()
     sol.matches = list(map(Match, x, y, np.asarray(fit.catalog_ids).tolist(), ra, dec, mag, resid))
 

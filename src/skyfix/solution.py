@@ -48,6 +48,8 @@ class Solution:
     prob_false: float | None = None
     rmse_arcsec: float | None = None
     method: str = ""
+    catalog: str = ""  #: the star catalogue matched (e.g. "Hipparcos 2", "Gaia DR3 + Hipparcos 2 (G, …)")
+    catalog_epoch: float | None = None  #: Julian year its positions were moved to (proper motion)
     # Tracking (skyfix.track.Tracker) only; None, and left out of the JSON, from solve().
     mode: str | None = None  #: "lost", "acquiring" or "tracking": the tracker state that made it
     frame_time_s: float | None = None  #: the frame's time as given to Tracker.update, seconds
