@@ -33,7 +33,8 @@ from skyfix.camera import Camera
 from skyfix.identify.accept import WRONG_BORESIGHT_ARCSEC, WRONG_ROLL_DEG
 
 __all__ = ["Trial", "UncalibratedField", "attitude_error_rad", "is_wrong", "preset_image_trials",
-           "random_uncalibrated_camera", "summarize", "uncalibrated_centroid_trials", "uncalibrated_fields"]
+           "random_uncalibrated_camera", "summarize", "trial_result", "uncalibrated_centroid_trials",
+           "uncalibrated_fields"]
 
 _ARCSEC = math.pi / (180.0 * 3600.0)
 
@@ -80,7 +81,8 @@ def random_uncalibrated_camera(rng: np.random.Generator) -> Camera:
                   (height - 1) / 2.0 + offset * math.sin(angle), k1=rng.uniform(-0.3, 0.3))
 
 
-def _trial(sol, A_true: np.ndarray, camera_true: Camera, n_stars: int) -> Trial:
+def trial_result(sol, A_true: np.ndarray, camera_true: Camera, n_stars: int) -> Trial:
+    """A solve of a frame with ``n_stars`` catalogue stars in view judged against its truth."""
     scale = math.degrees(camera_true.plate_scale_rad) * 3600.0
     if sol.status != "solved":
         nan = np.full(3, np.nan)
@@ -128,7 +130,7 @@ def uncalibrated_centroid_trials(n: int, seed: int = 0, *, epoch: float = 2025.0
     trials: list[Trial] = []
     for f in itertools.islice(uncalibrated_fields(seed, epoch=epoch), n):
         sol = solve_centroids(f.field.xy, f.camera.width, f.camera.height, epoch=epoch)
-        trials.append(_trial(sol, f.A_icrs_to_cam, f.camera, f.n_stars))
+        trials.append(trial_result(sol, f.A_icrs_to_cam, f.camera, f.n_stars))
         if progress is not None:
             progress(1)
     return trials
@@ -152,7 +154,7 @@ def preset_image_trials(preset: str, n: int, seed: int = 0, *, false_stars: int 
         sol = solve(frame.image, epoch=epoch)
         n_stars = sum(1 for s in frame.truth["stars"]
                       if -0.5 <= s["x"] <= camera.width - 0.5 and -0.5 <= s["y"] <= camera.height - 0.5)
-        trials.append(_trial(sol, A, camera, n_stars))
+        trials.append(trial_result(sol, A, camera, n_stars))
         if progress is not None:
             progress(1)
     return trials

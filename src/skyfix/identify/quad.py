@@ -31,6 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from skyfix._kernels import lens
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
 from skyfix.identify.accept import refit_accepted, refit_focal_allowed
@@ -82,6 +83,7 @@ def _compile_kernels() -> None:
                  tuple(patterns), tuple(stars), tuple(VerifySettings(4, 5.0, -20.0)), 0)
     settings = RefineSettings(True, 12, 4, 4, 5.0, 1.0, 1)
     refine_entry(tuple(image), np.eye(3), 1000.0, tuple(settings), tuple(stars))
+    _undistorted_offsets(image.offsets_px, -1e-7)  # the wide searches' distortion hypotheses
     _COMPILED = True
 
 
@@ -211,8 +213,10 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     refit = RefineSettings(camera is None, 12, n_verify, min(n, refine_stars), float(radius),
                            float(centroid_sigma_px), 3)
     verification = tuple(VerifySettings(n_verify, float(radius), log_threshold))
-    searches = [_Search(source, focal, camera, xy[:n_p], (int(width), int(height), cx, cy), len(tiers),
-                        16 if i == 0 else 4) for i, (source, focal) in enumerate(passes)]
+    geometry = (int(width), int(height), cx, cy)
+    searches = [_Search(source, focal, camera, xy[:n_p], geometry, len(tiers), 16 if i == 0 else 4, kappa)
+                for i, (source, focal) in enumerate(passes)
+                for kappa in _distortion_hypotheses(camera, focal, geometry)]
     total = min(len(combos), max_patterns)
     n_lookups = n_cand = 0
     while True:
@@ -243,7 +247,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 n_cand += hit.n_candidates
                 if hit.found:
                     ctx = _Context(kept, search.geometry, camera, plain.image_stars, refit, search.database(),
-                                   epoch, log_threshold, t0)
+                                   epoch, log_threshold, t0, search.kappa)
                     res = _finish(ctx, hit, max(s.pos[0] for s in searches), n_cand)
                     if res is not None and refit_focal_allowed(res.camera.fx, *search.focal[1:]):  # rule 7
                         return res
@@ -271,8 +275,10 @@ class _Search:
     is needed), the kernels' arguments."""
 
     def __init__(self, source, focal: tuple[float, float, float], camera: Camera | None, xy: np.ndarray,
-                 geometry: tuple[int, int, float, float], n_tiers: int, first_chunk: int) -> None:
+                 geometry: tuple[int, int, float, float], n_tiers: int, first_chunk: int,
+                 kappa: float) -> None:
         self.source, self.focal, self.camera, self.xy, self.geometry = source, focal, camera, xy, geometry
+        self.kappa = kappa  # the radial distortion assumed, px⁻² (see _distortion_hypotheses)
         self.pos = [0] * n_tiers
         self.spent_s = 0.0
         self.chunk = first_chunk
@@ -299,12 +305,67 @@ class _Search:
             c_p = camera.pixel_to_normalized(corners) * f0
             frame = np.array([c_p[:, 0].min(), c_p[:, 0].max(), c_p[:, 1].min(), c_p[:, 1].max()])
         else:
-            p = self.xy - np.array([cx, cy])
-            frame = np.array([-0.5 - cx, width - 0.5 - cx, -0.5 - cy, height - 0.5 - cy])
+            p = _undistorted_offsets(self.xy - np.array([cx, cy]), self.kappa)
+            corners = np.array([[-0.5 - cx, -0.5 - cy], [width - 0.5 - cx, height - 0.5 - cy]])
+            c_p = _undistorted_offsets(corners, self.kappa)  # a barrel's corners: the extremes
+            frame = np.array([c_p[0, 0], c_p[1, 0], c_p[0, 1], c_p[1, 1]])
         db = self.database()
         image = ImageStars(p, frame)
         return _Plain(image, tuple(image), tuple(FocalRange(*self.focal, camera is not None)),
                       tuple(db.pattern_table()), tuple(db.star_index()))
+
+
+# Radial distortion assumed by the searches of wide fields with no camera, as the share by which
+# it moves the frame's corner in (barrel, negative) or out: a lens of k1 = −0.3 squeezes the
+# corner of a 45° frame by ~9 %, of a 60° frame by ~22 %, beyond what the tolerance tiers absorb
+# (~6 %); each share is a search of its own. Shares beyond −1/3 fold the frame (no lens does).
+_CORNER_DISTORTION = (0.0, -0.12, -0.24)
+_DISTORTION_MIN_FOV_DEG = 40.0  # narrower fields: the loose tier absorbs their distortion
+
+
+def _distortion_hypotheses(camera: Camera | None, focal: tuple[float, float, float],
+                           geometry: tuple[int, int, float, float]) -> list[float]:
+    """The radial distortions (κ, px⁻²: a pixel offset ``p`` from the principal point is seen at
+    ``p (1 + κ |p|²)``) a search with this focal range assumes: none with a camera or when every
+    focal length allowed is narrower than :data:`_DISTORTION_MIN_FOV_DEG` (at the middle of the
+    range: a wide band's search, not the standard band's, which serves up to 40°); else one per
+    :data:`_CORNER_DISTORTION` share ``q`` (the corner at ``c`` px is seen at ``c`` from
+    ``c / (1 + q)``, so ``κ = q (1 + q)² / c²``). A pixel-space κ needs no focal length: the
+    hypothesis holds across the band."""
+    width, height, cx, cy = geometry
+    if camera is not None or _fov_from_focal(width, math.sqrt(focal[1] * focal[2])) < _DISTORTION_MIN_FOV_DEG:
+        return [0.0]
+    return [q * (1.0 + q) ** 2 / _half_diagonal(geometry) ** 2 for q in _CORNER_DISTORTION]
+
+
+def _composed_distortion(k1: float, k_px: float, r_max: float) -> tuple[float, float, float]:
+    """Brown–Conrady ``k1, k2, k3`` of the refit's radial ``k1`` (of offsets a search undistorted by
+    κ) followed by that κ (``k_px = κ f²``): ``r_d = r (1 + k1 r²)(1 + k_px r² (1 + k1 r²)²)``, fitted
+    by least squares over the frame's radii (to ``r_max``, normalised); without κ, ``(k1, 0, 0)``."""
+    if k_px == 0.0:
+        return k1, 0.0, 0.0
+    r2 = np.linspace(0.0, 1.2 * r_max, 64)[1:] ** 2
+    radial = (1.0 + k1 * r2) * (1.0 + k_px * r2 * (1.0 + k1 * r2) ** 2) - 1.0
+    coef = np.linalg.lstsq(np.stack([r2, r2**2, r2**3], axis=1), radial, rcond=None)[0]
+    return float(coef[0]), float(coef[1]), float(coef[2])
+
+
+def _half_diagonal(geometry: tuple[int, int, float, float]) -> float:
+    """The largest distance from the principal point to a corner of the frame, pixels."""
+    width, height, cx, cy = geometry
+    return math.hypot(max(cx + 0.5, width - 0.5 - cx), max(cy + 0.5, height - 0.5 - cy))
+
+
+def _undistorted_offsets(p: np.ndarray, kappa: float) -> np.ndarray:
+    """Offsets ``p`` (N, 2) seen through the pixel-space radial distortion ``kappa`` (see
+    :func:`_distortion_hypotheses`), undistorted: the camera model's own inversion
+    (:func:`skyfix._kernels.lens.undistort`) with a unit focal length, so it works in pixels."""
+    if kappa == 0.0:
+        return p
+    numbers = lens.camera_numbers(Camera(width=2, height=2, fx=1.0, fy=1.0, cx=0.0, cy=0.0))
+    numbers[lens.K1] = kappa
+    x, y = lens.undistort(np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1]), numbers)
+    return np.stack([x, y], axis=1)
 
 
 def _fov_from_focal(width: int, f: float) -> float:
@@ -365,6 +426,7 @@ class _Context:
     epoch: float | None
     log_threshold: float
     t0: float
+    kappa: float = 0.0  # the radial distortion the search assumed, px⁻² (_distortion_hypotheses)
 
 
 def _finish(ctx: _Context, hit: SearchResult, n_tried: int, n_cand: int) -> Identification | None:
@@ -385,7 +447,9 @@ def _finish(ctx: _Context, hit: SearchResult, n_tried: int, n_cand: int) -> Iden
     if camera is None:
         width, height, cx, cy = ctx.geometry
         f_fit = float(fit.focal_px)
-        camera = Camera(width=width, height=height, fx=f_fit, fy=f_fit, cx=cx, cy=cy, k1=float(fit.k1))
+        k1, k2, k3 = _composed_distortion(float(fit.k1), ctx.kappa * f_fit * f_fit,
+                                          _half_diagonal(ctx.geometry) / f_fit)
+        camera = Camera(width=width, height=height, fx=f_fit, fy=f_fit, cx=cx, cy=cy, k1=k1, k2=k2, k3=k3)
     if ctx.kept is not None:
         star_index = ctx.kept[star_index]
     star_ids, star_mag, _ = db.star_arrays()
