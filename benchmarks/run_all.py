@@ -9,6 +9,7 @@
   d  extraction ms/MP, end-to-end time, database build/load suite_speed.py
   e  blind solves: wrong attitudes, honest error bars (skyfix) suite_blind.py  (not in the default set)
   f  tracking update vs lost in space on the same frames      suite_track.py  (not in the default set)
+  g  any field 2-90 deg with no hint, band builds (skyfix)     suite_fields.py (not in the default set)
 """
 
 from __future__ import annotations
@@ -172,6 +173,12 @@ def main(argv: list[str] | None = None) -> int:
                 results["tracking"] = suite_track.run(n_frames=10 if args.quick else 20,
                                                       repeats=2 if args.quick else 5)
                 write_json("tracking", results["tracking"])
+            elif key == "g":
+                import suite_fields
+
+                results["fields"] = suite_fields.run(n=20 if args.quick else 100,
+                                                     n_images=3 if args.quick else 10)
+                write_json("fields", results["fields"])
             else:
                 say(f"unknown suite {key!r}")
                 continue
