@@ -31,6 +31,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import os
 from pathlib import Path
 from typing import NamedTuple
 
@@ -125,7 +126,7 @@ def default_database_path(fov_min_deg: float = 10.0, fov_max_deg: float = 30.0,
     return cache_dir() / f"patterns_v{DATABASE_VERSION}_{prefix}{fov_min_deg:g}-{fov_max_deg:g}deg.npz"
 
 
-_LOADED: dict[Path, PatternDatabase] = {}
+_LOADED: dict[tuple[Band, str | None], PatternDatabase] = {}
 
 
 def band_database(band: Band, *, progress: bool | ProgressCallback = True) -> PatternDatabase:
@@ -135,9 +136,10 @@ def band_database(band: Band, *, progress: bool | ProgressCallback = True) -> Pa
     rebuilt. Processes that need the same missing database build it once: the others wait for it
     (a lock). ``progress`` is as for :meth:`PatternDatabase.build`.
     """
+    key = (band, os.environ.get("SKYFIX_CACHE"))  # cheaper than the path (cache_dir asks platformdirs)
+    if key in _LOADED:
+        return _LOADED[key]
     path = band.path
-    if path in _LOADED:
-        return _LOADED[path]
     db = _load_cached(path, band, remove_bad=False)
     if db is None:
         with exclusive_lock(path, lambda: _tell(progress, "waiting for another skyfix process to build "
@@ -151,7 +153,7 @@ def band_database(band: Band, *, progress: bool | ProgressCallback = True) -> Pa
                     db = PatternDatabase.load(path)
                 except (OSError, DatabaseError) as exc:  # unwritable cache: use the one in memory
                     log.warning("cannot cache the pattern database in %s: %s", path, exc)
-    _LOADED[path] = db
+    _LOADED[key] = db
     return db
 
 
