@@ -100,3 +100,15 @@ def test_the_standard_band_is_the_default_database_and_the_solution_names_its_ca
     assert sol.solved and sol.catalog == "Hipparcos 2" and sol.catalog_epoch == 2025.0
     err = attitude_error_rad(sol.A_icrs_to_cam, sol.camera, A, cam)
     assert math.hypot(err[0], err[1]) / ARCSEC < 5.0
+
+
+def test_cli_builds_every_default_band_and_says_what_it_serves():
+    from typer.testing import CliRunner
+
+    from skyfix.cli import app
+
+    result = CliRunner().invoke(app, ["database", "build", "--default-bands"])
+    assert result.exit_code == 0, result.output
+    lines = result.output.strip().splitlines()
+    assert [line.split(":")[0] for line in lines] == ["standard", "narrow", "wide"]
+    assert "serves 1.48–8.1°" in lines[1] and "482176 stars" in lines[1]

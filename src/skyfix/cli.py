@@ -229,12 +229,29 @@ def database_build(
     fov_min: float = typer.Option(10.0, help="Smallest field of view, degrees."),
     fov_max: float = typer.Option(30.0, help="Largest field of view, degrees."),
     output: Path = typer.Option(None, "--output", "-o", help="Where to write (default: user cache)."),
+    default_bands: bool = typer.Option(False, "--default-bands",
+                                       help="Build every default FOV band (2–90°) into the user cache now, "
+                                            "instead of on first need."),
     verbose: int = VERBOSE,
 ) -> None:
     """Build the lost-in-space pattern database for a FOV range (it serves fields about 1.35×
-    beyond it on either side)."""
+    beyond it on either side), or every default FOV band (--default-bands)."""
     add_verbosity(verbose)
     from skyfix.identify import PatternDatabase, default_database_path
+
+    if default_bands:
+        import time
+
+        from skyfix.identify import BANDS, band_database
+
+        for band in BANDS:
+            t0 = time.perf_counter()
+            db = band_database(band, progress=True)
+            lo, hi = band.served_fov_deg
+            typer.echo(f"{band.name}: {band.path} ({len(db)} patterns of {len(db.star_ids)} stars, serves "
+                       f"{lo:.3g}–{hi:.3g}°, {band.path.stat().st_size / 1e6:.0f} MB, "
+                       f"{time.perf_counter() - t0:.1f} s)")
+        return
 
     check_fov_range(fov_min, fov_max, ("--fov-min", "--fov-max"))
     path = output or default_database_path(fov_min, fov_max)
