@@ -111,7 +111,7 @@ def _residuals_batch(camera, params, ps: np.ndarray, rays0: np.ndarray,
         R, ch = _unpack(camera, params, p)
         rots.append(R)
         cams.append([ch.get(k, getattr(camera, k)) for k in lens.CAMERA_NUMBERS])
-    fx, fy, cx, cy, skew, k1, k2, k3, p1, p2 = (c[:, None] for c in np.array(cams).T)
+    fx, fy, cx, cy, skew, k1, k2, k3, p1, p2, *_ = (c[:, None] for c in np.array(cams).T)
     rays = np.einsum("kij,nj->kni", np.array(rots), rays0)
     xn = rays[..., 0] / rays[..., 2]
     yn = rays[..., 1] / rays[..., 2]

@@ -1,9 +1,12 @@
-"""Camera model: pinhole intrinsics + OpenCV Brown–Conrady distortion, pixel <-> ray, TOML I/O.
+"""Camera model: intrinsics and a projection by name — ``pinhole`` with OpenCV's Brown–Conrady
+distortion, or ``kannala-brandt`` (OpenCV's ``cv::fisheye``; all ``k = 0`` is the equidistant
+fisheye) — pixel <-> ray, TOML I/O.
 
 Conventions (docs/design.md#conventions): pixel ``(x, y)`` = (column, row), 0-based, ``(0, 0)`` is the centre
 of the top-left pixel. Camera ``+z`` is the boresight, ``+x`` toward increasing column,
-``+y`` toward increasing row. ``x_n = X/Z``, ``y_n = Y/Z``; distortion acts on ``(x_n, y_n)``;
-``u = fx·x_d + s·y_d + cx``, ``v = fy·y_d + cy``.
+``+y`` toward increasing row. ``x_n = X/Z``, ``y_n = Y/Z``; the projection's distortion acts on
+``(x_n, y_n)``; ``u = fx·x_d + s·y_d + cx``, ``v = fy·y_d + cy``. The formulas are
+:mod:`skyfix._kernels.lens`'s (docs/design.md#the-camera-model).
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ import math
 import operator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import tomllib
@@ -20,15 +24,39 @@ import tomllib
 from skyfix._kernels import lens
 from skyfix.errors import CameraError
 
-__all__ = ["Camera", "PRESETS", "camera_from_preset"]
+__all__ = ["Camera", "PRESETS", "PROJECTIONS", "PROJECTION_ALIASES", "Projection", "camera_from_preset"]
 
-_FLOAT_KEYS = lens.CAMERA_NUMBERS
+
+class Projection(NamedTuple):
+    """A projection's kernel code (the number at ``lens.PROJECTION``) and its distortion
+    coefficients (Camera fields, written to TOML in this order)."""
+
+    code: float
+    coefficients: tuple[str, ...]
+
+
+# The projections by name (docs/design.md#the-camera-model).
+PROJECTIONS: dict[str, Projection] = {
+    "pinhole": Projection(lens.PINHOLE, ("k1", "k2", "k3", "p1", "p2")),
+    "kannala-brandt": Projection(lens.KANNALA_BRANDT, ("k1", "k2", "k3", "k4")),
+}
+# Other names a camera file may give: equidistant is Kannala–Brandt with every k = 0.
+PROJECTION_ALIASES = {"equidistant": "kannala-brandt"}
+_PROJECTION_OF_CODE = {p.code: name for name, p in PROJECTIONS.items()}
+_KNOWN_PROJECTIONS = ", ".join([*PROJECTIONS, *PROJECTION_ALIASES])
+
+# The camera's floating-point fields: its numbers for kernels less the projection's code.
+_FLOAT_KEYS = tuple(k for k in lens.CAMERA_NUMBERS if k != "projection_code")
 _float_values = operator.attrgetter(*_FLOAT_KEYS)
+_INTRINSICS = ("fx", "fy", "cx", "cy", "skew")
 
 
 @dataclass(frozen=True)
 class Camera:
-    """Intrinsics (pixels) and Brown–Conrady distortion coefficients (OpenCV's meaning)."""
+    """Intrinsics (pixels), a projection by name (:data:`PROJECTIONS`) and its distortion
+    coefficients, OpenCV's meaning: for ``pinhole`` Brown–Conrady's ``k1, k2, k3, p1, p2``
+    (``k4`` is 0), for ``kannala-brandt`` the θ polynomial's ``k1 … k4`` (``p1, p2`` are 0).
+    ``projection="equidistant"`` is kept as ``kannala-brandt`` with every ``k = 0``."""
 
     width: int
     height: int
@@ -45,8 +73,12 @@ class Camera:
     name: str = ""
     pixel_pitch_um: float | None = None
     focal_length_mm: float | None = None
+    k4: float = 0.0
+    projection: str = "pinhole"
 
     def __post_init__(self) -> None:
+        if self.projection != "pinhole" or self.k4 != 0.0:
+            self._check_projection()
         if not (int(self.width) > 0 and int(self.height) > 0):
             raise CameraError(f"camera size must be positive, got {self.width}x{self.height}")
         if not all(math.isfinite(float(v)) for v in _float_values(self)):
@@ -55,17 +87,47 @@ class Camera:
             raise CameraError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
         fov = self.fov_deg
         if not 0.01 < fov < 170.0:
+            if math.isnan(fov):
+                raise CameraError(f"the {self.projection} polynomial (k1..k4) never reaches the frame's "
+                                  "side edge")
             raise CameraError(f"impossible field of view {fov:.4g}° (must be 0.01°–170°)")
+
+    def _check_projection(self) -> None:
+        """Resolve an alias to its projection's name; a coefficient of another projection is an error."""
+        name = self.projection
+        if not isinstance(name, str) or PROJECTION_ALIASES.get(name, name) not in PROJECTIONS:
+            raise CameraError(f"unknown camera projection {name!r}; known: {_KNOWN_PROJECTIONS}")
+        if name == "equidistant" and any(getattr(self, k) != 0.0 for k in ("k1", "k2", "k3", "k4")):
+            raise CameraError("an equidistant camera has k1 = k2 = k3 = k4 = 0; give projection = "
+                              '"kannala-brandt" for a θ polynomial')
+        name = PROJECTION_ALIASES.get(name, name)
+        object.__setattr__(self, "projection", name)
+        coefficients = PROJECTIONS[name].coefficients
+        unused = [k for k in ("p1", "p2", "k4") if k not in coefficients and getattr(self, k) != 0.0]
+        if unused:
+            raise CameraError(f"{' and '.join(unused)} must be 0 for the {name} projection "
+                              f"(its coefficients: {', '.join(coefficients)})")
 
     # --- construction -------------------------------------------------------------------
     @classmethod
-    def from_fov(cls, width: int, height: int, fov_deg: float, **kw: float) -> Camera:
-        """Square-pixel, centred camera whose horizontal field of view is ``fov_deg``."""
+    def from_fov(cls, width: int, height: int, fov_deg: float, projection: str = "pinhole",
+                 **kw: float) -> Camera:
+        """Square-pixel, centred camera whose horizontal field of view is ``fov_deg``.
+
+        Pinhole: ``f = (width/2) / tan(fov/2)`` (Brown–Conrady distortion in ``kw`` left out);
+        Kannala–Brandt: ``f = (width/2) / θ_d(fov/2)`` with the polynomial of ``kw`` — for the
+        equidistant projection ``(width/2) / (fov/2)``, ``fov`` in radians."""
         if not (isinstance(fov_deg, (int, float)) and 0.01 < fov_deg < 170.0):
             raise CameraError(f"impossible field of view {fov_deg}° (must be 0.01°–170°)")
-        f = (width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
+        half = math.radians(fov_deg) / 2.0
+        if projection == "pinhole":
+            f = (width / 2.0) / math.tan(half)
+        else:
+            numbers = np.zeros(len(lens.CAMERA_NUMBERS))
+            numbers[[lens.K1, lens.K2, lens.K3, lens.K4]] = [kw.get(k, 0.0) for k in ("k1", "k2", "k3", "k4")]
+            f = (width / 2.0) / lens.kb_theta_d(half, numbers)[0]
         return cls(width=int(width), height=int(height), fx=f, fy=f,
-                   cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, **kw)
+                   cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, projection=projection, **kw)
 
     @classmethod
     def from_optics(cls, width: int, height: int, focal_length_mm: float, pixel_pitch_um: float,
@@ -83,7 +145,12 @@ class Camera:
         ``dataclasses.replace``'s cost, which the final fit pays several times a solve)."""
         unknown = changes.keys() - _FIELD_NAMES
         if unknown:
-            raise TypeError(f"Camera has no field {', '.join(sorted(unknown))}")
+            if "projection_code" in changes:  # the kernels' numbers given back (calibrate.py)
+                changes = dict(changes)
+                changes["projection"] = _projection_of_code(changes.pop("projection_code"))
+                unknown = changes.keys() - _FIELD_NAMES
+            if unknown:
+                raise TypeError(f"Camera has no field {', '.join(sorted(unknown))}")
         new = object.__new__(Camera)
         new.__dict__.update(self.__dict__)
         new.__dict__.update(changes)
@@ -96,19 +163,34 @@ class Camera:
 
     # --- derived ------------------------------------------------------------------------
     @property
+    def projection_code(self) -> float:
+        """The projection's number among the kernels' (``lens.PINHOLE``, ``lens.KANNALA_BRANDT``)."""
+        return PROJECTIONS[self.projection].code
+
+    def _angle(self, rd: float) -> float:
+        """Angle (rad) from the boresight of distorted normalised radius ``rd``: pinhole
+        ``atan rd`` (Brown–Conrady left out), Kannala–Brandt the θ of ``θ_d = rd``."""
+        if self.projection == "pinhole":
+            return math.atan(rd)
+        return float(lens.kb_theta(float(rd), self.numbers()))
+
+    @property
     def fov_deg(self) -> float:
-        """Horizontal field of view through the principal point, degrees (pinhole)."""
-        return math.degrees(2.0 * math.atan((self.width / 2.0) / self.fx))
+        """Horizontal field of view through the principal point, degrees (centred; pinhole
+        without its distortion, Kannala–Brandt with its polynomial)."""
+        return math.degrees(2.0 * self._angle((self.width / 2.0) / self.fx))
 
     @property
     def fov_diagonal_deg(self) -> float:
-        """Diagonal field of view, degrees (pinhole, centred)."""
+        """Diagonal field of view, degrees (centred; as :attr:`fov_deg`). A fisheye's may pass 180°."""
         half = math.hypot(self.width / self.fx, self.height / self.fy) / 2.0
-        return math.degrees(2.0 * math.atan(half))
+        return math.degrees(2.0 * self._angle(half))
 
     @property
     def has_distortion(self) -> bool:
-        return any(getattr(self, k) != 0.0 for k in ("k1", "k2", "k3", "p1", "p2"))
+        """Whether any distortion coefficient is nonzero (for ``kannala-brandt``: whether it is
+        more than the equidistant projection)."""
+        return any(getattr(self, k) != 0.0 for k in ("k1", "k2", "k3", "k4", "p1", "p2"))
 
     @property
     def plate_scale_rad(self) -> float:
@@ -118,12 +200,12 @@ class Camera:
     # --- distortion and projection: the arithmetic is skyfix._kernels.lens's, shared with
     # every kernel that projects ----------------------------------------------------------
     def numbers(self) -> np.ndarray:
-        """The ten numbers kernels take for this camera (``skyfix._kernels.lens.CAMERA_NUMBERS``)."""
+        """The twelve numbers kernels take for this camera (``skyfix._kernels.lens.CAMERA_NUMBERS``)."""
         return lens.camera_numbers(self)
 
     def distort(self, xn: np.ndarray, yn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Apply Brown–Conrady distortion to normalised coordinates."""
-        if not self.has_distortion:
+        """Distorted normalised coordinates of normalised ``(xn, yn)`` (the projection's)."""
+        if self.projection == "pinhole" and not self.has_distortion:
             return xn, yn
         xn, yn = np.broadcast_arrays(np.asarray(xn, dtype=np.float64), np.asarray(yn, dtype=np.float64))
         xd, yd = lens.distort_points(np.ascontiguousarray(xn.ravel()), np.ascontiguousarray(yn.ravel()),
@@ -131,8 +213,9 @@ class Camera:
         return xd.reshape(xn.shape), yd.reshape(yn.shape)
 
     def undistort(self, xd: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Invert :meth:`distort` by fixed-point iteration (converged to 1e-5 px)."""
-        if not self.has_distortion:
+        """Invert :meth:`distort` (Brown–Conrady converged to 1e-5 px; Kannala–Brandt to 1e-14 rad,
+        NaN past 90° from the boresight)."""
+        if self.projection == "pinhole" and not self.has_distortion:
             return xd, yd
         xd, yd = np.broadcast_arrays(np.asarray(xd, dtype=np.float64), np.asarray(yd, dtype=np.float64))
         xn, yn = lens.undistort(np.ascontiguousarray(xd.ravel()), np.ascontiguousarray(yd.ravel()),
@@ -146,13 +229,15 @@ class Camera:
         return np.stack([xn, yn], axis=-1).reshape(xy.shape)
 
     def pixel_to_ray(self, xy: np.ndarray) -> np.ndarray:
-        """Unit rays (N, 3) in the camera frame for pixel positions (N, 2)."""
+        """Unit rays (N, 3) in the camera frame for pixel positions (N, 2) (Kannala–Brandt: also
+        past 90° from the boresight)."""
         xy = np.asarray(xy, dtype=np.float64)
         rays = lens.pixel_rays(np.ascontiguousarray(xy.reshape(-1, 2)), self.numbers())
         return rays.reshape(xy.shape[:-1] + (3,))
 
     def ray_to_pixel(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel positions (N, 2) of camera-frame rays (N, 3), and a mask of rays in front (Z > 0)."""
+        """Pixel positions (N, 2) of camera-frame rays (N, 3), and a mask of rays in front (Z > 1e-9;
+        the model projects no ray at 90° or more from the boresight)."""
         rays = np.asarray(rays, dtype=np.float64)
         uv, front = lens.project_rays(np.ascontiguousarray(rays.reshape(-1, 3)), self.numbers())
         return uv.reshape(rays.shape[:-1] + (2,)), front.reshape(rays.shape[:-1])
@@ -170,7 +255,10 @@ class Camera:
         if self.name:
             lines.append(f'name = "{self.name}"')
         lines += [f"width = {int(self.width)}", f"height = {int(self.height)}"]
-        lines += [f"{k} = {float(getattr(self, k))!r}" for k in _FLOAT_KEYS]
+        if self.projection != "pinhole":
+            lines.append(f'projection = "{self.projection}"')
+        keys = _INTRINSICS + PROJECTIONS[self.projection].coefficients
+        lines += [f"{k} = {float(getattr(self, k))!r}" for k in keys]
         for k in ("pixel_pitch_um", "focal_length_mm"):
             if getattr(self, k) is not None:
                 lines.append(f"{k} = {float(getattr(self, k))!r}")
@@ -190,7 +278,8 @@ class Camera:
     @classmethod
     def from_dict(cls, table: dict) -> Camera:
         """Camera from a ``[camera]`` table; ``fx`` may be replaced by ``fov_deg`` or by
-        ``focal_length_mm`` with ``pixel_pitch_um``."""
+        ``focal_length_mm`` with ``pixel_pitch_um``; ``projection`` names the projection
+        (:data:`PROJECTIONS`, :data:`PROJECTION_ALIASES`; default ``pinhole``)."""
         table = dict(table)
         try:
             width, height = int(table.pop("width")), int(table.pop("height"))
@@ -203,7 +292,11 @@ class Camera:
         try:
             if "fx" not in table:
                 if "fov_deg" in table:
-                    base = cls.from_fov(width, height, float(table.pop("fov_deg")))
+                    projection = str(table.get("projection", "pinhole"))
+                    ks = {} if projection == "pinhole" else {
+                        k: float(table[k]) for k in ("k1", "k2", "k3", "k4") if k in table}
+                    base = cls.from_fov(width, height, float(table.pop("fov_deg")), projection=projection,
+                                        **ks)
                 elif "focal_length_mm" in table and "pixel_pitch_um" in table:
                     base = cls.from_optics(width, height, float(table["focal_length_mm"]),
                                            float(table["pixel_pitch_um"]))
@@ -233,6 +326,13 @@ class Camera:
 
 
 _FIELD_NAMES = frozenset(f.name for f in dataclasses.fields(Camera))
+
+
+def _projection_of_code(code: float) -> str:
+    try:
+        return _PROJECTION_OF_CODE[float(code)]
+    except (KeyError, TypeError, ValueError):
+        raise CameraError(f"unknown camera projection code {code!r}") from None
 
 
 # The seeds' cameras (docs/seeds.md#the-seed-cameras); sizes and optics as the theses state them.

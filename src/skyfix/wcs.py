@@ -1,4 +1,5 @@
-"""FITS WCS of a solution: TAN projection about the optical axis, SIP for lens distortion.
+"""FITS WCS of a solution: TAN (pinhole) or ARC (Kannala–Brandt) projection about the optical
+axis, SIP for lens distortion.
 
 Pixels: skyfix ``(x, y)`` is 0-based (docs/design.md); FITS pixel ``(p1, p2) = (x + 1, y + 1)``,
 with ``p2`` the array row as stored (row 0 first). So ``CRPIX = (cx + 1, cy + 1)``.
@@ -13,10 +14,18 @@ span the same tangent plane, so ``(x_n, y_n) = M (ξ, η)`` with ``M = [[X·E, X
 (north up = −y, east left = −x) both ``CD1_1`` and ``CD2_2`` are negative and ``det CD > 0``:
 a row-0-on-top image that a FITS viewer shows row 1 at the bottom is the mirrored sky.
 
+Fisheye. FITS ``ARC`` (zenithal equidistant) places a direction at ``ρ`` (its angle from
+``CRVAL``) along the same bearing as TAN does at ``tan ρ``: its intermediate coordinates are
+``ρ·(ξ, η)/|(ξ, η)|``. The equidistant camera's distorted coordinates are ``θ·(x_n, y_n)/r``,
+``θ = ρ`` (skyfix._kernels.lens), so the same ``M`` and ``K₂`` give the same ``CD``: an
+equidistant camera (Kannala–Brandt, every ``k = 0``) is exactly ``ARC``, and Kannala–Brandt's
+θ polynomial is SIP on top of ``ARC`` — as Brown–Conrady is on top of ``TAN``.
+
 Distortion. SIP's forward polynomials ``A, B`` map the measured pixel offset ``(u, v)`` to
-the undistorted one ``(U, V) = (u + f(u, v), v + g(u, v))``; the inverse ``AP, BP`` map back.
-Both are fitted by least squares to the Brown–Conrady model over the frame, raising the order
-until the worst residual over the frame is below ``tol_px``.
+the undistorted one ``(U, V) = (u + f(u, v), v + g(u, v))`` (``K₂`` times the projection's
+undistorted coordinates: TAN's ``(x_n, y_n)``, ARC's ``θ·(x_n, y_n)/r``); the inverse
+``AP, BP`` map back. Both are fitted by least squares to the camera model over the frame,
+raising the order until the worst residual over the frame is below ``tol_px``.
 """
 
 from __future__ import annotations
@@ -36,6 +45,8 @@ __all__ = ["solution_wcs", "wcs_header", "write_wcs", "read_wcs"]
 # Order 9 covers ordinary lenses to 0.005 px; strong wide-angle distortion (60°, k1 = −0.3)
 # needs ~13. Only the lowest order that meets the tolerance is written.
 _MAX_SIP_ORDER = 13
+# The FITS projection of each camera projection (skyfix.camera.PROJECTIONS).
+_FITS_PROJECTION = {"pinhole": "TAN", "kannala-brandt": "ARC"}
 
 
 def _monomials(u: np.ndarray, v: np.ndarray, order: int) -> tuple[np.ndarray, list[tuple[int, int]]]:
@@ -75,14 +86,14 @@ def _frame_grid(camera: Camera, n: int = 41) -> np.ndarray:
 
 
 def wcs_header(A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.005) -> fits.Header:
-    """The FITS WCS header cards of :func:`solution_wcs` (TAN, or TAN-SIP when distorted).
+    """The FITS WCS header cards of :func:`solution_wcs` (TAN or ARC, with SIP when distorted).
 
     Parameters as :func:`solution_wcs`.
     """
     A = np.asarray(A_icrs_to_cam, dtype=np.float64)
     ra, dec = vector_to_radec(A[2])
     ra, dec = float(ra), float(dec)
-    # East and north of TAN's standard coordinates (LONPOLE 180); also right at a pole.
+    # East and north of TAN's (and ARC's) standard coordinates (LONPOLE 180); also right at a pole.
     east = np.array([-np.sin(ra), np.cos(ra), 0.0])
     north = np.array([-np.sin(dec) * np.cos(ra), -np.sin(dec) * np.sin(ra), np.cos(dec)])
     M = np.array([[A[0] @ east, A[0] @ north], [A[1] @ east, A[1] @ north]])
@@ -90,10 +101,11 @@ def wcs_header(A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.005)
     cd = np.degrees(np.linalg.inv(K2 @ M))
 
     sip = camera.has_distortion
+    code = _FITS_PROJECTION[camera.projection] + ("-SIP" if sip else "")
     h = fits.Header()
     h["WCSAXES"] = 2
-    h["CTYPE1"] = "RA---TAN-SIP" if sip else "RA---TAN"
-    h["CTYPE2"] = "DEC--TAN-SIP" if sip else "DEC--TAN"
+    h["CTYPE1"] = f"RA---{code}"
+    h["CTYPE2"] = f"DEC--{code}"
     h["CUNIT1"] = "deg"
     h["CUNIT2"] = "deg"
     h["CRVAL1"] = np.degrees(ra)
@@ -112,11 +124,25 @@ def wcs_header(A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.005)
     return h
 
 
+def _undistorted(camera: Camera, xy: np.ndarray) -> np.ndarray:
+    """The coordinates (M, 2) of pixels ``xy`` in the FITS projection's plane, in focal lengths:
+    TAN's ``(X/Z, Y/Z)``, ARC's ``θ·(X, Y)/|(X, Y)|`` (``θ`` the ray's angle from the boresight)."""
+    if camera.projection == "pinhole":
+        return camera.pixel_to_normalized(xy)
+    b = camera.pixel_to_ray(xy)
+    rho = np.hypot(b[:, 0], b[:, 1])
+    s = np.divide(np.arctan2(rho, b[:, 2]), rho, out=np.ones_like(rho), where=rho > 0)
+    return b[:, :2] * s[:, None]
+
+
 def _add_sip(h: fits.Header, camera: Camera, tol_px: float) -> None:
-    """Append SIP forward and inverse polynomials fitted to the camera's distortion."""
+    """Append SIP forward and inverse polynomials fitted to the camera's distortion (over the
+    frame's pixels that the model maps to a ray)."""
     xy = _frame_grid(camera)
+    n = _undistorted(camera, xy)
+    keep = np.all(np.isfinite(n), axis=1)
+    xy, n = xy[keep], n[keep]
     u, v = xy[:, 0] - camera.cx, xy[:, 1] - camera.cy
-    n = camera.pixel_to_normalized(xy)  # undistorted pinhole coordinates
     U = camera.fx * n[:, 0] + camera.skew * n[:, 1]
     V = camera.fy * n[:, 1]
     scale = 0.5 * max(camera.width, camera.height)
@@ -131,7 +157,8 @@ def _add_sip(h: fits.Header, camera: Camera, tol_px: float) -> None:
             for q in range(mat.shape[1] - p):
                 if mat[p, q] != 0.0:
                     h[f"{name}_{p}_{q}"] = mat[p, q]
-    h["HISTORY"] = (f"skyfix SIP fit to Brown-Conrady: order {order}, worst {worst:.2g} px; "
+    model = "Brown-Conrady" if camera.projection == "pinhole" else "Kannala-Brandt"
+    h["HISTORY"] = (f"skyfix SIP fit to {model}: order {order}, worst {worst:.2g} px; "
                     f"inverse order {order_p}, worst {worst_p:.2g} px")
 
 
@@ -141,7 +168,8 @@ def solution_wcs(A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.00
     Parameters
     ----------
     A_icrs_to_cam : (3, 3) attitude matrix, ``b = A r`` (docs/design.md#attitude-matrix).
-    camera : the camera model; with distortion the WCS is TAN-SIP.
+    camera : the camera model: TAN for a pinhole, ARC for Kannala–Brandt (equidistant exactly),
+        with SIP for distortion (Brown–Conrady, or a θ polynomial beyond equidistant).
     tol_px : worst SIP fit residual over the frame, pixels (sets the polynomial order).
 
     Returns
