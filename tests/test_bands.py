@@ -112,3 +112,20 @@ def test_cli_builds_every_default_band_and_says_what_it_serves():
     lines = result.output.strip().splitlines()
     assert [line.split(":")[0] for line in lines] == ["standard", "narrow", "wide"]
     assert "serves 1.48–8.1°" in lines[1] and "482176 stars" in lines[1]
+
+
+def test_a_fisheye_camera_given_selects_the_band_of_its_true_field():
+    """A 90° equidistant camera (fx says 76° to a pinhole): solved in the wide band, its corners
+    (112° off axis) kept out of the search's frame."""
+    from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+    from skyfix.catalog import load_gaia
+
+    cam = case_camera(_case("90° fisheye"))
+    rng = np.random.default_rng(4)
+    for A in random_attitudes(3, rng):
+        f = synthetic_centroids(cam, A, load_gaia(epoch=2025.0), mag_limit=5.0, sigma_px=0.5, n_false=2,
+                                dropout=0.05, rng=rng)
+        sol = solve_centroids(f.xy[:200], cam.width, cam.height, epoch=2025.0, camera=cam)
+        assert sol.solved, sol.reason
+        err = attitude_error_rad(sol.A_icrs_to_cam, sol.camera, A, cam)
+        assert math.hypot(err[0], err[1]) / ARCSEC < 60.0 and abs(err[2]) / ARCSEC < 120.0

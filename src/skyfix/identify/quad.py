@@ -172,11 +172,19 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         f_hi = _focal_from_fov(width, max(fov_deg - tol, 1e-3))
     else:
         f0, f_lo, f_hi = math.nan, 0.0, math.inf
-    hinted = (_fov_from_focal(width, f_hi), _fov_from_focal(width, f_lo)) if f_hi < math.inf else (None, None)
+    if camera is not None:  # its true field (a fisheye's is wider than its fx says)
+        hinted = (camera.fov_deg / 1.03, camera.fov_deg * 1.03)
+    else:
+        hinted = ((_fov_from_focal(width, f_hi), _fov_from_focal(width, f_lo)) if f_hi < math.inf
+                  else (None, None))
     sources = [database] if database is not None else bands_for(*hinted)
     passes = []
     for source in sources:
         served = served_fov_deg(source) if isinstance(source, PatternDatabase) else source.served_fov_deg
+        if camera is not None:
+            if served[0] <= hinted[1] and hinted[0] <= served[1]:
+                passes.append((source, (f0, f_lo, f_hi)))
+            continue
         lo = max(f_lo, _focal_from_fov(width, min(served[1], 179.0)))
         hi = min(f_hi, _focal_from_fov(width, served[0]))
         if lo <= hi:
@@ -303,6 +311,8 @@ class _Search:
             corners = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [-0.5, height - 0.5],
                                 [width - 0.5, height - 0.5]])
             c_p = camera.pixel_to_normalized(corners) * f0
+            if not np.isfinite(c_p).all():  # a fisheye's corners lie beyond 90°: its edges, to 80°
+                c_p = _fisheye_extent(camera, f0)
             frame = np.array([c_p[:, 0].min(), c_p[:, 0].max(), c_p[:, 1].min(), c_p[:, 1].max()])
         else:
             p = _undistorted_offsets(self.xy - np.array([cx, cy]), self.kappa)
@@ -366,6 +376,22 @@ def _undistorted_offsets(p: np.ndarray, kappa: float) -> np.ndarray:
     numbers[lens.K1] = kappa
     x, y = lens.undistort(np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1]), numbers)
     return np.stack([x, y], axis=1)
+
+
+def _fisheye_extent(camera: Camera, f0: float) -> np.ndarray:
+    """Points (N, 2) spanning the frame of a camera whose corners look beyond 90° off axis, in the
+    search's offsets ``x_n · f0``: the frame's border sampled, each point's offset capped at 80°
+    off axis (no catalogue star beyond can be placed in these offsets)."""
+    w, h = camera.width, camera.height
+    t = np.linspace(0.0, 1.0, 65)
+    zero, one = np.zeros_like(t), np.ones_like(t)
+    border = np.concatenate([np.stack([t * w, zero], 1), np.stack([t * w, one * h], 1),
+                             np.stack([zero, t * h], 1), np.stack([one * w, t * h], 1)]) - 0.5
+    rays = camera.pixel_to_ray(border)
+    theta = np.minimum(np.arccos(np.clip(rays[:, 2], -1.0, 1.0)), math.radians(80.0))
+    phi = np.arctan2(rays[:, 1], rays[:, 0])
+    r = np.tan(theta) * f0
+    return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
 
 
 def _fov_from_focal(width: int, f: float) -> float:
