@@ -60,6 +60,9 @@ class Band(NamedTuple):
     lattice_step: float = 0.5
     band_ratio: float = 1.35
     pattern_mag_limit: float = 8.5
+    # The search's loose tolerance tier (key, model error) with no camera given; None: the
+    # default (0.015, 0.008), which absorbs the distortion of 10–40° lenses.
+    loose_tolerance: tuple[float, float] | None = None
 
     @property
     def served_fov_deg(self) -> tuple[float, float]:
@@ -74,7 +77,7 @@ class Band(NamedTuple):
 
 STANDARD = Band("standard", 10.0, 30.0)
 NARROW = Band("narrow", 2.0, 6.0, catalog="gaia", stars_per_field=6, lattice_step=0.8, band_ratio=1.5,
-              pattern_mag_limit=10.0)
+              pattern_mag_limit=10.0, loose_tolerance=(0.010, 0.004))
 WIDE = Band("wide", 40.0, 90.0)
 BANDS: tuple[Band, ...] = (STANDARD, NARROW, WIDE)
 """The default bands, in the order a frame with no FOV hint is tried."""

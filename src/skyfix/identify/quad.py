@@ -208,8 +208,15 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                   ratio_tolerance if ratio_tolerance is not None else 0.006)]
     else:
         tiers = [(0.008, 0.002), (0.015 if free_fov else 0.010, 0.008 if camera is None else 0.004)]
-    tiers = [tuple(Tolerances(float(eps_key), float(centroid_sigma_px), float(model_err)))
-             for eps_key, model_err in tiers]
+    explicit = ratio_tolerance is not None or key_tolerance is not None
+
+    def tolerances(source) -> list[tuple]:
+        """The tiers as the kernel takes them; a band whose fields barely distort (the narrow
+        band: k1 = 0.1 moves a 6° frame's corner by 0.04 %) has a looser tier of its own."""
+        own = getattr(source, "loose_tolerance", None)
+        chosen = tiers if explicit or camera is not None or own is None else [tiers[0], own]
+        return [tuple(Tolerances(float(eps_key), float(centroid_sigma_px), float(model_err)))
+                for eps_key, model_err in chosen]
     # on failure the frame is tried mirrored, briefly, with these options (see check_mirror)
     retry = dict(fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database,
                  max_patterns=min(max_patterns, 200), time_limit_s=min(time_limit_s, 0.25), epoch=epoch,
@@ -222,7 +229,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                            float(centroid_sigma_px), 3)
     verification = tuple(VerifySettings(n_verify, float(radius), log_threshold))
     geometry = (int(width), int(height), cx, cy)
-    searches = [_Search(source, focal, camera, xy[:n_p], geometry, len(tiers), 16 if i == 0 else 4, kappa)
+    searches = [_Search(source, focal, camera, xy[:n_p], geometry, tolerances(source), 16 if i == 0 else 4,
+                        kappa)
                 for i, (source, focal) in enumerate(passes)
                 for kappa in _distortion_hypotheses(camera, focal, geometry)]
     total = min(len(combos), max_patterns)
@@ -237,7 +245,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         t_start = time.perf_counter()
         target = min(total, search.pos[0] + search.chunk)
         search.chunk = min(2 * search.chunk, 512)
-        for tier, tolerances in enumerate(tiers):
+        for tier, tier_tolerances in enumerate(search.tiers):
             # the loose tier lags the tight one by a factor of 4 in patterns
             goal = target if tier == 0 or target >= total else target // 4
             while search.pos[tier] < goal:
@@ -248,7 +256,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 start = search.pos[tier]
                 stop = min(goal, start + 512)
                 plain = search.plain()
-                hit = search_entry(plain.image, combos, start, stop, plain.focal, tolerances,
+                hit = search_entry(plain.image, combos, start, stop, plain.focal, tier_tolerances,
                                    plain.patterns, plain.stars, verification, n_cand)
                 search.pos[tier] = start + hit.n_done
                 n_lookups += hit.n_done
@@ -283,11 +291,12 @@ class _Search:
     is needed), the kernels' arguments."""
 
     def __init__(self, source, focal: tuple[float, float, float], camera: Camera | None, xy: np.ndarray,
-                 geometry: tuple[int, int, float, float], n_tiers: int, first_chunk: int,
+                 geometry: tuple[int, int, float, float], tiers: list[tuple], first_chunk: int,
                  kappa: float) -> None:
         self.source, self.focal, self.camera, self.xy, self.geometry = source, focal, camera, xy, geometry
         self.kappa = kappa  # the radial distortion assumed, px⁻² (see _distortion_hypotheses)
-        self.pos = [0] * n_tiers
+        self.tiers = tiers  # its tolerance tiers, as the kernel takes them
+        self.pos = [0] * len(tiers)
         self.spent_s = 0.0
         self.chunk = first_chunk
         self._plain: _Plain | None = None
