@@ -84,13 +84,13 @@ def test_first_run_database_notice(tmp_path, monkeypatch):
 
 
 def test_fov_outside_database_range_says_how_to_build_one(database):
-    result = runner.invoke(app, ["solve", "--fov", "50", str(EXAMPLE)])
+    result = runner.invoke(app, ["solve", "--fov", "1", str(EXAMPLE)])
     assert result.exit_code == 1
     assert result.stdout == (
-        f"{EXAMPLE}: failed: field of view 50° is outside the pattern database's range 10–30° "
-        "(it serves 7.41–40.5°); build one that covers it: "
-        "`skyfix database build --fov-min 45 --fov-max 55 -o patterns-45-55deg.npz`, "
-        "then `skyfix solve --database patterns-45-55deg.npz ...`\n")
+        f"{EXAMPLE}: failed: field of view 1° is outside every default FOV band "
+        "(they serve 1.48–122°); build one that covers it: "
+        "`skyfix database build --fov-min 0.5 --fov-max 2 -o patterns-0.5-2deg.npz`, "
+        "then `skyfix solve --database patterns-0.5-2deg.npz ...`\n")
 
 
 def test_mirror_image_is_named(tmp_path, database):

@@ -201,8 +201,9 @@ def prepare_outputs(outputs: dict[str, Sequence[Path | None]], inputs: Sequence[
 
 # --- the first run: building the database, numba compiling kernels ---------------------------------
 def load_database(path: Path | None) -> Any:
-    """The pattern database in ``path``, or the default one — saying so when it is about to be
-    built (the first run on a machine)."""
+    """The pattern database in ``path``; with none, None (the solver then picks the default FOV
+    bands, :mod:`skyfix.identify.bands`) after loading the standard band — saying so when it is
+    about to be built (the first run on a machine)."""
     from skyfix.identify import PatternDatabase, default_database, default_database_path
 
     if path is not None:
@@ -212,7 +213,8 @@ def load_database(path: Path | None) -> Any:
         return PatternDatabase.load(path)
     if not default_database_path().exists():
         typer.echo("skyfix: first run: building the pattern database (once; about a minute)…", err=True)
-    return default_database()
+    default_database()  # the common case's band, built now with the notice above
+    return None
 
 
 _COMPILE_TEXT = "compiling numba kernels (first run only, ~1–3 min)"

@@ -408,22 +408,23 @@ def _fov_from_focal(width: int, f: float) -> float:
 
 
 def _outside_reason(fov: float | None, fov_lo: float | None, fov_hi: float | None, sources: list) -> str:
-    """The failure reason for a FOV (allowed ``fov_lo``–``fov_hi``) no database can serve, with
-    the commands that build and use one that can."""
+    """The failure reason for a FOV (allowed ``fov_lo``–``fov_hi``) no database can serve (the
+    database given, or every default band when ``sources`` is empty), with the commands that
+    build and use one that can."""
     from skyfix.validate import FOV_RANGE_DEG
 
-    if not sources:
-        lo_all, hi_all = BANDS[1].served_fov_deg[0], BANDS[2].served_fov_deg[1]
-        return (f"field of view {fov:.3g}° is outside every default FOV band (they serve "
-                f"{lo_all:.3g}–{hi_all:.3g}°)")
-    db = sources[0]
     lo = max(FOV_RANGE_DEG[0], math.floor(fov_lo + 1e-9))
     hi = min(FOV_RANGE_DEG[1], math.ceil(fov_hi - 1e-9))
     out = f"patterns-{lo:g}-{hi:g}deg.npz"
-    served = served_fov_deg(db)
-    return (f"field of view {fov:.3g}° is outside the pattern database's range "
-            f"{db.fov_min_deg:g}–{db.fov_max_deg:g}° (it serves {served[0]:.3g}–"
-            f"{served[1]:.3g}°); build one that covers it: "
+    if sources:
+        db = sources[0]
+        served = served_fov_deg(db)
+        what = (f"the pattern database's range {db.fov_min_deg:g}–{db.fov_max_deg:g}° (it serves "
+                f"{served[0]:.3g}–{served[1]:.3g}°)")
+    else:
+        what = (f"every default FOV band (they serve {BANDS[1].served_fov_deg[0]:.3g}–"
+                f"{BANDS[2].served_fov_deg[1]:.3g}°)")
+    return (f"field of view {fov:.3g}° is outside {what}; build one that covers it: "
             f"`skyfix database build --fov-min {lo:g} --fov-max {hi:g} -o {out}`, "
             f"then `skyfix solve --database {out} ...`")
 
