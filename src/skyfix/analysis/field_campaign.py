@@ -12,7 +12,8 @@ axis) should have an RMS near 1.
 
 The stars are Gaia DR3 to G 10 with Hipparcos for the brightest (:func:`skyfix.catalog.load_gaia`),
 deeper than any case's limit, so the fields are the sky, not the solver's catalogue.
-``skyfix analyze fields`` runs :data:`CASES` and writes the table and plots.
+``python -m skyfix.analysis.field_campaign`` runs :data:`CASES` and writes the table and plots
+(docs/fields.md); ``benchmarks/suite_fields.py`` times them.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import numpy as np
 from skyfix.analysis.blind_campaign import Trial, summarize, trial_result
 from skyfix.camera import Camera
 
-__all__ = ["CASES", "FieldCase", "FieldTrial", "case_camera", "field_trials", "summarize_case",
+__all__ = ["CASES", "FieldCase", "FieldTrial", "case_camera", "field_trials", "main", "summarize_case",
            "write_campaign"]
 
 
@@ -178,3 +179,36 @@ def _plot(results: list[tuple[FieldCase, list[FieldTrial]]], path: Path) -> Path
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m skyfix.analysis.field_campaign [--n 100] [--seed 2026] [--out DIR]``: every case
+    of :data:`CASES`, with a progress bar; writes :func:`write_campaign`'s files and prints the table."""
+    import argparse
+
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    ap = argparse.ArgumentParser(prog="python -m skyfix.analysis.field_campaign",
+                                 description=__doc__.split("\n")[0])
+    ap.add_argument("--n", type=int, default=100, help="random attitudes per case (default 100)")
+    ap.add_argument("--seed", type=int, default=2026)
+    ap.add_argument("--out", type=Path, default=Path("field-campaign"))
+    args = ap.parse_args(argv)
+    if args.n < 1:
+        ap.error("--n must be at least 1")
+    results = []
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                  transient=True) as bar:
+        task = bar.add_task("field campaign", total=args.n * len(CASES))
+        for case in CASES:
+            bar.update(task, description=f"field campaign: {case.name}")
+            results.append((case, field_trials(case, args.n, args.seed,
+                                               progress=lambda k: bar.advance(task, k))))
+    command = f"python -m skyfix.analysis.field_campaign --n {args.n} --seed {args.seed}"
+    paths = write_campaign(results, args.out, command=command)
+    print(paths[1].read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
