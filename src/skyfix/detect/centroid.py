@@ -41,8 +41,9 @@ from numba import njit
 from skyfix.detect._stats import robust_level_noise
 from skyfix.detect.centroids import Centroids, background_snr
 
-__all__ = ["CENTROIDERS", "COM", "IWCOG", "GAUSSIAN", "Refined", "centroid_windows", "refine_centroids",
-           "cramer_rao_centroid", "measure_psf"]
+__all__ = ["CENTROIDERS", "COM", "IWCOG", "GAUSSIAN", "Centroider", "Refined", "centroid_windows",
+           "centroider", "refine_centroids", "refine_kernel", "refined_columns", "cramer_rao_centroid",
+           "measure_psf"]
 
 # The centroiders' codes inside the kernels (numba compiles module-level ints as constants).
 COM, IWCOG, GAUSSIAN = 0, 1, 2
@@ -79,14 +80,14 @@ class Refined(NamedTuple):
 
 
 # The kernels' columns, in the order of Refined's fields; a star's row holds the first _NROW
-# (the window's noise and sky are added by _refine).
+# (the window's noise and sky are added by refine_kernel).
 (_X, _Y, _FLUX, _PEAK, _SIGMA_X, _SIGMA_Y, _COV_XY, _NPIX, _PSF_SX, _PSF_SY, _OK, _NOISE, _SKY) = range(13)
 _NCOL = len(Refined._fields)
 _NROW = _OK + 1
 
 
-class _How(NamedTuple):
-    """A centroider as the kernels run it."""
+class Centroider(NamedTuple):
+    """A centroider as the kernels run it (:func:`centroider` makes one from its name)."""
 
     code: int  # COM, IWCOG or GAUSSIAN
     k: float  # CoM threshold, in σ above the sky
@@ -169,7 +170,7 @@ def centroid_windows(
     if img.ndim != 2:
         raise ValueError(f"image must be 2-D, got shape {img.shape}")
     xy = np.asarray(xy_pred, dtype=np.float64).reshape(-1, 2)
-    how = _how(method, sigma, psf_sigma, gain)
+    how = centroider(method, sigma, psf_sigma, gain)
     hs = int(max(2, half_size))
     out = _windows(img, xy[:, 0].copy(), xy[:, 1].copy(), hs, how)
     return _to_centroids(out, img.shape, ordered=True)
@@ -193,11 +194,11 @@ def refine_centroids(
     PSF σx, σy (second moments or fit), ok (1.0 where a centroid was found), noise, sky
     (:class:`Refined` names them: ``Refined.of(table).x``).
     """
-    how = _how(method, sigma, psf_sigma, gain)
+    how = centroider(method, sigma, psf_sigma, gain)
     img = np.ascontiguousarray(image, dtype=np.float32)
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     n = len(xy)
-    return _refine(img, xy[:, 0].copy(), xy[:, 1].copy(), _per_star(background, n, np.float64),
+    return refine_kernel(img, xy[:, 0].copy(), xy[:, 1].copy(), _per_star(background, n, np.float64),
                    _per_star(noise, n, np.float64), _per_star(half_size, n, np.int64), how)
 
 
@@ -234,7 +235,7 @@ def measure_psf(image: np.ndarray, xy: np.ndarray, half_size: int = 8) -> dict[s
     img = np.ascontiguousarray(image, dtype=np.float32)
     xyv = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     r = Refined.of(_windows(img, xyv[:, 0].copy(), xyv[:, 1].copy(), int(max(2, half_size)),
-                            _How(GAUSSIAN, 3.0, -1.0, 0.0)))
+                            Centroider(GAUSSIAN, 3.0, -1.0, 0.0)))
     sx, sy, ok = r.psf_sx, r.psf_sy, r.ok > 0
     big, small = np.maximum(sx, sy), np.maximum(np.minimum(sx, sy), 1e-12)
     x, y = np.where(ok, r.x, np.nan), np.where(ok, r.y, np.nan)
@@ -288,12 +289,15 @@ def _inv_gain(gain: float | None) -> float:
     return 1.0 / float(gain)
 
 
-def _how(method: str, sigma: float, psf_sigma: float | None, gain: float | None) -> _How:
+def centroider(method: str, sigma: float = 3.0, psf_sigma: float | None = None, gain: float | None = None
+               ) -> Centroider:
+    """The :class:`Centroider` of ``method`` (a name of :data:`CENTROIDERS`) with the keywords of
+    :func:`centroid_windows`; ValueError for an unknown name or a gain that is not positive."""
     try:
         code = CENTROIDERS[method]
     except (KeyError, TypeError):
         raise ValueError(f"unknown centroider {method!r}; choose one of {', '.join(CENTROIDERS)}") from None
-    return _How(code, float(sigma), -1.0 if psf_sigma is None else float(psf_sigma), _inv_gain(gain))
+    return Centroider(code, float(sigma), -1.0 if psf_sigma is None else float(psf_sigma), _inv_gain(gain))
 
 
 def _to_centroids(out: np.ndarray, shape, ordered: bool) -> Centroids:
@@ -313,8 +317,17 @@ def _to_centroids(out: np.ndarray, shape, ordered: bool) -> Centroids:
 
 
 @njit(cache=True)
+def refined_columns(table):
+    """The columns of :func:`refine_kernel`'s (N, 13) table as a :class:`Refined` of views
+    (``Refined.of`` inside a kernel)."""
+    return Refined(table[:, _X], table[:, _Y], table[:, _FLUX], table[:, _PEAK], table[:, _SIGMA_X],
+                   table[:, _SIGMA_Y], table[:, _COV_XY], table[:, _NPIX], table[:, _PSF_SX],
+                   table[:, _PSF_SY], table[:, _OK], table[:, _NOISE], table[:, _SKY])
+
+
+@njit(cache=True)
 def _windows(img, xs, ys, hs, how):
-    """Sky and noise from each window's border, then the centroider ``how`` (a :class:`_How`)."""
+    """Sky and noise from each window's border, then the centroider ``how`` (a :class:`Centroider`)."""
     h, w = img.shape
     n = xs.size
     bg = np.zeros(n)
@@ -339,13 +352,15 @@ def _windows(img, xs, ys, hs, how):
             buf[m + 1] = img[y, x1]
             m += 2
         bg[i], nz[i] = robust_level_noise(buf[:m].copy(), 0.0, False)
-    return _refine(img, xs, ys, bg, nz, half, how)
+    return refine_kernel(img, xs, ys, bg, nz, half, how)
 
 
 @njit(cache=True)
-def _refine(img, xs, ys, bg, nz, half, how):
-    """The centroider ``how`` in the window of half size ``half[i]`` around each position, with
-    the sky ``bg[i]`` and noise ``nz[i]``; returns the (N, 13) table of :class:`Refined`."""
+def refine_kernel(img, xs, ys, bg, nz, half, how):
+    """The centroider ``how`` (a :class:`Centroider`) in the window of half size ``half[i]``
+    around each position ``(xs[i], ys[i])`` of the float32 image ``img``, with the sky ``bg[i]``
+    and noise ``nz[i]``; returns the (N, 13) table of :class:`Refined` (:func:`refine_centroids`
+    without its argument handling, for other kernels: the tracker's windows)."""
     h, w = img.shape
     n = xs.size
     out = np.zeros((n, _NCOL))

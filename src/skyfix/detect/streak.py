@@ -53,20 +53,58 @@ from skyfix.detect.centroid import CENTROIDERS, centroid_windows
 from skyfix.detect.centroids import Centroids, background_snr
 from skyfix.errors import InputError
 
-__all__ = ["STREAK_CENTROIDERS", "centroid_streaks", "star_times", "streak_motion", "streak_half_sizes"]
+__all__ = ["STREAK_CENTROIDERS", "StreakFit", "centroid_streaks", "fit_streaks", "row_time_offset",
+           "star_times", "streak_model_sigma", "streak_motion", "streak_half_sizes"]
 
 #: Centroiders of :func:`centroid_streaks`: the matched streak weight, then those of
 #: :data:`skyfix.detect.CENTROIDERS` in a grown square window.
 STREAK_CENTROIDERS = ("streak", *CENTROIDERS)
 
 _ARRAYS = ("x", "y", "flux", "area", "snr", "elongation", "peak", "sigma_x", "sigma_y", "cov_xy")
-# The rows of the streak kernel's (11, N) table: Centroids' columns, each star's sky and noise.
+# The rows of the streak kernel's (11, N) table, in the order of StreakFit's first fields.
 (_X, _Y, _FLUX, _AREA, _PEAK, _SIGMA_X, _SIGMA_Y, _COV_XY, _ELONGATION, _NOISE, _SKY) = range(11)
 _NCOL = 11
 # The streak model is taken as zero beyond this many σ of its segment (3e-4 of its peak).
 _REACH = 4.0
 # Gauss–Newton stops when the step or the distance left (extrapolated) is under 0.1 σ (χ² 0.01).
 _TOL_CHI2 = 0.01
+
+
+class StreakFit(NamedTuple):
+    """What :func:`fit_streaks` measured of N streaks: (N,) columns, NaN centre, σ and elongation
+    and zero flux, area and covariance where no centroid was found."""
+
+    x: np.ndarray  #: the streak's centre (its mid-exposure position), pixels
+    y: np.ndarray
+    flux: np.ndarray  #: the model's integral, ADU
+    area: np.ndarray  #: pixels of the footprint (above the sky, at least 1 % of the profile's peak)
+    peak: np.ndarray  #: highest pixel above the sky in the window, ADU
+    sigma_x: np.ndarray  #: the centre's 1-σ error and x–y covariance, pixels, px²
+    sigma_y: np.ndarray
+    cov_xy: np.ndarray
+    elongation: np.ndarray  #: long over short axis of the footprint's second moments
+    noise: np.ndarray  #: each window's noise σ and sky level (its border), ADU
+    sky: np.ndarray
+    half: np.ndarray  #: (N, 2) int64: each window's half sizes along x and y, pixels
+    noise_level: float  #: the median noise and sky level
+    background_level: float
+
+
+@njit(cache=True, inline="always")
+def row_time_offset(y, line_time_s, height):
+    """A star's mid-exposure time at row ``y`` less the frame's time on a rolling-shutter sensor
+    of ``height`` rows, ``(y − (height − 1)/2)·line_time_s`` (s; module docstring): the one
+    formula of :func:`star_times` (which calls it as Python) and the tracker's kernel."""
+    return (y - (height - 1) / 2.0) * line_time_s
+
+
+def streak_model_sigma(psf_sigma: float | None) -> float:
+    """The σ of ``"streak"``'s model across the motion for a PSF of σ ``psf_sigma`` pixels
+    (default 1): a Gaussian PSF integrated over a pixel is nearly one of σ² + 1/12 px²."""
+    s = 1.0 if psf_sigma is None else float(psf_sigma)
+    if not (math.isfinite(s) and s > 0):
+        raise InputError(f"psf_sigma must be a positive number of pixels, got {psf_sigma!r}")
+    return math.sqrt(s * s + 1.0 / 12.0)
 
 
 def star_times(xy: np.ndarray, t_frame_s: float, line_time_s: float, height: int) -> np.ndarray:
@@ -82,7 +120,7 @@ def star_times(xy: np.ndarray, t_frame_s: float, line_time_s: float, height: int
         raise InputError(f"line_time_s must be a non-negative number of seconds, got {line_time_s!r}")
     if not (float(height) == int(height) and int(height) >= 1):
         raise InputError(f"height must be a whole number of rows >= 1, got {height!r}")
-    return t_frame_s + (xy[:, 1] - (int(height) - 1) / 2.0) * line
+    return t_frame_s + row_time_offset.py_func(xy[:, 1], line, int(height))
 
 
 def streak_motion(camera, xy: np.ndarray, rate_rad_s: np.ndarray, exposure_s: float) -> np.ndarray:
@@ -197,20 +235,18 @@ def centroid_streaks(
 
 
 def _fit_streaks(img, xy, motion, half_size, psf_sigma, gain, angle) -> Centroids:
-    """``centroid_streaks(method="streak")``: the kernel, then its table as Centroids."""
-    s = 1.0 if psf_sigma is None else float(psf_sigma)
-    if not (math.isfinite(s) and s > 0):
-        raise InputError(f"psf_sigma must be a positive number of pixels, got {psf_sigma!r}")
+    """``centroid_streaks(method="streak")``: the kernel, then its columns as Centroids."""
+    s_model = streak_model_sigma(psf_sigma)
     if gain is not None and not (math.isfinite(float(gain)) and float(gain) > 0):
         raise InputError(f"gain must be a positive number of electrons per ADU, got {gain!r}")
-    s_model = math.sqrt(s * s + 1.0 / 12.0)  # a Gaussian PSF integrated over a pixel, nearly
-    t, half, sky, noise = _streaks(img, np.ascontiguousarray(xy), np.ascontiguousarray(motion),
-                                   np.int64(half_size), s_model, 0.0 if gain is None else 1.0 / float(gain))
-    return Centroids(x=t[_X], y=t[_Y], flux=t[_FLUX], area=t[_AREA], elongation=t[_ELONGATION], peak=t[_PEAK],
-                     snr=background_snr(t[_FLUX], t[_NOISE], t[_AREA]),  # 0 where no centroid (no flux)
-                     sigma_x=t[_SIGMA_X], sigma_y=t[_SIGMA_Y], cov_xy=t[_COV_XY],
-                     saturated=np.zeros(len(xy), bool), image_shape=img.shape, background_level=sky,
-                     noise=noise, angle=angle, meta={"ordered": True, "half_size": half})
+    f = fit_streaks(img, np.ascontiguousarray(xy), np.ascontiguousarray(motion), np.int64(half_size), s_model,
+                    0.0 if gain is None else 1.0 / float(gain))
+    return Centroids(x=f.x, y=f.y, flux=f.flux, area=f.area, elongation=f.elongation, peak=f.peak,
+                     snr=background_snr(f.flux, f.noise, f.area),  # 0 where no centroid (no flux)
+                     sigma_x=f.sigma_x, sigma_y=f.sigma_y, cov_xy=f.cov_xy,
+                     saturated=np.zeros(len(xy), bool), image_shape=img.shape,
+                     background_level=f.background_level, noise=f.noise_level, angle=angle,
+                     meta={"ordered": True, "half_size": f.half})
 
 
 # --- the streak kernels -----------------------------------------------------------------------------
@@ -545,10 +581,12 @@ def _fit(img, box, shape, xc, yc, ig):
 
 
 @njit(cache=True)
-def _streaks(img, xy, motion, half_size, s, ig):
-    """:func:`centroid_streaks` ``method="streak"``: the (11, N) table (rows ``_X`` …; NaN
-    centre, σ and elongation, zero flux, area and covariance where no centroid was found), the
-    windows' half sizes (N, 2), the median sky and noise."""
+def fit_streaks(img, xy, motion, half_size, s, ig):
+    """:func:`centroid_streaks` ``method="streak"`` without its argument handling, for other
+    kernels (the tracker's windows): the streaks predicted at ``xy`` (N, 2) moving by ``motion``
+    (N, 2) in the float32 image ``img``, a margin of ``half_size`` (int64) pixels, the model's σ
+    ``s`` (:func:`streak_model_sigma`) and the gain's inverse ``ig`` (0: unknown). Returns a
+    :class:`StreakFit`."""
     h, w = img.shape
     n = len(xy)
     out = np.zeros((_NCOL, n))
@@ -609,6 +647,7 @@ def _streaks(img, xy, motion, half_size, s, ig):
             root = math.sqrt(max(0.25 * (mxx - myy) ** 2 + mxy * mxy, 0.0))
             big, small = 0.5 * (mxx + myy) + root, 0.5 * (mxx + myy) - root
             out[_ELONGATION, i] = math.sqrt(big / max(small, 1e-12))
-    if n == 0:
-        return out, half, 0.0, 0.0
-    return out, half, np.median(out[_SKY]), np.median(out[_NOISE])
+    noise_level = np.median(out[_NOISE]) if n else 0.0
+    sky_level = np.median(out[_SKY]) if n else 0.0
+    return StreakFit(out[_X], out[_Y], out[_FLUX], out[_AREA], out[_PEAK], out[_SIGMA_X], out[_SIGMA_Y],
+                     out[_COV_XY], out[_ELONGATION], out[_NOISE], out[_SKY], half, noise_level, sky_level)

@@ -300,6 +300,22 @@ def _symmetrize_code(C):
     return _OK if spd_inverse(C)[1] else _NOT_SPD
 
 
+@numba.njit(cache=True)
+def _gated_correct(A_pred, P, A_meas, R, nis_gate):
+    """:meth:`AttitudeFilter.update_gated` in one kernel: the checks of :func:`as_rotation` on
+    ``A_meas`` and of :func:`as_covariance` on ``R`` (symmetrised in place), the innovation, and
+    the measurement update of :func:`_correct` when the NIS is within ``nis_gate``. Returns
+    (the error codes of ``A_meas`` and of ``R``, whether ``S`` was positive definite, ``z``,
+    ``S``, NIS, whether it was corrected, the corrected attitude, state correction, covariance)."""
+    rotation_code = _rotation_code(A_meas)
+    covariance_code = _symmetrize_code(R)
+    z, S, _, ok, nis = _innovation(A_pred, P, A_meas, R)
+    if rotation_code != _OK or covariance_code != _OK or not ok or not nis <= nis_gate:
+        return rotation_code, covariance_code, ok, z, S, nis, False, A_pred, np.zeros(6), P
+    _, A_new, dx, P_new, _ = _correct(A_pred, P, A_meas, R)
+    return rotation_code, covariance_code, ok, z, S, nis, True, A_new, dx, P_new
+
+
 # --- checks and the innovation -----------------------------------------------------------------
 def as_time(t_s, name: str = "filter time") -> float:
     """A finite time in seconds as a float; InputError otherwise."""
@@ -312,14 +328,22 @@ def as_time(t_s, name: str = "filter time") -> float:
     return t
 
 
+def _matrix3(M, messages: dict, name: str) -> np.ndarray:
+    """A float64 copy of a 3 × 3 matrix; InputError (``messages[_NOT_FINITE]``) otherwise."""
+    try:
+        M = np.array(M, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(messages[_NOT_FINITE].format(name)) from None
+    if M.shape != (3, 3):
+        raise InputError(messages[_NOT_FINITE].format(name))
+    return M
+
+
 def as_rotation(A, name: str = "attitude") -> np.ndarray:
     """A copy of a finite proper rotation matrix (3, 3), float64, C-contiguous; InputError
     otherwise."""
-    try:
-        A = np.array(A, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be a finite 3x3 rotation matrix") from None
-    code = _NOT_FINITE if A.shape != (3, 3) else _rotation_code(A)
+    A = _matrix3(A, _ROTATION_MESSAGES, name)
+    code = _rotation_code(A)
     if code:
         raise InputError(_ROTATION_MESSAGES[code].format(name))
     return A
@@ -327,11 +351,8 @@ def as_rotation(A, name: str = "attitude") -> np.ndarray:
 
 def as_covariance(C, name: str = "covariance") -> np.ndarray:
     """A symmetrised copy of a finite positive definite 3 × 3 covariance; InputError otherwise."""
-    try:
-        C = np.array(C, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be a finite 3x3 covariance (rad²)") from None
-    code = _NOT_FINITE if C.shape != (3, 3) else _symmetrize_code(C)
+    C = _matrix3(C, _COVARIANCE_MESSAGES, name)
+    code = _symmetrize_code(C)
     if code:
         raise InputError(_COVARIANCE_MESSAGES[code].format(name))
     return C
@@ -523,6 +544,42 @@ class AttitudeFilter:
         ok, A_new, dx, P_new, nis = _correct(A_pred, P, A_meas, R)
         if not ok:
             raise InputError("attitude innovation covariance is not positive definite")
+        self._commit(t, A_new, dx, P_new, g, omega, nis)
+        return self.state
+
+    def update_gated(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray, nis_gate: float,
+                     gyro_rate_rad_s: np.ndarray | None = None) -> tuple[FilterState | None, Innovation]:
+        """:meth:`update` only when the measurement agrees with the prediction, its NIS at most
+        ``nis_gate`` (a tracker's check, :meth:`innovation`, and its update in one call).
+        Returns the new state (None: not committed, the state unchanged) and the innovation.
+
+        Raises
+        ------
+        InputError
+            As :meth:`update`.
+        """
+        t = as_time(t_s)
+        if not t > self._t:
+            raise InputError(f"filter time must increase: t={t!r} s after the state's {self._t!r} s")
+        A_meas = _matrix3(A_meas, _ROTATION_MESSAGES, "measured attitude")
+        R = _matrix3(cov_meas_rad2, _COVARIANCE_MESSAGES, "measurement covariance")
+        A_pred, P, omega, g = self._predicted(t, gyro_rate_rad_s)
+        rotation_code, covariance_code, ok, z, S, nis, done, A_new, dx, P_new = _gated_correct(
+            A_pred, P, A_meas, R, float(nis_gate))
+        if rotation_code:
+            raise InputError(_ROTATION_MESSAGES[rotation_code].format("measured attitude"))
+        if covariance_code:
+            raise InputError(_COVARIANCE_MESSAGES[covariance_code].format("measurement covariance"))
+        if not ok:
+            raise InputError("attitude innovation covariance is not positive definite")
+        inn = Innovation(z, S, float(nis))
+        if not done:
+            return None, inn
+        self._commit(t, A_new, dx, P_new, g, omega, nis)
+        return self.state, inn
+
+    def _commit(self, t: float, A_new: np.ndarray, dx: np.ndarray, P_new: np.ndarray, g, omega, nis) -> None:
+        """Take a corrected estimate at ``t`` (:func:`_correct`'s) as the state."""
         self._t = t
         self._A = A_new
         self._P = P_new
@@ -534,4 +591,3 @@ class AttitudeFilter:
             self._omega = omega + dx[3:]
         self.last_nis = float(nis)
         self._cached = None
-        return self.state

@@ -34,6 +34,9 @@ Interface of every predictor class, started from a first star fit::
         -> Prediction       # the estimate at t_s after this fit (t_s > the last fit's time)
     predict(t_s, gyro_rate_rad_s=None) -> Prediction      # at t_s ≥ the last fit's time
     innovation_nis(t_s, A_meas, cov_meas_rad2) -> float   # χ²(3) when consistent
+    update_gated(t_s, A_meas, cov_meas_rad2, nis_gate, *, xy=None, ids=None, camera=None,
+                 gyro_rate_rad_s=None) -> (Prediction or None, Innovation)
+        # update only when the NIS is at most nis_gate (None: not committed)
 
 Only the MEKF uses gyro rates (``gyro=True``: attitude + gyro bias); the thesis predictors had
 no gyro and ignore them.
@@ -56,6 +59,7 @@ from skyfix.track.filter import (
     DEFAULT_RATE_SIGMA_RAD_S,
     AttitudeFilter,
     FilterState,
+    Innovation,
     as_covariance,
     as_rotation,
     as_time,
@@ -98,6 +102,22 @@ class _Predictor:
         p = self.predict(t_s)
         return innovation(p.A_icrs_to_cam, p.attitude_cov_rad2, A_meas, cov_meas_rad2).nis
 
+    def update(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray, *, xy=None, ids=None,
+               camera=None, gyro_rate_rad_s: np.ndarray | None = None) -> Prediction:
+        raise NotImplementedError
+
+    def update_gated(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray, nis_gate: float, *,
+                     xy=None, ids=None, camera=None, gyro_rate_rad_s: np.ndarray | None = None
+                     ) -> tuple[Prediction | None, Innovation]:
+        """The star fit's innovation against :meth:`predict` at ``t_s`` and, when its NIS is at
+        most ``nis_gate``, :meth:`update` with it (else None: nothing committed)."""
+        p = self.predict(t_s, gyro_rate_rad_s)
+        inn = innovation(p.A_icrs_to_cam, p.attitude_cov_rad2, A_meas, cov_meas_rad2)
+        if not inn.nis <= nis_gate:
+            return None, inn
+        return self.update(t_s, A_meas, cov_meas_rad2, xy=xy, ids=ids, camera=camera,
+                           gyro_rate_rad_s=gyro_rate_rad_s), inn
+
 
 def _prediction(state: FilterState) -> Prediction:
     P = state.covariance
@@ -122,6 +142,12 @@ class MekfPredictor(_Predictor):
     def update(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray, *, xy=None, ids=None,
                camera=None, gyro_rate_rad_s: np.ndarray | None = None) -> Prediction:
         return _prediction(self.filter.update(t_s, A_meas, cov_meas_rad2, gyro_rate_rad_s))
+
+    def update_gated(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray, nis_gate: float, *,
+                     xy=None, ids=None, camera=None, gyro_rate_rad_s: np.ndarray | None = None
+                     ) -> tuple[Prediction | None, Innovation]:
+        state, inn = self.filter.update_gated(t_s, A_meas, cov_meas_rad2, nis_gate, gyro_rate_rad_s)
+        return (None if state is None else _prediction(state)), inn
 
     def predict(self, t_s: float, gyro_rate_rad_s: np.ndarray | None = None) -> Prediction:
         return _prediction(self.filter.predict(t_s, gyro_rate_rad_s))

@@ -55,14 +55,14 @@ from typing import NamedTuple
 import numpy as np
 
 from skyfix.camera import Camera
-from skyfix.detect import refine_centroids
-from skyfix.detect.centroid import Refined
-from skyfix.detect.centroids import background_snr
+from skyfix.detect.centroid import centroider
+from skyfix.detect.streak import streak_model_sigma
 from skyfix.errors import CameraError, InputError
 from skyfix.identify.kernel_data import StarIndex
 from skyfix.solution import Match, Solution
 from skyfix.track import windows as win
 from skyfix.track.filter import innovation
+from skyfix.track.measure import CentroidSettings, measure_frame
 
 __all__ = ["DEFAULT_ACCEL_PSD", "MODES", "TrackSettings", "Tracker", "window_fit_agrees"]
 
@@ -71,8 +71,6 @@ MODES = ("lost", "acquiring", "tracking")
 
 _ARCSEC = math.pi / (180 * 3600)
 _DEG = math.pi / 180
-_ARCSEC2_PER_RAD2 = 1.0 / _ARCSEC ** 2
-_DEG_PER_RAD = 1.0 / _DEG
 #: The MEKF's white angular-acceleration density the Tracker gives it, rad²/s³: its rate wanders
 #: 0.06 °/s in 1 s (q ≳ α² Δt: accelerations to ~0.2 °/s² at 10 Hz), so at a steady rate the
 #: filter averages many frames. A harder manoeuvre (a slew's ramp) is caught by the NIS: the
@@ -246,20 +244,17 @@ class Tracker:
         self._setup_catalog()
         self._cam = camera.numbers()
         self._plate = camera.plate_scale_rad
-        self._view = win.View.empty(_VIEW_CAP)
-        self._view_t = tuple(self._view)
-        self._sel = win.Selection.empty(self.settings.n_windows)
-        self._sel_t = tuple(self._sel)
+        self._view_t = tuple(win.View.empty(_VIEW_CAP))
         self._max_tile = int(math.ceil(self.settings.max_window_px + 3 * self.settings.star_radius_px))
         self._tiles = np.zeros(self.settings.n_windows * (2 * self._max_tile) ** 2, np.float32)
-        self._origin = np.zeros((self.settings.n_windows, 2), np.int64)
-        self._sky = np.zeros(self.settings.n_windows)
-        self._noise = np.zeros(self.settings.n_windows)
-        self._mosaic_xy = np.zeros((self.settings.n_windows, 2))
-        self._no_xy, self._no_b, self._no_mag = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0)
+        # the round-star centroider: the CoM where "streak" cannot centre its weight
+        how = centroider("com" if centroid == "streak" else centroid, 3.0, self.settings.psf_sigma_px,
+                         self.settings.gain)
+        self._centroid_t = tuple(CentroidSettings(
+            centroid == "streak", _STREAK_PX, int(math.ceil(r_star)) + 1,  # the star and a pixel
+            streak_model_sigma(self.settings.psf_sigma_px), tuple(how)))
+        self._no_xy, self._no_b, self._no_index = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64)
         self._fov_deg = camera.fov_deg
-        self._rows = np.arange(self.settings.n_windows)
-        self._zeros = np.zeros(self.settings.n_windows)
         self.reset()
 
     def _setup_catalog(self) -> None:
@@ -473,12 +468,12 @@ class Tracker:
         fit, why = self._measure(img, t, pred)
         t_fit = time.perf_counter()
         if fit is not None:
-            inn = innovation(pred.A_icrs_to_cam, pred.attitude_cov_rad2, fit.A_icrs_to_cam,
-                             fit.covariance_rad2)
-            if inn.nis <= self.settings.nis_gate:
-                post = self._predictor.update(t, fit.A_icrs_to_cam, fit.covariance_rad2, xy=fit.xy,
-                                              ids=self._star_ids[fit.index], camera=self.camera,
-                                              gyro_rate_rad_s=gyro)
+            # the fit's NIS against the prediction, and the predictor's update when it agrees
+            post, inn = self._predictor.update_gated(t, fit.A_icrs_to_cam, fit.covariance_rad2,
+                                                     self.settings.nis_gate, xy=fit.xy,
+                                                     ids=self._star_ids[fit.index], camera=self.camera,
+                                                     gyro_rate_rad_s=gyro)
+            if post is not None:
                 return self._tracked(post, fit, (t0, t_pred, t_fit))
             if len(fit.index) >= _STRONG_FIT:
                 # The stars agree among themselves, not with the prediction: a manoeuvre the
@@ -563,17 +558,17 @@ class Tracker:
 
     def _measure(self, img: np.ndarray, t: float, pred) -> tuple[_Fit | None, str]:
         """The star fit of one frame from windows around the predicted stars (module
-        docstring), or None and why not."""
+        docstring; :func:`skyfix.track.measure.measure_frame`), or None and why not."""
         s = self.settings
-        exposure = self._exposure(t)
-        rate = np.ascontiguousarray(pred.rate_rad_s, dtype=np.float64)
-        select_mag = min(self._select_mag, self._faintest + 1.0)
         c = np.ascontiguousarray
         A = c(pred.A_icrs_to_cam)
         self._local_catalog(A[2])
-        plan = win.plan_entry(A, c(pred.attitude_cov_rad2), rate, c(pred.rate_cov_rad2_s2), exposure,
-                              self._local_t, select_mag, self._cam, self.camera.width, self.camera.height,
-                              self._window_settings_t, self._view_t, self._sel_t)
+        plan, res = measure_frame(img, A, c(pred.attitude_cov_rad2), c(pred.rate_rad_s, dtype=np.float64),
+                                  c(pred.rate_cov_rad2_s2), self._exposure(t), s.line_time_s, self._local_t,
+                                  min(self._select_mag, self._faintest + 1.0), self._cam,
+                                  self._window_settings_t, self._view_t, self._tiles, self._max_tile,
+                                  self._stars.vectors, self._zero_point, self._match_settings_t,
+                                  self._centroid_t, s.min_stars, _OUTLIER_SIGMA)
         n = plan.n
         # next frame: stars down to a magnitude fainter than the faintest chosen (all, when short)
         self._faintest = plan.faintest_mag if n == s.n_windows else math.inf
@@ -582,11 +577,6 @@ class Tracker:
                 return None, (f"attitude too uncertain for windows ({plan.too_wide} stars need more than "
                               f"{s.max_window_px:g} px)")
             return None, f"{n} catalogue stars to track in the frame (need {s.min_stars})"
-        dt = self._row_times(n, t, rate)
-        size, x, y, sx, sy, flux, snr = self._centroid(img, n)
-        res = win.fit_entry(n, x, y, sx, sy, flux, snr, self._origin, size, self._sel_t, self._stars.vectors,
-                            self._zero_point, self._match_settings_t, self._cam, rate, dt, plan.n_view,
-                            float(self.camera.width * self.camera.height), s.min_stars, _OUTLIER_SIGMA)
         if not res.ok:
             if res.n_gated < s.min_stars:
                 return None, f"{res.n_gated} of {n} windows hold their star ({res.n_found} found a star)"
@@ -614,65 +604,24 @@ class Tracker:
             self._local_z = z.copy()
         return self._local
 
-    def _centroid(self, img: np.ndarray, n: int):
-        """Cut the windows' tiles into one mosaic and centroid them: the tile size and the
-        centroids' (x, y, σx, σy, flux, SNR), x and y in the mosaic."""
-        sky, noise, local = self._sky[:n], self._noise[:n], self._mosaic_xy[:n]
-        tile_half, recentred, streak = win.cut_entry(img, self._sel_t, n, self._max_tile, self._tiles,
-                                                     self._origin, local, sky, noise)
-        size = 2 * tile_half
-        mosaic = self._tiles[:n * size * size].reshape(n * size, size)
-        how = self.settings.centroid
-        if how == "streak" and not recentred and streak >= _STREAK_PX:
-            from skyfix.detect.streak import centroid_streaks
-
-            margin = min(  # the star and a pixel; the tile holds it
-                tile_half - int(math.ceil(streak / 2)) - 1, int(math.ceil(self.settings.star_radius_px)) + 1)
-            c = centroid_streaks(mosaic, local, self._sel.smear[:n], max(2, margin), method="streak",
-                                 psf_sigma=self.settings.psf_sigma_px, gain=self.settings.gain)
-            return size, c.x, c.y, c.sigma_x, c.sigma_y, c.flux, c.snr
-        # the windows' own sky and noise: refine_centroids, the kernel of centroid_windows
-        # without its Centroids (a fifth of the cost at 16 windows)
-        r = Refined.of(refine_centroids(mosaic, local, sky, noise, tile_half,
-                                        method="com" if how == "streak" else how, sigma=3.0,
-                                        psf_sigma=self.settings.psf_sigma_px, gain=self.settings.gain))
-        found = r.ok > 0
-        snr = np.where(found, background_snr(r.flux, r.noise, r.npix), 0.0)
-        return size, np.where(found, r.x, np.nan), r.y, r.sigma_x, r.sigma_y, r.flux, snr
-
-    # --- rolling shutter -------------------------------------------------------------------
-    def _row_times(self, n: int, t: float, rate: np.ndarray) -> np.ndarray:
-        """Each window's star seen at its row's time, ``t + dt[i]`` (a global shutter: 0); the
-        predictions moved to it by ``J ω Δt`` (windows docstring)."""
-        if self.settings.line_time_s == 0:
-            return self._zeros[:n]
-        from skyfix.detect.streak import star_times
-
-        sel = self._sel
-        dt = star_times(np.column_stack((sel.x[:n], sel.y[:n])), t, self.settings.line_time_s,
-                        self.camera.height) - t
-        shift = np.einsum("nij,j->ni", sel.jac[:n], rate) * dt[:, None]
-        sel.x[:n] += shift[:, 0]
-        sel.y[:n] += shift[:, 1]
-        return np.ascontiguousarray(dt, dtype=np.float64)
-
     # --- the Solution ----------------------------------------------------------------------
     def _solution(self, est, mode: str, fit: _Fit | None) -> Solution:
         """A Solution for the estimate ``est`` (a Prediction: attitude, covariances, rate) and
         the fit that made it (None: coasting on the prediction)."""
         A = np.ascontiguousarray(est.A_icrs_to_cam)
         if fit is None:
-            head, table, rmse = win.solution_numbers(A, self._no_xy, self._no_b, self._no_b, self._no_mag)
+            xy, b, index = self._no_xy, self._no_b, self._no_index
         else:
-            head, table, rmse = win.solution_numbers(A, fit.xy, fit.b, self._stars.vectors[fit.index],
-                                                     self._mags[fit.index])
-        head = head.tolist()
+            xy, b, index = fit.xy, fit.b, fit.index
+        head, table, rmse = win.solution_numbers(A, est.attitude_cov_rad2, est.rate_rad_s,
+                                                 est.rate_cov_rad2_s2, xy, b, index, self._stars.vectors,
+                                                 self._mags)
+        h = head.tolist()
         cam = self.camera
-        sol = Solution(image="<array>", status="solved", ra_deg=head[0], dec_deg=head[1], roll_deg=head[2],
-                       boresight_px=[cam.cx, cam.cy], fov_deg=self._fov_deg, quaternion_xyzw=head[3:],
-                       covariance_arcsec2=(est.attitude_cov_rad2 * _ARCSEC2_PER_RAD2).tolist(),
-                       method="track", mode=mode, rate_dps=(est.rate_rad_s * _DEG_PER_RAD).tolist(),
-                       rate_covariance_dps2=(est.rate_cov_rad2_s2 * _DEG_PER_RAD ** 2).tolist())
+        sol = Solution(image="<array>", status="solved", ra_deg=h[0], dec_deg=h[1], roll_deg=h[2],
+                       boresight_px=[cam.cx, cam.cy], fov_deg=self._fov_deg, quaternion_xyzw=h[3:7],
+                       covariance_arcsec2=[h[7:10], h[10:13], h[13:16]], method="track", mode=mode,
+                       rate_dps=h[16:19], rate_covariance_dps2=[h[19:22], h[22:25], h[25:28]])
         sol.A_icrs_to_cam = A
         sol.camera = cam
         if fit is None:

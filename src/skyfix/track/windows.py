@@ -52,9 +52,8 @@ from skyfix.identify.verify import gather_stars
 from skyfix.track.fit import fit_attitude
 
 __all__ = ["Local", "MatchSettings", "Plan", "Selection", "View", "WindowFit", "WindowSettings", "crowding",
-           "cut_entry", "cut_tiles", "fit_entry", "fit_windows", "local_catalog", "match_windows",
-           "pixel_jacobian", "plan_entry", "plan_windows", "project_view", "select_windows",
-           "solution_numbers"]
+           "cut_tiles", "fit_windows", "local_catalog", "match_windows", "new_selection", "no_fit",
+           "pixel_jacobian", "plan_windows", "project_view", "select_windows", "solution_numbers"]
 
 
 class WindowSettings(NamedTuple):
@@ -107,9 +106,7 @@ class Selection(NamedTuple):
 
     @classmethod
     def empty(cls, n_max: int) -> Selection:
-        return cls(np.zeros(n_max, np.int64), np.zeros(n_max), np.zeros(n_max), np.zeros(n_max),
-                   np.zeros((n_max, 3)), np.zeros((n_max, 2, 3)), np.zeros((n_max, 2)), np.zeros(n_max),
-                   np.zeros(n_max))
+        return new_selection(n_max)
 
 
 class MatchSettings(NamedTuple):
@@ -205,6 +202,21 @@ class WindowFit(NamedTuple):
     xy: np.ndarray
     b: np.ndarray
     sigma_rad: np.ndarray
+
+
+@numba.njit(cache=True)
+def new_selection(n_max):
+    """An empty :class:`Selection` for ``n_max`` windows (``Selection.empty``, also in kernels)."""
+    return Selection(np.zeros(n_max, np.int64), np.zeros(n_max), np.zeros(n_max), np.zeros(n_max),
+                     np.zeros((n_max, 3)), np.zeros((n_max, 2, 3)), np.zeros((n_max, 2)), np.zeros(n_max),
+                     np.zeros(n_max))
+
+
+@numba.njit(cache=True, inline="always")
+def no_fit(n_found, n_gated, zero_point):
+    """The :class:`WindowFit` of a frame with too few stars for a fit."""
+    return WindowFit(False, n_found, n_gated, np.eye(3), np.zeros((3, 3)), zero_point, 0.0, 0,
+                     np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0))
 
 
 @numba.njit(cache=True, inline="always")
@@ -548,11 +560,8 @@ def fit_windows(n, x, y, sx, sy, flux, snr, origin, size, sel, vectors, zero_poi
     m_inst = np.empty(n)
     n_gated, zp, gate_area = match_windows(n, cx, cy, sx, sy, flux, snr, sel, zero_point, settings, keep,
                                            chi2, m_inst)
-    A = np.eye(3)
-    P = np.zeros((3, 3))
     if n_gated < min_stars:
-        return WindowFit(False, n_found, n_gated, A, P, zp, 0.0, 0, np.zeros(0, np.int64), np.zeros((0, 2)),
-                         np.zeros((0, 3)), np.zeros(0))
+        return no_fit(n_found, n_gated, zp)
     idx = np.flatnonzero(keep)
     m = idx.size
     xy = np.empty((m, 2))
@@ -587,18 +596,33 @@ def fit_windows(n, x, y, sx, sy, flux, snr, origin, size, sel, vectors, zero_poi
 
 
 _ARCSEC = np.pi / (180.0 * 3600.0)
+_ARCSEC2_PER_RAD2 = 1.0 / _ARCSEC ** 2
+_DEG_PER_RAD = 1.0 / (np.pi / 180.0)
+_DEG2_PER_RAD2 = _DEG_PER_RAD ** 2
 
 
 @numba.njit(cache=True)
-def solution_numbers(A, xy, b, r, mags):
-    """A tracked frame's Solution numbers in one call: RA, Dec, roll (degrees) and the
-    quaternion ``[x, y, z, w]`` of ``A`` (7,) (:func:`skyfix._kernels.rotation.pointing`); the
-    matches' table (6, n) of x, y, catalogue RA and Dec (degrees), magnitude and residual
-    (arcsec, the angle between ray ``b`` and ``A r``); the residuals' RMS (arcsec)."""
-    out = pointing(A)
+def solution_numbers(A, P, rate, P_rate, xy, b, index, vectors, mags):
+    """A tracked frame's Solution numbers in one call, for the estimate ``A`` (covariance
+    ``P``, rad²; body rate ``rate``, rad/s, covariance ``P_rate``) and its stars (centroids
+    ``xy``, rays ``b``, catalogue rows ``index`` of ``vectors`` and ``mags``): ``head`` (28,) —
+    RA, Dec, roll (degrees) and the quaternion ``[x, y, z, w]`` of ``A``
+    (:func:`skyfix._kernels.rotation.pointing`), ``P`` in arcsec² (9, by rows), the rate in °/s
+    (3) and its covariance in (°/s)² (9); the matches' table (6, n) of x, y, catalogue RA and
+    Dec (degrees), magnitude and residual (arcsec, the angle between ray ``b`` and ``A r``);
+    the residuals' RMS (arcsec)."""
+    head = np.empty(28)
+    head[:7] = pointing(A)
     for k in range(3):
-        out[k] = np.degrees(out[k])
+        head[k] = np.degrees(head[k])
+        head[16 + k] = rate[k] * _DEG_PER_RAD
+        for j in range(3):
+            head[7 + 3 * k + j] = P[k, j] * _ARCSEC2_PER_RAD2
+            head[19 + 3 * k + j] = P_rate[k, j] * _DEG2_PER_RAD2
     n = b.shape[0]
+    r = np.empty((n, 3))
+    for i in range(n):
+        r[i] = vectors[index[i]]
     table = np.empty((6, n))
     resid = angles(b, r, A)
     ss = 0.0
@@ -608,35 +632,7 @@ def solution_numbers(A, xy, b, r, mags):
         table[1, i] = xy[i, 1]
         table[2, i] = np.degrees(ra)
         table[3, i] = np.degrees(dec)
-        table[4, i] = mags[i]
+        table[4, i] = mags[index[i]]
         table[5, i] = resid[i] / _ARCSEC
         ss += table[5, i] * table[5, i]
-    return out, table, np.sqrt(ss / n) if n else np.nan
-
-
-# --- the tracker's calls ---------------------------------------------------------------------
-# numba types a NamedTuple argument in Python, ~1.6 µs each per call, but a plain tuple in its C
-# dispatcher (skyfix/identify/kernel_data.py says the same of the search): the tracker calls
-# these twins with ``tuple(nt)`` of the same fields, named again inside at no cost.
-
-
-@numba.njit(cache=True)
-def plan_entry(A, P, rate, P_rate, exposure_s, local_t, select_mag, cam, width, height, settings_t, view_t,
-               sel_t):
-    """:func:`plan_windows` with its NamedTuples as plain tuples."""
-    return plan_windows(A, P, rate, P_rate, exposure_s, Local(*local_t), select_mag, cam, width, height,
-                        WindowSettings(*settings_t), View(*view_t), Selection(*sel_t))
-
-
-@numba.njit(cache=True)
-def cut_entry(img, sel_t, n, max_half, tiles, origin, local, sky, noise):
-    """:func:`cut_tiles` with the :class:`Selection` as a plain tuple."""
-    return cut_tiles(img, Selection(*sel_t), n, max_half, tiles, origin, local, sky, noise)
-
-
-@numba.njit(cache=True)
-def fit_entry(n, x, y, sx, sy, flux, snr, origin, size, sel_t, vectors, zero_point, settings_t, cam, rate, dt,
-              n_view, frame_area, min_stars, outlier_k):
-    """:func:`fit_windows` with its NamedTuples as plain tuples."""
-    return fit_windows(n, x, y, sx, sy, flux, snr, origin, size, Selection(*sel_t), vectors, zero_point,
-                       MatchSettings(*settings_t), cam, rate, dt, n_view, frame_area, min_stars, outlier_k)
+    return head, table, np.sqrt(ss / n) if n else np.nan
