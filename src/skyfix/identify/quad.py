@@ -237,11 +237,16 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     n_lookups = n_cand = 0
     while True:
         # The database that has taken the least time so far goes next (the first one, the common
-        # case, first), one chunk of patterns longer than its last: a database whose wrong
-        # candidates are cheap to reject gets through more patterns in the same time.
-        search = min((s for s in searches if s.pos[0] < total), key=lambda s: s.spent_s, default=None)
-        if search is None:
+        # case, first) — its distortion hypotheses share its time — one chunk of patterns longer
+        # than its last: a database whose wrong candidates are cheap to reject gets through more
+        # patterns in the same time.
+        live = [s for s in searches if s.pos[0] < total]
+        if not live:
             break
+        spent: dict[int, float] = {}
+        for s in searches:
+            spent[id(s.source)] = spent.get(id(s.source), 0.0) + s.spent_s
+        search = min(live, key=lambda s: (spent[id(s.source)], s.spent_s))
         t_start = time.perf_counter()
         target = min(total, search.pos[0] + search.chunk)
         search.chunk = min(2 * search.chunk, 512)
