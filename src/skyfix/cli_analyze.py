@@ -1,5 +1,5 @@
 """``skyfix analyze``: centroid accuracy vs. the Cramér–Rao bound, PSF across the field, photometry,
-tracking against lost in space and thesis 002.
+tracking against lost in space and thesis 002, the seed presets solved lost in space.
 
 Registered in :mod:`skyfix.cli` with ``app.add_typer(analyze_app, name="analyze")``. Errors are
 one line, as everywhere in the CLI (:mod:`skyfix.cli_support`).
@@ -27,7 +27,8 @@ from skyfix.validate import check_count, check_epoch, check_fov, check_positive
 
 analyze_app = typer.Typer(no_args_is_help=True, pretty_exceptions_enable=False,
                           help="Analyses: centroid accuracy vs. the Cramér–Rao bound, PSF over the field, "
-                               "photometry against the catalogue, tracking against lost in space.")
+                               "photometry against the catalogue, tracking against lost in space, the seed "
+                               "presets solved lost in space.")
 
 
 def _progress(total: int, quiet: bool):
@@ -108,6 +109,48 @@ def tracking(
         task = bar.add_task("tracking study", total=n_steps)
         study = ts.run_study(settings, progress=lambda what: bar.update(task, advance=1, description=what))
     paths = ts.write_study(study, out, command=command)
+    typer.echo(paths[1].read_text())
+    for p in paths:
+        typer.echo(f"wrote {p}")
+
+
+@analyze_app.command()
+@guarded
+def presets(
+    out: Path = typer.Option(Path("preset-campaign"), "--out",
+                             help="Output directory (JSON, Markdown, PNG)."),
+    n: int = typer.Option(100, "--n", min=1, help="Frames per preset configuration."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed (attitudes, noise)."),
+    only: str = typer.Option("", "--presets", help="Comma-separated presets (default: every configuration)."),
+    database: Path = typer.Option(None, "--database", help="Solve with this pattern database instead of "
+                                  "skyfix's FOV bands (fields it does not serve also with one built for "
+                                  "them)."),
+    verbose: int = VERBOSE,
+) -> None:
+    """Each seed camera preset rendered at random attitudes and solved with no hint and with its
+    camera given: solved, wrong, boresight and roll errors against the truth, honesty of the error
+    bars, time."""
+    from skyfix.analysis import preset_campaign as pc
+    from skyfix.simulate import preset_names
+
+    add_verbosity(verbose)
+    n = check_count(n, "--n", minimum=1)
+    names = [p.strip().lower() for p in only.split(",") if p.strip()]
+    bad = [p for p in names if p not in preset_names()]
+    if bad:
+        fail(f"unknown preset {', '.join(bad)}; choose from {', '.join(preset_names())}")
+    rows = tuple(r for r in pc.CAMPAIGN_ROWS if not names or r.preset in names)
+    rows += tuple(pc.CampaignRow(p) for p in names if p not in {r.preset for r in pc.CAMPAIGN_ROWS})
+    command = (f"skyfix analyze presets --n {n}" + (f" --seed {seed}" if seed else "")
+               + (f" --presets {','.join(names)}" if names else "")
+               + (f" --database {database}" if database is not None else ""))
+    prepare_outputs({"--out": [out / "presets.json"]})
+    db = load_database(database) if database is not None else None
+    with _progress(n * len(rows), False) as bar, compile_notice(bar):
+        task = bar.add_task("preset campaign", total=n * len(rows))
+        campaign = pc.run_campaign(n, seed, rows=rows, database=db,
+                                   progress=lambda what: bar.update(task, advance=1, description=what))
+    paths = pc.write_campaign(campaign, out, command=command)
     typer.echo(paths[1].read_text())
     for p in paths:
         typer.echo(f"wrote {p}")

@@ -1,0 +1,372 @@
+"""The seed presets solved lost in space: ``skyfix analyze presets``.
+
+For each seed camera preset, :func:`run_campaign` renders N frames at random attitudes (seeded)
+at the preset's ``[defaults]`` exposure, and solves each with no hint (``skyfix.solve(image)``)
+and, for reference, with the preset's camera given (``camera=``). Each solve is compared with
+the truth attitude at the pixel the solution calls its boresight
+(:func:`skyfix.analysis.blind_campaign.attitude_error_rad`); a solve is **wrong** when that
+boresight error exceeds max(60″, 1 px) or the roll error 0.5°
+(:func:`~skyfix.analysis.blind_campaign.is_wrong`).
+
+A frame's **detectable** stars are those of its truth whose expected detection SNR reaches
+:data:`DETECTABLE_SNR` (:func:`skyfix.analysis.preset_check.detection_snr`: the star's expected
+peak in the extractor's smoothed frame over that frame's noise). Issue 10's bar: of the frames
+with at least 4 detectable stars, ≥ 95% solve and none is wrong.
+
+By default the solves use skyfix's own databases (the FOV bands, :mod:`skyfix.identify.bands`).
+Given a ``database``, they use it instead, and the presets whose field it does not serve
+(:func:`~skyfix.identify.bands.served_fov_deg`) are also solved with a database built for their
+field (:meth:`PatternDatabase.build` over ``FOV / 1.1 … FOV · 1.1``): the rest of the path tested
+apart from the database's range. :data:`CAMPAIGN_ROWS` adds configurations beyond the presets'
+own exposures (the Droid X2 at its sensor's 1 s).
+
+:func:`write_campaign` writes ``presets.json``, ``presets.md`` (the table, headed by the
+command) and ``presets.png`` (the boresight errors per configuration). docs/presets.md has a run.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+
+from skyfix.analysis.blind_campaign import attitude_error_rad, is_wrong
+from skyfix.analysis.preset_check import THESIS_FIGURES, detection_snr
+
+if TYPE_CHECKING:
+    from skyfix.identify import PatternDatabase
+
+__all__ = ["CAMPAIGN_ROWS", "DETECTABLE_BINS", "DETECTABLE_SNR", "MIN_DETECTABLE", "Campaign", "CampaignRow",
+           "FrameResult", "SolveOutcome", "run_campaign", "summarize_row", "markdown", "plot_campaign",
+           "write_campaign"]
+
+#: A star is detectable when its expected detection SNR reaches this: the extractor's 5σ threshold
+#: plus what its 3-pixel footprint and the sub-pixel phase need. Measured (docs/presets.md): stars
+#: at 8–12 are found 92–100% of the time on every preset, at 5–6 12–90%.
+DETECTABLE_SNR = 8.0
+#: Frames with at least this many detectable stars should solve (identification needs 4).
+MIN_DETECTABLE = 4
+#: The solve rate is also given by detectable stars a frame, in bins from these lower bounds.
+DETECTABLE_BINS = (0, 4, 6, 8)
+_ARCSEC = math.pi / (180.0 * 3600.0)
+
+
+class CampaignRow(NamedTuple):
+    """One configuration of the campaign: a preset at an exposure (None: its ``[defaults]``)."""
+
+    preset: str
+    exposure_s: float | None = None
+    note: str = ""
+
+
+#: The campaign's configurations: every preset at its own exposure, and the Droid X2 at 1 s, the
+#: longest its sensor allows (thesis 003 ch. 10: the 66 ms the phone's app allowed is why it failed).
+CAMPAIGN_ROWS: tuple[CampaignRow, ...] = (
+    CampaignRow("generic"), CampaignRow("mt9v022"), CampaignRow("has2"), CampaignRow("sunsat"),
+    CampaignRow("mt9p031"), CampaignRow("droid_x2"),
+    CampaignRow("droid_x2", 1.0, "the sensor's longest exposure"), CampaignRow("ov5642"),
+)
+
+
+class SolveOutcome(NamedTuple):
+    """One solve against the truth: errors and σ about the solution's camera axes (x, y, roll),
+    radians (NaN when it failed); ``time_s`` the wall time of ``solve``."""
+
+    solved: bool
+    reason: str
+    wrong: bool
+    error_rad: np.ndarray
+    sigma_rad: np.ndarray
+    n_matched: int
+    time_s: float
+
+    @property
+    def boresight_arcsec(self) -> float:
+        return float(math.hypot(self.error_rad[0], self.error_rad[1]) / _ARCSEC)
+
+    @property
+    def roll_arcsec(self) -> float:
+        return float(abs(self.error_rad[2]) / _ARCSEC)
+
+
+class FrameResult(NamedTuple):
+    """One rendered frame and its solves: ``solves`` maps ``"<database>/<blind|camera>"`` to a
+    :class:`SolveOutcome` (database ``"bands"``: skyfix's default, ``"given A–B°"``: the one passed
+    to :func:`run_campaign`, or ``"built A–B°"``)."""
+
+    index: int
+    ra_deg: float
+    dec_deg: float
+    roll_deg: float
+    n_stars: int
+    n_detectable: int
+    solves: dict
+
+
+class Campaign(NamedTuple):
+    """A campaign's settings and, per configuration, its frames."""
+
+    settings: dict
+    rows: list           # [(CampaignRow, {database label: (fov_min, fov_max) or None}, [FrameResult])]
+
+
+def _outcome(sol, A_true: np.ndarray, camera_true, seconds: float) -> SolveOutcome:
+    nan = np.full(3, np.nan)
+    if not sol.solved:
+        return SolveOutcome(False, sol.reason, False, nan, nan, 0, seconds)
+    err = attitude_error_rad(sol.A_icrs_to_cam, sol.camera, A_true, camera_true)
+    sigma = np.sqrt(np.diag(np.asarray(sol.covariance_arcsec2, dtype=np.float64))) * _ARCSEC
+    scale = camera_true.plate_scale_rad / _ARCSEC
+    return SolveOutcome(True, "", is_wrong(err, scale), err, sigma, int(sol.n_matched), seconds)
+
+
+def _databases(camera, database: PatternDatabase | None, epoch: float) -> dict:
+    """The databases a preset is solved with: {label: database or None (skyfix's bands)}. With
+    ``database`` given, it, and one built for the preset's field when it does not serve it."""
+    from skyfix.identify import PatternDatabase
+    from skyfix.identify.bands import served_fov_deg
+
+    if database is None:
+        return {"bands": None}
+    dbs = {f"given {database.fov_min_deg:g}–{database.fov_max_deg:g}°": database}
+    lo, hi = served_fov_deg(database)
+    fov = camera.fov_deg
+    if not lo <= fov <= hi:
+        lo, hi = round(fov / 1.1, 2), round(fov * 1.1, 2)
+        dbs[f"built {lo:g}–{hi:g}°"] = PatternDatabase.build(lo, hi, epoch=epoch)
+    return dbs
+
+
+def run_campaign(n: int = 100, seed: int = 0, *, rows: tuple[CampaignRow, ...] = CAMPAIGN_ROWS,
+                 epoch: float = 2025.0, database: PatternDatabase | None = None,
+                 progress: Callable[[str], None] | None = None) -> Campaign:
+    """Render ``n`` frames per configuration in ``rows`` at random attitudes (seeded; the same
+    attitudes for every configuration) and solve each with no hint and with the camera given,
+    with skyfix's databases or, given one, with ``database`` and, for fields it does not serve,
+    one built for the field. ``progress`` is called once per frame."""
+    from skyfix.analysis.synthetic_centroids import random_attitudes
+    from skyfix.camera import Camera
+    from skyfix.pipeline import solve
+    from skyfix.simulate import render
+
+    attitudes = random_attitudes(n, np.random.default_rng(seed))
+    out = []
+    for row in rows:
+        frames: list[FrameResult] = []
+        dbs = None
+        for k, A in enumerate(attitudes):
+            frame = render(A, row.preset, exposure_s=row.exposure_s, epoch=epoch, seed=seed * 100003 + k)
+            camera = Camera.from_dict(frame.truth["camera"])
+            if dbs is None:
+                dbs = _databases(camera, database, epoch)
+            solves = {}
+            for label, db in dbs.items():
+                for mode, kw in (("blind", {}), ("camera", {"camera": camera})):
+                    t0 = time.perf_counter()
+                    sol = solve(frame.image, epoch=epoch, database=db, **kw)
+                    solves[f"{label}/{mode}"] = _outcome(sol, A, camera, time.perf_counter() - t0)
+            truth = frame.truth
+            n_detectable = int(np.sum(detection_snr(truth) >= DETECTABLE_SNR))
+            frames.append(FrameResult(k, truth["ra_deg"], truth["dec_deg"], truth["roll_deg"],
+                                      len(truth["stars"]), n_detectable, solves))
+            if progress is not None:
+                progress(f"{row.preset} frame {k + 1}/{n}")
+        out.append((row, {label: None if db is None else (db.fov_min_deg, db.fov_max_deg)
+                          for label, db in dbs.items()}, frames))
+    settings = dict(n=n, seed=seed, epoch=epoch, detectable_snr=DETECTABLE_SNR, min_detectable=MIN_DETECTABLE)
+    return Campaign(settings, out)
+
+
+def _percentile(values: list[float], q: float) -> float:
+    return float(np.percentile(values, q)) if values else math.nan
+
+
+def summarize_row(frames: list[FrameResult], key: str) -> dict:
+    """The numbers of one configuration's solves ``key`` (``"bands/blind"``, …): frames, frames
+    with ≥ 4 detectable stars and how many of those solved, wrong solves (all frames), boresight
+    and roll errors (median, 95th percentile, arcsec), normalised error RMS per axis (x, y, roll)
+    and the median solve time."""
+    outs = [f.solves[key] for f in frames]
+    able = [f.n_detectable >= MIN_DETECTABLE for f in frames]
+    solved = [o for o in outs if o.solved]
+    bore = [o.boresight_arcsec for o in solved]
+    roll = [o.roll_arcsec for o in solved]
+    z = np.array([o.error_rad / o.sigma_rad for o in solved]) if solved else np.zeros((0, 3))
+    n_able = int(sum(able))
+    n_able_solved = sum(1 for o, a in zip(outs, able, strict=True) if a and o.solved)
+    reasons: dict[str, int] = {}
+    for o in outs:
+        if not o.solved:
+            short = o.reason.split(":")[0].split(" after ")[0].split("(")[0][:60].strip()
+            reasons[short] = reasons.get(short, 0) + 1
+    return dict(
+        frames=len(frames), detectable_median=float(np.median([f.n_detectable for f in frames])),
+        frames_4_detectable=n_able, solved=len(solved), solved_of_4_detectable=n_able_solved,
+        solved_pct_of_4_detectable=100.0 * n_able_solved / n_able if n_able else math.nan,
+        wrong=sum(o.wrong for o in solved),
+        boresight_median_arcsec=_percentile(bore, 50), boresight_p95_arcsec=_percentile(bore, 95),
+        roll_median_arcsec=_percentile(roll, 50), roll_p95_arcsec=_percentile(roll, 95),
+        normalised_rms=np.sqrt(np.mean(z**2, axis=0)).tolist() if len(z) else [math.nan] * 3,
+        time_median_ms=1000.0 * float(np.median([o.time_s for o in outs])),
+        solved_by_detectable=_by_detectable(frames, outs),
+        failures=dict(sorted(reasons.items(), key=lambda kv: -kv[1])))
+
+
+_MODE_TEXT = {"blind": "no hint", "camera": "camera given"}
+
+
+def _by_detectable(frames: list[FrameResult], outs: list[SolveOutcome]) -> dict:
+    """{bin label: [solved, frames]} over :data:`DETECTABLE_BINS`."""
+    edges = (*DETECTABLE_BINS, math.inf)
+    out = {}
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        label = f"{lo}–{hi - 1:g}" if math.isfinite(hi) else f"≥ {lo}"
+        sel = [o.solved for f, o in zip(frames, outs, strict=True) if lo <= f.n_detectable < hi]
+        out[label] = [sum(sel), len(sel)]
+    return out
+
+
+def _fmt(v: float, digits: int = 1) -> str:
+    return "–" if v is None or not math.isfinite(v) else f"{v:.{digits}f}"
+
+
+def _thesis_text(preset: str) -> str:
+    fig = THESIS_FIGURES.get(preset)
+    if fig is None or fig.boresight_arcsec is None:
+        return "–"
+    return f"{fig.boresight_arcsec:g}″ ({fig.thesis})"
+
+
+def markdown(campaign: Campaign, command: str) -> str:
+    """The campaign's tables (Markdown), headed by the command that made them: the numbers of each
+    configuration, its solve rate by detectable stars a frame, then why frames failed."""
+    st = campaign.settings
+    summaries = [(f"{row.preset} | {_exposure_text(row)} | {label} | {_MODE_TEXT[mode]}", row.preset,
+                  summarize_row(frames, f"{label}/{mode}"))
+                 for row, dbs, frames in campaign.rows for label in dbs for mode in ("blind", "camera")]
+    lines = [f"Generated by `{command}` (N = {st['n']} frames a configuration, seed {st['seed']}, epoch "
+             f"{st['epoch']}; detectable: expected detection SNR ≥ {st['detectable_snr']:g}).", "",
+             "| preset | exposure | database | solve | frames | median detectable | ≥ 4 detectable | "
+             "solved of those | solved (all) | wrong | boresight median / p95 (″) | roll median / p95 (″) | "
+             "normalised RMS x / y / roll | median time (ms) | thesis boresight |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for config, preset, s in summaries:
+        z = " / ".join(_fmt(v, 2) for v in s["normalised_rms"])
+        lines.append(
+            f"| {config} | {s['frames']} | {s['detectable_median']:g} | {s['frames_4_detectable']} | "
+            f"{s['solved_of_4_detectable']} ({_fmt(s['solved_pct_of_4_detectable'], 0)}%) | {s['solved']} | "
+            f"{s['wrong']} | {_fmt(s['boresight_median_arcsec'], 2)} / "
+            f"{_fmt(s['boresight_p95_arcsec'], 2)} | "
+            f"{_fmt(s['roll_median_arcsec'])} / {_fmt(s['roll_p95_arcsec'])} | {z} | "
+            f"{_fmt(s['time_median_ms'], 0)} | {_thesis_text(preset)} |")
+    bins = list(summaries[0][2]["solved_by_detectable"]) if summaries else []
+    lines += ["", "Solved by detectable stars a frame (solved / frames):", "",
+              "| preset | exposure | database | solve | " + " | ".join(bins) + " |",
+              "|---|---|---|---|" + "---|" * len(bins)]
+    for config, _, s in summaries:
+        cells = [f"{a}/{b}" if b else "–" for a, b in s["solved_by_detectable"].values()]
+        lines.append(f"| {config} | " + " | ".join(cells) + " |")
+    lines += ["", "Failures:", ""]
+    failures = [f"- {config.replace(' | ', ', ')}: {_failure_text(s['failures'])}"
+                for config, _, s in summaries if s["failures"]]
+    return "\n".join(lines + (failures or ["- none"]) + [""])
+
+
+def _failure_text(failures: dict) -> str:
+    return "; ".join(f"{why} × {n}" for why, n in failures.items())
+
+
+def _exposure_text(row: CampaignRow) -> str:
+    if row.exposure_s is None:
+        from skyfix.simulate import load_preset
+
+        return f"{load_preset(row.preset)['defaults']['exposure_s']:g} s"
+    return f"{row.exposure_s:g} s"
+
+
+def plot_campaign(campaign: Campaign, path: str | Path) -> Path:
+    """Histograms of the boresight errors (no hint and camera given), one panel per configuration
+    and database with a solve, the thesis's figure as a dashed line; the configurations with none
+    are named under the panels."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def errors(frames, key):
+        return [f.solves[key].boresight_arcsec for f in frames if f.solves[key].solved]
+
+    panels, empty = [], []
+    for row, dbs, frames in campaign.rows:
+        for label in dbs:
+            has_any = any(errors(frames, f"{label}/{mode}") for mode in ("blind", "camera"))
+            (panels if has_any else empty).append((row, label, frames))
+    ncol = 3
+    nrow = max(1, math.ceil(len(panels) / ncol))
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 2.8 * nrow + 0.5), squeeze=False)
+    bins = np.logspace(-2, 4, 49)
+    for ax, (row, label, frames) in zip(axes.ravel(), panels, strict=False):
+        for mode, colour in (("blind", "#1f77b4"), ("camera", "#ff7f0e")):
+            errs = errors(frames, f"{label}/{mode}")
+            ax.hist(np.clip(errs, 1e-2, 1e4), bins=bins, histtype="step", color=colour,
+                    label=f"{_MODE_TEXT[mode]}: {len(errs)}/{len(frames)} solved")
+        thesis = THESIS_FIGURES.get(row.preset)
+        if thesis is not None and thesis.boresight_arcsec:
+            ax.axvline(thesis.boresight_arcsec, color="k", ls="--", lw=1, label=f"thesis {thesis.thesis}")
+        ax.set_xscale("log")
+        ax.set_title(f"{row.preset} {_exposure_text(row)}, {label}", fontsize=9)
+        ax.set_xlabel("boresight error (″)", fontsize=8)
+        ax.legend(fontsize=7)
+    for ax in axes.ravel()[len(panels):]:
+        ax.axis("off")
+    if empty:
+        names = ", ".join(f"{row.preset} {_exposure_text(row)} ({label})" for row, label, _ in empty)
+        fig.text(0.01, 0.005, f"no frame solved: {names}", fontsize=8)
+    fig.tight_layout(rect=(0, 0.03 if empty else 0, 1, 1))
+    out = Path(path)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def _json_ready(v):
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {str(k): _json_ready(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_json_ready(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _json_ready(v.tolist())
+    if isinstance(v, (np.floating, np.integer, np.bool_)):
+        return _json_ready(v.item())
+    return v
+
+
+def _frame_json(frame: FrameResult) -> dict:
+    solves = {k: dict(o._asdict(), boresight_arcsec=o.boresight_arcsec, roll_arcsec=o.roll_arcsec)
+              for k, o in frame.solves.items()}
+    return dict(frame._asdict(), solves=solves)
+
+
+def write_campaign(campaign: Campaign, out_dir: str | Path, command: str = "skyfix analyze presets"
+                   ) -> list[Path]:
+    """Write ``presets.json`` (every frame's solves), ``presets.md`` and ``presets.png``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for row, dbs, frames in campaign.rows:
+        summary = {f"{label}/{mode}": summarize_row(frames, f"{label}/{mode}") for label in dbs
+                   for mode in ("blind", "camera")}
+        rows.append(dict(preset=row.preset, exposure_s=row.exposure_s, note=row.note, databases=dbs,
+                         summary=summary, frames=[_frame_json(f) for f in frames]))
+    pj = out / "presets.json"
+    pj.write_text(json.dumps(_json_ready({"settings": campaign.settings, "command": command, "rows": rows})))
+    pm = out / "presets.md"
+    pm.write_text(markdown(campaign, command))
+    return [pj, pm, plot_campaign(campaign, out / "presets.png")]
