@@ -141,7 +141,8 @@ class Tracker:
     camera : Camera
         The camera model (frames must be its size).
     database : PatternDatabase, optional
-        Catalogue and star index for lost-in-space and the windows (default: the cached default).
+        Catalogue and star index for lost-in-space and the windows (default: the default FOV
+        band's that serves the camera, :func:`skyfix.identify.bands.database_for_fov`).
     predictor : str
         A name of :data:`skyfix.track.predictors.PREDICTORS` (``"mekf"``: the Kalman filter).
     epoch : float, optional
@@ -193,7 +194,8 @@ class Tracker:
                  mag_tolerance: float = 1.5, nis_gate: float = 25.0, predictor_options: dict | None = None,
                  solve_options: dict | None = None) -> None:
         from skyfix.detect import CENTROIDERS
-        from skyfix.identify import PatternDatabase, default_database
+        from skyfix.identify import PatternDatabase
+        from skyfix.identify.bands import database_for_fov
         from skyfix.track.predictors import make_predictor
         from skyfix.validate import check_count, check_epoch, check_positive
 
@@ -220,7 +222,7 @@ class Tracker:
             mag_tolerance=check_positive(mag_tolerance, "mag_tolerance"),
             nis_gate=check_positive(nis_gate, "nis_gate"))
         self.camera = camera
-        self.database = default_database() if database is None else database
+        self.database = database_for_fov(camera.fov_deg) if database is None else database
         self.epoch = check_epoch(epoch)
         self.predictor_name = predictor
         self._predictor_options = dict(predictor_options or {})
