@@ -224,6 +224,44 @@ def test_nis_flags_a_jump():
     assert f.innovation_nis(0.6, jumped, R_MEAS) > 1e6
 
 
+def test_update_gated_is_the_innovation_then_the_update():
+    """``update_gated`` (the tracker's one call) commits exactly what ``innovation`` then
+    ``update`` would, and a fit beyond the gate leaves the filter as it was; bad input raises as
+    ``update`` does. Every predictor's ``update_gated`` gates the same way."""
+    rng = np.random.default_rng(5)
+    omega = np.array([0.3, -0.4, 0.1]) * DEG
+    fits = [noisy(attitude_at(A0, omega, 0.1 * k), rng) for k in range(7)]
+    a, b = AttitudeFilter(fits[0], 0.0, R_MEAS), AttitudeFilter(fits[0], 0.0, R_MEAS)
+    for k in range(1, 6):
+        nis = a.innovation(0.1 * k, fits[k], R_MEAS).nis
+        sa = a.update(0.1 * k, fits[k], R_MEAS)
+        sb, inn = b.update_gated(0.1 * k, fits[k], R_MEAS, NIS_GATE)
+        assert inn.nis == nis and sb.t_s == sa.t_s
+        for x, y in zip(sa[1:], sb[1:], strict=True):
+            assert (x is None and y is None) or np.array_equal(x, y)
+    before = b.state
+    jumped = rodrigues(np.array([0.0, 300 * ARCSEC, 0.0])) @ fits[6]
+    state, inn = b.update_gated(0.6, jumped, R_MEAS, NIS_GATE)
+    assert state is None and inn.nis > NIS_GATE
+    assert inn.nis == pytest.approx(b.innovation(0.6, jumped, R_MEAS).nis, rel=1e-12)
+    assert np.array_equal(b.state.covariance, before.covariance) and b.state.t_s == before.t_s
+    with pytest.raises(InputError, match="rotation"):
+        b.update_gated(0.6, 2 * fits[6], R_MEAS, NIS_GATE)
+    with pytest.raises(InputError, match="positive definite"):
+        b.update_gated(0.6, fits[6], -R_MEAS, NIS_GATE)
+    with pytest.raises(InputError, match="3x3"):
+        b.update_gated(0.6, fits[6], np.eye(2), NIS_GATE)
+    with pytest.raises(InputError, match="increase"):
+        b.update_gated(0.5, fits[6], R_MEAS, NIS_GATE)
+    for name in sorted(PREDICTORS):
+        p = make_predictor(name, fits[0], 0.0, R_MEAS)
+        for k in range(1, 4):
+            post, _ = p.update_gated(0.1 * k, fits[k], R_MEAS, NIS_GATE)
+            assert isinstance(post, Prediction), name
+        post, inn = p.update_gated(0.4, rodrigues(np.array([0.0, 0.0, 0.2])) @ fits[4], R_MEAS, NIS_GATE)
+        assert post is None and inn.nis > NIS_GATE, name
+
+
 def test_filter_rejects_bad_input():
     f = AttitudeFilter(A0, 1.0, R_MEAS)
     for t in (1.0, 0.5, float("nan"), float("inf")):

@@ -110,7 +110,11 @@ def measure_frame(img, A, P, rate, P_rate, exposure_s, line_time_s, local_t, sel
     how = Centroider(*c.round)
     if c.streak and not recentred and streak >= c.streak_px:
         margin = min(tile_half - int(math.ceil(streak / 2)) - 1, c.margin_px)
-        f = fit_streaks(mosaic, at, sel.smear[:n], np.int64(max(2, margin)), c.model_sigma_px, how.inv_gain)
+        sigma = np.empty(n)  # the predictions' σ, px: precise ones start the fit themselves
+        for i in range(n):
+            sigma[i] = math.sqrt(max(sel.cov[i, 0], sel.cov[i, 2], 0.0))
+        f = fit_streaks(mosaic, at, sel.smear[:n], np.int64(max(2, margin)), c.model_sigma_px, how.inv_gain,
+                        sigma)
         for i in range(n):
             x[i], y[i], sx[i], sy[i], flux[i] = f.x[i], f.y[i], f.sigma_x[i], f.sigma_y[i], f.flux[i]
             snr[i] = background_snr(f.flux[i], f.noise[i], f.area[i])  # 0 where no centroid (no flux)
