@@ -5,6 +5,11 @@ the camera model and the attitude are fitted together by least squares on the re
 error in pixels. Which parameters are free is a choice of model; :func:`select_camera_model`
 picks the one the data support (Bayesian information criterion), so a field of 20 stars does
 not fit a 10-parameter lens and a strongly distorted lens is not forced into a pinhole.
+
+Either projection of :class:`~skyfix.camera.Camera` is fitted: the starting camera's. A
+pinhole's ``k1 … k3`` are Brown–Conrady's, a Kannala–Brandt (fisheye) camera's ``k1 … k4`` its
+θ polynomial's, each with its own derivatives (:mod:`skyfix._kernels.camera_fit`); ``tangential``
+is a pinhole's only, ``k4`` a fisheye's only (:data:`CAMERA_PARAMETERS`).
 """
 
 from __future__ import annotations
@@ -18,20 +23,25 @@ import numpy as np
 
 from skyfix._kernels import camera_fit as kernels
 from skyfix._kernels import lens, rotation
-from skyfix.camera import Camera
+from skyfix.camera import PROJECTION_ALIASES, Camera
 
-__all__ = ["CameraFit", "CameraPrior", "ModelScore", "PriorFit", "fit_camera", "fit_camera_with_prior",
-           "frame_at_pixel", "frame_rotation_at_pixel",
-           "score_camera_models", "select_camera_model", "PRIOR_PARAMETERS",
+__all__ = ["CAMERA_PARAMETERS", "CameraFit", "CameraPrior", "ModelScore", "PriorFit", "fit_camera",
+           "fit_camera_with_prior", "frame_at_pixel", "frame_rotation_at_pixel", "prior_parameters",
+           "score_camera_models", "select_camera_model", "PRIOR_PARAMETERS", "UNCALIBRATED_DISTORTION",
            "PARAMETERS", "MODEL_LADDER"]
+
+_BOTH = ("pinhole", "kannala-brandt")
+
 
 class CameraParameter(NamedTuple):
     """A camera parameter a fit may free: its kernel code
-    (:mod:`skyfix._kernels.camera_fit`), how many numbers it is, and what it moves."""
+    (:mod:`skyfix._kernels.camera_fit`), how many numbers it is, what it moves, and the
+    projections (:data:`skyfix.camera.PROJECTIONS`) that have it."""
 
     code: int
     size: int
     doc: str
+    projections: tuple[str, ...] = _BOTH
 
 
 # The registry of camera parameters, chosen by name (fit_camera's ``params``).
@@ -39,9 +49,11 @@ CAMERA_PARAMETERS: dict[str, CameraParameter] = {
     "f": CameraParameter(kernels.F, 1, "common focal scale (fx and fy together)"),
     "aspect": CameraParameter(kernels.ASPECT, 1, "pixel aspect fy/fx"),
     "principal_point": CameraParameter(kernels.PRINCIPAL_POINT, 2, "cx, cy"),
-    "k1": CameraParameter(kernels.K1_TERM, 1, "radial distortion, r² term"),
-    "k2": CameraParameter(kernels.K2_TERM, 1, "radial distortion, r⁴ term"),
-    "tangential": CameraParameter(kernels.TANGENTIAL, 2, "decentring distortion p1, p2"),
+    "k1": CameraParameter(kernels.K1_TERM, 1, "radial distortion: a pinhole's r² term, a fisheye's θ³"),
+    "k2": CameraParameter(kernels.K2_TERM, 1, "radial distortion: a pinhole's r⁴ term, a fisheye's θ⁵"),
+    "k3": CameraParameter(kernels.K3_TERM, 1, "radial distortion: a pinhole's r⁶ term, a fisheye's θ⁷"),
+    "k4": CameraParameter(kernels.K4_TERM, 1, "a fisheye's θ⁹ term", ("kannala-brandt",)),
+    "tangential": CameraParameter(kernels.TANGENTIAL, 2, "decentring distortion p1, p2", ("pinhole",)),
 }
 # How many numbers each parameter is (CAMERA_PARAMETERS's sizes).
 PARAMETERS = {name: p.size for name, p in CAMERA_PARAMETERS.items()}
@@ -49,6 +61,16 @@ PARAMETERS = {name: p.size for name, p in CAMERA_PARAMETERS.items()}
 
 def _codes(params: Sequence[str]) -> np.ndarray:
     return np.array([CAMERA_PARAMETERS[name].code for name in params], dtype=np.int64)
+
+
+def _check_parameters(params: Sequence[str], camera: Camera) -> None:
+    """A ValueError naming the parameters that are unknown or not ``camera``'s projection's."""
+    unknown = set(params) - set(PARAMETERS)
+    if unknown:
+        raise ValueError(f"unknown camera parameters: {', '.join(sorted(unknown))}")
+    other = [p for p in params if camera.projection not in CAMERA_PARAMETERS[p].projections]
+    if other:
+        raise ValueError(f"{', '.join(other)}: not a parameter of the {camera.projection} projection")
 
 
 def _camera_after_step(camera: Camera, params: Sequence[str], p: np.ndarray) -> Camera:
@@ -157,8 +179,8 @@ def fit_camera(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_cam
         Starting attitude.
     params : sequence of str
         Free parameters, from :data:`PARAMETERS`: ``f`` (common focal scale), ``aspect``
-        (``fy/fx``), ``principal_point`` (``cx, cy``), ``k1``, ``k2``, ``tangential``
-        (``p1, p2``).
+        (``fy/fx``), ``principal_point`` (``cx, cy``), ``k1``, ``k2``, ``k3`` (the camera's
+        projection's), ``k4`` (Kannala–Brandt only), ``tangential`` (``p1, p2``, pinhole only).
     iterations : int
         Most Gauss–Newton steps (it stops when a step moves no star by 1e-6 px).
 
@@ -167,9 +189,7 @@ def fit_camera(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_cam
     CameraFit
     """
     params = tuple(params)
-    unknown = set(params) - set(PARAMETERS)
-    if unknown:
-        raise ValueError(f"unknown camera parameters: {', '.join(sorted(unknown))}")
+    _check_parameters(params, camera)
     xy = np.asarray(xy, dtype=np.float64)
     r = np.asarray(r_icrs, dtype=np.float64)
     n_free = 3 + sum(PARAMETERS[p] for p in params)
@@ -261,7 +281,9 @@ def _model_scores(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_
     xy = np.ascontiguousarray(xy, dtype=np.float64)
     r = np.ascontiguousarray(r_icrs, dtype=np.float64)
     A = np.ascontiguousarray(A_icrs_to_cam, dtype=np.float64)
-    models = models if models is MODEL_LADDER else tuple(tuple(m) for m in models)
+    if models is not MODEL_LADDER:  # the ladder's parameters are every projection's
+        models = tuple(tuple(m) for m in models)
+        _check_parameters(tuple(dict.fromkeys(p for m in models for p in m)), camera)
     codes, cols, n_cols = _model_blocks(models)
     rmax = math.hypot(camera.width, camera.height) / 2.0 / camera.fx
     cam = lens.camera_numbers(camera)
@@ -327,8 +349,17 @@ def select_camera_model(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_ic
 # --- an uncalibrated camera: every parameter free, each with a Gaussian prior ------------------
 
 # The parameters of an uncalibrated camera, in the order of :func:`fit_camera_with_prior`'s
-# parameter vector (after the three rotations).
+# parameter vector (after the three rotations): a pinhole's, and a Kannala–Brandt camera's
+# (prior_parameters gives them by projection).
 PRIOR_PARAMETERS: tuple[str, ...] = ("f", "aspect", "principal_point", "k1", "k2")
+_PRIOR_PARAMETERS_OF = {"pinhole": PRIOR_PARAMETERS,
+                        "kannala-brandt": ("f", "aspect", "principal_point", "k1", "k2", "k3", "k4")}
+
+
+def prior_parameters(projection: str) -> tuple[str, ...]:
+    """The parameters :func:`fit_camera_with_prior` fits for a camera of ``projection``
+    (:data:`PRIOR_PARAMETERS` for a pinhole; a Kannala–Brandt camera's adds ``k3``, ``k4``)."""
+    return _PRIOR_PARAMETERS_OF[projection]
 
 
 # The principal point is moved off the prior's centre when its move is beyond this χ² (2 dof) of
@@ -341,7 +372,8 @@ class CameraPrior(NamedTuple):
     """What is known of a camera before its image is solved: a Gaussian prior on each parameter
     but the focal length (free) — the principal point about ``(cx, cy)``, the pixel aspect
     ``fy/fx`` about ``aspect`` (1), radial distortion about ``k1``, ``k2`` (0; OpenCV's normalised
-    units).
+    units) and, for a ``kannala-brandt`` camera, ``k3``, ``k4`` (0: the equidistant fisheye).
+    The prior's ``projection`` must be the fitted camera's.
 
     The prior keeps a sparse field from fitting an absurd lens (``k2 = 400``) and lets the
     attitude's covariance include what the stars leave unknown; many stars overrule it.
@@ -356,15 +388,40 @@ class CameraPrior(NamedTuple):
     aspect: float = 1.0
     k1: float = 0.0
     k2: float = 0.0
+    projection: str = "pinhole"
+    sigma_k3: float = 0.05  # k3, k4: a Kannala–Brandt camera's only (a pinhole's fit holds its k3)
+    sigma_k4: float = 0.02
+    k3: float = 0.0
+    k4: float = 0.0
 
     @classmethod
-    def uncalibrated(cls, width: int, height: int) -> CameraPrior:
+    def uncalibrated(cls, width: int, height: int, projection: str = "pinhole") -> CameraPrior:
         """The prior for an unknown camera of this frame size: principal point at the image
         centre within a quarter of the half-diagonal (lens mounting — or an off-centre crop of a
         larger frame: with 5% the error bars of 60% crops were 6–8× too small), aspect within
-        5%, |k1|, |k2| ≲ 0.3 (most lenses narrower than 60°)."""
+        5%, and the projection's distortion (:data:`UNCALIBRATED_DISTORTION`): a pinhole's
+        |k1|, |k2| ≲ 0.3 (most lenses narrower than 60°), a fisheye's about the equidistant
+        projection."""
+        name = PROJECTION_ALIASES.get(projection, projection)
+        if name not in UNCALIBRATED_DISTORTION:
+            known = ", ".join(UNCALIBRATED_DISTORTION)
+            raise ValueError(f"unknown camera projection {projection!r}; known: {known}")
         return cls(cx=(width - 1) / 2.0, cy=(height - 1) / 2.0,
-                   sigma_principal_point_px=0.25 * math.hypot(width, height) / 2.0)
+                   sigma_principal_point_px=0.25 * math.hypot(width, height) / 2.0, projection=name,
+                   **UNCALIBRATED_DISTORTION[name])
+
+
+UNCALIBRATED_DISTORTION: dict[str, dict[str, float]] = {
+    "pinhole": {"sigma_k1": 0.3, "sigma_k2": 0.3},
+    # θ_d = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸) about the equidistant fisheye (all 0). The
+    # classical fisheye projections in this form: equisolid 2 sin(θ/2) has k1 = −1/24, k2 = 1/1920;
+    # stereographic 2 tan(θ/2) k1 = 1/12, k2 = 1/120; orthographic sin θ k1 = −1/6, k2 = 1/120;
+    # each within a σ of these; a rectilinear lens (tan θ: 1/3, 2/15, 17/315, 62/2835) within 2σ.
+    # OpenCV calibrations of real fisheyes (|k_j| ≲ 0.05, the higher terms trading off) inside.
+    "kannala-brandt": {"sigma_k1": 0.2, "sigma_k2": 0.1, "sigma_k3": 0.05, "sigma_k4": 0.02},
+}
+"""The distortion part of :meth:`CameraPrior.uncalibrated` by projection: the σ of each
+coefficient about 0."""
 
 
 class PriorFit(NamedTuple):
@@ -385,7 +442,8 @@ class PriorFit(NamedTuple):
         σ from the other stars' residuals unless ``robust``): for a star that fits the model,
         twice an F(2, dof − 2) variable, dof = ``2N − n_effective``.
     parameter_covariance : (P, P) — posterior covariance of the parameter step (rotations,
-        then :data:`PRIOR_PARAMETERS` in the scaled units of :mod:`skyfix._kernels.camera_fit`).
+        then the camera's :func:`prior_parameters` in the scaled units of
+        :mod:`skyfix._kernels.camera_fit`).
     largest_move_px : float — the largest distance by which the fit moved a star's predicted
         position from where the starting camera and attitude put it.
     """
@@ -406,22 +464,22 @@ class PriorFit(NamedTuple):
         cam = self.camera
         rays = np.ascontiguousarray(np.asarray(r_icrs, dtype=np.float64) @ self.A_icrs_to_cam.T)
         rmax = math.hypot(cam.width, cam.height) / 2.0 / cam.fx
-        Js, _ = kernels.jacobian_rows(np.zeros((len(rays), 2)), rays, lens.camera_numbers(cam), rmax,
-                                      _PRIOR_CODES)
+        numbers = lens.camera_numbers(cam)
+        codes = kernels.prior_codes(numbers)
+        Js, _ = kernels.jacobian_rows(np.zeros((len(rays), 2)), rays, numbers, rmax, codes)
         C = (Js @ self.parameter_covariance) @ Js.transpose(0, 2, 1)
         half_tr = (C[:, 0, 0] + C[:, 1, 1]) / 2.0
         return np.sqrt(half_tr + np.sqrt(np.maximum(half_tr**2 - (C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] ** 2),
                                                     0.0)))
 
 
-_PRIOR_CODES = _codes(PRIOR_PARAMETERS)
-
-
 def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_cam: np.ndarray,
                           prior: CameraPrior, *, robust: bool = False, iterations: int = 12,
                           sigma_floor_px: float = 0.05, principal_point: str = "auto") -> PriorFit:
-    """Fit attitude, focal length, aspect, principal point, k1 and k2 to matched stars, each
-    camera parameter but the focal length held by its ``prior`` (maximum a posteriori).
+    """Fit attitude, focal length, aspect, principal point and the radial distortion to matched
+    stars, each camera parameter but the focal length held by its ``prior`` (maximum a posteriori):
+    :func:`prior_parameters` of the camera's projection — a pinhole's k1, k2 (its k3 held), a
+    Kannala–Brandt camera's k1 … k4.
 
     Gauss–Newton on ``Σ w |residual|²/σ² + Σ ((θ − θ₀)/τ)²`` with the analytic Jacobian of
     :func:`skyfix._kernels.camera_fit.jacobian_rows`, in one numba kernel
@@ -448,7 +506,7 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     xy : (N, 2) — star positions, px.
     r_icrs : (N, 3) — their catalogue unit vectors.
     camera, A_icrs_to_cam : the starting model and attitude.
-    prior : CameraPrior
+    prior : CameraPrior — of the camera's projection (:meth:`CameraPrior.uncalibrated`).
     robust : bool — Cauchy weights and a median σ (for matches that may hold wrong stars).
     iterations : int — most Gauss–Newton steps.
     sigma_floor_px : float — smallest centroid noise believed, px.
@@ -462,6 +520,9 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     cam0 = lens.camera_numbers(camera)
     if principal_point not in ("auto", "fit", "hold"):
         raise ValueError(f"principal_point must be 'auto', 'fit' or 'hold', not {principal_point!r}")
+    if prior.projection != camera.projection:
+        raise ValueError(f"a {prior.projection} prior for a {camera.projection} camera: "
+                         f"CameraPrior.uncalibrated(..., projection={camera.projection!r})")
     fixed = prior_numbers.copy()
     fixed[kernels.SIGMA_PP] = 1e-9 * prior.sigma_principal_point_px
     if principal_point == "fit":

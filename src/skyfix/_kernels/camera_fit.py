@@ -7,8 +7,15 @@ Camera parameters are chosen by name in :data:`skyfix.calibrate.CAMERA_PARAMETER
 kernels each has the code below. A parameter step ``p`` is (three rotations of the camera frame,
 then each chosen parameter's numbers) in scaled units, so that a unit step moves the frame's
 corner by about a focal length: ``f`` relative (``fx, fy ← f·(1 + p)``), ``aspect`` relative on
-``fy``, the principal point in focal lengths, ``k1`` in ``1/rmax²``, ``k2`` in ``1/rmax⁴``,
-``p1, p2`` in ``1/rmax`` (``rmax`` the half-diagonal over ``fx``).
+``fy``, the principal point in focal lengths, ``k_j`` in ``1/rmax^(2j)`` (``k1`` in ``1/rmax²`` …
+``k4`` in ``1/rmax⁸``), ``p1, p2`` in ``1/rmax`` (``rmax`` the half-diagonal over ``fx``: for a
+Kannala–Brandt camera the corner's ``θ_d``, about its angle off axis).
+
+The radial coefficients' derivatives are the camera's projection's: Brown–Conrady's
+``∂(x_d, y_d)/∂k_j = (x, y)·r^(2j)`` for a pinhole (``k4`` is not its), Kannala–Brandt's
+``θ³·(e_x, e_y)·(θ²)^(j−1)`` (:func:`skyfix._kernels.lens.kb_coefficient_terms`, the formula
+``lens.kb_pixel_jacobian`` also uses) for a fisheye; the pinhole's arithmetic is that of before
+the fisheye was added, operation for operation, so its fits are bit-identical.
 """
 
 from __future__ import annotations
@@ -19,26 +26,47 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from skyfix._kernels.lens import CX, CY, FX, FY, K1, K2, P1, P2, SKEW, distort, distort_jacobian
+from skyfix._kernels.lens import (
+    CX,
+    CY,
+    FX,
+    FY,
+    K1,
+    K2,
+    K3,
+    K4,
+    KANNALA_BRANDT,
+    P1,
+    P2,
+    PROJECTION,
+    SKEW,
+    distort,
+    distort_jacobian,
+    kb_coefficient_terms,
+)
 from skyfix._kernels.rotation import rodrigues, spd_inverse
 
-__all__ = ["ASPECT", "F", "K1_TERM", "K2_TERM", "PRINCIPAL_POINT", "PRIOR_CODES", "PRIOR_NUMBERS",
-           "TANGENTIAL", "GaussNewtonResult", "ModelScores", "apply_step", "jacobian_rows",
-           "normal_equations_at_start", "prior_gauss_newton", "residuals_for_steps", "score_blocks",
-           "score_models"]
+__all__ = ["ASPECT", "F", "K1_TERM", "K2_TERM", "K3_TERM", "K4_TERM", "KB_PRIOR_CODES", "PRINCIPAL_POINT",
+           "PRIOR_CODES", "PRIOR_NUMBERS", "TANGENTIAL", "GaussNewtonResult", "ModelScores", "apply_step",
+           "jacobian_rows", "normal_equations_at_start", "prior_codes", "prior_gauss_newton",
+           "residuals_for_steps", "score_blocks", "score_models"]
 
 # Kernel codes of the camera parameters (skyfix.calibrate.CAMERA_PARAMETERS names them).
-F, ASPECT, PRINCIPAL_POINT, K1_TERM, K2_TERM, TANGENTIAL = range(6)
+# The radial terms are consecutive: k_j's code is K1_TERM + j − 1.
+F, ASPECT, PRINCIPAL_POINT, K1_TERM, K2_TERM, K3_TERM, K4_TERM, TANGENTIAL = range(8)
 
 # The prior's numbers as prior_gauss_newton takes them (skyfix.calibrate.CameraPrior's fields),
 # and their indices.
 PRIOR_NUMBERS = ("cx", "cy", "sigma_principal_point_px", "sigma_aspect", "sigma_k1", "sigma_k2", "aspect",
-                 "k1", "k2")
-PRIOR_CX, PRIOR_CY, SIGMA_PP, SIGMA_ASPECT, SIGMA_K1, SIGMA_K2, PRIOR_ASPECT, PRIOR_K1, PRIOR_K2 = range(9)
-# The parameters of the fit under a prior (skyfix.calibrate.PRIOR_PARAMETERS), and where each
-# sits in its step vector (after the three rotations).
+                 "k1", "k2", "sigma_k3", "sigma_k4", "k3", "k4")
+(PRIOR_CX, PRIOR_CY, SIGMA_PP, SIGMA_ASPECT, SIGMA_K1, SIGMA_K2, PRIOR_ASPECT, PRIOR_K1, PRIOR_K2, SIGMA_K3,
+ SIGMA_K4, PRIOR_K3, PRIOR_K4) = range(13)
+# The parameters of the fit under a prior (skyfix.calibrate.PRIOR_PARAMETERS), a pinhole's and a
+# Kannala–Brandt camera's (k3, k4 too: a fisheye's θ polynomial reaches far past θ = 1), and
+# where each sits in its step vector (after the three rotations).
 PRIOR_CODES = (F, ASPECT, PRINCIPAL_POINT, K1_TERM, K2_TERM)
-STEP_F, STEP_ASPECT, STEP_CX, STEP_CY, STEP_K1, STEP_K2 = 3, 4, 5, 6, 7, 8
+KB_PRIOR_CODES = (F, ASPECT, PRINCIPAL_POINT, K1_TERM, K2_TERM, K3_TERM, K4_TERM)
+STEP_F, STEP_ASPECT, STEP_CX, STEP_CY, STEP_K1, STEP_K2, STEP_K3, STEP_K4 = 3, 4, 5, 6, 7, 8, 9, 10
 
 
 
@@ -58,7 +86,7 @@ class ModelScores(NamedTuple):
 
 
 class GaussNewtonResult(NamedTuple):
-    """:func:`prior_gauss_newton`'s result: the attitude (3, 3), the camera numbers (10,), σ²
+    """:func:`prior_gauss_newton`'s result: the attitude (3, 3), the camera numbers (12,), σ²
     (px²), the posterior covariance (P, P) of the step at the result, the effective number of
     fitted numbers, the residuals (N, 2) px, each star's studentised χ² (N,), the Gauss–Newton
     step (P,) under ``prior_out`` from the result, and the largest distance (px) the fit moved
@@ -93,11 +121,24 @@ def apply_step(cam, rmax, codes, p):
             out[K1] = cam[K1] + p[j] / rmax**2
         elif c == K2_TERM:
             out[K2] = cam[K2] + p[j] / rmax**4
+        elif c == K3_TERM:
+            out[K3] = cam[K3] + p[j] / rmax**6
+        elif c == K4_TERM:
+            out[K4] = cam[K4] + p[j] / rmax**8
         else:  # TANGENTIAL
             out[P1], out[P2] = cam[P1] + p[j] / rmax, cam[P2] + p[j + 1] / rmax
             j += 1
         j += 1
     return out
+
+
+@numba.njit(cache=True)
+def prior_codes(cam):
+    """The parameter codes of the fit under a prior for the camera ``cam``'s projection
+    (:data:`PRIOR_CODES` or :data:`KB_PRIOR_CODES`)."""
+    if cam[PROJECTION] == KANNALA_BRANDT:
+        return np.array(KB_PRIOR_CODES, dtype=np.int64)
+    return np.array(PRIOR_CODES, dtype=np.int64)
 
 
 @numba.njit(cache=True)
@@ -132,6 +173,9 @@ def jacobian_rows(xy, rays0, cam, rmax, codes):
     for c in codes:
         P += 2 if (c == PRINCIPAL_POINT or c == TANGENTIAL) else 1
     c1, c2, c4 = 1.0 / rmax, 1.0 / rmax**2, 1.0 / rmax**4
+    c6 = 1.0 / rmax**6
+    fisheye = cam[PROJECTION] == KANNALA_BRANDT
+    tx = ty = t2 = 0.0
     J = np.empty((xy.shape[0], 2, P))
     res = np.empty((xy.shape[0], 2))
     for i in range(xy.shape[0]):
@@ -143,6 +187,8 @@ def jacobian_rows(xy, rays0, cam, rmax, codes):
         xd, yd, dxx, dxy, dyx, dyy, r2 = distort_jacobian(xn, yn, cam)
         res[i, 0] = fx * xd + s * yd + cx - xy[i, 0]
         res[i, 1] = fy * yd + cy - xy[i, 1]
+        if fisheye:  # ∂(x_d, y_d)/∂k1 = θ³·(e_x, e_y); each next k_j another θ²
+            tx, ty, t2 = kb_coefficient_terms(xn, yn)
         ju = J[i, 0]
         jv = J[i, 1]
         # Rotations ω = e_x, e_y, e_z of the camera frame (δray = ω × ray): d(xn, yn).
@@ -167,10 +213,19 @@ def jacobian_rows(xy, rays0, cam, rmax, codes):
                 ju[j], jv[j] = fx, 0.0
                 j += 1
                 ju[j], jv[j] = 0.0, fx
+            elif fisheye and K1_TERM <= c <= K4_TERM:  # θ³·(e_x, e_y)·(θ²)^(j−1) / rmax^(2j)
+                ax, ay, scale = tx, ty, c2
+                for _ in range(c - K1_TERM):
+                    ax *= t2
+                    ay *= t2
+                    scale *= c2
+                ju[j], jv[j] = (fx * ax + s * ay) * scale, fy * ay * scale
             elif c == K1_TERM:
                 ju[j], jv[j] = (fx * xn + s * yn) * r2 * c2, fy * yn * r2 * c2
             elif c == K2_TERM:
                 ju[j], jv[j] = (fx * xn + s * yn) * r2 * r2 * c4, fy * yn * r2 * r2 * c4
+            elif c == K3_TERM:  # a pinhole's r⁶ term (K4_TERM is not a pinhole's)
+                ju[j], jv[j] = (fx * xn + s * yn) * r2 * r2 * r2 * c6, fy * yn * r2 * r2 * r2 * c6
             else:  # TANGENTIAL
                 ta, tb = 2.0 * xn * yn, r2 + 2.0 * yn * yn
                 ju[j], jv[j] = (fx * ta + s * tb) * c1, fy * tb * c1
@@ -265,8 +320,9 @@ def score_blocks(JtJ, Jtr, rr, n, cols, n_cols, chosen):
 
 @numba.njit(cache=True)
 def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, sigma_floor, prior_out):
-    """The iterations of :func:`skyfix.calibrate.fit_camera_with_prior` for
-    :data:`PRIOR_CODES`; ``prior`` (:data:`PRIOR_NUMBERS`) for the steps, ``prior_out`` for the
+    """The iterations of :func:`skyfix.calibrate.fit_camera_with_prior` for the camera's
+    :func:`prior_codes` (a pinhole's :data:`PRIOR_CODES`, a Kannala–Brandt camera's
+    :data:`KB_PRIOR_CODES`); ``prior`` (:data:`PRIOR_NUMBERS`) for the steps, ``prior_out`` for the
     posterior returned. Returns the attitude, camera numbers, σ², the posterior covariance at
     the result, n_eff, the residuals (N, 2), the studentised χ² (N,) and the Gauss–Newton step
     (P,) under ``prior_out`` from the result (what freeing ``prior_out``'s parameters would do),
@@ -274,10 +330,11 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, s
 
     (Ten arguments: the stars, the start, the two priors and the fit's four settings.) Returns a
     :class:`GaussNewtonResult`."""
-    codes = np.array(PRIOR_CODES, dtype=np.int64)
+    codes = prior_codes(cam)
+    fisheye = cam[PROJECTION] == KANNALA_BRANDT
     n = xy.shape[0]
     n_obs = 2 * n
-    P = 9
+    P = 11 if fisheye else 9
     n_eff = 4.0
     rays0 = np.empty((n, 3))
     lam = np.zeros(P)
@@ -329,6 +386,11 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, s
         dev[STEP_CY] = (cam[CY] - prior[PRIOR_CY]) / cam[FX]
         dev[STEP_K1] = (cam[K1] - pr[PRIOR_K1]) * rmax**2
         dev[STEP_K2] = (cam[K2] - pr[PRIOR_K2]) * rmax**4
+        if fisheye:
+            lam[STEP_K3] = 1.0 / (pr[SIGMA_K3] * rmax**6) ** 2
+            lam[STEP_K4] = 1.0 / (pr[SIGMA_K4] * rmax**8) ** 2
+            dev[STEP_K3] = (cam[K3] - pr[PRIOR_K3]) * rmax**6
+            dev[STEP_K4] = (cam[K4] - pr[PRIOR_K4]) * rmax**8
         N = JtJ / sigma2
         for a in range(P):
             N[a, a] += lam[a]
