@@ -8,7 +8,9 @@ no camera, every camera number is fitted under a prior
 (:func:`skyfix.calibrate.fit_camera_with_prior`: aspect, k1, k2, principal point held at the
 image centre but free in the covariance), the catalogue is re-matched through the fitted model
 and the re-matched stars must again be beyond chance, paying for the camera numbers fitted to
-them (:mod:`skyfix.identify.accept`). ``docs/solving-without-a-camera.md`` walks through it.
+them (:mod:`skyfix.identify.accept`). A field 60° wide or more may be a fisheye's: a
+Kannala–Brandt camera (k1..k4) is fitted and grown too, and the stars choose between the two
+(:func:`_pinhole_or_fisheye`). ``docs/solving-without-a-camera.md`` walks through it.
 """
 
 from __future__ import annotations
@@ -19,12 +21,14 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-from scipy.spatial import cKDTree
 
 from skyfix._kernels import lens, rotation
+from skyfix._rematch import CatalogueCone, equidistant_consensus, match_catalogue
+from skyfix._rematch import Matches as _Matches
 from skyfix.attitude import attitude_covariance, solve_attitude
-from skyfix.calibrate import PRIOR_PARAMETERS, CameraPrior, fit_camera_with_prior
+from skyfix.calibrate import CameraPrior, fit_camera_with_prior, prior_parameters
 from skyfix.camera import Camera
+from skyfix.errors import CameraError
 from skyfix.identify.accept import chance_log_probability
 
 __all__ = ["FinalFit", "final_fit"]
@@ -147,32 +151,15 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
     return FinalFit(A, camera, idx, ids, r, mag, resid, cov, (), log_p)
 
 
-class _Matches(NamedTuple):
-    """Centroid index, catalogue id, unit vector and magnitude of each matched star."""
-
-    idx: np.ndarray
-    ids: np.ndarray
-    r: np.ndarray
-    mag: np.ndarray
-
-    def take(self, keep: np.ndarray) -> _Matches:
-        return _Matches(self.idx[keep], self.ids[keep], self.r[keep], self.mag[keep])
-
-    def same_as(self, other: _Matches) -> bool:
-        a, b = np.argsort(self.idx), np.argsort(other.idx)
-        return (len(self.idx) == len(other.idx) and np.array_equal(self.idx[a], other.idx[b])
-                and np.array_equal(self.ids[a], other.ids[b]))
-
-
 class _Rematch(NamedTuple):
     """What re-matching the catalogue through a fitted camera needs (:func:`_grow`)."""
 
     prior: CameraPrior  # the camera prior the fits are under
-    database: object  # PatternDatabase: its star index
-    epoch: float | None
+    stars: CatalogueCone  # the catalogue stars about the boresight
     area_px2: float  # the frame's area, for the chance probability
     log_threshold: float  # matches must be beyond chance at this log probability
     n_use: int  # re-match against the brightest this many centroids
+    max_radius_px: float = math.inf  # stars the model places less surely are not looked for yet
 
 
 def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, method: str,
@@ -187,6 +174,9 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
     A sparse result (fewer than :data:`_ROBUST_MIN_STARS` stars) can hold a wrong star that a
     flexible camera bends to fit, and then the re-match cannot grow; each verified star is
     therefore also left out in turn, and a start that grows to at least two more stars wins.
+
+    A field whose identified camera is :data:`_FISHEYE_MIN_FOV_DEG` wide or more also gets a
+    Kannala–Brandt camera, and the stars choose (:func:`_pinhole_or_fisheye`).
     """
     cam0: Camera = ident.camera
     prior = CameraPrior.uncalibrated(cam0.width, cam0.height)
@@ -210,16 +200,33 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
     if len(verified.idx) - len(cur.idx) > max(2, len(verified.idx) // 20):
         # Many stars off the model: least squares may have bent to the wrong ones; fit robustly.
         fit, cur = _robust_prior_fit(xy, verified, cam0, ident.A_icrs_to_cam, prior)
+    stars = CatalogueCone(database, epoch)
+    rematch = _Rematch(prior, stars, area, log_threshold, n_use)
+    best = None
     if len(cur.idx) >= _ROBUST_MIN_STARS:
         # A model that moves no star by a quarter of identification's match radius (3.5 σ of its
         # residuals) cannot change which stars matched but for a rare one at the radius's edge;
         # with 18 or more stars spread over the frame, theirs are the moves that count.
         if fit.largest_move_px < max(0.5, 0.25 * ident.match_radius_px):
-            return _final(xy, fit, cur, log_p, method)
-        new, _, _ = _match_catalogue(xy[:n_use], fit, database, epoch)
-        if new.same_as(cur):
-            return _final(xy, fit, cur, log_p, method)
-    rematch = _Rematch(prior, database, epoch, area, log_threshold, n_use)
+            best = fit, cur, log_p
+        else:
+            new, _, _ = match_catalogue(xy[:n_use], fit, stars)
+            if new.same_as(cur):
+                best = fit, cur, log_p
+    if best is None:
+        best = _grown_pinhole(xy, fit, cur, verified, ident, rematch, log_p)
+    if cam0.fov_deg >= _FISHEYE_MIN_FOV_DEG:
+        best = _pinhole_or_fisheye(xy, best, verified, rematch)
+    return _final(xy, *best, method)
+
+
+def _grown_pinhole(xy: np.ndarray, fit, cur: _Matches, verified: _Matches, ident, rematch: _Rematch,
+                   log_p: float):
+    """The pinhole's (fit, matches, log P(chance)) grown by re-matching from ``fit`` and ``cur``;
+    for a sparse result also from the verified stars less each in turn, and from starts across
+    the prior (see :func:`_fit_unknown_camera`)."""
+    n_use, prior, log_threshold = rematch.n_use, rematch.prior, rematch.log_threshold
+    cam0 = ident.camera
     best = _grow(xy[:n_use], fit, cur, rematch, log_p)
     if len(best[1].idx) < _ROBUST_MIN_STARS and len(verified.idx) > 4:
         for i in range(len(verified.idx)):
@@ -233,7 +240,110 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
             grown = _grow_from_start(xy, verified, cam0, ident.A_icrs_to_cam, start, rematch)
             if grown[2] <= log_threshold and len(grown[1].idx) >= len(best[1].idx) + 2:
                 best = grown
-    return _final(xy, *best, method)
+    return best
+
+
+# A field at least this wide (the identified camera's horizontal field, degrees: a 90° equidistant
+# fisheye's reads 76–81°, a 60° k1 −0.3 pinhole's 55°) may be a fisheye's that a pinhole cannot
+# follow to the corners: a Kannala–Brandt camera is fitted too and the stars choose.
+_FISHEYE_MIN_FOV_DEG = 60.0
+# A fisheye's re-match looks for the stars that a centroid would meet by chance with at most this
+# probability (n_img·π·radius²/area): 10 px for 200 centroids on a 1280 × 960 frame.
+_FISHEYE_CHANCE = 0.05
+
+
+def _pinhole_or_fisheye(xy: np.ndarray, pinhole, verified: _Matches, rematch: _Rematch):
+    """Of the pinhole's result (fit, matches, log P(chance)) and a Kannala–Brandt camera's, the one
+    the stars prefer (:func:`_scored`: the pinhole on a tie). The fisheye is fitted under
+    :meth:`CameraPrior.uncalibrated`'s fisheye prior and grown by re-matching through it
+    (:func:`_grow`), from two starts:
+
+    - the pinhole's matches and the verified stars it lost (identification's reach into the
+      corners, where a pinhole may not follow a fisheye), equidistant (every k = 0) at the
+      pinhole's focal lengths and principal point — the two agree near the centre,
+      ``r = f·tan θ ≈ f·θ`` — and its attitude;
+    - when neither explains :data:`_EXPLAINED` of the centroids, the verified stars' consensus
+      (:func:`equidistant_consensus`): identification's pinhole may have verified a fisheye's
+      stars with a quarter of them wrong neighbours and its attitude a degree off, and a fit
+      from there keeps a camera bent to fit them.
+
+    Each is grown outward: a star is looked for once the model places it within the radius at
+    which a centroid lands there by chance with probability :data:`_FISHEYE_CHANCE` (a fit to
+    the centre's stars leaves the corners to the prior, and their wide radii would drown the
+    match). A start whose grow is never beyond chance is not a candidate."""
+    fit, cur, _ = pinhole
+    candidates = [_scored(xy, pinhole, rematch)]
+    lost = ~np.isin(verified.idx, cur.idx) & ~np.isin(verified.ids, cur.ids)
+    if lost.any():
+        cur = _Matches(*(np.concatenate([a, b]) for a, b in zip(cur, verified.take(lost), strict=True)))
+    cam = fit.camera
+    prior = CameraPrior.uncalibrated(cam.width, cam.height, "kannala-brandt")
+    max_radius = math.sqrt(_FISHEYE_CHANCE * rematch.area_px2 / (math.pi * rematch.n_use))
+    fisheye = rematch._replace(prior=prior, max_radius_px=max_radius)
+    grown = _fisheye_from(xy, cur, (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy), fit.A_icrs_to_cam,
+                          fisheye)
+    if grown is not None:
+        candidates.append(_scored(xy, grown, rematch))
+    if max(c.n_matched for c in candidates) < _EXPLAINED * rematch.n_use and len(verified.idx) >= 4:
+        # the consensus's equidistant camera, centred, at the pinhole's focal length to start from
+        numbers = lens.camera_numbers(cam)
+        numbers[[lens.FY, lens.CX, lens.CY]] = cam.fx, prior.cx, prior.cy
+        numbers[lens.PROJECTION] = lens.KANNALA_BRANDT
+        f, A, agree = equidistant_consensus(np.ascontiguousarray(xy[verified.idx], dtype=np.float64),
+                                             np.ascontiguousarray(verified.r, dtype=np.float64), numbers,
+                                             _CONSENSUS_STARS, _consensus_tolerance(cam))
+        start = (cam.width, cam.height, f, f, prior.cx, prior.cy)
+        grown = _fisheye_from(xy, verified.take(agree), start, A, fisheye) if agree.sum() >= 4 else None
+        if grown is not None:
+            candidates.append(_scored(xy, grown, rematch))
+    return min(candidates, key=lambda c: c.log_p_chance).result
+
+
+class _Scored(NamedTuple):
+    """A result (fit, matches, log P(chance)), re-matched once more through its fitted camera: how
+    many stars that matched, and their log probability by chance with the camera paid for."""
+
+    result: tuple
+    n_matched: int
+    log_p_chance: float
+
+
+def _scored(xy: np.ndarray, result, rematch: _Rematch) -> _Scored:
+    """``result`` re-matched through its fitted camera against the whole frame, and how likely by
+    chance that is with its camera's numbers paid for
+    (:func:`skyfix.identify.accept.chance_log_probability`: more stars matched, or the same
+    stars within a tighter radius, is less likely); ``inf`` for a result whose grow was never
+    beyond chance (the pinhole's always counts)."""
+    fit = result[0]
+    if not result[2] <= rematch.log_threshold and fit.camera.projection != "pinhole":
+        return _Scored(result, 0, math.inf)
+    new, n_cat, radius = match_catalogue(xy[:rematch.n_use], fit, rematch.stars)
+    log_p = chance_log_probability(len(new.idx), n_cat, rematch.n_use, radius, rematch.area_px2,
+                                   fit.n_effective - 4.0)
+    return _Scored(result, len(new.idx), log_p)
+
+
+def _fisheye_from(xy: np.ndarray, m: _Matches, start: tuple, A: np.ndarray, rematch: _Rematch):
+    """:func:`_robust_prior_fit` to the matches ``m`` of the equidistant camera ``start`` (width,
+    height, fx, fy, cx, cy) at the attitude ``A``, grown (:func:`_grow`); None when a camera is
+    impossible (a field beyond 170°, or a fit's θ polynomial folding back inside the frame:
+    fitted to wrong stars)."""
+    try:
+        camera = Camera(*start, projection="kannala-brandt")
+        fit, cur = _robust_prior_fit(xy, m, camera, A, rematch.prior)
+        return _grow(xy[:rematch.n_use], fit, cur, rematch, math.inf)
+    except CameraError:
+        return None
+
+
+# Consensus start: pairs among this many verified stars (the brightest), and the largest miss
+# (px, or this share of the half-diagonal) at which a star agrees with a pair's hypothesis.
+_CONSENSUS_STARS = 30
+_CONSENSUS_TOLERANCE = 0.003
+
+
+def _consensus_tolerance(camera: Camera) -> float:
+    return max(3.0, _CONSENSUS_TOLERANCE * math.hypot(camera.width, camera.height) / 2.0)
 
 
 # A sparse result that explains fewer than this share of the centroids it was matched against
@@ -275,16 +385,18 @@ def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> Fin
     A = solve_attitude(b, cur.r, method=method)
     resid = rotation.angles(b, cur.r, np.ascontiguousarray(A))
     return FinalFit(A, fit.camera, cur.idx, cur.ids, cur.r, cur.mag, resid, fit.covariance_rad2,
-                    PRIOR_PARAMETERS, log_p)
+                    prior_parameters(fit.camera.projection), log_p)
 
 
 def _grow(xy: np.ndarray, fit, cur: _Matches, rematch: _Rematch, log_p: float):
     """Re-match through ``fit`` and refit (least squares and :func:`_drop_outliers`) until the
-    matches stop changing, as long as each re-match is beyond chance with the fitted camera paid
+    matches stop changing — or repeat the last re-match, the outlier test dropping again what
+    the re-match adds — as long as each re-match is beyond chance with the fitted camera paid
     for.
     Returns (fit, matches, log P(chance)) of the last accepted step (``log_p`` for the start)."""
+    last = None
     for _ in range(6):
-        new, n_cat, radius = _match_catalogue(xy, fit, rematch.database, rematch.epoch)
+        new, n_cat, radius = match_catalogue(xy, fit, rematch.stars, rematch.max_radius_px)
         if len(new.idx) < 3:
             break
         n_extra = fit.n_effective - 4.0  # beyond the rotations and the focal length
@@ -292,8 +404,9 @@ def _grow(xy: np.ndarray, fit, cur: _Matches, rematch: _Rematch, log_p: float):
         if log_p_new > rematch.log_threshold:
             break  # these matches are not beyond chance: keep the last ones that were
         log_p = log_p_new
-        if new.same_as(cur):
+        if new.same_as(cur) or (last is not None and new.same_as(last)):
             break
+        last = new
         # Matched within the model's own gates: least squares and the outlier test suffice.
         fit, cur = _drop_outliers(xy, _prior_fit(xy[new.idx], new.r, fit.camera, fit.A_icrs_to_cam,
                                                  rematch.prior), new, rematch.prior)
@@ -361,53 +474,3 @@ def _rays_and_inliers(xy, r, A, cam):
     for k in keep:
         n_kept += k
     return b, keep, n_kept
-
-
-def _star_tree(database) -> cKDTree:
-    tree = database.__dict__.get("_star_tree")
-    if tree is None:
-        tree = cKDTree(np.asarray(database.star_vectors, dtype=np.float64))
-        database.__dict__["_star_tree"] = tree
-    return tree
-
-
-def _match_catalogue(xy: np.ndarray, fit, database, epoch: float | None) -> tuple[_Matches, int, float]:
-    """Match the catalogue stars in view (the brightest, twice as many as centroids) to the
-    centroids ``xy`` through the fitted camera and attitude of ``fit`` (a
-    :class:`~skyfix.calibrate.PriorFit`). Each star is searched within 3.5 σ of its predicted
-    position, σ combining the centroid noise with the model's own uncertainty there (large
-    where the stars fitted so far leave the camera unknown: far from them, or with the pixel
-    aspect unconstrained), at least 1 px. Unambiguous pairs only (a centroid with two catalogue
-    stars within the radius, a blend, or a star claimed by two centroids says nothing reliable).
-    Returns the matches, how many catalogue stars were predicted in the frame, and the RMS
-    search radius (px) for the chance test."""
-    camera, A = fit.camera, fit.A_icrs_to_cam
-    half_diag = math.radians(camera.fov_diagonal_deg) / 2.0 * 1.05
-    near = np.sort(np.asarray(_star_tree(database).query_ball_point(A[2], 2.0 * math.sin(half_diag / 2.0)),
-                              dtype=np.int64))
-    # The brightest first (database order); the cone is at most ~2.5× the frame's area, so
-    # 6× as many as will be kept is enough to fill the frame's quota.
-    near = near[:12 * len(xy)]
-    empty = _Matches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
-    if len(near) == 0:
-        return empty, 0, 1.0
-    v = database.vectors_at(near, epoch)
-    uv, front = camera.ray_to_pixel(v @ A.T)
-    seen = np.flatnonzero(front & camera.in_frame(uv))[:2 * len(xy)]  # brightest first (database order)
-    near, v, uv = near[seen], v[seen], uv[seen]
-    if len(near) == 0:
-        return empty, 0, 1.0
-    radius = np.maximum(3.5 * np.hypot(fit.sigma_px, fit.prediction_sigma_px(v)), 1.0)
-    dist, j = cKDTree(xy).query(uv, distance_upper_bound=float(radius.max()))
-    hit = dist <= radius
-    star, cen = np.flatnonzero(hit), j[hit]
-    # Ambiguity: another predicted star within the larger of the two radii of this centroid.
-    n_stars_near = cKDTree(uv).query_ball_point(xy[cen], radius[star], return_length=True)
-    n_claims = np.bincount(cen, minlength=len(xy))[cen]
-    ok = (n_stars_near == 1) & (n_claims == 1)
-    star, cen = star[ok], cen[ok]
-    star_ids, star_mag, _ = database.star_arrays()
-    ids = star_ids[near[star]].astype(np.int64)
-    mag = star_mag[near[star]].astype(np.float64)
-    rms_radius = float(np.sqrt(np.mean(radius**2)))
-    return _Matches(cen.astype(np.int64), ids, v[star], mag), len(near), rms_radius
