@@ -16,8 +16,8 @@ where each star is and how it moves, so the window can be made to hold the whole
   off), start a Gauss–Newton fit of the amplitude and the centre — or the prediction itself when
   it is known to within ``START_SIGMA_PX`` (a tracker's) — weighted by each pixel's
   variance, that stops when the step, or the distance left (the last step times ρ/(1 − ρ), ρ
-  the ratio of the last two steps), is under a tenth of σ (0.01 in χ²), or the step under
-  1e-3 px; the centre's covariance is ``(JᵀWJ)⁻¹`` with the gain, the sandwich estimate
+  the signed ratio of the last two steps), is under a tenth of σ (0.01 in χ²), or the step
+  under 1e-3 px; the centre's covariance is ``(JᵀWJ)⁻¹`` with the gain, the sandwich estimate
   without. The flat middle of a streak says nothing about where it is along the motion, its
   two ends do: the fit weighs the pixels by what they say, where a centre of mass weighs the
   middle's noise as much as the ends' light, and a threshold cuts a faint streak's wings.
@@ -562,7 +562,7 @@ def _fit(img, box, shape, xc, yc, ig):
     p = np.array([0.0, xc, yc])
     cov = np.zeros((3, 3))
     inv = cov
-    last = 0.0
+    prev_x = prev_y = 0.0  # the last step
     wmin = 0.01 * _profile(_row_start(0.0, 0.0, shape), shape)  # the footprint: 1 % of the peak
     nothing = (0.0, 0.0, 0.0, 0.0, 0.0)
     for it in range(15):
@@ -578,12 +578,14 @@ def _fit(img, box, shape, xc, yc, ig):
         inv = _inverse3(jtj)
         step = inv @ jtr
         # the χ² the step gains (its length², in σ of the fit's metric), and the distance left,
-        # extrapolated from the ratio ρ of the last two steps (Gauss–Newton converges linearly):
+        # extrapolated from the signed ratio ρ of the last two steps (Gauss–Newton converges
+        # linearly; the steps alternate, ρ < 0, when the model is wider than the stars):
         # ρ/(1 − ρ) steps
         gain = step @ jtr
-        rho = math.sqrt(gain / last) if last > 0.0 and gain > 0.0 else 1.0
-        small = gain < _TOL_CHI2 or (rho < 1.0 and gain * (rho / (1.0 - rho)) ** 2 < _TOL_CHI2)
-        last = gain
+        d = prev_x * prev_x + prev_y * prev_y
+        rho = (step[1] * prev_x + step[2] * prev_y) / d if d > 0.0 else 1.0
+        small = gain < _TOL_CHI2 or (abs(rho) < 1.0 and gain * (rho / (1.0 - rho)) ** 2 < _TOL_CHI2)
+        prev_x, prev_y = step[1], step[2]
         big = max(abs(step[1]), abs(step[2]))
         if big > 0.5:  # at most half a pixel a step
             step *= 0.5 / big

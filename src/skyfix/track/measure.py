@@ -8,7 +8,8 @@ Python between them:
    predicted attitude, and the windows chosen and sized among them;
 2. on a rolling-shutter sensor, each window's star moved to the time its row was seen
    (:func:`skyfix.detect.streak.row_time_offset`), ``J ω Δt`` (the windows' docstring);
-3. :func:`~skyfix.track.windows.cut_tiles` — the tiles in one mosaic, their sky and noise;
+3. :func:`~skyfix.track.windows.cut_tiles` — the tiles in one mosaic, and each one's sky and
+   noise from its border (not for the streak fit, which takes its own);
 4. the centroids: the streak fit (:func:`skyfix.detect.streak.fit_streaks`) when the tracker's
    centroider is ``"streak"``, the tiles are centred on the predictions and the streaks are at
    least ``streak_px`` long; else the round-star centroider of
@@ -42,6 +43,7 @@ from skyfix.track.windows import (
     new_selection,
     no_fit,
     plan_windows,
+    tile_layout,
 )
 
 __all__ = ["CentroidSettings", "measure_frame"]
@@ -102,13 +104,15 @@ def measure_frame(img, A, P, rate, P_rate, exposure_s, line_time_s, local_t, sel
     at = np.empty((n, 2))  # the predictions in the mosaic
     sky = np.empty(n)
     noise = np.empty(n)
-    tile_half, recentred, streak = cut_tiles(img, sel, n, max_tile, tiles, origin, at, sky, noise)
+    c = CentroidSettings(*centroid_t)
+    how = Centroider(*c.round)
+    _, recentred, streak = tile_layout(sel, n, max_tile)
+    streaks = c.streak and not recentred and streak >= c.streak_px  # the streak fit takes its own sky
+    tile_half, _, _ = cut_tiles(img, sel, n, max_tile, tiles, origin, at, sky, noise, not streaks)
     size = 2 * tile_half
     mosaic = tiles[:n * size * size].reshape(n * size, size)
     x, y, sx, sy, flux, snr = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    c = CentroidSettings(*centroid_t)
-    how = Centroider(*c.round)
-    if c.streak and not recentred and streak >= c.streak_px:
+    if streaks:
         margin = min(tile_half - int(math.ceil(streak / 2)) - 1, c.margin_px)
         sigma = np.empty(n)  # the predictions' σ, px: precise ones start the fit themselves
         for i in range(n):

@@ -53,7 +53,8 @@ from skyfix.track.fit import fit_attitude
 
 __all__ = ["Local", "MatchSettings", "Plan", "Selection", "View", "WindowFit", "WindowSettings", "crowding",
            "cut_tiles", "fit_windows", "local_catalog", "match_windows", "new_selection", "no_fit",
-           "pixel_jacobian", "plan_windows", "project_view", "select_windows", "solution_numbers"]
+           "pixel_jacobian", "plan_windows", "project_view", "select_windows", "solution_numbers",
+           "tile_layout"]
 
 
 class WindowSettings(NamedTuple):
@@ -405,20 +406,9 @@ def select_windows(view, n_view, local, select_mag, P, rate, P_rate, exposure_s,
 
 
 @numba.njit(cache=True)
-def cut_tiles(img, sel, n, max_half, tiles, origin, local, sky, noise):
-    """Step 3 of the module docstring for the first ``n`` windows of the :class:`Selection`
-    ``sel``: one tile size for all, ``2·tile_half`` pixels square — centred on the prediction
-    when that reaches every search window (``half``) or the search is less than a pixel wider
-    than the star, else on the brightest 3 × 3 sum in the search window with room for the whole
-    streak around it (``tile``); at most ``max_half``.
-    Tile ``i`` is copied (float32; non-finite pixels as 0) into rows ``i·2·tile_half …`` of the
-    mosaic, the first ``n·(2·tile_half)²`` values of the flat buffer ``tiles``; its top-left
-    pixel goes to ``origin[i]``, the prediction's place in the mosaic to ``local[i]`` (the
-    tile's centre when recentred), the sky level and noise σ of its border pixels to ``sky[i]``
-    and ``noise[i]`` (the robust estimate :func:`skyfix.detect.centroid_windows` makes).
-    ``img`` is the whole frame, of any real dtype, never copied. Returns ``(tile_half,
-    recentred, longest streak component in pixels)``."""
-    h, w = img.shape
+def tile_layout(sel, n, max_half):
+    """The tiles of :func:`cut_tiles` for the first ``n`` windows of the :class:`Selection`
+    ``sel``: ``(tile_half, recentred, longest streak component in pixels)``."""
     half = 0.0
     tile = 0.0
     streak = 0.0
@@ -428,7 +418,26 @@ def cut_tiles(img, sel, n, max_half, tiles, origin, local, sky, noise):
         streak = max(streak, abs(sel.smear[i, 0]), abs(sel.smear[i, 1]))
     # search a peak only when the prediction is off by more than a pixel or so (k σ)
     recentre = tile < half and half - tile > 1.0
-    tile_half = min(int(math.ceil(tile if recentre else half)) + 1, max_half)
+    return min(int(math.ceil(tile if recentre else half)) + 1, max_half), recentre, streak
+
+
+@numba.njit(cache=True)
+def cut_tiles(img, sel, n, max_half, tiles, origin, local, sky, noise, border_stats):
+    """Step 3 of the module docstring for the first ``n`` windows of the :class:`Selection`
+    ``sel``: one tile size for all, ``2·tile_half`` pixels square — centred on the prediction
+    when that reaches every search window (``half``) or the search is less than a pixel wider
+    than the star, else on the brightest 3 × 3 sum in the search window with room for the whole
+    streak around it (``tile``); at most ``max_half`` (:func:`tile_layout`).
+    Tile ``i`` is copied (float32; non-finite pixels as 0) into rows ``i·2·tile_half …`` of the
+    mosaic, the first ``n·(2·tile_half)²`` values of the flat buffer ``tiles``; its top-left
+    pixel goes to ``origin[i]``, the prediction's place in the mosaic to ``local[i]`` (the
+    tile's centre when recentred); with ``border_stats``, the sky level and noise σ of its
+    border pixels to ``sky[i]`` and ``noise[i]`` (the robust estimate
+    :func:`skyfix.detect.centroid_windows` makes; the streak fit takes its own), else NaN.
+    ``img`` is the whole frame, of any real dtype, never copied. Returns ``(tile_half,
+    recentred, longest streak component in pixels)``."""
+    h, w = img.shape
+    tile_half, recentre, streak = tile_layout(sel, n, max_half)
     size = 2 * tile_half
     mosaic = tiles[:n * size * size].reshape(n * size, size)
     border = np.empty(4 * size - 4)
@@ -471,7 +480,10 @@ def cut_tiles(img, sel, n, max_half, tiles, origin, local, sky, noise):
                 if edge or xx == 0 or xx == size - 1:
                     border[m] = v
                     m += 1
-        sky[i], noise[i] = robust_level_noise(border[:m].copy(), 0.0, False)
+        if border_stats:
+            sky[i], noise[i] = robust_level_noise(border[:m].copy(), 0.0, False)
+        else:
+            sky[i] = noise[i] = np.nan
     return tile_half, recentre, streak
 
 
