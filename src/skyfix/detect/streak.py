@@ -69,9 +69,10 @@ _NCOL = 11
 _REACH = 4.0
 # Gauss–Newton stops when the step or the distance left (extrapolated) is under 0.1 σ (χ² 0.01).
 _TOL_CHI2 = 0.01
-# The passes over the pixels may fuse a multiply and an add (one rounding, not two): an eighth
-# of their time; the centres move by 1e-14 px.
+# The passes over the pixels may fuse a multiply and an add (one rounding, not two), and take a
+# pass's sums in any order (split four ways: its loop vectorises); the centres move by 1e-14 px.
 _CONTRACT = {"contract"}
+_VECTOR = {"contract", "reassoc"}
 #: A prediction whose σ per axis is at most this (pixels) starts the Gauss–Newton fit itself,
 #: without the weighted centre's passes: from predictions 0.1–0.5 px σ off (up to ~2 px) the fit
 #: converges on every one of 600 synthetic streaks (``tests/test_detect_streak.py``'s) to the
@@ -375,35 +376,25 @@ def _erf(z, g):
 
 
 @njit(cache=True, inline="always")
-def _along_across(walk, shape):
-    """At the row walk's pixel: the along profile ``e`` (the erf difference over the length) and
-    the Gaussian across ``g``; ``inside`` False (and both zero) beyond the streak's light."""
-    a, b, gp, _, gm, _, gb, _ = walk
+def _weight(a, b, gp, gm, gb, shape):
+    """The streak profile (a Gaussian of σ ``s`` swept over ``±half_len`` along ``u``, divided by
+    the length; it integrates to ``2√(2π)·s``) at the pixel ``a`` along and ``b`` across the
+    motion (its Gaussians ``gp``, ``gm``, ``gb`` from the row walk: the erf difference along, the
+    Gaussian across), and its gradient by the offset ``(dx, dy)``; zero beyond the streak's light
+    — by a product with 0 or 1, not a branch, so that the loop of :func:`_sums` vectorises."""
     h, s, q = shape.half_len, shape.s, shape.q
-    if abs(b) > _REACH * s or abs(a) > h + _REACH * s:
-        return False, 0.0, 0.0
-    return True, (_erf((a + h) * q, gp) - _erf((a - h) * q, gm)) * shape.inv_len, gb
+    g = gb if (abs(b) <= _REACH * s) & (abs(a) <= h + _REACH * s) else 0.0
+    e = (_erf((a + h) * q, gp) - _erf((a - h) * q, gm)) * shape.inv_len
+    de = (2.0 / math.sqrt(math.pi)) * q * (gp - gm) * shape.inv_len
+    da, db = de * g, -e * g * b * (2.0 * q * q)  # 1/s² = 2q²
+    return e * g, da * shape.ux - db * shape.uy, da * shape.uy + db * shape.ux
 
 
 @njit(cache=True, inline="always")
 def _profile(walk, shape):
-    """The streak profile (a Gaussian of σ ``s`` swept over ``±half_len`` along ``u``, divided by
-    the length; it integrates to ``2√(2π)·s``) at the row walk's pixel."""
-    _, e, g = _along_across(walk, shape)
-    return e * g
-
-
-@njit(cache=True, inline="always")
-def _weight(walk, shape):
-    """:func:`_profile` at the row walk's pixel and its gradient by the offset ``(dx, dy)``."""
-    inside, e, g = _along_across(walk, shape)
-    if not inside:
-        return 0.0, 0.0, 0.0
-    _, b, gp, _, gm, _, _, _ = walk
-    ux, uy, q = shape.ux, shape.uy, shape.q
-    de = (2.0 / math.sqrt(math.pi)) * q * (gp - gm) * shape.inv_len
-    da, db = de * g, -e * g * b * (2.0 * q * q)  # 1/s² = 2q²
-    return e * g, da * ux - db * uy, da * uy + db * ux
+    """The streak profile of :func:`_weight` at the row walk's pixel."""
+    a, b, gp, _, gm, _, gb, _ = walk
+    return _weight(a, b, gp, gm, gb, shape)[0]
 
 
 @njit(cache=True, inline="always")
@@ -460,7 +451,29 @@ def _weighted_centre(img, box, shape, xc, yc, reach_x, reach_y):
 
 
 @njit(cache=True, fastmath=_CONTRACT)
-def _sums(img, box, shape, xc, yc, amp, ig, wmin):
+def _gather(img, box, shape, xc, yc, buf):
+    """The pixels within the reach of the streak centred at ``(xc, yc)`` (:func:`_span`) into
+    the columns of ``buf`` (6, ≥ their count): ``a`` and ``b`` (along and across the motion),
+    the row walk's three Gaussians and the value above the sky. Returns their count."""
+    m = 0
+    for y in range(box.y0, box.y1 + 1):
+        lo, hi = _span(y, box, shape, xc, yc)
+        walk = _row_start(lo - xc, y - yc, shape)
+        for x in range(lo, hi + 1):
+            a, b, gp, _, gm, _, gb, _ = walk
+            buf[0, m] = a
+            buf[1, m] = b
+            buf[2, m] = gp
+            buf[3, m] = gm
+            buf[4, m] = gb
+            buf[5, m] = img[y, x] - box.sky
+            m += 1
+            walk = _row_next(walk, shape)
+    return m
+
+
+@njit(cache=True, fastmath=_VECTOR, error_model="numpy")
+def _sums(img, box, shape, xc, yc, amp, ig, wmin, buf):
     """One pass over the streak's reach at the centre ``(xc, yc)``: the sums of the weighted
     normal equations with the amplitude left out (the model is linear in it, :func:`_scaled`):
     ``Σ wᵢ·jᵢ·jₖ`` (6: ``j = (profile, ∂x, ∂y)``, the gradient of the profile without the
@@ -469,50 +482,53 @@ def _sums(img, box, shape, xc, yc, amp, ig, wmin):
     shot noise at ``amp`` with the gain's inverse ``ig``. With ``amp > 0`` (a pass that may be
     the last), also the streak's footprint (the pixels above the sky where the profile is at
     least ``wmin``): its count and ``Σ v``, ``Σ v·dx``, ``Σ v·dy``, ``Σ v·dx²``, ``Σ v·dy²``,
-    ``Σ v·dx·dy`` about ``(xc, yc)``; the meat only without the gain."""
+    ``Σ v·dx·dy`` about ``(xc, yc)``; the meat only without the gain (zeros otherwise).
+
+    The row walk is a recurrence from pixel to pixel: :func:`_gather` runs it into ``buf``; the
+    sums are one loop without a branch, which the compiler vectorises (four pixels at a time):
+    numba's check of each division for a zero (``error_model="numpy"`` leaves it out; nothing
+    here divides by zero) or the sums' fixed order (``_VECTOR``) would each keep it scalar."""
     v0 = box.noise * box.noise if box.noise > 0 else 1.0
-    last = amp > 0.0
-    meat = last and ig == 0.0
+    last = 1.0 if amp > 0.0 else 0.0
+    meat = last if ig == 0.0 else 0.0
+    m = _gather(img, box, shape, xc, yc, buf)
+    ux, uy = shape.ux, shape.uy
     s00 = s01 = s02 = s11 = s12 = s22 = t0 = t1 = t2 = 0.0
     m00 = m01 = m02 = m11 = m12 = m22 = 0.0
     n = sv = svx = svy = svxx = svyy = svxy = 0.0
-    for y in range(box.y0, box.y1 + 1):
-        lo, hi = _span(y, box, shape, xc, yc)
-        dy = y - yc
-        walk = _row_start(lo - xc, dy, shape)
-        for x in range(lo, hi + 1):
-            w, gx, gy = _weight(walk, shape)
-            walk = _row_next(walk, shape)
-            mu = amp * w
-            v = img[y, x] - box.sky
-            iv = 1.0 / v0 if ig == 0.0 else 1.0 / (v0 + max(mu, 0.0) * ig)
-            s00 += iv * w * w
-            s01 += iv * w * gx
-            s02 += iv * w * gy
-            s11 += iv * gx * gx
-            s12 += iv * gx * gy
-            s22 += iv * gy * gy
-            t0 += iv * w * v
-            t1 += iv * gx * v
-            t2 += iv * gy * v
-            if meat:
-                r = iv * (v - mu)
-                r *= r
-                m00 += r * w * w
-                m01 += r * w * gx
-                m02 += r * w * gy
-                m11 += r * gx * gx
-                m12 += r * gx * gy
-                m22 += r * gy * gy
-            if last and v > 0.0 and w >= wmin:
-                dx = x - xc
-                n += 1.0
-                sv += v
-                svx += v * dx
-                svy += v * dy
-                svxx += v * dx * dx
-                svyy += v * dy * dy
-                svxy += v * dx * dy
+    for k in range(m):
+        a, b, v = buf[0, k], buf[1, k], buf[5, k]
+        w, gx, gy = _weight(a, b, buf[2, k], buf[3, k], buf[4, k], shape)
+        mu = amp * w
+        iv = 1.0 / (v0 + max(mu, 0.0) * ig)
+        iw, igx, igy = iv * w, iv * gx, iv * gy
+        s00 += iw * w
+        s01 += iw * gx
+        s02 += iw * gy
+        s11 += igx * gx
+        s12 += igx * gy
+        s22 += igy * gy
+        t0 += iw * v
+        t1 += igx * v
+        t2 += igy * v
+        r = iv * (v - mu)
+        r = r * r * meat
+        m00 += r * w * w
+        m01 += r * w * gx
+        m02 += r * w * gy
+        m11 += r * gx * gx
+        m12 += r * gx * gy
+        m22 += r * gy * gy
+        f = last if (v > 0.0) & (w >= wmin) else 0.0
+        fv = f * v
+        dx, dy = a * ux - b * uy, a * uy + b * ux
+        n += f
+        sv += fv
+        svx += fv * dx
+        svy += fv * dy
+        svxx += fv * dx * dx
+        svyy += fv * dy * dy
+        svxy += fv * dx * dy
     return ((s00, s01, s02, s11, s12, s22), (t0, t1, t2), (m00, m01, m02, m11, m12, m22),
             (n, sv, svx, svy, svxx, svyy, svxy))
 
@@ -551,7 +567,7 @@ def _inverse3(m):
 
 
 @njit(cache=True)
-def _fit(img, box, shape, xc, yc, ig):
+def _fit(img, box, shape, xc, yc, ig, buf):
     """Gauss–Newton fit of the streak model from the weighted centre: (amplitude, x, y), its
     covariance ((JᵀWJ)⁻¹ with a gain, else the sandwich), whether it converged near the start,
     and the footprint of :func:`_sums` at the last pass, its moments moved to the fit's centre
@@ -567,7 +583,7 @@ def _fit(img, box, shape, xc, yc, ig):
     nothing = (0.0, 0.0, 0.0, 0.0, 0.0)
     for it in range(15):
         at_x, at_y = p[1], p[2]
-        six, tv, meat6, foot = _sums(img, box, shape, at_x, at_y, p[0], ig, wmin)
+        six, tv, meat6, foot = _sums(img, box, shape, at_x, at_y, p[0], ig, wmin, buf)
         if it == 0:
             p[0] = tv[0] / six[0] if six[0] > 0 else 0.0
             if not p[0] > 0:
@@ -654,7 +670,8 @@ def fit_streaks(img, xy, motion, half_size, s, ig, sigma_pred):
             xc, yc, ok = _weighted_centre(img, box, shape, xs, ys, hx, hy)
             if not ok:
                 continue
-        p, cov, ok, (npix, sv, sxx, syy, sxy) = _fit(img, box, shape, xc, yc, ig)
+        buf = np.empty((6, (y1 - y0 + 1) * (x1 - x0 + 1)))  # _sums' pixels
+        p, cov, ok, (npix, sv, sxx, syy, sxy) = _fit(img, box, shape, xc, yc, ig, buf)
         if not ok:
             continue
         peak = -np.inf
