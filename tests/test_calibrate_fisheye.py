@@ -157,7 +157,8 @@ def _pinhole_numbers() -> dict[str, str]:
     xy = xy + rng.normal(0, 0.3, xy.shape)
     start = Camera.from_fov(1280, 960, cam.fov_deg)
     A0 = attitude_from_radec_roll(1.0 + 1e-4, 0.3, 0.4)
-    fit = fit_camera_with_prior(xy, r, start, A0, CameraPrior.uncalibrated(1280, 960), principal_point="fit")
+    held_p = CameraPrior.uncalibrated(1280, 960)._replace(sigma_tangential=0.0)  # p1, p2 as at ee28012
+    fit = fit_camera_with_prior(xy, r, start, A0, held_p, principal_point="fit")
     codes = np.array([camera_fit.F, camera_fit.ASPECT, camera_fit.PRINCIPAL_POINT, camera_fit.K1_TERM,
                       camera_fit.K2_TERM, camera_fit.TANGENTIAL], dtype=np.int64)
     J, _ = camera_fit.jacobian_rows(xy, np.ascontiguousarray(r @ A0.T), lens.camera_numbers(cam), 0.2, codes)

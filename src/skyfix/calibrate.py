@@ -356,9 +356,12 @@ _PRIOR_PARAMETERS_OF = {"pinhole": PRIOR_PARAMETERS,
                         "kannala-brandt": ("f", "aspect", "principal_point", "k1", "k2", "k3", "k4")}
 
 
-def prior_parameters(projection: str) -> tuple[str, ...]:
+def prior_parameters(projection: str, tangential: bool = False) -> tuple[str, ...]:
     """The parameters :func:`fit_camera_with_prior` fits for a camera of ``projection``
-    (:data:`PRIOR_PARAMETERS` for a pinhole; a Kannala–Brandt camera's adds ``k3``, ``k4``)."""
+    (:data:`PRIOR_PARAMETERS` for a pinhole, and ``tangential`` (p1, p2) when its prior has a
+    tangential σ; a Kannala–Brandt camera's adds ``k3``, ``k4``)."""
+    if tangential and projection == "pinhole":
+        return PRIOR_PARAMETERS + ("tangential",)
     return _PRIOR_PARAMETERS_OF[projection]
 
 
@@ -372,8 +375,9 @@ class CameraPrior(NamedTuple):
     """What is known of a camera before its image is solved: a Gaussian prior on each parameter
     but the focal length (free) — the principal point about ``(cx, cy)``, the pixel aspect
     ``fy/fx`` about ``aspect`` (1), radial distortion about ``k1``, ``k2`` (0; OpenCV's normalised
-    units) and, for a ``kannala-brandt`` camera, ``k3``, ``k4`` (0: the equidistant fisheye).
-    The prior's ``projection`` must be the fitted camera's.
+    units), for a ``kannala-brandt`` camera ``k3``, ``k4`` (0: the equidistant fisheye) and, for a
+    pinhole with ``sigma_tangential`` > 0, the decentring distortion ``p1``, ``p2`` (0; at 0 σ
+    they are held, not fitted). The prior's ``projection`` must be the fitted camera's.
 
     The prior keeps a sparse field from fitting an absurd lens (``k2 = 400``) and lets the
     attitude's covariance include what the stars leave unknown; many stars overrule it.
@@ -393,6 +397,14 @@ class CameraPrior(NamedTuple):
     sigma_k4: float = 0.02
     k3: float = 0.0
     k4: float = 0.0
+    sigma_tangential: float = 0.0  # p1, p2 (a pinhole's only): held unless > 0
+    p1: float = 0.0
+    p2: float = 0.0
+
+    @property
+    def parameters(self) -> tuple[str, ...]:
+        """The camera parameters a fit under this prior frees (:func:`prior_parameters`)."""
+        return prior_parameters(self.projection, self.sigma_tangential > 0.0)
 
     @classmethod
     def uncalibrated(cls, width: int, height: int, projection: str = "pinhole") -> CameraPrior:
@@ -400,8 +412,8 @@ class CameraPrior(NamedTuple):
         centre within a quarter of the half-diagonal (lens mounting — or an off-centre crop of a
         larger frame: with 5% the error bars of 60% crops were 6–8× too small), aspect within
         5%, and the projection's distortion (:data:`UNCALIBRATED_DISTORTION`): a pinhole's
-        |k1|, |k2| ≲ 0.3 (most lenses narrower than 60°), a fisheye's about the equidistant
-        projection."""
+        |k1|, |k2| ≲ 0.3 (most lenses narrower than 60°) and |p1|, |p2| ≲ 1e-3, a fisheye's
+        about the equidistant projection."""
         name = PROJECTION_ALIASES.get(projection, projection)
         if name not in UNCALIBRATED_DISTORTION:
             known = ", ".join(UNCALIBRATED_DISTORTION)
@@ -412,7 +424,11 @@ class CameraPrior(NamedTuple):
 
 
 UNCALIBRATED_DISTORTION: dict[str, dict[str, float]] = {
-    "pinhole": {"sigma_k1": 0.3, "sigma_k2": 0.3},
+    # Decentring p1, p2 with σ 1e-3 each: OpenCV calibrations of machine-vision lenses give
+    # |p1|, |p2| ≲ 1e-3 (thesis 003's MT9P031 lens 2.3e-4, presets/mt9p031.toml), so a real lens
+    # sits within 1σ and the attitude's error bar carries what the stars leave of them; a p held
+    # at 0 goes into the principal point and the boresight (5.6–6.1" at 50°, normalised RMS 5.6).
+    "pinhole": {"sigma_k1": 0.3, "sigma_k2": 0.3, "sigma_tangential": 1e-3},
     # θ_d = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸) about the equidistant fisheye (all 0). The
     # classical fisheye projections in this form: equisolid 2 sin(θ/2) has k1 = −1/24, k2 = 1/1920;
     # stereographic 2 tan(θ/2) k1 = 1/12, k2 = 1/120; orthographic sin θ k1 = −1/6, k2 = 1/120;
@@ -442,10 +458,11 @@ class PriorFit(NamedTuple):
         σ from the other stars' residuals unless ``robust``): for a star that fits the model,
         twice an F(2, dof − 2) variable, dof = ``2N − n_effective``.
     parameter_covariance : (P, P) — posterior covariance of the parameter step (rotations,
-        then the camera's :func:`prior_parameters` in the scaled units of
+        then the camera's :attr:`parameters` in the scaled units of
         :mod:`skyfix._kernels.camera_fit`).
     largest_move_px : float — the largest distance by which the fit moved a star's predicted
         position from where the starting camera and attitude put it.
+    parameters : tuple[str, ...] — the camera parameters fitted (:attr:`CameraPrior.parameters`).
     """
 
     camera: Camera
@@ -457,6 +474,7 @@ class PriorFit(NamedTuple):
     outlier_chi2: np.ndarray
     parameter_covariance: np.ndarray
     largest_move_px: float = 0.0
+    parameters: tuple[str, ...] = PRIOR_PARAMETERS
 
     def prediction_sigma_px(self, r_icrs: np.ndarray) -> np.ndarray:
         """How uncertain (px, the larger axis's σ) the fitted model's pixel position of each
@@ -465,7 +483,7 @@ class PriorFit(NamedTuple):
         rays = np.ascontiguousarray(np.asarray(r_icrs, dtype=np.float64) @ self.A_icrs_to_cam.T)
         rmax = math.hypot(cam.width, cam.height) / 2.0 / cam.fx
         numbers = lens.camera_numbers(cam)
-        codes = kernels.prior_codes(numbers)
+        codes = _codes(self.parameters)
         Js, _ = kernels.jacobian_rows(np.zeros((len(rays), 2)), rays, numbers, rmax, codes)
         C = (Js @ self.parameter_covariance) @ Js.transpose(0, 2, 1)
         half_tr = (C[:, 0, 0] + C[:, 1, 1]) / 2.0
@@ -476,10 +494,10 @@ class PriorFit(NamedTuple):
 def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_cam: np.ndarray,
                           prior: CameraPrior, *, robust: bool = False, iterations: int = 12,
                           sigma_floor_px: float = 0.05, principal_point: str = "auto") -> PriorFit:
-    """Fit attitude, focal length, aspect, principal point and the radial distortion to matched
-    stars, each camera parameter but the focal length held by its ``prior`` (maximum a posteriori):
-    :func:`prior_parameters` of the camera's projection — a pinhole's k1, k2 (its k3 held), a
-    Kannala–Brandt camera's k1 … k4.
+    """Fit attitude, focal length, aspect, principal point and the distortion to matched stars,
+    each camera parameter but the focal length held by its ``prior`` (maximum a posteriori):
+    :attr:`CameraPrior.parameters` — a pinhole's k1, k2 (its k3 held) and, with a tangential σ
+    (:meth:`CameraPrior.uncalibrated`'s), p1, p2; a Kannala–Brandt camera's k1 … k4.
 
     Gauss–Newton on ``Σ w |residual|²/σ² + Σ ((θ − θ₀)/τ)²`` with the analytic Jacobian of
     :func:`skyfix._kernels.camera_fit.jacobian_rows`, in one numba kernel
@@ -565,7 +583,7 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     T[0, kernels.STEP_CY] = -camera.fx / camera.fy
     cov = T @ inv @ T.T
     return PriorFit(camera, gn.A, gn.residuals, math.sqrt(gn.sigma2), cov, gn.n_effective, gn.chi2, inv,
-                    float(moved))
+                    float(moved), prior.parameters)
 
 
 def frame_at_pixel(A_icrs_to_cam: np.ndarray, camera: Camera, pixel: tuple[float, float]) -> np.ndarray:

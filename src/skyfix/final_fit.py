@@ -26,7 +26,7 @@ from skyfix._kernels import lens, rotation
 from skyfix._rematch import CatalogueCone, equidistant_consensus, match_catalogue
 from skyfix._rematch import Matches as _Matches
 from skyfix.attitude import attitude_covariance, solve_attitude
-from skyfix.calibrate import CameraPrior, fit_camera_with_prior, prior_parameters
+from skyfix.calibrate import CameraPrior, fit_camera_with_prior
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
 from skyfix.identify.accept import chance_log_probability
@@ -385,7 +385,7 @@ def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> Fin
     A = solve_attitude(b, cur.r, method=method)
     resid = rotation.angles(b, cur.r, np.ascontiguousarray(A))
     return FinalFit(A, fit.camera, cur.idx, cur.ids, cur.r, cur.mag, resid, fit.covariance_rad2,
-                    prior_parameters(fit.camera.projection), log_p)
+                    fit.parameters, log_p)
 
 
 def _grow(xy: np.ndarray, fit, cur: _Matches, rematch: _Rematch, log_p: float):

@@ -47,7 +47,8 @@ from skyfix._kernels.lens import (
 from skyfix._kernels.rotation import rodrigues, spd_inverse
 
 __all__ = ["ASPECT", "F", "K1_TERM", "K2_TERM", "K3_TERM", "K4_TERM", "KB_PRIOR_CODES", "PRINCIPAL_POINT",
-           "PRIOR_CODES", "PRIOR_NUMBERS", "TANGENTIAL", "GaussNewtonResult", "ModelScores", "apply_step",
+           "PRIOR_CODES", "PRIOR_NUMBERS", "TANGENTIAL", "TANGENTIAL_PRIOR_CODES", "GaussNewtonResult",
+           "ModelScores", "apply_step",
            "jacobian_rows", "normal_equations_at_start", "prior_codes", "prior_gauss_newton",
            "residuals_for_steps", "score_blocks", "score_models"]
 
@@ -58,15 +59,18 @@ F, ASPECT, PRINCIPAL_POINT, K1_TERM, K2_TERM, K3_TERM, K4_TERM, TANGENTIAL = ran
 # The prior's numbers as prior_gauss_newton takes them (skyfix.calibrate.CameraPrior's fields),
 # and their indices.
 PRIOR_NUMBERS = ("cx", "cy", "sigma_principal_point_px", "sigma_aspect", "sigma_k1", "sigma_k2", "aspect",
-                 "k1", "k2", "sigma_k3", "sigma_k4", "k3", "k4")
+                 "k1", "k2", "sigma_k3", "sigma_k4", "k3", "k4", "sigma_tangential", "p1", "p2")
 (PRIOR_CX, PRIOR_CY, SIGMA_PP, SIGMA_ASPECT, SIGMA_K1, SIGMA_K2, PRIOR_ASPECT, PRIOR_K1, PRIOR_K2, SIGMA_K3,
- SIGMA_K4, PRIOR_K3, PRIOR_K4) = range(13)
+ SIGMA_K4, PRIOR_K3, PRIOR_K4, SIGMA_TANGENTIAL, PRIOR_P1, PRIOR_P2) = range(16)
 # The parameters of the fit under a prior (skyfix.calibrate.PRIOR_PARAMETERS), a pinhole's and a
 # Kannala–Brandt camera's (k3, k4 too: a fisheye's θ polynomial reaches far past θ = 1), and
-# where each sits in its step vector (after the three rotations).
+# where each sits in its step vector (after the three rotations). A pinhole prior with a
+# tangential σ (> 0) fits p1, p2 too (TANGENTIAL_PRIOR_CODES; steps 9, 10 like a fisheye's k3, k4).
 PRIOR_CODES = (F, ASPECT, PRINCIPAL_POINT, K1_TERM, K2_TERM)
+TANGENTIAL_PRIOR_CODES = (F, ASPECT, PRINCIPAL_POINT, K1_TERM, K2_TERM, TANGENTIAL)
 KB_PRIOR_CODES = (F, ASPECT, PRINCIPAL_POINT, K1_TERM, K2_TERM, K3_TERM, K4_TERM)
 STEP_F, STEP_ASPECT, STEP_CX, STEP_CY, STEP_K1, STEP_K2, STEP_K3, STEP_K4 = 3, 4, 5, 6, 7, 8, 9, 10
+STEP_P1, STEP_P2 = 9, 10
 
 
 
@@ -133,11 +137,14 @@ def apply_step(cam, rmax, codes, p):
 
 
 @numba.njit(cache=True)
-def prior_codes(cam):
+def prior_codes(cam, tangential):
     """The parameter codes of the fit under a prior for the camera ``cam``'s projection
-    (:data:`PRIOR_CODES` or :data:`KB_PRIOR_CODES`)."""
+    (:data:`PRIOR_CODES`, with ``tangential`` :data:`TANGENTIAL_PRIOR_CODES`, or a Kannala–Brandt
+    camera's :data:`KB_PRIOR_CODES`)."""
     if cam[PROJECTION] == KANNALA_BRANDT:
         return np.array(KB_PRIOR_CODES, dtype=np.int64)
+    if tangential:
+        return np.array(TANGENTIAL_PRIOR_CODES, dtype=np.int64)
     return np.array(PRIOR_CODES, dtype=np.int64)
 
 
@@ -321,8 +328,9 @@ def score_blocks(JtJ, Jtr, rr, n, cols, n_cols, chosen):
 @numba.njit(cache=True)
 def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, sigma_floor, prior_out):
     """The iterations of :func:`skyfix.calibrate.fit_camera_with_prior` for the camera's
-    :func:`prior_codes` (a pinhole's :data:`PRIOR_CODES`, a Kannala–Brandt camera's
-    :data:`KB_PRIOR_CODES`); ``prior`` (:data:`PRIOR_NUMBERS`) for the steps, ``prior_out`` for the
+    :func:`prior_codes` (a pinhole's :data:`PRIOR_CODES`, with p1, p2 when ``prior``'s tangential
+    σ is positive, a Kannala–Brandt camera's :data:`KB_PRIOR_CODES`); ``prior``
+    (:data:`PRIOR_NUMBERS`) for the steps, ``prior_out`` for the
     posterior returned. Returns the attitude, camera numbers, σ², the posterior covariance at
     the result, n_eff, the residuals (N, 2), the studentised χ² (N,) and the Gauss–Newton step
     (P,) under ``prior_out`` from the result (what freeing ``prior_out``'s parameters would do),
@@ -330,11 +338,12 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, s
 
     (Ten arguments: the stars, the start, the two priors and the fit's four settings.) Returns a
     :class:`GaussNewtonResult`."""
-    codes = prior_codes(cam)
     fisheye = cam[PROJECTION] == KANNALA_BRANDT
+    tangential = not fisheye and prior[SIGMA_TANGENTIAL] > 0.0
+    codes = prior_codes(cam, tangential)
     n = xy.shape[0]
     n_obs = 2 * n
-    P = 11 if fisheye else 9
+    P = 11 if (fisheye or tangential) else 9
     n_eff = 4.0
     rays0 = np.empty((n, 3))
     lam = np.zeros(P)
@@ -391,6 +400,10 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, robust, iterations, s
             lam[STEP_K4] = 1.0 / (pr[SIGMA_K4] * rmax**8) ** 2
             dev[STEP_K3] = (cam[K3] - pr[PRIOR_K3]) * rmax**6
             dev[STEP_K4] = (cam[K4] - pr[PRIOR_K4]) * rmax**8
+        elif tangential:  # p's step is p·rmax (apply_step)
+            lam[STEP_P1] = lam[STEP_P2] = 1.0 / (pr[SIGMA_TANGENTIAL] * rmax) ** 2
+            dev[STEP_P1] = (cam[P1] - pr[PRIOR_P1]) * rmax
+            dev[STEP_P2] = (cam[P2] - pr[PRIOR_P2]) * rmax
         N = JtJ / sigma2
         for a in range(P):
             N[a, a] += lam[a]
