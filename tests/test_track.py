@@ -271,6 +271,17 @@ def test_frame_of_another_size_is_an_error(frames_at_rest):
         tracker.update(frames_at_rest[0].image, 0.0, gyro_rate_rad_s=[0.0, 1.0])
 
 
+def test_streak_windows_are_at_most_the_windows():
+    """Fewer windows while the stars streak, never more than ``n_windows``; a count that is not
+    a positive integer is a one-line error."""
+    assert Tracker(CAMERA, epoch=EPOCH).settings.streak_windows == 16  # default: n_windows
+    assert Tracker(CAMERA, epoch=EPOCH, n_windows=10, streak_windows=14).settings.streak_windows == 10
+    assert Tracker(CAMERA, epoch=EPOCH, streak_windows=12).settings.streak_windows == 12
+    for bad in (0, -3, 2.5):
+        with pytest.raises(InputError, match="streak_windows"):
+            Tracker(CAMERA, epoch=EPOCH, streak_windows=bad)
+
+
 def test_pixel_jacobian_is_the_derivative_of_the_projection():
     """J δθ is where a star moves for a small attitude error (with distortion and skew)."""
     cam = Camera.from_fov(1280, 960, 15.0).replace(k1=-0.08, p1=1e-3, skew=2.0)

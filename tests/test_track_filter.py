@@ -235,14 +235,18 @@ def test_update_gated_is_the_innovation_then_the_update():
     for k in range(1, 6):
         nis = a.innovation(0.1 * k, fits[k], R_MEAS).nis
         sa = a.update(0.1 * k, fits[k], R_MEAS)
-        sb, inn = b.update_gated(0.1 * k, fits[k], R_MEAS, NIS_GATE)
-        assert inn.nis == nis and sb.t_s == sa.t_s
+        done, inn = b.update_gated(0.1 * k, fits[k], R_MEAS, NIS_GATE)
+        sb = b.state
+        assert done and inn.nis == nis and sb.t_s == sa.t_s
         for x, y in zip(sa[1:], sb[1:], strict=True):
             assert (x is None and y is None) or np.array_equal(x, y)
+        A, P_att, rate, P_rate = b.prediction(0.1 * k)
+        assert np.array_equal(A, sb.A_icrs_to_cam) and np.array_equal(P_att, sb.covariance[:3, :3])
+        assert np.array_equal(rate, sb.rate_rad_s) and np.array_equal(P_rate, sb.covariance[3:, 3:])
     before = b.state
     jumped = rodrigues(np.array([0.0, 300 * ARCSEC, 0.0])) @ fits[6]
-    state, inn = b.update_gated(0.6, jumped, R_MEAS, NIS_GATE)
-    assert state is None and inn.nis > NIS_GATE
+    done, inn = b.update_gated(0.6, jumped, R_MEAS, NIS_GATE)
+    assert not done and inn.nis > NIS_GATE
     assert inn.nis == pytest.approx(b.innovation(0.6, jumped, R_MEAS).nis, rel=1e-12)
     assert np.array_equal(b.state.covariance, before.covariance) and b.state.t_s == before.t_s
     with pytest.raises(InputError, match="rotation"):

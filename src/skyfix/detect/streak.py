@@ -549,8 +549,7 @@ def _scaled(six, amp):
 
 @njit(cache=True)
 def _inverse3(m):
-    """The inverse of a 3×3 matrix by its adjugate (a tenth of ``pinv``'s 3 µs), ``pinv`` when it
-    is singular or badly conditioned."""
+    """The inverse of a 3×3 matrix by its adjugate (a tenth of ``pinv``'s 3 µs); pinv if near singular."""
     adj = np.empty((3, 3))
     for i in range(3):
         for j in range(3):
@@ -634,6 +633,7 @@ def fit_streaks(img, xy, motion, half_size, s, ig, sigma_pred):
     for row in (_X, _Y, _SIGMA_X, _SIGMA_Y, _ELONGATION):
         out[row, :] = np.nan
     half = np.empty((n, 2), np.int64)
+    pixels = np.empty((6, 0))  # _sums' pixels, grown to the largest window
     for i in range(n):
         dx, dy = motion[i, 0], motion[i, 1]
         length = math.hypot(dx, dy)
@@ -670,8 +670,9 @@ def fit_streaks(img, xy, motion, half_size, s, ig, sigma_pred):
             xc, yc, ok = _weighted_centre(img, box, shape, xs, ys, hx, hy)
             if not ok:
                 continue
-        buf = np.empty((6, (y1 - y0 + 1) * (x1 - x0 + 1)))  # _sums' pixels
-        p, cov, ok, (npix, sv, sxx, syy, sxy) = _fit(img, box, shape, xc, yc, ig, buf)
+        area = (y1 - y0 + 1) * (x1 - x0 + 1)
+        pixels = pixels if pixels.shape[1] >= area else np.empty((6, area))
+        p, cov, ok, (npix, sv, sxx, syy, sxy) = _fit(img, box, shape, xc, yc, ig, pixels)
         if not ok:
             continue
         peak = -np.inf

@@ -57,6 +57,9 @@ def register(app: typer.Typer, load_camera: Callable[[str], object]) -> None:
         predictor: str = typer.Option("mekf", "--predictor", help="mekf, small-angle, three-point, "
                                                                   "three-point-thesis."),
         windows: int = typer.Option(16, "--windows", help="Stars tracked per frame."),
+        streak_windows: int = typer.Option(None, "--streak-windows",
+                                           help="Stars tracked per frame while they streak (at most "
+                                                "--windows; default --windows)."),
         exposure: float = typer.Option(None, "--exposure", help="Exposure, s (default: the frame period)."),
         line_time: float = typer.Option(0.0, "--line-time",
                                         help="Rolling shutter: seconds per row (0: global)."),
@@ -79,7 +82,8 @@ def register(app: typer.Typer, load_camera: Callable[[str], object]) -> None:
         if plot is not None and plot.suffix.lower() != ".png":
             fail(f"--plot {plot}: give a .png file")
         tracker = Tracker(camera, database=load_database(database_file), predictor=predictor, epoch=epoch,
-                          n_windows=windows, exposure_s=exposure, line_time_s=line_time)
+                          n_windows=windows, streak_windows=streak_windows, exposure_s=exposure,
+                          line_time_s=line_time)
         from skyfix.io import read_image
 
         any_failed = any_error = False

@@ -328,10 +328,11 @@ def as_time(t_s, name: str = "filter time") -> float:
     return t
 
 
-def _matrix3(M, messages: dict, name: str) -> np.ndarray:
-    """A float64 copy of a 3 × 3 matrix; InputError (``messages[_NOT_FINITE]``) otherwise."""
+def _matrix3(M, messages: dict, name: str, copy: bool = True) -> np.ndarray:
+    """A float64 3 × 3 matrix (a copy, or ``M`` itself when it is one and ``copy`` is False);
+    InputError (``messages[_NOT_FINITE]``) otherwise."""
     try:
-        M = np.array(M, dtype=np.float64)
+        M = np.array(M, dtype=np.float64) if copy else np.asarray(M, dtype=np.float64)
     except (TypeError, ValueError):
         raise InputError(messages[_NOT_FINITE].format(name)) from None
     if M.shape != (3, 3):
@@ -496,6 +497,13 @@ class AttitudeFilter:
         bias = None if self._bias is None else self._bias.copy()
         return FilterState(as_time(t_s), A.copy(), omega.copy(), bias, P.copy())
 
+    def prediction(self, t_s: float, gyro_rate_rad_s: np.ndarray | None = None) -> tuple:
+        """:meth:`predict`'s estimate as the four blocks a tracker uses each frame, copies: the
+        attitude (3, 3), its covariance (3, 3), the rate (3,) and its covariance (3, 3) — half the
+        cost of the FilterState and its covariance's blocks."""
+        A, P, omega, _ = self._predicted(t_s, gyro_rate_rad_s)
+        return A.copy(), P[:3, :3].copy(), omega.copy(), P[3:, 3:].copy()
+
     def propagate(self, t_s: float, gyro_rate_rad_s: np.ndarray | None = None) -> FilterState:
         """Commit the prediction to ``t_s`` without a measurement (a frame with no fit; in gyro
         mode, each gyro sample between measurements)."""
@@ -548,10 +556,11 @@ class AttitudeFilter:
         return self.state
 
     def update_gated(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray, nis_gate: float,
-                     gyro_rate_rad_s: np.ndarray | None = None) -> tuple[FilterState | None, Innovation]:
+                     gyro_rate_rad_s: np.ndarray | None = None) -> tuple[bool, Innovation]:
         """:meth:`update` only when the measurement agrees with the prediction, its NIS at most
         ``nis_gate`` (a tracker's check, :meth:`innovation`, and its update in one call).
-        Returns the new state (None: not committed, the state unchanged) and the innovation.
+        Returns whether it was committed (else the state is unchanged) and the innovation; the
+        new estimate is :attr:`state`, or :meth:`prediction` at ``t_s``.
 
         Raises
         ------
@@ -561,8 +570,8 @@ class AttitudeFilter:
         t = as_time(t_s)
         if not t > self._t:
             raise InputError(f"filter time must increase: t={t!r} s after the state's {self._t!r} s")
-        A_meas = _matrix3(A_meas, _ROTATION_MESSAGES, "measured attitude")
-        R = _matrix3(cov_meas_rad2, _COVARIANCE_MESSAGES, "measurement covariance")
+        A_meas = _matrix3(A_meas, _ROTATION_MESSAGES, "measured attitude", copy=False)  # only read
+        R = _matrix3(cov_meas_rad2, _COVARIANCE_MESSAGES, "measurement covariance")  # symmetrised
         A_pred, P, omega, g = self._predicted(t, gyro_rate_rad_s)
         rotation_code, covariance_code, ok, z, S, nis, done, A_new, dx, P_new = _gated_correct(
             A_pred, P, A_meas, R, float(nis_gate))
@@ -573,10 +582,9 @@ class AttitudeFilter:
         if not ok:
             raise InputError("attitude innovation covariance is not positive definite")
         inn = Innovation(z, S, float(nis))
-        if not done:
-            return None, inn
-        self._commit(t, A_new, dx, P_new, g, omega, nis)
-        return self.state, inn
+        if done:
+            self._commit(t, A_new, dx, P_new, g, omega, nis)
+        return bool(done), inn
 
     def _commit(self, t: float, A_new: np.ndarray, dx: np.ndarray, P_new: np.ndarray, g, omega, nis) -> None:
         """Take a corrected estimate at ``t`` (:func:`_correct`'s) as the state."""

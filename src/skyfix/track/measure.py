@@ -81,9 +81,12 @@ def measure_frame(img, A, P, rate, P_rate, exposure_s, line_time_s, local_t, sel
     ``n_max·(2·max_tile)²`` values; ``vectors`` the star index's unit vectors; ``zero_point``
     the magnitudes' running zero point (NaN: none yet).
 
-    Returns ``(plan, fit)``: the :class:`~skyfix.track.windows.Plan` and the
+    Returns a plain tuple (a NamedTuple costs twice as much to hand back to Python): of the
+    :class:`~skyfix.track.windows.Plan`, ``n``, ``too_wide`` and ``faintest_mag``; of the
     :class:`~skyfix.track.windows.WindowFit` (not ``ok``, no stars, when the plan found fewer
-    than ``min_stars`` windows)."""
+    than ``min_stars`` windows), ``ok``, ``n_found``, ``n_gated``, ``n_fit``, ``A_icrs_to_cam``,
+    ``covariance_rad2``, ``zero_point``, ``log_chance`` and the fitted stars' ``index``, ``xy``
+    and ``b`` (the first ``n_fit`` rows)."""
     height, width = img.shape
     settings = WindowSettings(*settings_t)
     sel = new_selection(settings.n_max)
@@ -91,7 +94,7 @@ def measure_frame(img, A, P, rate, P_rate, exposure_s, line_time_s, local_t, sel
                         settings, View(*view_t), sel)
     n = plan.n
     if n < min_stars:
-        return plan, no_fit(np.int64(0), np.int64(0), np.nan)
+        return _flat(plan, no_fit(np.int64(0), np.int64(0), np.nan))
     dt = np.zeros(n)
     if line_time_s != 0.0:
         for i in range(n):
@@ -133,4 +136,11 @@ def measure_frame(img, A, P, rate, P_rate, exposure_s, line_time_s, local_t, sel
     fit = fit_windows(n, x, y, sx, sy, flux, snr, origin, size, sel, vectors, zero_point,
                       MatchSettings(*match_t), cam, rate, dt, plan.n_view, float(width * height), min_stars,
                       outlier_k)
-    return plan, fit
+    return _flat(plan, fit)
+
+
+@numba.njit(cache=True, inline="always")
+def _flat(plan, fit):
+    """:func:`measure_frame`'s tuple."""
+    return (plan.n, plan.too_wide, plan.faintest_mag, fit.ok, fit.n_found, fit.n_gated, fit.n_fit,
+            fit.A_icrs_to_cam, fit.covariance_rad2, fit.zero_point, fit.log_chance, fit.index, fit.xy, fit.b)

@@ -146,11 +146,11 @@ class MekfPredictor(_Predictor):
     def update_gated(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray, nis_gate: float, *,
                      xy=None, ids=None, camera=None, gyro_rate_rad_s: np.ndarray | None = None
                      ) -> tuple[Prediction | None, Innovation]:
-        state, inn = self.filter.update_gated(t_s, A_meas, cov_meas_rad2, nis_gate, gyro_rate_rad_s)
-        return (None if state is None else _prediction(state)), inn
+        done, inn = self.filter.update_gated(t_s, A_meas, cov_meas_rad2, nis_gate, gyro_rate_rad_s)
+        return (Prediction(*self.filter.prediction(t_s)) if done else None), inn
 
     def predict(self, t_s: float, gyro_rate_rad_s: np.ndarray | None = None) -> Prediction:
-        return _prediction(self.filter.predict(t_s, gyro_rate_rad_s))
+        return Prediction(*self.filter.prediction(t_s, gyro_rate_rad_s))
 
     def innovation_nis(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray) -> float:
         return self.filter.innovation_nis(t_s, A_meas, cov_meas_rad2)
