@@ -37,6 +37,7 @@ from skyfix.errors import CameraError
 from skyfix.identify.accept import refit_accepted, refit_focal_allowed
 from skyfix.identify.bands import BANDS, band_database, bands_for, served_fov_deg
 from skyfix.identify.database import PatternDatabase, readonly_view
+from skyfix.identify.hypothesis import failure
 from skyfix.identify.kernel_data import (
     FocalRange,
     ImageStars,
@@ -57,10 +58,7 @@ METHOD = "quad-hash"
 
 
 def _failure(reason: str, t0: float, n_tried: int = 0, n_cand: int = 0) -> Identification:
-    empty = np.zeros(0, np.int64)
-    return Identification(False, reason, empty, empty, np.zeros((0, 3)), np.zeros(0, np.float32),
-                          n_patterns_tried=n_tried, n_candidates=n_cand, method=METHOD,
-                          time_s=time.perf_counter() - t0)
+    return failure(METHOD, reason, t0, n_tried, n_cand)
 
 
 _COMPILED = False
