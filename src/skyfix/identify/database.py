@@ -35,7 +35,7 @@ from skyfix.errors import DatabaseError
 from skyfix.identify.hashing import build_table, edge_ratios, key_codes
 from skyfix.identify.kernel_data import PatternTable, StarIndex
 
-__all__ = ["PatternDatabase", "DATABASE_VERSION", "ProgressCallback", "readonly_view"]
+__all__ = ["PatternDatabase", "DATABASE_VERSION", "ProgressCallback", "brightest_per_field", "readonly_view"]
 
 DATABASE_VERSION = 3
 _ARRAYS = ("star_ids", "star_vectors", "star_mag", "star_pm", "pattern_stars", "pattern_ratios",
@@ -153,6 +153,15 @@ class PatternDatabase:
         memory map costs several microseconds a call; a plain view, well under one)."""
         return self._plain_views(("star_ids", "star_mag", "star_vectors"))
 
+    def derived(self, key: tuple, make: Callable[[], object]) -> object:
+        """What ``make()`` builds from this database (a pair table, a triangle table), built once
+        per ``key`` and kept with the database for as long as it lives."""
+        cache = self.__dict__.setdefault("_derived", {})
+        value = cache.get(key)
+        if value is None:
+            value = cache[key] = make()
+        return value
+
     def _plain_views(self, names: tuple[str, ...]) -> tuple[np.ndarray, ...]:
         cache = self.__dict__.setdefault("_views", {})
         views = cache.get(names)
@@ -163,6 +172,7 @@ class PatternDatabase:
     def __setattr__(self, name: str, value) -> None:
         # A replaced array invalidates the cached views.
         self.__dict__.pop("_views", None)
+        self.__dict__.pop("_derived", None)
         super().__setattr__(name, value)
 
     def vectors_at(self, index: np.ndarray, epoch: float | None) -> np.ndarray:
@@ -394,10 +404,17 @@ def _n_fields(radius: float, lattice_step: float) -> int:
     return int(math.ceil(4 * math.pi / (lattice_step * radius) ** 2))
 
 
-def _band_patterns(vectors: np.ndarray, radius: float, lattice_step: float, double_sep: float,
-                   per_field: int, combos: np.ndarray) -> Iterator[tuple[np.ndarray, int]]:
-    """The patterns of one FOV band, a chunk of lattice fields at a time: ``(quads, n_fields)``,
-    quads (Q, 4) int32 indices into ``vectors``, each row ascending, rows possibly repeated."""
+def brightest_per_field(vectors: np.ndarray, radius: float, lattice_step: float, double_sep: float,
+                        per_field: int) -> Iterator[np.ndarray]:
+    """The ``per_field`` brightest stars of every lattice field, a chunk of fields at a time.
+
+    Fields are circles of angular ``radius`` centred on a Fibonacci lattice ``lattice_step`` ×
+    ``radius`` apart; close doubles (within ``double_sep``, radians: a detector merges them)
+    lose their fainter member first. Yields (F, per_field) int32 rows of indices into
+    ``vectors`` (brightest first, so each row is ascending), ``-1`` where a field has fewer
+    stars. The pattern database (4-combinations of each row) and the pair table
+    (:mod:`skyfix.identify.pairs`) choose their stars this way.
+    """
     tree = cKDTree(vectors)
     # Drop the fainter member of close pairs (vectors are brightest first).
     pairs = tree.query_pairs(2 * math.sin(double_sep / 2), output_type="ndarray")
@@ -413,9 +430,17 @@ def _band_patterns(vectors: np.ndarray, radius: float, lattice_step: float, doub
         for i, m in enumerate(members):  # one cheap slice per field; the rest is vectorised
             m = m[:per_field]
             top[i, :len(m)] = m
+        yield np.where(top >= 0, kept[np.maximum(top, 0)], -1).astype(np.int32)
+
+
+def _band_patterns(vectors: np.ndarray, radius: float, lattice_step: float, double_sep: float,
+                   per_field: int, combos: np.ndarray) -> Iterator[tuple[np.ndarray, int]]:
+    """The patterns of one FOV band, a chunk of lattice fields at a time: ``(quads, n_fields)``,
+    quads (Q, 4) int32 indices into ``vectors``, each row ascending, rows possibly repeated."""
+    for top in brightest_per_field(vectors, radius, lattice_step, double_sep, per_field):
         quads = top[:, combos].reshape(-1, 4)
         # Members ascending and combinations ascending: each row is ascending already.
-        yield kept[quads[(quads >= 0).all(axis=1)]], len(centres)
+        yield quads[(quads >= 0).all(axis=1)], len(top)
 
 
 class _QuadSet:

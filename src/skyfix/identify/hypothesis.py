@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterable
 from typing import NamedTuple
 
 import numpy as np
@@ -54,8 +55,8 @@ from skyfix.identify.refine import refine_entry
 from skyfix.identify.result import Identification, finite_centroids
 from skyfix.identify.verify import verify_attitude
 
-__all__ = ["Frame", "Hypothesis", "chance_log_probability", "failure", "finish", "fits", "frame_for",
-           "hypothesis", "rays_at"]
+__all__ = ["Frame", "Hypothesis", "chance_log_probability", "failure", "finish", "first_accepted", "fits",
+           "frame_for", "hypothesis", "rays_at"]
 
 _VIEW = 8192  # catalogue stars projected per verification at most
 
@@ -293,3 +294,28 @@ def finish(frame: Frame, h: Hypothesis, log_p_match: float, n_tried: int,
     return Identification(True, "", star_index, star_ids[cat_index], db.vectors_at(cat_index, frame.epoch),
                           star_mag[cat_index], fit.A_icrs_to_cam, camera, prob, n_tried, n_candidates,
                           frame.method, time.perf_counter() - frame.t0, float(fit.radius_px), database=db)
+
+
+def first_accepted(frame: Frame, proposals: Iterable[tuple[np.ndarray, np.ndarray]], *, n_tried: int = 0,
+                   max_candidates: int = 10_000) -> Identification:
+    """The first of ``proposals`` — ``(stars, catalog)`` correspondences in the order a method
+    ranks them — that passes every rule (:func:`fits`, :func:`chance_log_probability` with every
+    proposal examined so far counted, :func:`finish`), or a failure saying how many were tried.
+    ``n_tried``: the image patterns the method looked at (reported). A method that proposes
+    through this function is exactly as safe as any other."""
+    n = 0
+    for stars, catalog in proposals:
+        n += 1
+        if n > max_candidates:
+            n -= 1
+            break
+        h = hypothesis(frame, stars, catalog)
+        if not fits(frame, h):
+            continue
+        log_p = chance_log_probability(frame, h)
+        if log_prob_false(log_p, n) > frame.log_threshold:
+            continue
+        result = finish(frame, h, log_p, n_tried, n)
+        if result is not None:
+            return result
+    return failure(frame.method, f"no match after {n} candidate correspondences", frame.t0, n_tried, n)
