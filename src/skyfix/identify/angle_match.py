@@ -1,0 +1,133 @@
+"""Inter-star angles of a frame as the pair-table methods match them (``pyramid``, ``voting``).
+
+A centroid's ray at focal length ``f`` is its undistorted offset from the principal point
+``p = (x, y)`` (pixels, :attr:`~skyfix.identify.kernel_data.ImageStars.offsets_px`) over it:
+``(x, y, f) / |(x, y, f)|`` — the ray of :func:`skyfix.identify.hypothesis.rays_at`. The angle
+between two rays (:func:`ray_angle`) shrinks as ``f`` grows, so over the focal range a frame
+allows ``[f_lo, f_hi]`` a measured angle spans ``[θ(f_hi), θ(f_lo)]``, widened by the centroid
+noise (:func:`angle_range`). The noise term of one angle is ``n_sigma · σ_px · √2 / f`` rad (two
+centroids, each ``σ_px`` per axis): :attr:`AngleSettings.noise_px` ``/ f``.
+
+With only a FOV known, a method that has matched one image pair to a catalogue pair knows the
+focal length (:func:`focal_for_angle`); the other angles at that focal length then carry the
+noise of the pair that fixed it in proportion, ``noise / f · (1 + θ / θ_pair)``
+(:func:`angle_tolerance`). A calibrated camera has one focal length and the noise term alone.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+from skyfix._kernels.rotation import chord_angle
+from skyfix.identify.hypothesis import Frame
+from skyfix.identify.pairs import PairTable, pair_table
+
+__all__ = ["AngleSettings", "angle_range", "angle_settings", "angle_tolerance", "focal_for_angle",
+           "frame_pair_table", "ray_angle", "star_angle", "triple_product"]
+
+_MAX_ANGLE_MARGIN = 1.02  # the pair table holds pairs a little wider than the frame's diagonal
+
+
+class AngleSettings(NamedTuple):
+    """What the angle-matching kernels need of a frame (:func:`angle_settings`).
+
+    offsets_px : (N, 2) float64 — the centroids' undistorted offsets from the principal point.
+    rays : (N, 3) float64 — their unit rays at ``f0`` (:attr:`~skyfix.identify.hypothesis.Frame.rays`).
+    f0 : float — the nominal focal length, pixels.
+    f_lo, f_hi : float — the focal lengths allowed (equal to ``f0`` for a calibrated camera).
+    calibrated : bool — the focal length is known (else it is fitted per correspondence).
+    noise_px : float — ``n_sigma · σ_px · √2``: an angle's noise tolerance times the focal length.
+    """
+
+    offsets_px: np.ndarray
+    rays: np.ndarray
+    f0: float
+    f_lo: float
+    f_hi: float
+    calibrated: bool
+    noise_px: float
+
+
+def angle_settings(frame: Frame, centroid_sigma_px: float, n_sigma: float) -> AngleSettings:
+    """The :class:`AngleSettings` of ``frame`` for centroids of noise ``centroid_sigma_px`` (per
+    axis, pixels) matched within ``n_sigma`` standard deviations."""
+    lo, hi = frame.focal_range_px
+    return AngleSettings(np.ascontiguousarray(frame.image.offsets_px, np.float64),
+                         np.ascontiguousarray(frame.rays, np.float64), float(frame.camera.fx),
+                         float(lo), float(hi), bool(frame.calibrated),
+                         float(n_sigma) * float(centroid_sigma_px) * math.sqrt(2.0))
+
+
+@numba.njit(cache=True, inline="always")
+def ray_angle(p, i, j, f):
+    """The angle (rad) between the rays of offsets ``p[i]`` and ``p[j]`` (pixels) at focal
+    length ``f``."""
+    ni = math.sqrt(p[i, 0] ** 2 + p[i, 1] ** 2 + f * f)
+    nj = math.sqrt(p[j, 0] ** 2 + p[j, 1] ** 2 + f * f)
+    dx = p[i, 0] / ni - p[j, 0] / nj
+    dy = p[i, 1] / ni - p[j, 1] / nj
+    dz = f / ni - f / nj
+    return chord_angle(math.sqrt(dx * dx + dy * dy + dz * dz))
+
+
+@numba.njit(cache=True, inline="always")
+def angle_range(p, i, j, f_lo, f_hi, noise_px):
+    """The catalogue angles (lo, hi) rad that the image pair ``(i, j)`` can be at a focal
+    length in ``[f_lo, f_hi]``, its noise tolerance included."""
+    return ray_angle(p, i, j, f_hi) - noise_px / f_hi, ray_angle(p, i, j, f_lo) + noise_px / f_lo
+
+
+@numba.njit(cache=True)
+def focal_for_angle(p, i, j, target, f, f_lo, f_hi):
+    """The focal length in ``[f_lo, f_hi]`` (from ``f``) at which the pair ``(i, j)`` is
+    ``target`` rad apart (secant steps on ``θ ∝ 1/f``; clipped to the range)."""
+    for _ in range(3):
+        seen = ray_angle(p, i, j, f)
+        if seen <= 0.0 or target <= 0.0:
+            return f
+        f = f * seen / target
+    return min(max(f, f_lo), f_hi)
+
+
+@numba.njit(cache=True, inline="always")
+def angle_tolerance(theta, theta_pair, f, noise_px, calibrated):
+    """The tolerance (rad) of an angle ``theta`` measured at focal length ``f`` — fixed by a pair
+    ``theta_pair`` apart when not ``calibrated``."""
+    tol = noise_px / f
+    if not calibrated:
+        tol *= 1.0 + theta / theta_pair
+    return tol
+
+
+def frame_pair_table(frame: Frame, per_field: int = 12) -> PairTable:
+    """The pair table (:func:`skyfix.identify.pairs.pair_table`) of ``frame``'s database that
+    holds every angle the frame can measure: fields of the camera's FOV, pairs up to the frame's
+    diagonal at the shortest focal length allowed."""
+    p = frame.image.frame_px
+    corners = np.array([[p[0], p[2]], [p[1], p[3]], [p[0], p[3]], [p[1], p[2]]])
+    f_lo = float(frame.focal_range_px[0])
+    diagonal = max(ray_angle(corners, 0, 1, f_lo), ray_angle(corners, 2, 3, f_lo))
+    return pair_table(frame.database, frame.camera.fov_deg, math.degrees(diagonal) * _MAX_ANGLE_MARGIN,
+                      per_field=per_field)
+
+
+@numba.njit(cache=True, inline="always")
+def star_angle(vectors, a, b):
+    """The angle (rad) between catalogue stars ``a`` and ``b`` (rows of ``vectors``)."""
+    dx = vectors[a, 0] - vectors[b, 0]
+    dy = vectors[a, 1] - vectors[b, 1]
+    dz = vectors[a, 2] - vectors[b, 2]
+    return chord_angle(math.sqrt(dx * dx + dy * dy + dz * dz))
+
+
+@numba.njit(cache=True, inline="always")
+def triple_product(vectors, a, b, c):
+    """``(v_a × v_b) · v_c`` of rows ``a``, ``b``, ``c`` of ``vectors``: its sign is the
+    handedness of the triangle (a proper rotation keeps it; a mirror image flips it)."""
+    return (vectors[c, 0] * (vectors[a, 1] * vectors[b, 2] - vectors[a, 2] * vectors[b, 1])
+            + vectors[c, 1] * (vectors[a, 2] * vectors[b, 0] - vectors[a, 0] * vectors[b, 2])
+            + vectors[c, 2] * (vectors[a, 0] * vectors[b, 1] - vectors[a, 1] * vectors[b, 0]))
