@@ -160,6 +160,23 @@ class _Rematch(NamedTuple):
     log_threshold: float  # matches must be beyond chance at this log probability
     n_use: int  # re-match against the brightest this many centroids
     max_radius_px: float = math.inf  # stars the model places less surely are not looked for yet
+    # each fit's re-matches so far ((id(fit), max_radius_px) -> (fit, result)): see _matched
+    memo: dict | None = None
+
+
+def _matched(xy: np.ndarray, fit, rematch: _Rematch, max_radius_px: float = math.inf):
+    """:func:`match_catalogue` of the brightest ``rematch.n_use`` centroids of ``xy`` through
+    ``fit``, computed once per fit and radius: a grow's last re-match, which confirms its fit,
+    is the re-match the first check made or the choice between models scores (the fit object
+    held in the memo, so its id is never another's)."""
+    key = (id(fit), max_radius_px)
+    memo = rematch.memo
+    if memo is not None and key in memo and memo[key][0] is fit:
+        return memo[key][1]
+    result = match_catalogue(xy[:rematch.n_use], fit, rematch.stars, max_radius_px)
+    if memo is not None:
+        memo[key] = (fit, result)
+    return result
 
 
 def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, method: str,
@@ -201,7 +218,7 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
         # Many stars off the model: least squares may have bent to the wrong ones; fit robustly.
         fit, cur = _robust_prior_fit(xy, verified, cam0, ident.A_icrs_to_cam, prior)
     stars = CatalogueCone(database, epoch)
-    rematch = _Rematch(prior, stars, area, log_threshold, n_use)
+    rematch = _Rematch(prior, stars, area, log_threshold, n_use, memo={})
     best = None
     if len(cur.idx) >= _ROBUST_MIN_STARS:
         # A model that moves no star by a quarter of identification's match radius (3.5 σ of its
@@ -210,7 +227,7 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
         if fit.largest_move_px < max(0.5, 0.25 * ident.match_radius_px):
             best = fit, cur, log_p
         else:
-            new, _, _ = match_catalogue(xy[:n_use], fit, stars)
+            new, _, _ = _matched(xy, fit, rematch)
             if new.same_as(cur):
                 best = fit, cur, log_p
     if best is None:
@@ -317,7 +334,7 @@ def _scored(xy: np.ndarray, result, rematch: _Rematch) -> _Scored:
     fit = result[0]
     if not result[2] <= rematch.log_threshold and fit.camera.projection != "pinhole":
         return _Scored(result, 0, math.inf)
-    new, n_cat, radius = match_catalogue(xy[:rematch.n_use], fit, rematch.stars)
+    new, n_cat, radius = _matched(xy, fit, rematch)
     log_p = chance_log_probability(len(new.idx), n_cat, rematch.n_use, radius, rematch.area_px2,
                                    fit.n_effective - 4.0)
     return _Scored(result, len(new.idx), log_p)
@@ -396,7 +413,7 @@ def _grow(xy: np.ndarray, fit, cur: _Matches, rematch: _Rematch, log_p: float):
     Returns (fit, matches, log P(chance)) of the last accepted step (``log_p`` for the start)."""
     last = None
     for _ in range(6):
-        new, n_cat, radius = match_catalogue(xy, fit, rematch.stars, rematch.max_radius_px)
+        new, n_cat, radius = _matched(xy, fit, rematch, rematch.max_radius_px)
         if len(new.idx) < 3:
             break
         n_extra = fit.n_effective - 4.0  # beyond the rotations and the focal length
