@@ -1,0 +1,225 @@
+"""Lost-in-space identification by geometric voting: the ``"voting"`` method (thesis 000
+§2.6.6; Kolomenkin, Pollak, Shimshoni & Lindenbaum, "Geometric voting algorithm for star
+trackers", IEEE Trans. Aerospace and Electronic Systems 44(2), 2008).
+
+1. **Votes.** Every pair of the ``vote_stars`` brightest centroids votes for every catalogue
+   pair of the pair table (:mod:`skyfix.identify.pairs`) whose angle is within the pair's
+   tolerance (:func:`~skyfix.identify.pairs.pairs_in_range`): each of the two centroids gets a
+   vote for each of the two catalogue stars (both assignments). One compiled kernel
+   (:func:`cast_votes`) adds them into a (centroid, catalogue star) table.
+2. **Candidates.** Each centroid's candidate is the catalogue star with the most votes.
+3. **Validation.** Every pair of candidates whose angle agrees with its centroids' angle votes
+   again, for both; the consistent set grows from the best-validated centroid, adding the next
+   best-validated ones whose candidates agree with every member's (:func:`consistent_set`).
+4. **Proposal.** The set, best-validated first, goes to
+   :func:`skyfix.identify.hypothesis.first_accepted` (one proper rotation — a mirror image has
+   none — the chance of a wrong match with every proposal counted, the refit on all stars);
+   while it fails, the sets grown from the next best-validated centroids not yet used follow
+   (``sets_per_scale`` at most).
+
+The paper assumes a calibrated camera. With only a FOV known, skyfix votes at one focal-length
+interval at a time — the nominal one first, then outward, each narrow enough that the scale
+adds no more than the noise to a typical angle's tolerance — since votes over the whole focal
+range would bury every true vote under chance ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numba
+import numpy as np
+
+from skyfix._kernels.rotation import chord_angle
+from skyfix.camera import Camera
+from skyfix.identify.angle_match import AngleSettings, angle_range, angle_settings, frame_pair_table
+from skyfix.identify.database import PatternDatabase
+from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for, rays_at
+from skyfix.identify.pairs import PairTable, pairs_in_range
+from skyfix.identify.result import Identification
+
+__all__ = ["METHOD", "cast_votes", "consistent_set", "focal_steps", "identify"]
+
+METHOD = "voting"
+
+
+@numba.njit(cache=True)
+def cast_votes(s, table, local, n, f_a, f_b, votes):
+    """Add the votes of the ``n`` brightest centroids' pairs at a focal length in
+    ``[f_a, f_b]`` into ``votes`` (n, T) int32: centroid row × table star (``local`` maps a
+    star-index row to its column). Returns the votes cast."""
+    p = s.offsets_px
+    cast = 0
+    for a in range(n):
+        for b in range(a + 1, n):
+            lo, hi = angle_range(p, a, b, f_a, f_b, s.noise_px)
+            q0, q1 = pairs_in_range(table.angle_rad, lo, hi)
+            for q in range(q0, q1):
+                u = local[table.first[q]]
+                w = local[table.second[q]]
+                votes[a, u] += 1
+                votes[a, w] += 1
+                votes[b, u] += 1
+                votes[b, w] += 1
+            cast += 4 * (q1 - q0)
+    return cast
+
+
+@numba.njit(cache=True)
+def consistent_set(agree, order, seed, out):
+    """Grow a set from centroid ``seed``: each centroid of ``order`` (best-validated first) whose
+    row of ``agree`` (n, n) bool is true for every member joins. The members, in joining
+    order, go to ``out``; returns their number."""
+    out[0] = seed
+    m = 1
+    for b in order:
+        if b == seed:
+            continue
+        ok = True
+        for e in range(m):
+            if not agree[b, out[e]]:
+                ok = False
+                break
+        if ok:
+            out[m] = b
+            m += 1
+    return m
+
+
+def focal_steps(s: AngleSettings, n: int) -> np.ndarray:
+    """The focal-length intervals ``(f_a, f_b)`` (K, 2) voted one at a time, the nominal one first
+    then outward: one ``(f0, f0)`` for a calibrated camera; else intervals of equal width in
+    log f over ``[f_lo, f_hi]``, each shifting the median angle of the ``n`` brightest
+    centroids by no more than its noise tolerance."""
+    if s.calibrated or s.f_hi <= s.f_lo:
+        return np.array([[s.f0, s.f0]])
+    i, j = np.triu_indices(n, 1)
+    p = s.offsets_px
+    r = np.column_stack([p[:n], np.full(n, s.f0)])
+    r /= np.linalg.norm(r, axis=1)[:, None]
+    theta = float(np.median(chord_angle(np.linalg.norm(r[i] - r[j], axis=1))))
+    width = max(s.noise_px / s.f0 / max(theta, 1e-9), 1e-4)
+    below, above = math.log(s.f0 / s.f_lo), math.log(s.f_hi / s.f0)
+    k = np.arange(-math.ceil(below / width - 0.5), math.ceil(above / width - 0.5) + 1)
+    k = k[np.argsort(np.abs(k) - 0.1 * np.sign(k), kind="stable")]  # 0, 1, -1, 2, -2, …
+    lo = np.clip(s.f0 * np.exp((k - 0.5) * width), s.f_lo, s.f_hi)
+    hi = np.clip(s.f0 * np.exp((k + 0.5) * width), s.f_lo, s.f_hi)
+    return np.column_stack([lo, hi])
+
+
+def _pair_angles(v: np.ndarray) -> np.ndarray:
+    """(n, n) angles between the rows of unit vectors ``v``."""
+    return chord_angle(np.linalg.norm(v[:, None, :] - v[None, :, :], axis=2))
+
+
+class _Progress:
+    """What the proposal generator reports back: focal intervals voted and why it stopped."""
+
+    def __init__(self) -> None:
+        self.steps = 0
+        self.stopped = ""
+
+
+def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, min_set: int, sets_per_scale: int,
+               deadline: float, progress: _Progress):
+    """The consistent sets of every focal interval, in order (a generator for ``first_accepted``)."""
+    local = np.full(len(frame.stars.vectors), -1, np.int64)
+    local[table.stars] = np.arange(len(table.stars))
+    votes = np.zeros((n, len(table.stars)), np.int32)
+    stars = np.arange(n)
+    members = np.empty(n, np.int64)
+    steps = focal_steps(s, n)
+    for f_a, f_b in steps:
+        if time.perf_counter() > deadline:
+            progress.stopped = "time limit reached"
+            return
+        progress.steps += 1
+        votes[:] = 0
+        cast_votes(s, table, local, n, f_a, f_b, votes)
+        candidate = table.stars[votes.argmax(axis=1)].astype(np.int64)
+        # Validation: a candidate pair agrees when its angle is in the centroids' range.
+        seen_hi = _pair_angles(rays_at(frame, stars, f_a)) + s.noise_px / f_a
+        seen_lo = _pair_angles(rays_at(frame, stars, f_b)) - s.noise_px / f_b
+        cat = _pair_angles(frame.stars.vectors[candidate])
+        agree = (cat >= seen_lo) & (cat <= seen_hi) & (candidate[:, None] != candidate[None, :])
+        support = agree.sum(axis=1)
+        order = np.argsort(-support, kind="stable")
+        used = np.zeros(n, np.bool_)
+        tried = 0
+        for seed in order:
+            if tried >= sets_per_scale or support[seed] < min_set - 1:
+                break
+            if used[seed]:
+                continue
+            m = consistent_set(agree, order, seed, members)
+            used[members[:m]] = True
+            if m < min_set:
+                continue
+            tried += 1
+            yield members[:m].copy(), candidate[members[:m]]
+    progress.stopped = f"all {len(steps)} focal intervals voted"
+
+
+# Over ten parameters: the interface of every method (:mod:`skyfix.identify.methods`) and this
+# method's options, all keywords with a documented default.
+def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
+             fov_tolerance_deg: float | None = None, camera: Camera | None = None,
+             database: PatternDatabase | None = None, epoch: float | None = None, vote_stars: int = 20,
+             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, min_set: int = 4, sets_per_scale: int = 3,
+             max_candidates: int = 200, time_limit_s: float = 2.0, per_field: int = 12,
+             prob_threshold: float = 1e-9) -> Identification:
+    """Identify the stars of one frame, lost in space, by geometric voting (module text).
+
+    Parameters
+    ----------
+    xy, width, height, fov_deg, fov_tolerance_deg, camera, database, epoch
+        The interface of every method (:mod:`skyfix.identify.methods`). A camera or a FOV is
+        required (the method measures angles).
+    vote_stars : int
+        Brightest centroids whose pairs vote.
+    centroid_sigma_px : float
+        Expected centroid noise per axis, pixels: an angle's noise is ``σ·√2 / f``.
+    n_sigma : float
+        Angles match within ``n_sigma`` times their noise (plus the focal interval's share).
+    min_set : int
+        Fewest centroids of a consistent set proposed.
+    sets_per_scale : int
+        Work bound: consistent sets proposed per focal interval.
+    max_candidates : int
+        Work bound: sets proposed to the verification in all.
+    time_limit_s : float
+        Work bound: wall time, seconds (checked between focal intervals).
+    per_field : int
+        Catalogue stars per field of the pair table (:func:`skyfix.identify.pairs.pair_table`).
+    prob_threshold : float
+        Largest accepted probability that the match is chance.
+
+    Returns
+    -------
+    Identification
+        The first consistent set that passes every acceptance rule, refitted on all matched
+        stars; or a failure with the reason (no scale, too few stars, the bound that stopped it).
+
+    Raises
+    ------
+    skyfix.errors.CameraError
+        An impossible ``fov_deg``.
+    """
+    frame = frame_for(METHOD, xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
+                      camera=camera, database=database, epoch=epoch, min_stars=max(min_set, 3),
+                      prob_threshold=prob_threshold, centroid_sigma_px=centroid_sigma_px)
+    if isinstance(frame, Identification):
+        return frame
+    table = frame_pair_table(frame, per_field)
+    s = angle_settings(frame, centroid_sigma_px, n_sigma)
+    n = min(len(frame.xy), vote_stars)
+    progress = _Progress()
+    sets = _proposals(frame, s, table, n, min_set, sets_per_scale, frame.t0 + time_limit_s, progress)
+    result = first_accepted(frame, sets, max_candidates=max_candidates)
+    if result.success:
+        return dataclasses.replace(result, n_patterns_tried=progress.steps)
+    stopped = progress.stopped or f"max_candidates {max_candidates} sets proposed"
+    return failure(METHOD, f"no voted set verified: {result.n_candidates} proposed, {stopped}", frame.t0,
+                   progress.steps, result.n_candidates)
