@@ -38,7 +38,6 @@ import math
 import numpy as np
 
 from skyfix.camera import Camera
-from skyfix.errors import InputError
 from skyfix.identify.database import PatternDatabase
 from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
 from skyfix.identify.result import Identification
@@ -50,41 +49,20 @@ from skyfix.identify.triangles import (
     VERTEX_ORDERS,
     ImageTriangles,
     TriangleTable,
+    check_options,
     confirmed_matches,
     feature_matches,
+    frame_triangle_table,
     image_hand_filter,
     image_triangles,
     ranked,
     triangle_batches,
-    triangle_table,
 )
 
-__all__ = ["METHOD", "frame_triangle_table", "identify", "check_options"]
+__all__ = ["METHOD", "identify"]
 
 METHOD = "area-moment"
 _CHUNK = 256  # ranked triangle matches confirmed per kernel call
-
-
-def check_options(centroid_sigma_px: float, n_sigma: float, **bounds: int) -> None:
-    """Raise :class:`~skyfix.errors.InputError` (one line) for an impossible option."""
-    if not (centroid_sigma_px > 0.0 and math.isfinite(centroid_sigma_px)):
-        raise InputError(f"centroid_sigma_px must be a positive number of pixels, got {centroid_sigma_px!r}")
-    if not (n_sigma > 0.0 and math.isfinite(n_sigma)):
-        raise InputError(f"n_sigma must be positive, got {n_sigma!r}")
-    for name, value in bounds.items():
-        if not (isinstance(value, (int, np.integer)) and value >= 1):
-            raise InputError(f"{name} must be a positive integer, got {value!r}")
-
-
-def frame_triangle_table(frame: Frame, per_field: int) -> TriangleTable:
-    """The triangle table for ``frame``: lattice fields as wide as the frame's shorter side
-    (a field's stars are then in the frame), pairs up to the frame's diagonal at the shortest
-    focal length allowed."""
-    cam = frame.camera
-    lo = frame.focal_range_px[0]
-    short_deg = math.degrees(2.0 * math.atan(min(cam.width, cam.height) / 2.0 / lo))
-    diag_deg = math.degrees(2.0 * math.atan(math.hypot(cam.width, cam.height) / 2.0 / lo))
-    return triangle_table(frame.database, short_deg, diag_deg * 1.02, per_field=per_field)
 
 
 class _Stats:

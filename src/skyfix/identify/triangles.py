@@ -53,6 +53,7 @@ import numba
 import numpy as np
 
 from skyfix._kernels.rotation import chord_angle
+from skyfix.errors import InputError
 from skyfix.identify.database import PatternDatabase, brightest_per_field
 from skyfix.identify.hypothesis import Frame
 from skyfix.identify.pairs import PairTable, neighbours_in_range, pair_table, pairs_in_range
@@ -60,11 +61,12 @@ from skyfix.identify.pairs import PairTable, neighbours_in_range, pair_table, pa
 __all__ = ["ANGLES", "AREA", "BY_ANGLE", "BY_AREA", "BY_SHAPE", "DOUBLE_SEP", "LATTICE_STEP", "MOMENT",
            "ORDER_PARITY", "SHAPE", "SIDES", "VERTEX_ORDERS", "FeatureIndex", "FeatureMatches",
            "ImageTriangles", "StarTriangleTable", "TriangleTable", "area_moment_sigma",
-           "area_moment_sigmas", "breadth_first_triangles", "chord", "chord_sides", "confirm_fourth",
-           "confirmed_matches", "describe_star_triangles", "describe_triangles", "feature_index",
-           "feature_matches", "field_triangles", "heron_area", "image_hand_filter", "image_triangles",
-           "included_angle", "interior_angles", "order_allowed", "polar_moment", "ranked",
-           "star_triangle_table", "triangle_batches", "triangle_table", "triple_product", "vertex_orders"]
+           "area_moment_sigmas", "breadth_first_triangles", "check_options", "chord", "chord_sides",
+           "confirm_fourth", "confirmed_matches", "describe_star_triangles", "describe_triangles",
+           "feature_index", "feature_matches", "field_triangles", "frame_triangle_table", "heron_area",
+           "image_hand_filter", "image_triangles", "included_angle", "interior_angles", "order_allowed",
+           "polar_moment", "ranked", "star_triangle_table", "triangle_batches", "triangle_table",
+           "triple_product", "vertex_orders"]
 
 # Columns of TriangleTable.features (and of describe_triangles' output).
 SIDES = 0  # 0, 1, 2: chord sides, ascending (side i opposite vertex i)
@@ -504,6 +506,28 @@ def confirm_fourth(pairs, vectors, rays, triangle_stars, triangle_catalog, scale
                 out[n, 1] = d
             n += 1
     return n
+
+
+def check_options(centroid_sigma_px: float, n_sigma: float, **bounds: int) -> None:
+    """Raise :class:`~skyfix.errors.InputError` (one line) for an impossible option."""
+    if not (centroid_sigma_px > 0.0 and math.isfinite(centroid_sigma_px)):
+        raise InputError(f"centroid_sigma_px must be a positive number of pixels, got {centroid_sigma_px!r}")
+    if not (n_sigma > 0.0 and math.isfinite(n_sigma)):
+        raise InputError(f"n_sigma must be positive, got {n_sigma!r}")
+    for name, value in bounds.items():
+        if not (isinstance(value, (int, np.integer)) and value >= 1):
+            raise InputError(f"{name} must be a positive integer, got {value!r}")
+
+
+def frame_triangle_table(frame: Frame, per_field: int) -> TriangleTable:
+    """The triangle table for ``frame``: lattice fields as wide as the frame's shorter side
+    (a field's stars are then in the frame), pairs up to the frame's diagonal at the shortest
+    focal length allowed."""
+    cam = frame.camera
+    lo = frame.focal_range_px[0]
+    short_deg = math.degrees(2.0 * math.atan(min(cam.width, cam.height) / 2.0 / lo))
+    diag_deg = math.degrees(2.0 * math.atan(math.hypot(cam.width, cam.height) / 2.0 / lo))
+    return triangle_table(frame.database, short_deg, diag_deg * 1.02, per_field=per_field)
 
 
 # ---- the image's triangles -------------------------------------------------------------------

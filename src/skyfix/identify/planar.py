@@ -1,0 +1,154 @@
+"""The ``planar`` method: star triangles recognised by the interior angles of their planar triangle.
+
+Thesis 000 §2.6.2: three unit vectors make a planar triangle with sides the chords
+``a = |v1 − v2|, b = |v2 − v3|, c = |v1 − v3|`` (the thesis prints ``|v1| − |v2|``, which is always
+0: SEEDS.md's correction) and interior angles by the law of cosines; a rotation keeps them, and
+they do not depend on the focal length (to second order in the field angle), so the method works
+with a FOV only. skyfix:
+
+1. forms the triangles of the ``triangle_stars`` brightest centroids, breadth-first
+   (:func:`skyfix.identify.triangles.image_triangles`), vertices ordered by the sides opposite
+   them (so the angles are ascending too);
+2. finds the catalogue triangles (:func:`skyfix.identify.triangles.triangle_table`) whose two
+   smaller interior angles are the image's within ``n_sigma`` times their noise — an angle's
+   error from centroid noise σ is about ``σ√2 (1/b + 1/c)`` for the sides ``b, c`` that meet at
+   it — plus, with a FOV only, ``ε·a²`` for a wrong focal length (ε:
+   :attr:`~skyfix.identify.hypothesis.Frame.scale_tolerance`), by a binary search on the smallest
+   angle and a filter on the next; and whose longest side fits the focal range (the catalogue's
+   side over the image's within ``1 ± ε``, plus the noise) — a filter the thesis does not have:
+   it costs nothing and a triangle of the wrong size cannot be the one seen;
+3. keeps only the vertex orders of the catalogue triangle's handedness (the sign of the triple
+   product; both orders where two sides are equal within the noise): interior angles cannot tell
+   a triangle from its mirror image;
+4. proposes each correspondence, image triangles breadth-first and each one's catalogue triangles
+   by closeness, to :func:`skyfix.identify.hypothesis.first_accepted`, which applies every
+   acceptance rule (the chance of a wrong match with every proposal counted; the stars beyond
+   the triangle verify it).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from skyfix.camera import Camera
+from skyfix.identify.database import PatternDatabase
+from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
+from skyfix.identify.result import Identification
+from skyfix.identify.triangles import (
+    ANGLES,
+    BY_ANGLE,
+    SIDES,
+    ImageTriangles,
+    TriangleTable,
+    check_options,
+    feature_matches,
+    frame_triangle_table,
+    image_hand_filter,
+    image_triangles,
+    ranked,
+    triangle_batches,
+    vertex_orders,
+)
+
+__all__ = ["METHOD", "angle_tolerances", "identify"]
+
+METHOD = "planar"
+
+
+def angle_tolerances(frame: Frame, image: ImageTriangles, n_sigma: float) -> np.ndarray:
+    """Each image triangle's allowed errors (M, 3) of :data:`~skyfix.identify.triangles.BY_ANGLE`'s
+    columns: the two smaller interior angles and the longest side (module text, step 2)."""
+    s = image.features[:, SIDES:SIDES + 3]
+    noise = n_sigma * math.sqrt(2.0) * image.sigma_rad
+    eps = frame.scale_tolerance
+    with np.errstate(divide="ignore"):
+        phi0 = noise * (1.0 / s[:, 1] + 1.0 / s[:, 2]) + eps * s[:, 2] ** 2
+        phi1 = noise * (1.0 / s[:, 0] + 1.0 / s[:, 2]) + eps * s[:, 2] ** 2
+    side = noise + eps * s[:, 2]
+    return np.column_stack([phi0, phi1, side])
+
+
+def _proposals(frame: Frame, table: TriangleTable, image: ImageTriangles, n_sigma: float, max_matches: int,
+               found: list[int]):
+    """Correspondences in rank order (module text, steps 2–4), one batch of image triangles (those
+    each new star adds) at a time; ``found[0]`` counts the catalogue triangles matched."""
+    centre = image.features[:, list(BY_ANGLE)]
+    tol = angle_tolerances(frame, image, n_sigma)
+    usable = np.isfinite(tol).all(axis=1) & (image.features[:, ANGLES] > 0.0)
+    hand = image_hand_filter(image)
+    for start, stop in triangle_batches(len(image.stars)):
+        rows = start + np.flatnonzero(usable[start:stop])
+        matches = feature_matches(table.by_angle, centre[rows], tol[rows], hand[rows],
+                                  max_matches=max_matches)
+        found[0] += matches.n_found
+        for k in ranked(matches):
+            m, row = rows[matches.image[k]], matches.row[k]
+            cat = table.stars[row].astype(np.int64)
+            for img in vertex_orders(image, m, int(table.handedness[row])):
+                yield img, cat
+
+
+# Over ten parameters: the interface of every method (skyfix.identify.methods) and this method's
+# options, all keywords with a documented default.
+def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
+             fov_tolerance_deg: float | None = None, camera: Camera | None = None,
+             database: PatternDatabase | None = None, epoch: float | None = None,
+             centroid_sigma_px: float = 1.0, n_sigma: float = 3.0, triangle_stars: int = 10,
+             per_field: int = 8, max_candidates: int = 2000, max_matches: int = 200_000,
+             prob_threshold: float = 1e-9) -> Identification:
+    """Identify the stars of one frame by the interior angles of its star triangles (module text).
+
+    Parameters
+    ----------
+    xy, width, height, fov_deg, fov_tolerance_deg, camera, database, epoch
+        The interface of every method (:mod:`skyfix.identify.methods`). A FOV or a camera is
+        required.
+    centroid_sigma_px : float
+        Expected centroid noise, pixels (sets the angle tolerances).
+    n_sigma : float
+        Tolerances are ``n_sigma`` standard deviations.
+    triangle_stars : int
+        Work bound: triangles are formed from this many brightest centroids (C(n, 3) of them).
+    per_field : int
+        The triangle table's brightest stars per lattice field
+        (:func:`~skyfix.identify.triangles.triangle_table`).
+    max_candidates : int
+        Work bound: correspondences verified.
+    max_matches : int
+        Work bound: catalogue triangles kept from each search.
+    prob_threshold : float
+        Largest accepted probability that the match is chance.
+
+    Returns
+    -------
+    Identification
+        ``method`` is ``"planar"``; on failure, ``reason`` says why.
+
+    Raises
+    ------
+    skyfix.errors.InputError
+        An impossible option.
+    skyfix.errors.CameraError
+        An impossible ``fov_deg``.
+    """
+    check_options(centroid_sigma_px, n_sigma, triangle_stars=triangle_stars, per_field=per_field,
+                  max_candidates=max_candidates, max_matches=max_matches)
+    frame = frame_for(METHOD, xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
+                      camera=camera, database=database, epoch=epoch, min_stars=3,
+                      prob_threshold=prob_threshold, centroid_sigma_px=centroid_sigma_px)
+    if isinstance(frame, Identification):
+        return frame
+    table = frame_triangle_table(frame, per_field)
+    image = image_triangles(frame, triangle_stars, centroid_sigma_px, n_sigma)
+    found = [0]
+    result = first_accepted(frame, _proposals(frame, table, image, n_sigma, max_matches, found),
+                            n_tried=len(image.stars), max_candidates=max_candidates)
+    if result.success:
+        return result
+    reason = (f"no match: {found[0]} catalogue triangles matched {len(image.stars)} image triangles in "
+              f"interior angles, size and handedness; {result.n_candidates} verified, none accepted")
+    if result.n_candidates >= max_candidates:
+        reason += f" (stopped at max_candidates={max_candidates})"
+    return failure(METHOD, reason, frame.t0, len(image.stars), result.n_candidates)
