@@ -33,8 +33,6 @@ in the sky. skyfix:
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from skyfix.camera import Camera
@@ -46,32 +44,17 @@ from skyfix.identify.triangles import (
     BY_AREA,
     BY_SHAPE,
     MOMENT,
-    VERTEX_ORDERS,
     ImageTriangles,
-    TriangleTable,
+    SearchStats,
     check_options,
-    confirmed_matches,
-    feature_matches,
     frame_triangle_table,
-    image_hand_filter,
     image_triangles,
-    ranked,
-    triangle_batches,
+    triangle_proposals,
 )
 
 __all__ = ["METHOD", "identify"]
 
 METHOD = "area-moment"
-_CHUNK = 256  # ranked triangle matches confirmed per kernel call
-
-
-class _Stats:
-    """What a search did, for the failure's reason."""
-
-    def __init__(self) -> None:
-        self.found = 0
-        self.tried = 0
-        self.confirmed = 0
 
 
 def _tolerances(frame: Frame, image: ImageTriangles, n_sigma: float):
@@ -84,38 +67,6 @@ def _tolerances(frame: Frame, image: ImageTriangles, n_sigma: float):
     if frame.calibrated:
         return f[:, list(BY_AREA)], np.column_stack([tol_a, tol_j])
     return f[:, list(BY_SHAPE)], np.column_stack([n_sigma * sig[:, 2], tol_a, tol_j])
-
-
-def _proposals(frame: Frame, table: TriangleTable, image: ImageTriangles, n_sigma: float, confirm_stars: int,
-               max_matches: int, stats: _Stats):
-    """Confirmed 4-star correspondences in rank order (module text, steps 2–5), the image
-    triangles searched a batch at a time (those each new star adds)."""
-    index = table.by_area if frame.calibrated else table.by_shape
-    centre, tol = _tolerances(frame, image, n_sigma)
-    usable = np.isfinite(centre).all(axis=1) & np.isfinite(tol).all(axis=1)
-    hand = image_hand_filter(image)
-    candidates = np.arange(min(len(frame.xy), confirm_stars), dtype=np.int64)
-    noise = n_sigma * math.sqrt(2.0) * image.sigma_rad
-    out = np.empty((4096, 4), np.int64)
-    for start, stop in triangle_batches(len(image.stars)):
-        rows = start + np.flatnonzero(usable[start:stop])
-        matches = feature_matches(index, centre[rows], tol[rows], hand[rows], max_matches=max_matches)
-        stats.found += matches.n_found
-        k = ranked(matches)
-        image_rows, table_rows = rows[matches.image[k]], matches.row[k]
-        for first in range(0, len(k), _CHUNK):  # a chunk of ranked matches at a time
-            n, tried = confirmed_matches(image_rows[first:first + _CHUNK], table_rows[first:first + _CHUNK],
-                                         image.stars, image.ambiguous, image.flat, image.handedness,
-                                         image.features, table.stars, table.handedness, table.features,
-                                         table.pairs, frame.stars.vectors, frame.rays, candidates, noise,
-                                         frame.calibrated, out)
-            stats.tried += tried
-            stats.confirmed += n
-            for c in range(n):
-                j, o, star, catalog = out[c]
-                img = image.stars[image_rows[first + j]][VERTEX_ORDERS[o]]
-                cat = table.stars[table_rows[first + j]]
-                yield np.append(img, star).astype(np.int64), np.append(cat, catalog).astype(np.int64)
 
 
 # Over ten parameters: the interface of every method (skyfix.identify.methods) and this method's
@@ -173,8 +124,11 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         return frame
     table = frame_triangle_table(frame, per_field)
     image = image_triangles(frame, triangle_stars, centroid_sigma_px, n_sigma)
-    stats = _Stats()
-    proposals = _proposals(frame, table, image, n_sigma, confirm_stars, max_matches, stats)
+    stats = SearchStats()
+    index = table.by_area if frame.calibrated else table.by_shape
+    centre, tol = _tolerances(frame, image, n_sigma)
+    proposals = triangle_proposals(frame, table, image, index, centre, tol, n_sigma=n_sigma,
+                                   confirm_stars=confirm_stars, max_matches=max_matches, stats=stats)
     result = first_accepted(frame, proposals,
                             n_tried=len(image.stars), max_candidates=max_candidates)
     if result.success:

@@ -20,7 +20,11 @@ with a FOV only. skyfix:
 3. keeps only the vertex orders of the catalogue triangle's handedness (the sign of the triple
    product; both orders where two sides are equal within the noise): interior angles cannot tell
    a triangle from its mirror image;
-4. proposes each correspondence, image triangles breadth-first and each one's catalogue triangles
+4. with ``confirm`` (the default) and four centroids or more, keeps only the correspondences a
+   fourth star confirms (its angles to the three match a catalogue star's; Liebe's "confirm with
+   additional stars", which the thesis's review of this method does not spell out: without it a
+   FOV-only frame with false stars sends ~10× more triangles to verification);
+5. proposes each correspondence, image triangles breadth-first and each one's catalogue triangles
    by closeness, to :func:`skyfix.identify.hypothesis.first_accepted`, which applies every
    acceptance rule (the chance of a wrong match with every proposal counted; the stars beyond
    the triangle verify it).
@@ -37,19 +41,14 @@ from skyfix.identify.database import PatternDatabase
 from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
 from skyfix.identify.result import Identification
 from skyfix.identify.triangles import (
-    ANGLES,
     BY_ANGLE,
     SIDES,
     ImageTriangles,
-    TriangleTable,
+    SearchStats,
     check_options,
-    feature_matches,
     frame_triangle_table,
-    image_hand_filter,
     image_triangles,
-    ranked,
-    triangle_batches,
-    vertex_orders,
+    triangle_proposals,
 )
 
 __all__ = ["METHOD", "angle_tolerances", "identify"]
@@ -70,33 +69,14 @@ def angle_tolerances(frame: Frame, image: ImageTriangles, n_sigma: float) -> np.
     return np.column_stack([phi0, phi1, side])
 
 
-def _proposals(frame: Frame, table: TriangleTable, image: ImageTriangles, n_sigma: float, max_matches: int,
-               found: list[int]):
-    """Correspondences in rank order (module text, steps 2–4), one batch of image triangles (those
-    each new star adds) at a time; ``found[0]`` counts the catalogue triangles matched."""
-    centre = image.features[:, list(BY_ANGLE)]
-    tol = angle_tolerances(frame, image, n_sigma)
-    usable = np.isfinite(tol).all(axis=1) & (image.features[:, ANGLES] > 0.0)
-    hand = image_hand_filter(image)
-    for start, stop in triangle_batches(len(image.stars)):
-        rows = start + np.flatnonzero(usable[start:stop])
-        matches = feature_matches(table.by_angle, centre[rows], tol[rows], hand[rows],
-                                  max_matches=max_matches)
-        found[0] += matches.n_found
-        for k in ranked(matches):
-            m, row = rows[matches.image[k]], matches.row[k]
-            cat = table.stars[row].astype(np.int64)
-            for img in vertex_orders(image, m, int(table.handedness[row])):
-                yield img, cat
-
-
 # Over ten parameters: the interface of every method (skyfix.identify.methods) and this method's
 # options, all keywords with a documented default.
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None,
              centroid_sigma_px: float = 1.0, n_sigma: float = 3.0, triangle_stars: int = 10,
-             per_field: int = 8, max_candidates: int = 2000, max_matches: int = 200_000,
+             confirm: bool = True, confirm_stars: int = 20, per_field: int = 8, max_candidates: int = 2000,
+             max_matches: int = 200_000,
              prob_threshold: float = 1e-9) -> Identification:
     """Identify the stars of one frame by the interior angles of its star triangles (module text).
 
@@ -111,6 +91,10 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Tolerances are ``n_sigma`` standard deviations.
     triangle_stars : int
         Work bound: triangles are formed from this many brightest centroids (C(n, 3) of them).
+    confirm : bool
+        Propose only the triangles a fourth star confirms (frames of four stars or more).
+    confirm_stars : int
+        The brightest centroids tried as the fourth star.
     per_field : int
         The triangle table's brightest stars per lattice field
         (:func:`~skyfix.identify.triangles.triangle_table`).
@@ -133,7 +117,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     skyfix.errors.CameraError
         An impossible ``fov_deg``.
     """
-    check_options(centroid_sigma_px, n_sigma, triangle_stars=triangle_stars, per_field=per_field,
+    check_options(centroid_sigma_px, n_sigma, triangle_stars=triangle_stars, confirm_stars=confirm_stars,
+                  per_field=per_field,
                   max_candidates=max_candidates, max_matches=max_matches)
     frame = frame_for(METHOD, xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
                       camera=camera, database=database, epoch=epoch, min_stars=3,
@@ -142,13 +127,20 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         return frame
     table = frame_triangle_table(frame, per_field)
     image = image_triangles(frame, triangle_stars, centroid_sigma_px, n_sigma)
-    found = [0]
-    result = first_accepted(frame, _proposals(frame, table, image, n_sigma, max_matches, found),
-                            n_tried=len(image.stars), max_candidates=max_candidates)
+    stats = SearchStats()
+    centre = image.features[:, list(BY_ANGLE)]
+    tol = angle_tolerances(frame, image, n_sigma)
+    proposals = triangle_proposals(frame, table, image, table.by_angle, centre, tol, n_sigma=n_sigma,
+                                   confirm_stars=confirm_stars, max_matches=max_matches, stats=stats,
+                                   confirm=confirm)
+    result = first_accepted(frame, proposals, n_tried=len(image.stars), max_candidates=max_candidates)
     if result.success:
         return result
-    reason = (f"no match: {found[0]} catalogue triangles matched {len(image.stars)} image triangles in "
-              f"interior angles, size and handedness; {result.n_candidates} verified, none accepted")
+    reason = (f"no match: {stats.found} catalogue triangles matched {len(image.stars)} image triangles in "
+              f"interior angles, size and handedness")
+    if confirm:
+        reason += f", a fourth star confirmed {stats.confirmed} of {stats.tried} vertex assignments"
+    reason += f"; {result.n_candidates} verified, none accepted"
     if result.n_candidates >= max_candidates:
         reason += f" (stopped at max_candidates={max_candidates})"
     return failure(METHOD, reason, frame.t0, len(image.stars), result.n_candidates)

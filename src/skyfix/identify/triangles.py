@@ -667,3 +667,60 @@ def confirmed_matches(image_rows, table_rows, image_stars, ambiguous, flat, imag
         if n >= out.shape[0]:
             break
     return n, tried
+
+
+class SearchStats:
+    """What :func:`triangle_proposals` did, for a failure's reason: catalogue triangles
+    ``found``, vertex assignments ``tried`` against a fourth star, and ``confirmed``."""
+
+    def __init__(self) -> None:
+        self.found = 0
+        self.tried = 0
+        self.confirmed = 0
+
+
+_CHUNK = 256  # ranked triangle matches confirmed per kernel call
+
+
+def triangle_proposals(frame: Frame, table: TriangleTable, image: ImageTriangles, index: FeatureIndex,
+                       centre: np.ndarray, tolerance: np.ndarray, *, n_sigma: float, confirm_stars: int,
+                       max_matches: int, stats: SearchStats, confirm: bool = True):
+    """Correspondences of image triangles with catalogue triangles, in rank order, for
+    :func:`~skyfix.identify.hypothesis.first_accepted`: the image triangles a batch at a time
+    (those each new star adds, :func:`triangle_batches`), each batch's matches in ``index``
+    (:func:`feature_matches` with ``centre`` ± ``tolerance`` in its columns, handedness
+    :func:`image_hand_filter`) ranked (:func:`ranked`), each in the vertex orders
+    :func:`order_allowed`; with ``confirm`` (and four centroids or more) only those a fourth star
+    confirms (:func:`confirmed_matches` among the ``confirm_stars`` brightest), as 4-star
+    correspondences."""
+    usable = np.isfinite(centre).all(axis=1) & np.isfinite(tolerance).all(axis=1) & (tolerance[:, 0] > 0)
+    hand = image_hand_filter(image)
+    candidates = np.arange(min(len(frame.xy), confirm_stars), dtype=np.int64)
+    confirm = confirm and len(frame.xy) >= 4
+    noise = n_sigma * math.sqrt(2.0) * image.sigma_rad
+    out = np.empty((4096, 4), np.int64)
+    for start, stop in triangle_batches(len(image.stars)):
+        rows = start + np.flatnonzero(usable[start:stop])
+        matches = feature_matches(index, centre[rows], tolerance[rows], hand[rows], max_matches=max_matches)
+        stats.found += matches.n_found
+        k = ranked(matches)
+        image_rows, table_rows = rows[matches.image[k]], matches.row[k]
+        if not confirm:
+            for m, row in zip(image_rows, table_rows, strict=True):
+                cat = table.stars[row].astype(np.int64)
+                for img in vertex_orders(image, m, int(table.handedness[row])):
+                    yield img, cat
+            continue
+        for first in range(0, len(k), _CHUNK):  # a chunk of ranked matches at a time
+            n, tried = confirmed_matches(image_rows[first:first + _CHUNK], table_rows[first:first + _CHUNK],
+                                         image.stars, image.ambiguous, image.flat, image.handedness,
+                                         image.features, table.stars, table.handedness, table.features,
+                                         table.pairs, frame.stars.vectors, frame.rays, candidates, noise,
+                                         frame.calibrated, out)
+            stats.tried += tried
+            stats.confirmed += n
+            for c in range(n):
+                j, o, star, catalog = out[c]
+                img = image.stars[image_rows[first + j]][VERTEX_ORDERS[o]]
+                cat = table.stars[table_rows[first + j]]
+                yield np.append(img, star).astype(np.int64), np.append(cat, catalog).astype(np.int64)
