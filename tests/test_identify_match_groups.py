@@ -1,0 +1,161 @@
+"""van Bezooijen's match groups (skyfix.identify.match_groups, thesis 004 ch. 3): a known field
+identified star by star, its pieces (pair matches, groups, the geometry test), mirrors refused,
+bad input in one line, and the solved / wrong rates against truth."""
+
+import numpy as np
+import pytest
+
+from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+from skyfix.attitude import attitude_error
+from skyfix.camera import Camera
+from skyfix.catalog import load_hipparcos
+from skyfix.errors import InputError
+from skyfix.identify import hypothesis as hyp
+from skyfix.identify import match_groups as mg
+
+W, H, FOV = 1024, 1024, 15.0
+ARCSEC = np.pi / 180 / 3600
+ORION_BELT = (26311, 26727, 25930)  # Alnilam, Alnitak, Mintaka
+
+
+@pytest.fixture(scope="module")
+def catalog(database):
+    return load_hipparcos(epoch=database.epoch)
+
+
+@pytest.fixture(scope="module")
+def camera():
+    return Camera.from_fov(W, H, FOV)
+
+
+def pointing_at(v: np.ndarray) -> np.ndarray:
+    """A_icrs_to_cam whose boresight is ``v``, camera x toward celestial east."""
+    z = v / np.linalg.norm(v)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    x /= np.linalg.norm(x)
+    return np.array([x, np.cross(z, x), z])
+
+
+def wrong(A_true, A_est) -> bool:
+    e = attitude_error(A_true, A_est)
+    return np.hypot(e[0], e[1]) > 60 * ARCSEC or abs(e[2]) > np.radians(0.5)
+
+
+@pytest.fixture(scope="module")
+def orion(catalog, camera):
+    A = pointing_at(catalog.vectors[np.flatnonzero(catalog.ids == ORION_BELT[0])[0]])
+    return synthetic_centroids(camera, A, catalog, mag_limit=5.0, sigma_px=0.0, rng=1)
+
+
+def test_orion_belt_is_identified_star_by_star(database, camera, orion):
+    ident = mg.identify(orion.xy, W, H, camera=camera, database=database)
+    assert ident.success and ident.method == "van-bezooijen"
+    assert np.array_equal(ident.catalog_ids, orion.star_id[ident.star_index])  # every match the true star
+    assert set(ORION_BELT) <= set(ident.catalog_ids.tolist())
+    e = attitude_error(orion.A_icrs_to_cam, ident.A_icrs_to_cam)
+    assert np.hypot(e[0], e[1]) < 1 * ARCSEC
+
+
+def test_the_pieces_find_the_true_constellation(database, camera, orion):
+    frame = hyp.frame_for(mg.METHOD, orion.xy, W, H, fov_deg=None, fov_tolerance_deg=None, camera=camera,
+                          database=database, epoch=None)
+    setup = mg.match_setup(frame)
+    table, rows = mg.frame_table(frame)
+    matches = mg.pair_matches(setup, table, rows)
+    ids = database.star_arrays()[0]
+    truth = np.array([np.flatnonzero(ids == s)[0] if s else -1 for s in orion.star_id[:8]])
+    in_table = np.isin(truth, table.stars)
+    assert in_table.sum() >= 6
+    # every true pair of table stars is among the pair matches (both its centroids and stars)
+    local = rows.local[np.where(in_table, truth, 0)]
+    found = {tuple(r) for r in matches.records.tolist()}
+    for a in range(8):
+        for b in range(a + 1, 8):
+            if in_table[a] and in_table[b]:
+                assert (a, local[a], b, local[b]) in found
+    assert matches.n_estimated >= in_table.sum()
+    groups = mg.match_groups(matches)
+    assert groups.ic_lim == max(matches.n_estimated - 2, 1)
+    assert np.all(groups.confidence > groups.ic_lim)
+    sub = mg.geometry_test(frame, setup, table, groups)
+    assert sub.complete and np.all(np.diff(sub.size) <= 0)  # largest first
+    best = sub.catalog[0]
+    assert sub.size[0] == in_table.sum() and np.array_equal(best, np.where(in_table, truth, -1))
+    assert len({r.tobytes() for r in sub.catalog}) == len(sub.catalog)  # redundant groups removed
+
+
+def test_a_mirrored_field_is_rejected(database, camera, catalog):
+    for i, A in enumerate(random_attitudes(5, rng=21)):
+        field = synthetic_centroids(camera, A, catalog, mag_limit=6.5, sigma_px=0.0, rng=i)
+        mirrored = field.xy.copy()
+        mirrored[:, 0] = W - 1 - mirrored[:, 0]
+        assert mg.identify(field.xy, W, H, camera=camera, database=database).success
+        ident = mg.identify(mirrored, W, H, camera=camera, database=database)
+        assert not ident.success and "no match group verified" in ident.reason
+        # the mirror test alone leaves no group of the true stars' size
+        frame = hyp.frame_for(mg.METHOD, mirrored, W, H, fov_deg=None, fov_tolerance_deg=None, camera=camera,
+                              database=database, epoch=None)
+        setup = mg.match_setup(frame)
+        table, rows = mg.frame_table(frame)
+        sub = mg.geometry_test(frame, setup, table, mg.match_groups(mg.pair_matches(setup, table, rows)))
+        assert len(sub.size) == 0 or sub.size[0] <= 4
+
+
+def test_bad_input_is_one_line(database, camera):
+    xy = np.array([[10.0, 10.0], [500.0, 20.0], [30.0, 700.0], [600.0, 600.0]])
+    r = mg.identify(xy, W, H, database=database)
+    assert not r.success and "needs a field of view or a camera" in r.reason
+    r = mg.identify(xy[:2], W, H, camera=camera, database=database)
+    assert not r.success and r.reason == "too few stars (2 detected, need 3)"
+    with pytest.raises(InputError, match="magnitudes must be one per centroid"):
+        mg.identify(xy, W, H, camera=camera, database=database, magnitudes=[1.0, 2.0])
+    with pytest.raises(InputError, match="max_stars must be"):
+        mg.identify(xy, W, H, camera=camera, database=database, max_stars=1)
+    nan = np.vstack([xy, [np.nan, 3.0]])
+    assert not mg.identify(nan, W, H, camera=camera, database=database).success  # 4 random points: no match
+
+
+def test_magnitudes_and_a_loose_focal_length(database, camera, catalog):
+    A = random_attitudes(1, rng=8)[0]
+    field = synthetic_centroids(camera, A, catalog, mag_limit=6.5, sigma_px=0.5, n_false=2, rng=8)
+    ident = mg.identify(field.xy, W, H, camera=camera, database=database, magnitudes=field.mag)
+    assert ident.success and not wrong(A, ident.A_icrs_to_cam)
+    # magnitudes 3 mag off match no catalogue pair: refused, not guessed
+    off = mg.identify(field.xy, W, H, camera=camera, database=database, magnitudes=field.mag + 3.0)
+    assert not off.success
+    # a FOV known to 1 %: solved, the focal length refitted
+    ident = mg.identify(field.xy, W, H, fov_deg=FOV * 1.005, fov_tolerance_deg=0.15, database=database)
+    assert ident.success and not wrong(A, ident.A_icrs_to_cam)
+    assert ident.camera.fx == pytest.approx(camera.fx, rel=2e-3)
+    # a FOV known to 10 %: solved when step 1 stays within its bound, else refused with the reason
+    loose = mg.identify(field.xy, W, H, fov_deg=FOV, database=database)
+    assert not wrong(A, loose.A_icrs_to_cam) if loose.success else "max_pair_matches" in loose.reason
+    loose = mg.identify(field.xy, W, H, fov_deg=FOV, database=database, max_pair_matches=10_000)
+    assert not loose.success and "beyond max_pair_matches (10000)" in loose.reason
+
+
+def test_noise_free_fields_are_solved(database, camera, catalog):
+    solved = tried = 0
+    for i, A in enumerate(random_attitudes(60, rng=31)):
+        field = synthetic_centroids(camera, A, catalog, mag_limit=6.0, sigma_px=0.0, rng=i)
+        if len(field.xy) < 5:
+            continue
+        tried += 1
+        ident = mg.identify(field.xy, W, H, camera=camera, database=database)
+        assert not (ident.success and wrong(A, ident.A_icrs_to_cam))
+        solved += ident.success
+    assert tried >= 50 and solved / tried >= 0.99
+
+
+def test_noisy_fields_with_false_stars_are_never_wrong(database, camera, catalog):
+    n, solved, boresight = 200, 0, []
+    for i, A in enumerate(random_attitudes(n, rng=41)):
+        field = synthetic_centroids(camera, A, catalog, mag_limit=6.5, sigma_px=0.5, n_false=2, rng=1000 + i)
+        ident = mg.identify(field.xy, W, H, camera=camera, database=database)
+        if ident.success:
+            assert not wrong(A, ident.A_icrs_to_cam), i
+            e = attitude_error(A, ident.A_icrs_to_cam)
+            boresight.append(np.hypot(e[0], e[1]) / ARCSEC)
+            solved += 1
+    assert solved >= 0.95 * n
+    assert np.median(boresight) < 8.0  # 0.5 px = 26" per star, ~30 stars refitted
