@@ -85,6 +85,10 @@ def solve(
     camera_file: str = typer.Option(None, "--camera", help="Camera TOML file or preset name."),
     epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: now)."),
     method: str = typer.Option("svd", "--attitude", help="Wahba solver: svd, quest, esoq2, q-method, triad."),
+    identify_method: str = typer.Option(
+        "quad-hash", "--method", metavar="NAME",
+        help="Identification method (skyfix.identify.METHODS; docs/identification-methods.md). The default "
+             "tries the triangle method on sparse frames when --camera or --fov gives the scale."),
     json_out: bool = typer.Option(False, "--json", help="One JSON Solution per image per line."),
     wcs: Path = typer.Option(None, "--wcs", help="Write a FITS WCS header (use {stem} for many images)."),
     plot: Path = typer.Option(None, "--plot", help="Write a PNG with identified stars circled."),
@@ -109,6 +113,7 @@ def solve(
                         ("--fov", "--fov-tolerance", "--epoch", "--attitude"))
     hint = _attitude_hint(attitude_hint)
     smear_px = _smear(smear)
+    _identify_method(identify_method)
     wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
     prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
     maps = _calibration_maps(calibration, dark, flat)
@@ -130,7 +135,7 @@ def solve(
             try:
                 sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
                                   database=database, epoch=epoch, attitude_method=method, attitude_hint=hint,
-                                  smear_px=smear_px, **maps)
+                                  identify_method=identify_method, smear_px=smear_px, **maps)
                 any_failed |= not sol.solved
                 typer.echo(sol.to_json() if json_out else _summary(sol))
                 if sol.solved and wcs_path is not None:
@@ -172,6 +177,14 @@ def _smear(text: str | None):
     if len(parts) != 2 or not all(math.isfinite(p) for p in parts):
         fail(f"--smear wants two numbers of pixels DX,DY, got {text!r}")
     return parts
+
+
+def _identify_method(name: str) -> None:
+    """``--method NAME`` checked before any work: a registered identification method."""
+    from skyfix.identify import METHODS
+
+    if name.lower() not in METHODS:
+        fail(f"--method: unknown identification method {name!r}; choose one of {', '.join(METHODS)}")
 
 
 def _count_flag_hint(exc: BaseException, path: Path) -> str:

@@ -204,6 +204,9 @@ def solve_centroids(
     ident = identify(xy, width, height, method=identify_method, fov_deg=fov_deg,
                      fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database, epoch=epoch,
                      **identify_options)
+    if not ident.success and sparse_fallback(identify_method, len(xy), camera, fov_deg):
+        ident = _identify_sparse(ident, xy, width, height, fov_deg, fov_tolerance_deg, camera, database,
+                                 epoch, identify_options)
     t1 = time.perf_counter()
     sol.time_ms = {"identify": 1e3 * (t1 - t0)}
     sol.method = ident.method
@@ -220,6 +223,41 @@ def solve_centroids(
     elif hint_failure:
         sol.reason += f"; attitude hint: {hint_failure}"
     return sol
+
+
+SPARSE_FIELD_STARS = 8
+"""A frame of at most this many centroids that the default method cannot identify is tried with
+the ``triangle`` method (:func:`sparse_fallback`)."""
+
+# The options of the default method that the triangle method shares (same names, same meaning).
+_SPARSE_OPTIONS = ("prob_threshold", "centroid_sigma_px")
+
+
+def sparse_fallback(identify_method: str, n_stars: int, camera: Camera | None, fov_deg: float | None) -> bool:
+    """Whether a frame the default identification failed is tried again with the ``triangle``
+    method: the default method was asked for (a method named explicitly is used alone), the
+    frame is sparse (at most :data:`SPARSE_FIELD_STARS` centroids: the 4-star hash needs more to
+    verify a pattern beyond chance, thesis 000's camera sees three stars per frame), and the
+    scale is known (a camera or a FOV: a triangle's angles need it)."""
+    from skyfix.identify import get_method
+    from skyfix.identify.methods import DEFAULT_METHOD
+
+    return (get_method(identify_method) is get_method(DEFAULT_METHOD) and n_stars <= SPARSE_FIELD_STARS
+            and (camera is not None or fov_deg is not None))
+
+
+def _identify_sparse(failed, xy: np.ndarray, width: int, height: int, fov_deg, fov_tolerance_deg, camera,
+                     database, epoch, identify_options: dict):
+    """The triangle method's identification of a sparse frame, or the default's failure with the
+    triangle method's reason beside it."""
+    from skyfix.identify import identify
+
+    sparse = identify(xy, width, height, method="triangle", fov_deg=fov_deg,
+                      fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database, epoch=epoch,
+                      **{k: identify_options[k] for k in _SPARSE_OPTIONS if k in identify_options})
+    if sparse.success:
+        return sparse
+    return dataclasses.replace(failed, reason=f"{failed.reason}; triangle: {sparse.reason}")
 
 
 # The options of identify_near that lost in space's default method shares (same names, same meaning).

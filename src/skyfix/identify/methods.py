@@ -35,16 +35,18 @@ refit's ``match_radius_px``. A success must have passed the acceptance rules of
 refit beyond chance), so that :func:`skyfix.final_fit.final_fit` and the pipeline can take any
 method's result as they take the 4-star method's.
 
-Registered methods (:data:`METHODS`):
+Registered methods (:data:`METHODS`; docs/identification-methods.md describes each):
 
-- ``"quad-hash"`` (the default) — 4-star edge-ratio hashing with binomial verification,
-  :func:`skyfix.identify.quad.identify`.
+- ``"quad-hash"`` (the default; also ``"hash"``) — 4-star edge-ratio hashing with binomial
+  verification, :func:`skyfix.identify.quad.identify`.
+- ``"triangle"`` — triangles of the brightest stars through the pair table, with an honest
+  chance test for frames of three or four stars, :func:`skyfix.identify.triangle.identify`.
 
 Examples
 --------
 >>> from skyfix.identify import METHODS, method_options
->>> list(METHODS)
-['quad-hash']
+>>> list(METHODS)[:3]
+['quad-hash', 'hash', 'triangle']
 >>> "max_patterns" in method_options("quad-hash")
 True
 """
@@ -59,7 +61,7 @@ import numpy as np
 
 from skyfix.camera import Camera
 from skyfix.errors import InputError
-from skyfix.identify import quad
+from skyfix.identify import quad, triangle
 from skyfix.identify.database import PatternDatabase
 from skyfix.identify.result import Identification
 
@@ -78,6 +80,8 @@ class IdentifyMethod(Protocol):
 
 METHODS: dict[str, IdentifyMethod] = {
     quad.METHOD: quad.identify,
+    "hash": quad.identify,
+    triangle.METHOD: triangle.identify,
 }
 DEFAULT_METHOD = quad.METHOD
 
