@@ -329,12 +329,14 @@ class StarTriangleTable(NamedTuple):
 
     stars : (T, 3) int32 — (star, nearer neighbour, farther neighbour).
     features : (T, 3) float64 — θ1, θ2, φ (:func:`describe_star_triangles`).
+    sides : (T, 3) float64 — the chord sides, ascending (the fourth star's scale).
     by_theta : FeatureIndex — the rows by θ1.
     pairs : PairTable — the pair table whose stars and neighbours they are.
     """
 
     stars: np.ndarray
     features: np.ndarray
+    sides: np.ndarray
     by_theta: FeatureIndex
     pairs: PairTable
 
@@ -403,7 +405,8 @@ def star_triangle_table(database: PatternDatabase, fov_deg: float, max_angle_deg
         tri = np.concatenate(rows).astype(np.int32) if rows else np.zeros((0, 3), np.int32)
         tri = np.ascontiguousarray(tri)
         features = describe_star_triangles(vectors, tri)
-        return StarTriangleTable(tri, features, feature_index(features, (0, 1, 2)), pairs)
+        sides = np.ascontiguousarray(describe_triangles(vectors, tri)[1][:, SIDES:SIDES + 3])
+        return StarTriangleTable(tri, features, sides, feature_index(features, (0, 1, 2)), pairs)
 
     return database.derived(("star-triangles", id(pairs), k_nearest, float(buffer_deg)), make)
 
@@ -523,11 +526,18 @@ def frame_triangle_table(frame: Frame, per_field: int) -> TriangleTable:
     """The triangle table for ``frame``: lattice fields as wide as the frame's shorter side
     (a field's stars are then in the frame), pairs up to the frame's diagonal at the shortest
     focal length allowed."""
+    short_deg, diag_deg = frame_angles_deg(frame)
+    return triangle_table(frame.database, short_deg, diag_deg, per_field=per_field)
+
+
+def frame_angles_deg(frame: Frame) -> tuple[float, float]:
+    """The angles across ``frame``'s shorter side and (2 % more than) its diagonal, degrees, at
+    the shortest focal length allowed: the tables' field size and widest pair."""
     cam = frame.camera
     lo = frame.focal_range_px[0]
     short_deg = math.degrees(2.0 * math.atan(min(cam.width, cam.height) / 2.0 / lo))
     diag_deg = math.degrees(2.0 * math.atan(math.hypot(cam.width, cam.height) / 2.0 / lo))
-    return triangle_table(frame.database, short_deg, diag_deg * 1.02, per_field=per_field)
+    return short_deg, 1.02 * diag_deg
 
 
 # ---- the image's triangles -------------------------------------------------------------------
