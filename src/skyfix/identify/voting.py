@@ -7,10 +7,14 @@ trackers", IEEE Trans. Aerospace and Electronic Systems 44(2), 2008).
    tolerance (:func:`~skyfix.identify.pairs.pairs_in_range`): each of the two centroids gets a
    vote for each of the two catalogue stars (both assignments). One compiled kernel
    (:func:`cast_votes`) adds them into a (centroid, catalogue star) table.
-2. **Candidates.** Each centroid's candidate is the catalogue star with the most votes.
+2. **Candidates.** Each centroid's candidates are the ``candidates_per_star`` catalogue stars
+   with the most votes (the paper keeps the first only: in a sparse field the true star, with
+   one vote per other centroid, is often outvoted by a chance one among thousands).
 3. **Validation.** Every pair of candidates whose angle agrees with its centroids' angle votes
-   again, for both; the consistent set grows from the best-validated centroid, adding the next
-   best-validated ones whose candidates agree with every member's (:func:`consistent_set`).
+   again, for both; each centroid keeps the candidate that agrees with the most other
+   centroids (most votes first on ties). The consistent set grows from the best-validated
+   centroid, adding the next best-validated ones whose candidates agree with every member's
+   (:func:`consistent_set`).
 4. **Proposal.** The set, best-validated first, goes to
    :func:`skyfix.identify.hypothesis.first_accepted` (one proper rotation — a mirror image has
    none — the chance of a wrong match with every proposal counted, the refit on all stars);
@@ -122,8 +126,8 @@ class _Progress:
         self.stopped = ""
 
 
-def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, min_set: int, sets_per_scale: int,
-               deadline: float, progress: _Progress):
+def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, n_candidates: int, min_set: int,
+               sets_per_scale: int, deadline: float, progress: _Progress):
     """The consistent sets of every focal interval, in order (a generator for ``first_accepted``)."""
     local = np.full(len(frame.stars.vectors), -1, np.int64)
     local[table.stars] = np.arange(len(table.stars))
@@ -131,6 +135,7 @@ def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, min_set
     stars = np.arange(n)
     members = np.empty(n, np.int64)
     steps = focal_steps(s, n)
+    k = min(n_candidates, len(table.stars))
     for f_a, f_b in steps:
         if time.perf_counter() > deadline:
             progress.stopped = "time limit reached"
@@ -138,12 +143,18 @@ def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, min_set
         progress.steps += 1
         votes[:] = 0
         cast_votes(s, table, local, n, f_a, f_b, votes)
-        candidate = table.stars[votes.argmax(axis=1)].astype(np.int64)
-        # Validation: a candidate pair agrees when its angle is in the centroids' range.
+        top = np.argpartition(votes, -k, axis=1)[:, -k:]
+        top = np.take_along_axis(top, np.argsort(-np.take_along_axis(votes, top, axis=1), axis=1), axis=1)
+        nodes = table.stars[top].astype(np.int64)  # (n, K): each centroid's candidates
+        # Validation: a candidate pair agrees when its angle is in its centroids' range.
         seen_hi = _pair_angles(rays_at(frame, stars, f_a)) + s.noise_px / f_a
         seen_lo = _pair_angles(rays_at(frame, stars, f_b)) - s.noise_px / f_b
-        cat = _pair_angles(frame.stars.vectors[candidate])
-        agree = (cat >= seen_lo) & (cat <= seen_hi) & (candidate[:, None] != candidate[None, :])
+        cat = _pair_angles(frame.stars.vectors[nodes.ravel()]).reshape(n, k, n, k)
+        agree = ((cat >= seen_lo[:, None, :, None]) & (cat <= seen_hi[:, None, :, None])
+                 & (nodes[:, :, None, None] != nodes[None, None, :, :]))
+        best = agree.any(axis=3).sum(axis=2).argmax(axis=1)  # the candidate most others agree with
+        candidate = nodes[stars, best]
+        agree = agree[stars, best][:, stars, best]
         support = agree.sum(axis=1)
         order = np.argsort(-support, kind="stable")
         used = np.zeros(n, np.bool_)
@@ -167,7 +178,8 @@ def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, min_set
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None, vote_stars: int = 20,
-             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, min_set: int = 4, sets_per_scale: int = 3,
+             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, candidates_per_star: int = 8,
+             min_set: int = 4, sets_per_scale: int = 3,
              max_candidates: int = 200, time_limit_s: float = 2.0, per_field: int = 12,
              prob_threshold: float = 1e-9) -> Identification:
     """Identify the stars of one frame, lost in space, by geometric voting (module text).
@@ -183,6 +195,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Expected centroid noise per axis, pixels: an angle's noise is ``σ·√2 / f``.
     n_sigma : float
         Angles match within ``n_sigma`` times their noise (plus the focal interval's share).
+    candidates_per_star : int
+        The most-voted catalogue stars each centroid keeps for the validation (the paper: 1).
     min_set : int
         Fewest centroids of a consistent set proposed.
     sets_per_scale : int
@@ -216,7 +230,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     s = angle_settings(frame, centroid_sigma_px, n_sigma)
     n = min(len(frame.xy), vote_stars)
     progress = _Progress()
-    sets = _proposals(frame, s, table, n, min_set, sets_per_scale, frame.t0 + time_limit_s, progress)
+    deadline = frame.t0 + time_limit_s
+    sets = _proposals(frame, s, table, n, candidates_per_star, min_set, sets_per_scale, deadline, progress)
     result = first_accepted(frame, sets, max_candidates=max_candidates)
     if result.success:
         return dataclasses.replace(result, n_patterns_tried=progress.steps)
