@@ -170,24 +170,7 @@ def judge_lone(frame: Frame, h: Hypothesis, table: PairTable, star_mag: np.ndarr
     nominal focal length, θ01 the longest)."""
     vectors = frame.stars.vectors
     f = float(h.focal_px)
-    cat_sides = _pair_angles3(vectors[h.catalog[:3]])
-    img_sides = _pair_angles3(rays_at(frame, h.stars[:3], f))
-    error = float(np.abs(cat_sides - img_sides).max())
     m_faint = float(star_mag[h.catalog[:3]].max())
-    fov = 2.0 * math.atan(frame.camera.width / 2.0 / f)
-    window = window_rad(fov, tolerance_rad)
-    rank = _rank_limit(star_mag, m_faint + mag_margin)
-    calibrated = frame.calibrated
-    s_tol = frame.scale_tolerance
-    # The box in the sides' space: side 01 over the focal range, the others as the search's.
-    other = window if calibrated else window * (1.0 + sides_img[1:].max() / sides_img[0])
-    tol = np.array([sides_img[0] * (1 - s_tol) - window, sides_img[0] * (1 + s_tol) + window, other, other])
-    n_window = triangle_matches(table, vectors, sides_img, tol, calibrated, rank, np.empty((0, 3), np.int32),
-                                np.empty(0))
-    eps = max(error, min_error_px / f)
-    d = 3 if calibrated else 2
-    log_lambda = math.log(max(n_window, 1)) + d * math.log(min(eps / window, 1.0))
-    log_chance = min(log_lambda + math.log(max(n_triangles, 1)), 0.0)
     # The other stars: matched ones verify (rule 3), bright unmatched ones refute (rule 4).
     idx, xy = _in_view(frame, h, _rank_limit(star_mag, m_faint + mag_margin))
     own = np.isin(idx, h.catalog)
@@ -211,6 +194,26 @@ def judge_lone(frame: Frame, h: Hypothesis, table: PairTable, star_mag: np.ndarr
         elif (star_mag[s] <= m_faint - missing_margin and lo_x + r <= p[0] <= hi_x - r
               and lo_y + r <= p[1] <= hi_y - r):
             n_missing += 1
+    if n_missing:  # refuted: its chance is not worth counting
+        return LoneJudgement(0.0, 0, math.inf, np.array(stars, np.int64), np.array(catalog, np.int64),
+                             n_missing)
+    cat_sides = _pair_angles3(vectors[h.catalog[:3]])
+    img_sides = _pair_angles3(rays_at(frame, h.stars[:3], f))
+    error = float(np.abs(cat_sides - img_sides).max())
+    fov = 2.0 * math.atan(frame.camera.width / 2.0 / f)
+    window = window_rad(fov, tolerance_rad)
+    rank = _rank_limit(star_mag, m_faint + mag_margin)
+    calibrated = frame.calibrated
+    s_tol = frame.scale_tolerance
+    # The box in the sides' space: side 01 over the focal range, the others as the search's.
+    other = window if calibrated else window * (1.0 + sides_img[1:].max() / sides_img[0])
+    tol = np.array([sides_img[0] * (1 - s_tol) - window, sides_img[0] * (1 + s_tol) + window, other, other])
+    n_window = triangle_matches(table, vectors, sides_img, tol, calibrated, rank, np.empty((0, 3), np.int32),
+                                np.empty(0))
+    eps = max(error, min_error_px / f)
+    d = 3 if calibrated else 2
+    log_lambda = math.log(max(n_window, 1)) + d * math.log(min(eps / window, 1.0))
+    log_chance = min(log_lambda + math.log(max(n_triangles, 1)), 0.0)
     n_extra = len(stars) - 3
     if len(idx):
         area = (hi_x - lo_x) * (hi_y - lo_y)
