@@ -21,7 +21,9 @@ W, H = 1280, 960
 
 def test_registry_holds_the_quad_method_as_default():
     assert DEFAULT_METHOD == "quad-hash" and METHODS["quad-hash"] is quad.identify
-    assert get_method("Quad-Hash") is quad.identify
+    assert get_method("Quad-Hash") is quad.identify and METHODS["hash"] is quad.identify
+    assert set(METHODS) >= {"hash", "triangle", "liebe", "planar", "area-moment", "pyramid", "voting",
+                            "van-bezooijen"}
     with pytest.raises(InputError, match="identification method 'nope' is unknown; choose one of quad-hash"):
         get_method("nope")
 
@@ -78,9 +80,9 @@ def test_pipeline_refuses_an_unknown_method_or_option_before_any_work(database):
     from skyfix.pipeline import solve, solve_centroids
 
     xy = np.zeros((10, 2))
-    with pytest.raises(InputError, match="identification method 'pyramid' is unknown"):
-        solve_centroids(xy, W, H, database=database, identify_method="pyramid")
-    with pytest.raises(InputError, match="identification method 'pyramid' is unknown"):
-        solve(np.zeros((H, W)), database=database, identify_method="pyramid")
+    with pytest.raises(InputError, match="identification method 'kdtree' is unknown"):
+        solve_centroids(xy, W, H, database=database, identify_method="kdtree")
+    with pytest.raises(InputError, match="identification method 'kdtree' is unknown"):
+        solve(np.zeros((H, W)), database=database, identify_method="kdtree")
     with pytest.raises(InputError, match=r"unknown option max_patern; known: max_patterns, time_limit_s"):
         solve_centroids(xy, W, H, database=database, max_patern=10)

@@ -41,6 +41,11 @@ Registered methods (:data:`METHODS`; docs/identification-methods.md describes ea
   verification, :func:`skyfix.identify.quad.identify`.
 - ``"triangle"`` — triangles of the brightest stars through the pair table, with an honest
   chance test for frames of three or four stars, :func:`skyfix.identify.triangle.identify`.
+- The seeds' methods (theses 000 §2.6 and 004 ch. 3): ``"liebe"`` (:mod:`skyfix.identify.liebe`),
+  ``"planar"`` (:mod:`skyfix.identify.planar`), ``"area-moment"``
+  (:mod:`skyfix.identify.area_moment`), ``"pyramid"`` (:mod:`skyfix.identify.pyramid`),
+  ``"voting"`` (:mod:`skyfix.identify.voting`), ``"van-bezooijen"``
+  (:mod:`skyfix.identify.match_groups`).
 
 Examples
 --------
@@ -61,7 +66,7 @@ import numpy as np
 
 from skyfix.camera import Camera
 from skyfix.errors import InputError
-from skyfix.identify import quad, triangle
+from skyfix.identify import area_moment, liebe, match_groups, planar, pyramid, quad, triangle, voting
 from skyfix.identify.database import PatternDatabase
 from skyfix.identify.result import Identification
 
@@ -82,6 +87,12 @@ METHODS: dict[str, IdentifyMethod] = {
     quad.METHOD: quad.identify,
     "hash": quad.identify,
     triangle.METHOD: triangle.identify,
+    liebe.METHOD: liebe.identify,
+    planar.METHOD: planar.identify,
+    area_moment.METHOD: area_moment.identify,
+    pyramid.METHOD: pyramid.identify,
+    voting.METHOD: voting.identify,
+    match_groups.METHOD: match_groups.identify,
 }
 DEFAULT_METHOD = quad.METHOD
 
