@@ -7,30 +7,35 @@ A star is recognised by the picture of its neighbourhood:
    buffer radius ``buffer_deg`` and the pattern radius ``pattern_radius_deg``; the nearest of
    them defines the orientation (+x); each neighbour's gnomonic coordinates in that frame
    (``x = w·e1 / w·v``, ``y = w·e2 / w·v`` with ``e1`` toward the nearest neighbour and
-   ``e2 = v × e1``, right-handed, so a mirror image does not match) fall in one cell of a
-   ``g × g`` grid over the pattern radius's square; the pattern is the set of cells.
-   :func:`pattern_cells` computes it, for catalogue and image alike.
+   ``e2 = v × e1``, right-handed, so a mirror image does not match) fall in one cell of a grid
+   of ``g`` columns over the pattern radius's square (and ``g + 1`` rows offset by half a cell,
+   so the orienting neighbour, at y = 0, sits in the middle of a cell, not on an edge); the
+   pattern is the set of cells. :func:`pattern_cells` computes it, for catalogue and image alike.
 2. **Catalogue patterns**: one per star of the shared pair table
    (:func:`skyfix.identify.pairs.pair_table`, its per-field brightest stars), from the table's
    neighbour lists, built once and kept with the database, as a sparse cell → stars inverted
-   index (:class:`GridPatterns`).
-3. **Matching**: each of the ``n_references`` image stars nearest the frame centre (among the
-   brightest, which the table holds) gets its pattern; every catalogue star scores the cells it
-   shares (one pass over the inverted lists of the image's cells, compiled); the ``top`` best
-   scoring at least ``min_score`` are its candidates. With only a FOV known, the image pattern is
-   binned at a few scales across the focal range (``cells`` move outward with the focal length)
-   and each candidate keeps its best score.
+   index (:func:`catalogue_patterns`, :class:`GridPatterns`).
+3. **Matching** (:func:`image_candidates`): the image's patterns are made of its
+   ``image_stars`` brightest centroids (about as many as the table holds in a frame); each of
+   the ``n_references`` of them nearest the frame centre (their pattern circles inside the
+   frame) gets a pattern oriented by each of its ``n_orient`` nearest neighbours (the
+   catalogue's nearest may be missing from the image, or the image's from the table); every
+   catalogue star scores the cells it shares (one compiled pass over the inverted lists of the
+   image's cells); the ``top`` best scoring at least ``min_score`` are the reference's
+   candidates. With only a FOV known, the image pattern is also binned at scales across the
+   focal range, a cell apart at the pattern radius, and each candidate keeps its best score.
 4. **Agreement**: candidates of different references whose catalogue angle is the references'
    measured angle (within the tolerance and the focal range) agree; each candidate with those
    that agree with it and with each other (greedily, by score) is a proposal, the largest and
    best scoring first, to :func:`skyfix.identify.hypothesis.first_accepted`, which accepts only
    what every method must pass.
 
-Differences from the paper: the paper's pattern holds every catalogue star within the pattern
-radius to the sensor's magnitude limit; skyfix's catalogue stars are the table's (the brightest
-of each field), so both image and catalogue patterns keep only their ``pattern_stars``
-brightest neighbours (the image then has the stars the catalogue has). Candidates are confirmed
-by agreeing references and the shared verification, not by a score threshold alone.
+Differences from the paper: its pattern holds every catalogue star within the pattern radius to
+the sensor's magnitude limit, oriented by the nearest; skyfix's catalogue stars are the pair
+table's (the brightest of each field), so the image's patterns are made of its brightest
+centroids only and each reference is tried with its few nearest neighbours as the orientation.
+Candidates are confirmed by agreeing references and the shared verification, not by a score
+threshold alone.
 """
 
 from __future__ import annotations
@@ -76,7 +81,8 @@ class GridSettings(NamedTuple):
 class GridPatterns(NamedTuple):
     """The catalogue's patterns: one per pair-table star, as an inverted index.
 
-    cell_start : (g² + 1,) int64 — cell ``c``'s stars are ``cell_star[cell_start[c]:cell_start[c + 1]]``.
+    cell_start : (g (g + 1) + 1,) int64 — cell ``c``'s stars are
+        ``cell_star[cell_start[c]:cell_start[c + 1]]``.
     cell_star : (E,) int32 — table rows (of :attr:`PairTable.stars`) whose pattern holds the cell.
     n_cells : (T,) int32 — cells in each table star's pattern.
     """
@@ -92,7 +98,7 @@ def pattern_cells(center, neighbours, settings, scale, orient, out):
     vectors, brightest first; the centre itself may be among them): the first
     ``settings.pattern_stars`` between the buffer and the pattern radius, oriented by the
     ``orient``-th nearest of them (0: the nearest), their gnomonic coordinates multiplied by
-    ``scale``. Writes the distinct cells (``x_cell · g + y_cell``) to ``out`` and returns how
+    ``scale``. Writes the distinct cells (``x_cell · (g + 1) + y_cell``) to ``out`` and returns how
     many (0: fewer than ``orient + 1`` neighbours)."""
     g = settings.g
     kept = np.empty(settings.pattern_stars, np.int64)
@@ -128,11 +134,13 @@ def pattern_cells(center, neighbours, settings, scale, orient, out):
         wv = w[0] * center[0] + w[1] * center[1] + w[2] * center[2]
         x = scale * (w[0] * e1[0] + w[1] * e1[1] + w[2] * e1[2]) / wv
         y = scale * (w[0] * e2[0] + w[1] * e2[1] + w[2] * e2[2]) / wv
+        # rows are offset by half a cell, so that the orienting neighbour (y = 0) lies in the
+        # middle of one, not on an edge where rounding would flip it: g + 1 rows
         cx = int(math.floor((x / half + 1.0) * 0.5 * g))
-        cy = int(math.floor((y / half + 1.0) * 0.5 * g))
-        if cx < 0 or cx >= g or cy < 0 or cy >= g:
+        cy = int(math.floor((y / half + 1.0) * 0.5 * g + 0.5))
+        if cx < 0 or cx >= g or cy < 0 or cy > g:
             continue
-        c = cx * g + cy
+        c = cx * (g + 1) + cy
         new = True
         for m in range(n_out):
             if out[m] == c:
@@ -169,7 +177,7 @@ def catalogue_patterns(frame: Frame, table: PairTable, settings: GridSettings) -
         star = np.repeat(np.arange(n, dtype=np.int32), counts)
         cell = np.concatenate([cells[i, :counts[i]] for i in range(n)]) if n else np.zeros(0, np.int64)
         order = np.argsort(cell, kind="stable")
-        start = np.searchsorted(cell[order], np.arange(settings.g ** 2 + 1)).astype(np.int64)
+        start = np.searchsorted(cell[order], np.arange(settings.g * (settings.g + 1) + 1)).astype(np.int64)
         return GridPatterns(start, star[order], counts.astype(np.int32))
 
     key = ("grid", id(table), settings.g, round(settings.pattern_radius_rad, 9),
