@@ -132,7 +132,7 @@ def _apex(s, table, vectors, i, j, k, cat, focal, ref, n_match, n, out_stars, ou
 
 
 @numba.njit(cache=True)
-def pyramid_search(s, table, vectors, triangles, start, stop, n, max_matches, out_stars, out_cat):
+def pyramid_search(s, table, vectors, triangles, start, stop, n, max_pairs, max_matches, out_stars, out_cat):
     """Search triangles ``start:stop`` of ``triangles`` (image rows of the ``n`` stars used) for
     a pyramid (module text, steps 2–3).
 
@@ -165,6 +165,8 @@ def pyramid_search(s, table, vectors, triangles, start, stop, n, max_matches, ou
             continue
         lo, hi = angle_range(p, i, j, s.f_lo, s.f_hi, s.noise_px)
         q0, q1 = pairs_in_range(table.angle_rad, lo, hi)
+        if q1 - q0 > max_pairs:  # work bound: a side this ambiguous is left to other triangles
+            continue
         n_found = 0
         for q in range(q0, q1):
             if n_found > limit:
@@ -220,20 +222,23 @@ class _Progress:
         self.stopped = ""
 
 
-def _pyramids(frame, s, table, n, max_triangles, max_matches, deadline, progress):
+def _pyramids(frame, s, table, n, max_triangles, max_pairs, max_matches, time_limit_s, progress):
     """The pyramids of the frame, in the search's order (a generator for ``first_accepted``)."""
     triangles = triangle_order(n)
     end = min(len(triangles), max_triangles)
     vectors = frame.stars.vectors
     out_stars = np.empty(4, np.int64)
     out_cat = np.empty(4, np.int64)
+    # No triangles: the first call in a process loads (or compiles) the kernel before the clock starts.
+    pyramid_search(s, table, vectors, triangles, 0, 0, n, max_pairs, max_matches, out_stars, out_cat)
+    deadline = time.perf_counter() + time_limit_s
     t = 0
     while t < end:
         if time.perf_counter() > deadline:
             progress.stopped = "time limit reached"
             return
-        t, found = pyramid_search(s, table, vectors, triangles, t, min(t + _CHUNK, end), n, max_matches,
-                                  out_stars, out_cat)
+        t, found = pyramid_search(s, table, vectors, triangles, t, min(t + _CHUNK, end), n, max_pairs,
+                                  max_matches, out_stars, out_cat)
         progress.triangles = t
         if found:
             yield out_stars.copy(), out_cat.copy()
@@ -246,8 +251,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None, pattern_stars: int = 20,
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, max_triangles: int = 2000,
-             max_triangle_matches: int = 64, max_candidates: int = 200, time_limit_s: float = 2.0,
-             per_field: int = 12, prob_threshold: float = 1e-9) -> Identification:
+             max_side_pairs: int = 3000, max_triangle_matches: int = 64, max_candidates: int = 200,
+             time_limit_s: float = 2.0, per_field: int = 12, prob_threshold: float = 1e-9) -> Identification:
     """Identify the stars of one frame, lost in space, by the Pyramid method (module text).
 
     Parameters
@@ -263,13 +268,18 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Angles match within ``n_sigma`` times their noise (plus the focal range's share).
     max_triangles : int
         Work bound: image triangles examined.
+    max_side_pairs : int
+        Work bound: a triangle whose searched side matches more catalogue pairs than this is
+        skipped (without a camera a long side's pairs over the focal range number thousands;
+        with one, at 15° and σ 0.5 px, at most ~1000).
     max_triangle_matches : int
         With only a FOV known: an image triangle that matches more catalogue triangles than this
         is skipped (a calibrated camera's must match exactly one).
     max_candidates : int
         Work bound: pyramids proposed to the verification.
     time_limit_s : float
-        Work bound: wall time, seconds (checked every 64 triangles).
+        Work bound: wall time of the search, seconds (checked every 64 triangles; the kernel's
+        first load or compilation in a process not counted).
     per_field : int
         Catalogue stars per field of the pair table (:func:`skyfix.identify.pairs.pair_table`).
     prob_threshold : float
@@ -295,8 +305,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     s = angle_settings(frame, centroid_sigma_px, n_sigma)
     n = min(len(frame.xy), pattern_stars)
     progress = _Progress()
-    pyramids = _pyramids(frame, s, table, n, max_triangles, max_triangle_matches, frame.t0 + time_limit_s,
-                         progress)
+    pyramids = _pyramids(frame, s, table, n, max_triangles, max_side_pairs, max_triangle_matches,
+                         time_limit_s, progress)
     result = first_accepted(frame, pyramids, max_candidates=max_candidates)
     if result.success:
         return dataclasses.replace(result, n_patterns_tried=progress.triangles)

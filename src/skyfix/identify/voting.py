@@ -38,13 +38,19 @@ import numpy as np
 
 from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
-from skyfix.identify.angle_match import AngleSettings, angle_range, angle_settings, frame_pair_table
+from skyfix.identify.angle_match import (
+    AngleSettings,
+    angle_range,
+    angle_settings,
+    frame_pair_table,
+    star_angle,
+)
 from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for, rays_at
+from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
 from skyfix.identify.pairs import PairTable, pairs_in_range
 from skyfix.identify.result import Identification
 
-__all__ = ["METHOD", "cast_votes", "consistent_set", "focal_steps", "identify"]
+__all__ = ["METHOD", "cast_votes", "consistent_set", "focal_steps", "identify", "top_voted", "validate"]
 
 METHOD = "voting"
 
@@ -113,9 +119,73 @@ def focal_steps(s: AngleSettings, n: int) -> np.ndarray:
     return np.column_stack([lo, hi])
 
 
-def _pair_angles(v: np.ndarray) -> np.ndarray:
-    """(n, n) angles between the rows of unit vectors ``v``."""
-    return chord_angle(np.linalg.norm(v[:, None, :] - v[None, :, :], axis=2))
+@numba.njit(cache=True)
+def top_voted(votes, table_stars, out):
+    """Each row's ``K = out.shape[1]`` most-voted columns of ``votes`` (n, T), most votes first
+    (the lower column on ties), as the table's stars ``table_stars[column]``, into ``out`` (n, K);
+    -1 past a row's voted columns."""
+    n, k = out.shape
+    best = np.empty(k, np.int64)
+    for a in range(n):
+        size = 0
+        for c in range(votes.shape[1]):
+            v = votes[a, c]
+            if v == 0 or (size == k and v <= votes[a, best[k - 1]]):
+                continue
+            e = min(size, k - 1)  # insertion: shift the lower-voted down
+            while e > 0 and votes[a, best[e - 1]] < v:
+                best[e] = best[e - 1]
+                e -= 1
+            best[e] = c
+            size = min(size + 1, k)
+        for e in range(k):
+            out[a, e] = table_stars[best[e]] if e < size else -1
+
+
+@numba.njit(cache=True)
+def validate(s, vectors, nodes, f_a, f_b, candidate, agree):
+    """The validation (module text, step 3) of centroids' candidates ``nodes`` (n, K) at a focal
+    length in ``[f_a, f_b]``: each centroid's ``candidate`` (n,) is the one whose angles agree
+    with the most other centroids' candidates (each pair's angle within its centroids' range,
+    :func:`~skyfix.identify.angle_match.angle_range`); ``agree`` (n, n) whether two centroids'
+    candidates agree."""
+    p = s.offsets_px
+    n, k = nodes.shape
+    lo = np.empty((n, n))
+    hi = np.empty((n, n))
+    for a in range(n):
+        for b in range(n):
+            if a != b:
+                lo[a, b], hi[a, b] = angle_range(p, a, b, f_a, f_b, s.noise_px)
+    for a in range(n):
+        top = -1
+        for u in range(k):
+            cu = nodes[a, u]
+            if cu < 0:
+                break
+            count = 0
+            for b in range(n):
+                if b == a:
+                    continue
+                for w in range(k):
+                    cw = nodes[b, w]
+                    if cw < 0:
+                        break
+                    if cw != cu:
+                        angle = star_angle(vectors, cu, cw)
+                        if lo[a, b] <= angle <= hi[a, b]:
+                            count += 1
+                            break
+            if count > top:
+                top = count
+                candidate[a] = cu
+    for a in range(n):
+        for b in range(n):
+            ca, cb = candidate[a], candidate[b]
+            agree[a, b] = False
+            if a != b and ca != cb and ca >= 0 and cb >= 0:
+                angle = star_angle(vectors, ca, cb)
+                agree[a, b] = lo[a, b] <= angle <= hi[a, b]
 
 
 class _Progress:
@@ -127,15 +197,23 @@ class _Progress:
 
 
 def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, n_candidates: int, min_set: int,
-               sets_per_scale: int, deadline: float, progress: _Progress):
+               sets_per_scale: int, time_limit_s: float, progress: _Progress):
     """The consistent sets of every focal interval, in order (a generator for ``first_accepted``)."""
     local = np.full(len(frame.stars.vectors), -1, np.int64)
     local[table.stars] = np.arange(len(table.stars))
     votes = np.zeros((n, len(table.stars)), np.int32)
-    stars = np.arange(n)
     members = np.empty(n, np.int64)
     steps = focal_steps(s, n)
-    k = min(n_candidates, len(table.stars))
+    nodes = np.empty((n, max(min(n_candidates, len(table.stars)), 1)), np.int64)
+    candidate = np.full(n, -1, np.int64)
+    agree = np.zeros((n, n), np.bool_)
+    # The kernels run once on no votes: the first call in a process loads (or compiles) them
+    # before the time limit's clock starts.
+    cast_votes(s, table, local, 0, s.f0, s.f0, votes)
+    top_voted(votes, table.stars, nodes)
+    validate(s, frame.stars.vectors, nodes, s.f0, s.f0, candidate, agree)
+    consistent_set(agree, np.arange(n), 0, members)
+    deadline = time.perf_counter() + time_limit_s
     for f_a, f_b in steps:
         if time.perf_counter() > deadline:
             progress.stopped = "time limit reached"
@@ -143,18 +221,8 @@ def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, n_candi
         progress.steps += 1
         votes[:] = 0
         cast_votes(s, table, local, n, f_a, f_b, votes)
-        top = np.argpartition(votes, -k, axis=1)[:, -k:]
-        top = np.take_along_axis(top, np.argsort(-np.take_along_axis(votes, top, axis=1), axis=1), axis=1)
-        nodes = table.stars[top].astype(np.int64)  # (n, K): each centroid's candidates
-        # Validation: a candidate pair agrees when its angle is in its centroids' range.
-        seen_hi = _pair_angles(rays_at(frame, stars, f_a)) + s.noise_px / f_a
-        seen_lo = _pair_angles(rays_at(frame, stars, f_b)) - s.noise_px / f_b
-        cat = _pair_angles(frame.stars.vectors[nodes.ravel()]).reshape(n, k, n, k)
-        agree = ((cat >= seen_lo[:, None, :, None]) & (cat <= seen_hi[:, None, :, None])
-                 & (nodes[:, :, None, None] != nodes[None, None, :, :]))
-        best = agree.any(axis=3).sum(axis=2).argmax(axis=1)  # the candidate most others agree with
-        candidate = nodes[stars, best]
-        agree = agree[stars, best][:, stars, best]
+        top_voted(votes, table.stars, nodes)
+        validate(s, frame.stars.vectors, nodes, f_a, f_b, candidate, agree)
         support = agree.sum(axis=1)
         order = np.argsort(-support, kind="stable")
         used = np.zeros(n, np.bool_)
@@ -177,8 +245,8 @@ def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, n_candi
 # method's options, all keywords with a documented default.
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
-             database: PatternDatabase | None = None, epoch: float | None = None, vote_stars: int = 20,
-             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, candidates_per_star: int = 8,
+             database: PatternDatabase | None = None, epoch: float | None = None, vote_stars: int = 16,
+             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, candidates_per_star: int = 6,
              min_set: int = 4, sets_per_scale: int = 3,
              max_candidates: int = 200, time_limit_s: float = 2.0, per_field: int = 12,
              prob_threshold: float = 1e-9) -> Identification:
@@ -204,7 +272,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     max_candidates : int
         Work bound: sets proposed to the verification in all.
     time_limit_s : float
-        Work bound: wall time, seconds (checked between focal intervals).
+        Work bound: wall time of the search, seconds (checked between focal intervals; the
+        kernels' first load or compilation in a process not counted).
     per_field : int
         Catalogue stars per field of the pair table (:func:`skyfix.identify.pairs.pair_table`).
     prob_threshold : float
@@ -230,8 +299,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     s = angle_settings(frame, centroid_sigma_px, n_sigma)
     n = min(len(frame.xy), vote_stars)
     progress = _Progress()
-    deadline = frame.t0 + time_limit_s
-    sets = _proposals(frame, s, table, n, candidates_per_star, min_set, sets_per_scale, deadline, progress)
+    sets = _proposals(frame, s, table, n, candidates_per_star, min_set, sets_per_scale, time_limit_s,
+                      progress)
     result = first_accepted(frame, sets, max_candidates=max_candidates)
     if result.success:
         return dataclasses.replace(result, n_patterns_tried=progress.steps)
