@@ -31,6 +31,7 @@ how much a lone triangle can prove is the triangle method's to say
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Iterable
@@ -38,6 +39,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from skyfix._kernels.rotation import chord_angle
 from skyfix.attitude import solve_attitude
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
@@ -201,9 +203,14 @@ def rays_at(frame: Frame, stars: np.ndarray, focal_px: float) -> np.ndarray:
     return v / np.linalg.norm(v, axis=1)[:, None]
 
 
+@functools.lru_cache(maxsize=32)
+def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.triu_indices(n, 1)
+
+
 def _pair_angles(v: np.ndarray) -> np.ndarray:
-    i, j = np.triu_indices(len(v), 1)
-    return np.arccos(np.clip(np.einsum("ij,ij->i", v[i], v[j]), -1.0, 1.0))
+    i, j = _pairs(len(v))
+    return chord_angle(np.sqrt(((v[i] - v[j]) ** 2).sum(axis=1)))
 
 
 def _focal(frame: Frame, stars: np.ndarray, r: np.ndarray) -> float:
@@ -213,8 +220,12 @@ def _focal(frame: Frame, stars: np.ndarray, r: np.ndarray) -> float:
     if frame.calibrated:
         return f
     target = float(_pair_angles(r).sum())
+    p = frame.image.offsets_px[stars]
+    v = np.empty((len(p), 3))
+    v[:, :2] = p
     for _ in range(4):
-        seen = float(_pair_angles(rays_at(frame, stars, f)).sum())
+        v[:, 2] = f
+        seen = float(_pair_angles(v / np.sqrt((v * v).sum(axis=1))[:, None]).sum())
         if not (seen > 0.0 and target > 0.0):
             return math.nan
         f_next = f * seen / target
