@@ -263,3 +263,54 @@ def photometry(
         raise typer.Exit(2)
     if total["n_frames_solved"] < total["n_frames"]:
         raise typer.Exit(1)
+
+
+@analyze_app.command()
+@guarded
+def coverage(
+    fov: str = typer.Option(..., "--fov", help="Field width,height in degrees, e.g. 11.17,8.32 "
+                            "(one number: a square field)."),
+    mag: float = typer.Option(None, "--mag", help="Faintest catalogue magnitude (Hipparcos Hp)."),
+    n: int = typer.Option(100_000, "--n", min=1, help="Random pointings (uniform attitudes: pointing and "
+                          "roll)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed."),
+    brightest: int = typer.Option(None, "--brightest", min=1, help="Use the N brightest stars instead "
+                                  "(e.g. 5026: thesis 004's V ≤ 6 catalogue; overrides --mag)."),
+    plot: Path = typer.Option(None, "--plot", help="Write the histogram of stars per field (PNG)."),
+    json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON line."),
+    verbose: int = VERBOSE,
+) -> None:
+    """Catalogue stars per rectangular field over random pointings and rolls (thesis 004 §5.1):
+    P(< 3, 4, 5 stars), mean, maximum, and the histogram."""
+    from skyfix.analysis import coverage as cv
+
+    add_verbosity(verbose)
+    parts = [p.strip() for p in fov.split(",") if p.strip()]
+    try:
+        w, h = (float(parts[0]), float(parts[-1])) if len(parts) in (1, 2) else (None, None)
+    except ValueError:
+        w = h = None
+    if w is None:
+        fail(f"--fov {fov!r} is not W,H in degrees (e.g. 11.17,8.32)")
+    check_fov(w, "--fov width")
+    check_fov(h, "--fov height")
+    if brightest is None and (mag is None or not math.isfinite(mag)):
+        fail("give --mag M (a finite Hp magnitude) or --brightest N")
+    n = check_count(n, "--n", minimum=1)
+    prepare_outputs({"--plot": [plot]})
+    catalog = cv.coverage_catalog(30.0 if brightest else mag)
+    if brightest:
+        mag = cv.limit_for_count(catalog, brightest)
+    with _progress(n, json_out or n < 200_000) as bar:
+        task = bar.add_task("stars per field", total=n)
+        counts = cv.star_counts(w, h, mag, n, seed, catalog=catalog,
+                                progress=lambda k: bar.update(task, advance=k))
+    summary = counts.summary()
+    if json_out:
+        typer.echo(json.dumps(summary))
+    else:
+        typer.echo(cv.format_counts(counts))
+    if plot is not None:
+        cv.plot_counts(counts, plot)
+        if not json_out:
+            typer.echo(f"wrote {plot}")
