@@ -74,7 +74,7 @@ def _tolerances(frame: Frame, image: ImageTriangles, n_sigma: float):
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None,
-             centroid_sigma_px: float = 1.0, n_sigma: float = 3.0, triangle_stars: int = 10,
+             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, triangle_stars: int = 10,
              confirm_stars: int = 20, per_field: int = 8, max_candidates: int = 2000,
              max_matches: int = 200_000, prob_threshold: float = 1e-9) -> Identification:
     """Identify the stars of one frame by the area and polar moment of its star triangles,
@@ -86,7 +86,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         The interface of every method (:mod:`skyfix.identify.methods`). A FOV or a camera is
         required.
     centroid_sigma_px : float
-        Expected centroid noise, pixels (sets σ_A, σ_J and the fourth star's tolerance).
+        Expected centroid noise (1σ per axis), pixels; raise it for noisier centroids
+        (sets σ_A, σ_J and the fourth star's tolerance).
     n_sigma : float
         Tolerances are ``n_sigma`` standard deviations.
     triangle_stars : int

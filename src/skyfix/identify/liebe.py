@@ -146,7 +146,7 @@ def _proposals(frame: Frame, table: StarTriangleTable, patterns: StarPatterns, c
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None,
-             centroid_sigma_px: float = 1.0, n_sigma: float = 3.0, k_nearest: int = 4,
+             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, k_nearest: int = 4,
              buffer_deg: float = 0.0, pivots: int = 12, neighbour_stars: int | None = None,
              confirm_stars: int = 20, per_field: int = 12, max_candidates: int = 2000,
              max_matches: int = 100_000, prob_threshold: float = 1e-9) -> Identification:
@@ -158,7 +158,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         The interface of every method (:mod:`skyfix.identify.methods`). A FOV or a camera is
         required.
     centroid_sigma_px : float
-        Expected centroid noise, pixels (sets the tolerances).
+        Expected centroid noise (1σ per axis), pixels; raise it for noisier centroids
+        (sets the tolerances).
     n_sigma : float
         Tolerances are ``n_sigma`` standard deviations.
     k_nearest : int

@@ -74,7 +74,7 @@ def angle_tolerances(frame: Frame, image: ImageTriangles, n_sigma: float) -> np.
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None,
-             centroid_sigma_px: float = 1.0, n_sigma: float = 3.0, triangle_stars: int = 10,
+             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, triangle_stars: int = 10,
              confirm: bool = True, confirm_stars: int = 20, per_field: int = 8, max_candidates: int = 2000,
              max_matches: int = 200_000,
              prob_threshold: float = 1e-9) -> Identification:
@@ -86,7 +86,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         The interface of every method (:mod:`skyfix.identify.methods`). A FOV or a camera is
         required.
     centroid_sigma_px : float
-        Expected centroid noise, pixels (sets the angle tolerances).
+        Expected centroid noise (1σ per axis), pixels; raise it for noisier centroids
+        (sets the angle tolerances).
     n_sigma : float
         Tolerances are ``n_sigma`` standard deviations.
     triangle_stars : int

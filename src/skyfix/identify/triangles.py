@@ -484,7 +484,9 @@ def confirm_fourth(pairs, vectors, rays, triangle_stars, triangle_catalog, scale
     of ``candidates``, the triangle's own skipped) whose angles ``t`` to the three matched stars,
     times ``scale`` (catalogue over image angle), are within ``tolerance + relative·t`` of a
     catalogue star's angles to ``triangle_catalog`` (that star among the first vertex's
-    neighbours in ``pairs``). Writes (image star, catalogue star) rows into ``out``; returns how
+    neighbours in ``pairs``), on the same side of the first edge (three angles fix a point up
+    to its mirror image; not tested when the star is within the noise of that edge's great
+    circle). Writes (image star, catalogue star) rows into ``out``; returns how
     many there are."""
     n = 0
     c0 = triangle_catalog[0]
@@ -495,6 +497,9 @@ def confirm_fourth(pairs, vectors, rays, triangle_stars, triangle_catalog, scale
         t1 = chord_angle(chord(rays[star], rays[triangle_stars[1]])) * scale
         t2 = chord_angle(chord(rays[star], rays[triangle_stars[2]])) * scale
         w0, w1, w2 = tolerance + relative * t0, tolerance + relative * t1, tolerance + relative * t2
+        side = triple_product(rays[star], rays[triangle_stars[0]], rays[triangle_stars[1]])
+        sure = abs(side) > tolerance * (t0 + t1 + chord(rays[triangle_stars[0]], rays[triangle_stars[1]]))
+        hand = (1.0 if side > 0.0 else -1.0) if sure else 0.0
         start, stop = neighbours_in_range(pairs, c0, t0 - w0, t0 + w0)
         for q in range(start, stop):
             d = pairs.neighbour[q]
@@ -503,6 +508,9 @@ def confirm_fourth(pairs, vectors, rays, triangle_stars, triangle_catalog, scale
             if abs(chord_angle(chord(vectors[d], vectors[triangle_catalog[1]])) - t1) > w1:
                 continue
             if abs(chord_angle(chord(vectors[d], vectors[triangle_catalog[2]])) - t2) > w2:
+                continue
+            # three angles fix the fourth star up to a mirror image: its side of the first edge too
+            if hand != 0 and hand * triple_product(vectors[d], vectors[c0], vectors[triangle_catalog[1]]) < 0:
                 continue
             if n < out.shape[0]:
                 out[n, 0] = star
@@ -648,8 +656,8 @@ def confirmed_matches(image_rows, table_rows, image_stars, ambiguous, flat, imag
     confirms, each vertex order :func:`order_allowed` tried: rows ``(k, order, image star,
     catalogue star)`` of ``out``. The fourth star's angles, at the scale the triangle implies
     (its catalogue over image perimeter; 1 with a calibrated camera), must match within
-    ``2·noise`` plus, with the scale free, that scale's own noise (``noise`` over the longest
-    side) times the angle. Returns how
+    ``noise`` (``n_sigma·σ√2``, an angle's) plus, with the scale free, that scale's own noise
+    (``noise·√3`` over the perimeter) times the angle. Returns how
     many rows were written (at most ``len(out)``) and how many orders were tried."""
     n = 0
     tried = 0
@@ -660,7 +668,7 @@ def confirmed_matches(image_rows, table_rows, image_stars, ambiguous, flat, imag
         m, r = image_rows[k], table_rows[k]
         per = image_sides[m, 0] + image_sides[m, 1] + image_sides[m, 2]
         scale = 1.0 if calibrated else (table_sides[r, 0] + table_sides[r, 1] + table_sides[r, 2]) / per
-        relative = 0.0 if calibrated else noise / image_sides[m, 2]
+        relative = 0.0 if calibrated else noise * math.sqrt(3.0) / per
         for q in range(3):
             cat[q] = table_stars[r, q]
         for o in range(6):
@@ -669,7 +677,7 @@ def confirmed_matches(image_rows, table_rows, image_stars, ambiguous, flat, imag
             tried += 1
             for q in range(3):
                 img[q] = image_stars[m, VERTEX_ORDERS[o, q]]
-            c = confirm_fourth(pairs, vectors, rays, img, cat, scale, 2.0 * noise, relative, candidates, buf)
+            c = confirm_fourth(pairs, vectors, rays, img, cat, scale, noise, relative, candidates, buf)
             for q in range(min(c, buf.shape[0])):
                 if n < out.shape[0]:
                     out[n, 0], out[n, 1], out[n, 2], out[n, 3] = k, o, buf[q, 0], buf[q, 1]
