@@ -26,6 +26,8 @@ skyfix:
 5. proposes each confirmed 4-star correspondence, pivots by brightness and each one's patterns
    by closeness, to :func:`skyfix.identify.hypothesis.first_accepted`, which applies every
    acceptance rule (the chance of a wrong match with every proposal counted).
+
+Measured success and speed: docs/identification-methods.md#liebe.
 """
 
 from __future__ import annotations

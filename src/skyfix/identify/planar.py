@@ -2,7 +2,7 @@
 
 Thesis 000 §2.6.2: three unit vectors make a planar triangle with sides the chords
 ``a = |v1 − v2|, b = |v2 − v3|, c = |v1 − v3|`` (the thesis prints ``|v1| − |v2|``, which is always
-0: SEEDS.md's correction) and interior angles by the law of cosines; a rotation keeps them, and
+0: the correction in docs/seeds.md) and interior angles by the law of cosines; a rotation keeps them, and
 they do not depend on the focal length (to second order in the field angle), so the method works
 with a FOV only. skyfix:
 
@@ -28,6 +28,8 @@ with a FOV only. skyfix:
    by closeness, to :func:`skyfix.identify.hypothesis.first_accepted`, which applies every
    acceptance rule (the chance of a wrong match with every proposal counted; the stars beyond
    the triangle verify it).
+
+Measured success and speed: docs/identification-methods.md#planar.
 """
 
 from __future__ import annotations

@@ -42,6 +42,8 @@ included angle at the star; indexed by θ1.
 Both are built on first use and kept with their database
 (:meth:`~skyfix.identify.PatternDatabase.derived`). :func:`feature_matches` is the one compiled
 search: a range on the key feature by binary search, every other feature filtered.
+
+Table sizes and build times: docs/identification-methods.md#the-triangle-table.
 """
 
 from __future__ import annotations
