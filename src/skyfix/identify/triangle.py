@@ -6,9 +6,10 @@ catalogue triangles through the pair table (:mod:`skyfix.identify.pairs`: the lo
 range search over pair angles, the third vertex among the first vertex's neighbours, the last
 side checked), and judges what it finds in one of two ways:
 
-*Rich frames* (the usual case with five or more stars): each catalogue triangle that fits is a
-proposal judged by the common rules (:func:`skyfix.identify.hypothesis.first_accepted`), exactly
-as any other method's.
+*Rich frames* (the usual case with five or more stars): a catalogue triangle that fits counts
+only when a fourth image star confirms it (a catalogue neighbour at the right three angles,
+checked in the compiled search), and the four stars are a proposal judged by the common rules
+(:func:`skyfix.identify.hypothesis.first_accepted`), exactly as any other method's.
 
 *Sparse frames* (three or four stars, or a rich frame the first way did not settle): a lone
 triangle has nothing else to verify it against, so its own chance is computed, honestly:
@@ -77,18 +78,53 @@ __all__ = ["AMBIGUITY_RATIO", "METHOD", "LoneJudgement", "identify", "judge_lone
 METHOD = "triangle"
 AMBIGUITY_RATIO = 100.0  # a second triangle this close to the best one's chance makes the frame ambiguous
 _MAX_MATCHES = 4096  # catalogue triangles kept per image triangle (more are counted, not kept)
+_NO_CONFIRM = np.empty((0, 3))
+
+
+@numba.njit(cache=True, inline="always")
+def _angle(u, v):
+    """The angle between unit vectors ``u`` and ``v`` from their chord (accurate when small)."""
+    chord = math.sqrt((u[0] - v[0]) ** 2 + (u[1] - v[1]) ** 2 + (u[2] - v[2]) ** 2)
+    return 2.0 * math.asin(min(chord / 2.0, 1.0))
 
 
 @numba.njit(cache=True)
-def triangle_matches(table, vectors, sides, tol, calibrated, rank_limit, out, err):
-    """Catalogue triangles ``(a, b, c)`` whose sides match the image triangle's ``sides`` =
-    (θ01, θ02, θ12) (radians, θ01 the longest), stars below ``rank_limit`` only.
+def _confirming_star(table, vectors, a, b, c, s, confirm, tol, theta01, spread):
+    """The first extra image star (row of ``confirm``: its angles to vertices 0, 1, 2 at the
+    nominal focal length) that a catalogue neighbour ``e`` of ``a`` matches at scale ``s``
+    (angles to ``a``, ``b``, ``c`` within ``tol``, the scale's own error — ``tol / theta01``
+    relative — and the projection's ``spread`` included), as ``(row, e)``; ``(-1, -1)`` when
+    none does."""
+    for d in range(confirm.shape[0]):
+        t0 = tol * (1.0 + confirm[d, 0] / theta01) + spread * confirm[d, 0]
+        q0, q1 = neighbours_in_range(table, a, confirm[d, 0] * s - t0, confirm[d, 0] * s + t0)
+        t1 = tol * (1.0 + confirm[d, 1] / theta01) + spread * confirm[d, 1]
+        t2 = tol * (1.0 + confirm[d, 2] / theta01) + spread * confirm[d, 2]
+        for q in range(q0, q1):
+            e = table.neighbour[q]
+            if e == b or e == c:
+                continue
+            if (abs(_angle(vectors[e], vectors[b]) - confirm[d, 1] * s) <= t1
+                    and abs(_angle(vectors[e], vectors[c]) - confirm[d, 2] * s) <= t2):
+                return d, e
+    return -1, -1
 
-    ``tol`` = (t01_lo, t01_hi, t02, t12): with ``calibrated`` the catalogue sides must be within
-    ``θ ± t``; else side 01 within ``[t01_lo, t01_hi]`` (the focal range's) and the other two
-    within ``± t`` of ``θ · s``, ``s`` the scale side 01 implies. Writes up to ``len(out)`` rows
-    of ``out`` (K, 3), their larger error of sides 02 and 12 in ``err`` (K,), and returns how
-    many triangles match (which may be more)."""
+
+@numba.njit(cache=True)
+def triangle_matches(table, vectors, sides, tol, calibrated, rank_limit, confirm, out, err):
+    """Catalogue triangles ``(a, b, c)`` whose sides match the image triangle's ``sides`` =
+    (θ01, θ02, θ12) (radians), stars below ``rank_limit`` only.
+
+    ``tol`` = (t01_lo, t01_hi, t02, t12, t, spread): with ``calibrated`` the catalogue sides must
+    be within ``θ ± t02``; else side 01 within ``[t01_lo, t01_hi]`` (the focal range's) and the
+    other two within ``± t02, t12`` of ``θ · s``, ``s`` the scale side 01 implies; ``t`` is one
+    angle's tolerance and ``spread`` the projection's bending of ratios (confirmation). With rows
+    in ``confirm``
+    (M, 3) — other image stars' angles to the three vertices — a triangle counts only when a
+    fourth star confirms it (:func:`_confirming_star`, the seeds' fourth-star check, compiled).
+    Writes up to ``len(out)`` rows of ``out`` (K, 5) = (a, b, c, confirm row or -1, its catalogue
+    star or -1), their larger error of sides 02 and 12 in ``err`` (K,), and returns how many
+    triangles match (which may be more)."""
     lo01, hi01 = (sides[0] - tol[2] if calibrated else tol[0]), (sides[0] + tol[2] if calibrated else tol[1])
     start, stop = pairs_in_range(table.angle_rad, lo01, hi01)
     n = 0
@@ -105,16 +141,23 @@ def triangle_matches(table, vectors, sides, tol, calibrated, rank_limit, out, er
                 c = table.neighbour[q]
                 if c >= rank_limit or c == b:
                     continue
-                vc = vectors[c]
-                chord = math.sqrt((vb[0] - vc[0]) ** 2 + (vb[1] - vc[1]) ** 2 + (vb[2] - vc[2]) ** 2)
-                e12 = abs(2.0 * math.asin(min(chord / 2.0, 1.0)) - sides[2] * s)
-                if e12 <= tol[3]:
-                    if n < out.shape[0]:
-                        out[n, 0] = a
-                        out[n, 1] = b
-                        out[n, 2] = c
-                        err[n] = max(e12, abs(table.neighbour_angle[q] - sides[1] * s))
-                    n += 1
+                e12 = abs(_angle(vb, vectors[c]) - sides[2] * s)
+                if e12 > tol[3]:
+                    continue
+                d, e = -1, -1
+                if confirm.shape[0]:
+                    d, e = _confirming_star(table, vectors, a, b, c, s, confirm, tol[4],
+                                            math.inf if calibrated else sides[0], tol[5])
+                    if d < 0:
+                        continue
+                if n < out.shape[0]:
+                    out[n, 0] = a
+                    out[n, 1] = b
+                    out[n, 2] = c
+                    out[n, 3] = d
+                    out[n, 4] = e
+                    err[n] = max(e12, abs(table.neighbour_angle[q] - sides[1] * s))
+                n += 1
     return n
 
 
@@ -207,9 +250,10 @@ def judge_lone(frame: Frame, h: Hypothesis, table: PairTable, star_mag: np.ndarr
     s_tol = frame.scale_tolerance
     # The box in the sides' space: side 01 over the focal range, the others as the search's.
     other = window if calibrated else window * (1.0 + sides_img[1:].max() / sides_img[0])
-    tol = np.array([sides_img[0] * (1 - s_tol) - window, sides_img[0] * (1 + s_tol) + window, other, other])
-    n_window = triangle_matches(table, vectors, sides_img, tol, calibrated, rank, np.empty((0, 3), np.int32),
-                                np.empty(0))
+    tol = np.array([sides_img[0] * (1 - s_tol) - window, sides_img[0] * (1 + s_tol) + window, other, other,
+                    window, 0.0])
+    n_window = triangle_matches(table, vectors, sides_img, tol, calibrated, rank, _NO_CONFIRM,
+                                np.empty((0, 5), np.int32), np.empty(0))
     eps = max(error, min_error_px / f)
     d = 3 if calibrated else 2
     log_lambda = math.log(max(n_window, 1)) + d * math.log(min(eps / window, 1.0))
@@ -246,6 +290,13 @@ def _sides_order(frame: Frame, table: PairTable, tri: tuple[int, int, int],
         if cost < best_cost:
             best, best_cost = (np.array([a, b, c], np.int64), s), cost
     return best
+
+
+def _angles_to(rays: np.ndarray, extra: np.ndarray, verts: np.ndarray) -> np.ndarray:
+    """(M, 3) angles from centroid rows ``extra`` to the three ``verts``."""
+    if not len(extra):
+        return _NO_CONFIRM
+    return chord_angle(np.linalg.norm(rays[extra][:, None, :] - rays[verts][None, :, :], axis=2))
 
 
 def _ratio_spread(frame: Frame, verts: np.ndarray) -> float:
@@ -326,39 +377,47 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     tol = n_sigma * math.sqrt(2.0) * centroid_sigma_px / f0
     n = min(len(frame.xy), int(max_stars))
     triangles = _image_triangles(n)
-    out = np.empty((_MAX_MATCHES, 3), np.int32)
+    out = np.empty((_MAX_MATCHES, 5), np.int32)
     err = np.empty(_MAX_MATCHES)
     n_all = len(star_mag)
     sparse = len(frame.xy) <= 4
     n_cand = 0
 
-    def candidates():
-        """(image triangle number, its vertices and sides, catalogue triangle) in search order."""
+    def candidates(confirm: bool):
+        """(image triangle number, its vertices (and the confirming star's) and sides, catalogue
+        stars) in search order; with ``confirm``, only triangles a fourth star confirms."""
         nonlocal n_cand
         for t, tri in enumerate(triangles):
             verts, sides = _sides_order(frame, table, tri, tol)
             # FOV only: the scale side 01 implies carries its error into the other sides, and a
             # focal length across its range bends the sides' ratios a little (projection).
-            t_other = tol * (1.0 + sides[1:].max() / sides[0]) + _ratio_spread(frame, verts) * sides[0]
-            bounds = np.array([sides[0] * (1 - s_tol) - tol, sides[0] * (1 + s_tol) + tol, t_other, t_other])
+            spread = _ratio_spread(frame, verts)
+            t_other = tol * (1.0 + sides[1:].max() / sides[0]) + spread * sides[0]
+            bounds = np.array([sides[0] * (1 - s_tol) - tol, sides[0] * (1 + s_tol) + tol, t_other, t_other,
+                               tol, spread])
             if frame.calibrated:
                 bounds[2] = bounds[3] = tol
-            k = triangle_matches(table, vectors, sides, bounds, frame.calibrated, n_all, out, err)
+            extra = np.setdiff1d(np.arange(n), verts) if confirm else np.zeros(0, np.int64)
+            angles = _angles_to(frame.rays, extra, verts)
+            k = triangle_matches(table, vectors, sides, bounds, frame.calibrated, n_all, angles, out, err)
             k = min(k, len(out))
-            for a, b, c in out[:k][np.argsort(err[:k], kind="stable")]:  # the closest shapes first
+            for a, b, c, d, e in out[:k][np.argsort(err[:k], kind="stable")]:  # the closest shapes first
                 if n_cand >= max_candidates:
                     return
                 n_cand += 1
-                yield t, verts, sides, np.array([a, b, c], np.int64)
+                if d >= 0:
+                    yield t, np.append(verts, extra[d]), sides, np.array([a, b, c, e], np.int64)
+                else:
+                    yield t, verts, sides, np.array([a, b, c], np.int64)
 
     if not sparse:
-        result = first_accepted(frame, ((v, c) for _, v, _, c in candidates()), n_tried=len(triangles),
+        result = first_accepted(frame, ((v, c) for _, v, _, c in candidates(True)), n_tried=len(triangles),
                                 max_candidates=max_candidates)
         if result.success:
             return result
         n_cand = 0
     lone: list[tuple[float, Hypothesis, LoneJudgement]] = []
-    for t, verts, sides, cat in candidates():
+    for t, verts, sides, cat in candidates(False):
         h = hypothesis(frame, verts, cat)
         if not fits(frame, h):
             continue
