@@ -22,8 +22,8 @@ W, H = 1280, 960
 def test_registry_holds_the_quad_method_as_default():
     assert DEFAULT_METHOD == "quad-hash" and METHODS["quad-hash"] is quad.identify
     assert get_method("Quad-Hash") is quad.identify and METHODS["hash"] is quad.identify
-    assert set(METHODS) >= {"hash", "triangle", "liebe", "planar", "area-moment", "pyramid", "voting",
-                            "van-bezooijen"}
+    assert set(METHODS) >= {"hash", "triangle", "liebe", "planar", "area-moment", "pyramid", "grid",
+                            "voting", "van-bezooijen"}
     with pytest.raises(InputError, match="identification method 'nope' is unknown; choose one of quad-hash"):
         get_method("nope")
 

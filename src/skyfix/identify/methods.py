@@ -43,7 +43,8 @@ Registered methods (:data:`METHODS`; docs/identification-methods.md describes ea
   chance test for frames of three or four stars, :func:`skyfix.identify.triangle.identify`.
 - The seeds' methods (theses 000 §2.6 and 004 ch. 3): ``"liebe"`` (:mod:`skyfix.identify.liebe`),
   ``"planar"`` (:mod:`skyfix.identify.planar`), ``"area-moment"``
-  (:mod:`skyfix.identify.area_moment`), ``"pyramid"`` (:mod:`skyfix.identify.pyramid`),
+  (:mod:`skyfix.identify.area_moment`), ``"pyramid"`` (:mod:`skyfix.identify.pyramid`), ``"grid"``
+  (:mod:`skyfix.identify.grid`),
   ``"voting"`` (:mod:`skyfix.identify.voting`), ``"van-bezooijen"``
   (:mod:`skyfix.identify.match_groups`).
 
@@ -66,7 +67,7 @@ import numpy as np
 
 from skyfix.camera import Camera
 from skyfix.errors import InputError
-from skyfix.identify import area_moment, liebe, match_groups, planar, pyramid, quad, triangle, voting
+from skyfix.identify import area_moment, grid, liebe, match_groups, planar, pyramid, quad, triangle, voting
 from skyfix.identify.database import PatternDatabase
 from skyfix.identify.result import Identification
 
@@ -91,6 +92,7 @@ METHODS: dict[str, IdentifyMethod] = {
     planar.METHOD: planar.identify,
     area_moment.METHOD: area_moment.identify,
     pyramid.METHOD: pyramid.identify,
+    grid.METHOD: grid.identify,
     voting.METHOD: voting.identify,
     match_groups.METHOD: match_groups.identify,
 }
