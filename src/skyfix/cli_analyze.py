@@ -314,3 +314,66 @@ def coverage(
         cv.plot_counts(counts, plot)
         if not json_out:
             typer.echo(f"wrote {plot}")
+
+
+@analyze_app.command()
+@guarded
+def identification(
+    out: Path = typer.Option(Path("identification-study"), "--out", help="Output directory (JSON, Markdown, "
+                             "PNG)."),
+    quick: bool = typer.Option(False, "--quick", help="15° only, noise-free and all-errors cells, 20 fields "
+                               "(a smoke run for CI)."),
+    methods: str = typer.Option("", "--methods", help="Comma-separated identification methods (default: "
+                                "every registered one)."),
+    trials: int = typer.Option(None, "--trials", min=1, help="Fields per FOV and condition (default 100; "
+                               "--quick: 20)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed (attitudes, noise)."),
+    workers: int = typer.Option(1, "--workers", min=1, help="Processes for the grid's blocks."),
+    case: str = typer.Option("", "--case", help="Run only these seed experiments (comma-separated): "
+                             "quest-catalogue, three-star-frames."),
+    verbose: int = VERBOSE,
+) -> None:
+    """Every identification method on the same simulated centroids (FOV 8°, 15°, 30°; centroid
+    noise, false stars, dropped stars, magnitude noise): solved %, wrong % with its 95 % upper
+    bound, median and p99 time, table size and build time; and the seeds' experiments by name."""
+    from skyfix.analysis import identification_study as st
+
+    add_verbosity(verbose)
+    names = tuple(m.strip().lower() for m in methods.split(",") if m.strip())
+    method_list = st.method_names(names)  # one line for an unknown name
+    cases = [c.strip().lower() for c in case.split(",") if c.strip()]
+    bad = [c for c in cases if c not in st.CASES]
+    if bad:
+        fail(f"unknown case {', '.join(bad)}; choose from {', '.join(st.CASES)}")
+    base = st.QUICK if quick else st.FULL
+    settings = base._replace(methods=tuple(method_list), seed=int(seed),
+                             workers=check_count(workers, "--workers", minimum=1),
+                             trials=check_count(trials, "--trials") if trials is not None else base.trials)
+    command = ("skyfix analyze identification" + (" --quick" if quick else "")
+               + (f" --methods {','.join(names)}" if names else "")
+               + (f" --trials {trials}" if trials else "")
+               + (f" --seed {seed}" if seed else "") + (f" --workers {workers}" if workers != 1 else "")
+               + (f" --case {','.join(cases)}" if cases else ""))
+    prepare_outputs({"--out": [out / "identification_study.json"]})
+    if cases:
+        results = {}
+        with _progress(len(cases), False) as bar, compile_notice(bar):
+            task = bar.add_task("seed experiments", total=len(cases))
+            for c in cases:
+                bar.update(task, description=c)
+                results[c] = st.CASES[c]()
+                bar.update(task, advance=1)
+        out.mkdir(parents=True, exist_ok=True)
+        path = out / "identification_cases.json"
+        path.write_text(json.dumps(results, indent=1))
+        typer.echo(json.dumps(results, indent=1))
+        typer.echo(f"wrote {path}")
+        return
+    n_blocks = len(settings.fovs_deg) * len(settings.conditions)
+    with _progress(n_blocks, False) as bar, compile_notice(bar):
+        task = bar.add_task("identification study", total=n_blocks)
+        study = st.run_study(settings, progress=lambda what: bar.update(task, advance=1, description=what))
+    paths = st.write_study(study, out, command=command)
+    typer.echo(paths[1].read_text())
+    for p in paths:
+        typer.echo(f"wrote {p}")

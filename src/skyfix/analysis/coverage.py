@@ -40,7 +40,7 @@ __all__ = ["CATALOG_EPOCH", "DistanceTable", "StarCounts", "SunsatEnvelope", "TA
            "format_counts", "plot_counts",
            "THESIS_004_CATALOG_SIZE", "cone_attitudes", "coverage_catalog", "distance_table",
            "half_diagonal_rad", "limit_for_count", "star_counts", "stars_in_fields", "sub_catalogue",
-           "sunsat_attitudes"]
+           "sunsat_attitude_matrix", "sunsat_attitudes"]
 
 CATALOG_EPOCH = 2000.0  # positions for the statistics (the counts do not depend on it at 1e-4)
 THESIS_004_CATALOG_SIZE = 5026  # stars ≤ Mv 6 in thesis 004 (§7.2, App. A)
@@ -307,7 +307,15 @@ def sunsat_attitudes(envelope: SunsatEnvelope = TABLE_3_5, step_deg: float = 2.0
     axes = [grid(envelope.roll, step_deg), grid(envelope.pitch, step_deg), grid(envelope.yaw, step_deg),
             grid(envelope.arg_lat, arg_lat_step_deg), grid(envelope.incl, step_deg),
             grid(envelope.node, step_deg)]
-    roll, pitch, yaw, u, incl, node = (a.ravel() for a in np.meshgrid(*axes, indexing="ij"))
+    return sunsat_attitude_matrix(*(a.ravel() for a in np.meshgrid(*axes, indexing="ij")))
+
+
+def sunsat_attitude_matrix(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray, arg_lat: np.ndarray,
+                           incl: np.ndarray, node: np.ndarray) -> np.ndarray:
+    """Thesis 004's camera attitudes ``A_icrs_to_cam`` (n, 3, 3) for arrays of its six angles,
+    radians (the chain of :func:`sunsat_attitudes`)."""
+    roll, pitch, yaw, u, incl, node = (np.atleast_1d(np.asarray(a, np.float64))
+                                       for a in (roll, pitch, yaw, arg_lat, incl, node))
     A_c_o = (_axis_rotation(1, -u) @ _axis_rotation(0, np.full_like(u, -math.pi / 2))
              @ _axis_rotation(1, -incl) @ _axis_rotation(2, math.pi / 2 + node))
     A_o_b = _axis_rotation(2, yaw) @ _axis_rotation(1, pitch) @ _axis_rotation(0, roll)
