@@ -22,7 +22,8 @@ Technique", Navigation 51(3), 2004).
    identifies the remaining stars, the paper's last step).
 
 Steps 1–3 are one compiled kernel (:func:`pyramid_search`) that stops at each proposal and
-resumes at the next triangle.
+resumes at the next triangle. Where this differs from the paper, its options and measured
+numbers: docs/identification-methods.md#pyramid.
 """
 
 from __future__ import annotations

@@ -24,7 +24,8 @@ trackers", IEEE Trans. Aerospace and Electronic Systems 44(2), 2008).
 The paper assumes a calibrated camera. With only a FOV known, skyfix votes at one focal-length
 interval at a time — the nominal one first, then outward, each narrow enough that the scale
 adds no more than the noise to a typical angle's tolerance — since votes over the whole focal
-range would bury every true vote under chance ones.
+range would bury every true vote under chance ones. Options and measured numbers:
+docs/identification-methods.md#voting.
 """
 
 from __future__ import annotations
@@ -159,6 +160,7 @@ def validate(s, vectors, nodes, f_a, f_b, candidate, agree):
                 lo[a, b], hi[a, b] = angle_range(p, a, b, f_a, f_b, s.noise_px)
     for a in range(n):
         top = -1
+        candidate[a] = -1
         for u in range(k):
             cu = nodes[a, u]
             if cu < 0:
@@ -266,7 +268,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     candidates_per_star : int
         The most-voted catalogue stars each centroid keeps for the validation (the paper: 1).
     min_set : int
-        Fewest centroids of a consistent set proposed.
+        Fewest centroids of a consistent set proposed (at least 3).
     sets_per_scale : int
         Work bound: consistent sets proposed per focal interval.
     max_candidates : int
@@ -290,8 +292,9 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     skyfix.errors.CameraError
         An impossible ``fov_deg``.
     """
+    min_set = max(int(min_set), 3)
     frame = frame_for(METHOD, xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
-                      camera=camera, database=database, epoch=epoch, min_stars=max(min_set, 3),
+                      camera=camera, database=database, epoch=epoch, min_stars=min_set,
                       prob_threshold=prob_threshold, centroid_sigma_px=centroid_sigma_px)
     if isinstance(frame, Identification):
         return frame
