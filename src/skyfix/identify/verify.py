@@ -74,6 +74,13 @@ def stars_in_view(A, f, k1, frame, limit, stars, view):
 
     Projection in the undistorted offset space of ``p``: ``x = f·x_n·(1 + k1·r²)``.
     Returns the count written to ``view.index``, ``view.x_px``, ``view.y_px``.
+
+    Only the cells that can hold a star in the frame are read (the reads of star vectors are
+    cache misses, most of a verification's time): with ``k1 = 0`` a star in the frame lies
+    within ``atan(ext / f)`` of the boresight (``ext`` the frame's farthest corner) and on the
+    inner side of the frame's four edge planes, so a cell is read only if its cap (the cell
+    radius about its centre) reaches that cone and every edge plane's inner side; with ``k1``
+    the cone is widened (``1 + 2|k1|`` and 0.01 rad) and the planes are not used.
     """
     star_vectors, cell_centres, cell_start, cell_stars = (stars.vectors, stars.cell_centres, stars.cell_start,
                                                           stars.cell_stars)
@@ -81,13 +88,32 @@ def stars_in_view(A, f, k1, frame, limit, stars, view):
     out_idx, out_x, out_y = view.index, view.x_px, view.y_px
     x_lo, x_hi, y_lo, y_hi = frame[0], frame[1], frame[2], frame[3]
     ext = np.sqrt(max(x_lo * x_lo, x_hi * x_hi) + max(y_lo * y_lo, y_hi * y_hi))
-    half_diag = np.arctan(ext / f) * (1.0 + 2.0 * abs(k1)) + 0.01
+    if k1 == 0.0:
+        half_diag = np.arctan(ext / f) + 1e-9
+    else:
+        half_diag = np.arctan(ext / f) * (1.0 + 2.0 * abs(k1)) + 0.01
     cos_cell = np.cos(min(half_diag + cell_radius, np.pi))
+    # The edge planes' inner normals (n·b >= 0 inside) in ICRS, and how far outside a plane a
+    # cell centre may lie with its cap still reaching inside: sin(cell radius).
+    planes = np.empty((4, 3))
+    edge = ((f, 0.0, -x_lo), (-f, 0.0, x_hi), (0.0, f, -y_lo), (0.0, -f, y_hi))
+    for i in range(4):
+        ex, ey, ez = edge[i]
+        norm = np.sqrt(ex * ex + ey * ey + ez * ez)
+        for j in range(3):
+            planes[i, j] = (ex * A[0, j] + ey * A[1, j] + ez * A[2, j]) / norm
+    reach = -np.sin(min(cell_radius, 0.5 * np.pi)) - 1e-9 if k1 == 0.0 else -2.0
     n = 0
     band_lo, band_hi = cell_band(cell_centres, A[2], half_diag + cell_radius)
     for cell in range(band_lo, band_hi):
-        if (cell_centres[cell, 0] * A[2, 0] + cell_centres[cell, 1] * A[2, 1]
-                + cell_centres[cell, 2] * A[2, 2] < cos_cell):
+        cx, cy, cz = cell_centres[cell, 0], cell_centres[cell, 1], cell_centres[cell, 2]
+        if cx * A[2, 0] + cy * A[2, 1] + cz * A[2, 2] < cos_cell:
+            continue
+        outside = False
+        for i in range(4):
+            if cx * planes[i, 0] + cy * planes[i, 1] + cz * planes[i, 2] < reach:
+                outside = True
+        if outside:
             continue
         for t in range(cell_start[cell], cell_start[cell + 1]):
             s = cell_stars[t]
