@@ -17,7 +17,8 @@ skyfix:
    as the table holds in a frame, half as many again, by default), nearest pairs first;
 3. finds the catalogue patterns within ``n_sigma`` times the noise — θ: ``σ√2`` plus ``ε·θ`` with
    a FOV only (ε: :attr:`~skyfix.identify.hypothesis.Frame.scale_tolerance`); φ: ``σ√2 (1/θ1 +
-   1/θ2)`` plus ``ε·θ2²`` — by a binary search on θ1, θ2 and φ filtered
+   1/θ2)`` plus ``ε·θ2²`` — by a binary search on θ1 (on φ with a FOV only: θ is then known to
+   ±ε only, φ does not depend on the scale), the other two filtered
    (:func:`skyfix.identify.triangles.feature_matches`). φ is signed (the sign of the triple
    product), so a mirror image's patterns do not match: the paper's φ is unsigned;
 4. confirms each with a fourth star, as Liebe does with additional stars: a bright centroid
@@ -81,7 +82,7 @@ def star_patterns(rays: np.ndarray, k_nearest: int, buffer_rad: float) -> StarPa
     """Liebe's patterns of unit ``rays`` (n, 3) (module text, step 2): each ray as pivot with
     every pair among its ``k_nearest`` nearest others beyond ``buffer_rad``, nearest pairs first."""
     n = len(rays)
-    angle = chord_angle(np.linalg.norm(rays[:, None, :] - rays[None, :, :], axis=2))
+    angle = chord_angle(np.sqrt(np.maximum(2.0 - 2.0 * (rays @ rays.T), 0.0)))
     angle[np.arange(n), np.arange(n)] = np.inf
     angle[angle <= buffer_rad] = np.inf
     k = min(k_nearest, max(n - 1, 0))
@@ -115,6 +116,9 @@ def _proposals(frame: Frame, table: StarTriangleTable, patterns: StarPatterns, c
     eps = frame.scale_tolerance
     tol = np.column_stack([noise + eps * f[:, 0], noise + eps * f[:, 1],
                            noise * (1.0 / f[:, 0] + 1.0 / f[:, 1]) + eps * f[:, 1] ** 2])
+    # with a FOV only θ1 and θ2 are known to ±ε; φ is scale-free: the search's key
+    index = table.by_theta if frame.calibrated else table.by_phi
+    columns = list(index.columns)
     n_patterns = len(patterns.stars)
     no_flags = np.zeros((n_patterns, 2), np.bool_)
     every_order = np.ones(n_patterns, np.bool_)  # φ's sign already holds the handedness
@@ -126,7 +130,8 @@ def _proposals(frame: Frame, table: StarTriangleTable, patterns: StarPatterns, c
         rows = np.arange(patterns.pivot_start[p], patterns.pivot_start[p + 1])
         if len(rows) == 0:
             continue
-        matches = feature_matches(table.by_theta, f[rows], tol[rows], no_hand[rows], max_matches=max_matches)
+        matches = feature_matches(index, f[rows][:, columns], tol[rows][:, columns], no_hand[rows],
+                                  max_matches=max_matches)
         stats.found += matches.n_found
         k = ranked(matches)
         image_rows, table_rows = rows[matches.image[k]], matches.row[k]

@@ -37,7 +37,7 @@ smallest interior angle (scale-free searches).
 with every pair among its ``k_nearest`` nearest neighbours beyond a buffer radius (Liebe used the
 two nearest; pairs among the k nearest tolerate a neighbour that is missing or extra in the
 image), features (θ1, θ2, φ): the angles to the nearer and the farther neighbour and the signed
-included angle at the star; indexed by θ1.
+included angle at the star; indexed by θ1 and by φ (scale-free, for frames with a FOV only).
 
 Both are built on first use and kept with their database
 (:meth:`~skyfix.identify.PatternDatabase.derived`). :func:`feature_matches` is the one compiled
@@ -332,7 +332,8 @@ class StarTriangleTable(NamedTuple):
     stars : (T, 3) int32 — (star, nearer neighbour, farther neighbour).
     features : (T, 3) float64 — θ1, θ2, φ (:func:`describe_star_triangles`).
     sides : (T, 3) float64 — the chord sides, ascending (the fourth star's scale).
-    by_theta : FeatureIndex — the rows by θ1.
+    by_theta : FeatureIndex — the rows by θ1 (columns θ1, θ2, φ).
+    by_phi : FeatureIndex — the rows by φ (columns φ, θ1, θ2): the key when the scale is free.
     pairs : PairTable — the pair table whose stars and neighbours they are.
     """
 
@@ -340,6 +341,7 @@ class StarTriangleTable(NamedTuple):
     features: np.ndarray
     sides: np.ndarray
     by_theta: FeatureIndex
+    by_phi: FeatureIndex
     pairs: PairTable
 
 
@@ -408,7 +410,8 @@ def star_triangle_table(database: PatternDatabase, fov_deg: float, max_angle_deg
         tri = np.ascontiguousarray(tri)
         features = describe_star_triangles(vectors, tri)
         sides = np.ascontiguousarray(describe_triangles(vectors, tri)[1][:, SIDES:SIDES + 3])
-        return StarTriangleTable(tri, features, sides, feature_index(features, (0, 1, 2)), pairs)
+        return StarTriangleTable(tri, features, sides, feature_index(features, (0, 1, 2)),
+                                 feature_index(features, (2, 0, 1)), pairs)
 
     return database.derived(("star-triangles", id(pairs), k_nearest, float(buffer_deg)), make)
 
@@ -654,13 +657,16 @@ def ranked(matches: FeatureMatches) -> np.ndarray:
 def confirmed_matches(image_rows, table_rows, image_stars, ambiguous, flat, image_hand, image_sides,
                       table_stars, table_hand, table_sides, pairs, vectors, rays, candidates, noise,
                       calibrated, out):
-    """The triangle matches (``image_rows[k]`` ↔ ``table_rows[k]``, ranked) that a fourth star
-    confirms, each vertex order :func:`order_allowed` tried: rows ``(k, order, image star,
-    catalogue star)`` of ``out``. The fourth star's angles, at the scale the triangle implies
-    (its catalogue over image perimeter; 1 with a calibrated camera), must match within
-    ``noise`` (``n_sigma·σ√2``, an angle's) plus, with the scale free, that scale's own noise
-    (``noise·√3`` over the perimeter) times the angle. Returns how
-    many rows were written (at most ``len(out)``) and how many orders were tried."""
+    """The triangle matches (``image_rows[k]`` ↔ ``table_rows[k]``, ranked) whose sides, sorted,
+    are the catalogue triangle's (the vertex assignment: each vertex is known by the side
+    opposite it) and that a fourth star confirms, each vertex order :func:`order_allowed`
+    tried: rows ``(k, order, image star, catalogue star)`` of ``out``.
+
+    Sides and the fourth star's angles are compared at the scale the triangle implies (its
+    catalogue over image perimeter; 1 with a calibrated camera), within ``noise``
+    (``n_sigma·σ√2``, an angle's) plus, with the scale free, that scale's own noise (``noise·√3``
+    over the perimeter) times the angle. Returns how many rows were written (at most
+    ``len(out)``) and how many orders were tried."""
     n = 0
     tried = 0
     buf = np.empty((8, 2), np.int64)
@@ -671,8 +677,15 @@ def confirmed_matches(image_rows, table_rows, image_stars, ambiguous, flat, imag
         per = image_sides[m, 0] + image_sides[m, 1] + image_sides[m, 2]
         scale = 1.0 if calibrated else (table_sides[r, 0] + table_sides[r, 1] + table_sides[r, 2]) / per
         relative = 0.0 if calibrated else noise * math.sqrt(3.0) / per
+        # the vertex assignment: each vertex's opposite side (sorted) is the catalogue's, at that scale
+        same = True
         for q in range(3):
             cat[q] = table_stars[r, q]
+            seen = scale * image_sides[m, q]
+            if abs(table_sides[r, q] - seen) > noise + relative * seen:
+                same = False
+        if not same:
+            continue
         for o in range(6):
             if not order_allowed(o, ambiguous[m, 0], ambiguous[m, 1], flat[m], image_hand[m], table_hand[r]):
                 continue
