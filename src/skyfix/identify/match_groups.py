@@ -17,7 +17,9 @@ satellites). skyfix follows its five steps on the shared pair table
    among them. A true constellation of ``n`` stars gives ``n`` kernels of confidence ``n − 1``:
    ``n`` is estimated as the largest with that many groups, and groups of confidence ≤
    ``ICLim = n − 2`` are removed, with their kernels from every other group's associated
-   matches (repeated until nothing changes: a true match is never removed this way).
+   matches (repeated until nothing changes: a true match is never removed this way). skyfix
+   checks the estimate after elimination (:func:`estimated_level`: ``n`` groups must survive),
+   since its tolerances and table make high confidences common by chance before it.
 3. **Geometry test with splitting, and the mirror test** (§3.3.3). Two associated matches of a
    group must be consistent: different centroids, different stars, and the triangle they make
    with the kernel measured as in the catalogue (one scale for its three angles, within the
@@ -40,11 +42,15 @@ The pieces are public for the study to report on: :func:`match_setup`, :func:`ma
 (steps 1–2: :func:`pair_matches`, :func:`match_groups`), :func:`geometry_test` (steps 3–5).
 
 Differences from the thesis (and why): the distance tolerance is derived from the centroid
-noise (``n_sigma · centroid_sigma_px · √2 / f`` plus the focal range's share when only a field
-of view is known), not set in µrad; angles come from unit vectors (no RA/Dec differences, so
-no trouble at the poles or at RA 0h — the correction 004's reading asks for); the Cartesian
-block expansion of App. D.2 is replaced by the subgroup enumeration of step 3 (same groups, no
-exponential copy); a group is accepted only after verification.
+noise (``n_sigma · centroid_sigma_px · √2 / f``), not set in µrad; angles come from unit vectors
+(no RA/Dec differences, so no trouble at the poles or at RA 0h — the correction 004's reading
+asks for); the Cartesian block expansion of App. D.2 is replaced by the subgroup enumeration of
+step 3 (same groups, no exponential copy); a group is accepted only after verification. The
+thesis's sensor knew its focal length; with only a field of view, skyfix searches the focal
+range in pieces ``scale_step`` wide (:func:`scale_ranges`, the nominal focal length's first):
+one search over the whole range would find ~1.5 M pair matches at 15° ± 10 % and groups mostly
+of chance. Groups of ``prompt_group`` stars are proposed as soon as their piece is searched;
+smaller ones once every piece has been, largest first.
 """
 
 from __future__ import annotations
@@ -65,8 +71,9 @@ from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
 from skyfix.identify.pairs import PairTable, pair_table, pairs_in_range
 from skyfix.identify.result import Identification
 
-__all__ = ["METHOD", "MatchGroups", "MatchSetup", "PairMatches", "Subgroups", "TableRows", "frame_table",
-           "geometry_test", "identify", "match_groups", "match_setup", "pair_matches"]
+__all__ = ["METHOD", "MatchGroups", "MatchSetup", "PairMatches", "Subgroups", "TableRows", "estimated_level",
+           "frame_table", "geometry_test", "identify", "match_groups", "match_setup", "pair_matches",
+           "scale_ranges"]
 
 METHOD = "van-bezooijen"
 MAX_STARS = 62  # centroids a match mask holds (bits of an int64)
@@ -107,7 +114,7 @@ class MatchGroups(NamedTuple):
     member_star, member_local : (R,) int64 — associated matches.
     confidence : (K,) int64 — the other centroids among each group's associated matches.
     ic_lim : int — the elimination limit applied (groups of confidence ≤ it removed).
-    n_estimated : int — the estimated size of the largest true constellation.
+    n_estimated : int — the estimated size of the largest true constellation (before elimination).
     n_pair_matches : int — step 1's pair matches (both orientations counted).
     """
 
@@ -170,6 +177,19 @@ class TableRows(NamedTuple):
     first: np.ndarray
     second: np.ndarray
     magnitude: np.ndarray
+
+
+def scale_ranges(scale_lo: float, scale_hi: float, step: float) -> list[tuple[float, float]]:
+    """The range of scales [``scale_lo``, ``scale_hi``] (catalogue angle / measured angle) cut
+    into pieces at most ``step`` wide (relative), overlapping by a tenth, the one holding 1 (the
+    nominal focal length) first, then alternately outward."""
+    n = max(1, math.ceil(math.log(scale_hi / scale_lo) / math.log1p(step) - 1e-9))
+    edges = scale_lo * (scale_hi / scale_lo) ** (np.arange(n + 1) / n)
+    pad = 0.05 * (edges[1:] - edges[:-1])
+    pieces = [(float(lo - p), float(hi + p)) for lo, hi, p in zip(edges[:-1], edges[1:], pad, strict=True)]
+    first = int(np.clip(np.searchsorted(edges, 1.0) - 1, 0, n - 1))
+    order = sorted(range(n), key=lambda i: (abs(i - first), i < first))
+    return [pieces[i] for i in order]
 
 
 def frame_table(frame: Frame) -> tuple[PairTable, TableRows]:
@@ -337,14 +357,27 @@ def pair_matches(setup: MatchSetup, table: PairTable, rows: TableRows, *,
     return PairMatches(records, conf, n_est, int(count))
 
 
+def estimated_level(matches: PairMatches, *, min_size: int = 3) -> int | None:
+    """The thesis's ICLim = ``n − 2`` for the estimated size ``n`` of the largest constellation,
+    checked after elimination: the largest ``n`` from :attr:`PairMatches.n_estimated` down to
+    ``min_size`` for which ``n`` groups survive elimination at ``n − 2`` (a true constellation
+    of ``n`` stars always leaves its ``n`` kernels; with skyfix's wider tolerances and denser
+    table, chance alone gives many groups a high confidence before elimination, not after).
+    None when no ``n`` does."""
+    for n in range(matches.n_estimated, max(min_size, 3) - 1, -1):
+        _, conf = _eliminate(matches.records, matches.confidence, n - 2)
+        if (conf > n - 2).sum() >= n:
+            return n - 2
+    return None
+
+
 def match_groups(matches: PairMatches, *, ic_lim: int | None = None) -> MatchGroups:
-    """Step 2: the match groups of ``matches`` after elimination at ``ic_lim`` (default the
-    thesis's ``n − 2`` of the estimated constellation size ``n``, at least 1). Groups of
-    confidence ≤ ``ic_lim`` are removed with their kernels from the others' associated matches
-    until none is left to remove."""
-    n_local = matches.confidence.shape[1]
-    limit = max(matches.n_estimated - 2, 1) if ic_lim is None else int(ic_lim)
+    """Step 2: the match groups of ``matches`` after elimination at ``ic_lim`` (default
+    :func:`estimated_level`, else 1): groups of confidence ≤ ``ic_lim`` are removed with their
+    kernels from the others' associated matches until none is left to remove."""
+    limit = int(ic_lim) if ic_lim is not None else (estimated_level(matches) or 1)
     records, conf = _eliminate(matches.records, matches.confidence, limit)
+    n_local = matches.confidence.shape[1]
     directed = np.concatenate([records, records[:, [2, 3, 0, 1]]]).astype(np.int64)
     key = directed[:, 0] * n_local + directed[:, 1]
     order = np.argsort(key, kind="stable")
@@ -523,7 +556,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, magnitudes: np.ndarray | None = None,
              magnitude_tolerance: float = 0.5, check_mirror: bool = True, min_group: int = 3,
              max_candidates: int = 200, max_pair_matches: int = 1_000_000,
-             max_splits: int = 200_000) -> Identification:
+             max_splits: int = 50_000, scale_step: float = 0.02, prompt_group: int = 5) -> Identification:
     """Identify the stars of one frame by van Bezooijen's match groups (the module text).
 
     Parameters
@@ -547,12 +580,19 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Apply the mirror test in the geometry test (the verification rejects mirrors anyway).
     min_group : int
         Smallest group proposed (thesis: 3, failure when ICLim reaches 1).
+    prompt_group : int
+        Groups this large are proposed as soon as their piece of the focal range is searched
+        (chance rarely makes one); smaller ones wait until every piece has been.
     max_candidates : int
         Work bound: groups proposed to the verification.
     max_pair_matches : int
         Work bound: step 1's pair matches (a frame beyond it fails with the reason).
     max_splits : int
         Work bound: subgroup-enumeration steps per elimination level.
+    scale_step : float
+        With a FOV only, the focal range is searched in pieces this wide (relative), the nominal
+        focal length's first: step 1 over the whole range at once would find ~1.5 M pair
+        matches at 15° ± 10 %, and its groups would be mostly chance.
 
     Returns
     -------
@@ -584,31 +624,59 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     setup = match_setup(frame, max_stars=max_stars, centroid_sigma_px=centroid_sigma_px, n_sigma=n_sigma,
                         magnitudes=magnitudes, magnitude_tolerance=magnitude_tolerance)
     table, rows = frame_table(frame)
-    matches = pair_matches(setup, table, rows, max_pair_matches=max_pair_matches)
-    if matches.n_pair_matches > max_pair_matches:
-        return failure(METHOD, f"step 1 would examine {matches.n_pair_matches} pair matches, beyond "
-                               f"max_pair_matches ({max_pair_matches}): tolerances too wide", t0)
-    groups = match_groups(matches)
-    def proposals() -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        seen: set[bytes] = set()
-        level, g = groups.ic_lim, groups
-        while level >= 1:
-            if g is None:
-                g = match_groups(matches, ic_lim=level)
-            sub = geometry_test(frame, setup, table, g, check_mirror=check_mirror, min_size=min_group,
-                                max_splits=max_splits)
-            for row in sub.catalog:
-                key = row.tobytes()
-                if key in seen:
-                    continue
-                seen.add(key)
-                stars = np.flatnonzero(row >= 0)
-                yield stars, row[stars]
-            level, g = level - 1, None
+    work = {"pairs": 0, "over": 0, "ranges": 0}
 
-    n_groups = len(groups.kernel_star)
-    result = first_accepted(frame, proposals(), n_tried=n_groups, max_candidates=max_candidates)
+    def proposals() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        # Largest groups first across the pieces of the focal range (one piece when calibrated):
+        # a piece's groups of prompt_group stars or more (a constellation chance does not make)
+        # as soon as the piece is searched; once every piece is, the rest at each piece's first
+        # ICLim by size; then every piece at each lower ICLim in turn.
+        seen: set[bytes] = set()
+
+        def fresh(sub: Subgroups, keep: np.ndarray) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+            for row in sub.catalog[keep]:
+                key = row.tobytes()
+                if key not in seen:
+                    seen.add(key)
+                    stars = np.flatnonzero(row >= 0)
+                    yield stars, row[stars]
+
+        pieces = []
+        for scale_lo, scale_hi in scale_ranges(setup.scale_lo, setup.scale_hi, scale_step):
+            part = setup._replace(scale_lo=scale_lo, scale_hi=scale_hi)
+            matches = pair_matches(part, table, rows, max_pair_matches=max_pair_matches)
+            work["ranges"] += 1
+            work["pairs"] += matches.n_pair_matches
+            if matches.n_pair_matches > max_pair_matches:
+                work["over"] += 1
+                continue
+            pieces.append((part, matches))
+            level = estimated_level(matches, min_size=prompt_group)
+            if level is not None:
+                sub = geometry_test(frame, part, table, match_groups(matches, ic_lim=level),
+                                    check_mirror=check_mirror, min_size=level + 2, max_splits=max_splits)
+                yield from fresh(sub, sub.size >= level + 2)
+        tops = [estimated_level(matches) or 1 for _, matches in pieces]
+        subs = [geometry_test(frame, part, table, match_groups(matches, ic_lim=top),
+                              check_mirror=check_mirror, min_size=min_group, max_splits=max_splits)
+                for (part, matches), top in zip(pieces, tops, strict=True)]
+        for size in range(len(setup.rays), min_group - 1, -1):
+            for sub in subs:
+                yield from fresh(sub, sub.size == size)
+        for drop in range(1, len(setup.rays)):
+            for (part, matches), top in zip(pieces, tops, strict=True):
+                if top - drop >= 1:
+                    sub = geometry_test(frame, part, table, match_groups(matches, ic_lim=top - drop),
+                                        check_mirror=check_mirror, min_size=min_group, max_splits=max_splits)
+                    yield from fresh(sub, sub.size > 0)
+
+    result = first_accepted(frame, proposals(), max_candidates=max_candidates)
     if not result.success:
-        return failure(METHOD, f"no match group verified ({result.n_candidates} proposed, "
-                               f"{groups.n_pair_matches} pair matches)", t0, n_groups, result.n_candidates)
+        if work["over"] and work["over"] == work["ranges"]:
+            reason = (f"step 1 would examine {work['pairs']} pair matches, beyond max_pair_matches "
+                      f"({max_pair_matches}): tolerances too wide")
+        else:
+            reason = (f"no match group verified ({result.n_candidates} proposed, {work['pairs']} pair "
+                      f"matches over {work['ranges']} focal-length ranges)")
+        return failure(METHOD, reason, t0, work["ranges"], result.n_candidates)
     return result
