@@ -85,6 +85,11 @@ def check_bad_input(identify, database):
     assert "\n" not in str(err.value)
     with pytest.raises(InputError, match="max_candidates must be a positive integer"):
         identify(ORION_XY, W, H, database=database, camera=cam, max_candidates=0)
+    for xy in (np.ones((5, 3)), np.ones(5), "abc", None):
+        with pytest.raises(InputError, match=r"centroids must be an \(N, 2\) array of pixel positions"):
+            identify(xy, W, H, database=database, camera=cam)
+    with pytest.raises(InputError, match="frame width must be a positive number of pixels, got 0"):
+        identify(ORION_XY, 0, H, database=database, fov_deg=FOV)
     empty = identify(np.zeros((0, 2)), W, H, database=database, camera=cam)
     assert not empty.success and empty.reason.startswith("too few stars (0 detected")
 

@@ -198,12 +198,13 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     Raises
     ------
     skyfix.errors.InputError
-        An impossible option.
+        An impossible option, centroids that are not (N, 2) numbers, or a frame size below 1.
     skyfix.errors.CameraError
         An impossible ``fov_deg``.
     """
-    check_options(centroid_sigma_px, n_sigma, k_nearest=k_nearest, pivots=pivots, confirm_stars=confirm_stars,
-                  per_field=per_field, max_candidates=max_candidates, max_matches=max_matches,
+    check_options(centroid_sigma_px, n_sigma, xy, width, height, k_nearest=k_nearest, pivots=pivots,
+                  confirm_stars=confirm_stars, per_field=per_field, max_candidates=max_candidates,
+                  max_matches=max_matches,
                   **({} if neighbour_stars is None else {"neighbour_stars": neighbour_stars}))
     if k_nearest < 2:
         raise InputError(f"k_nearest must be at least 2 (a pattern needs two neighbours), got {k_nearest}")

@@ -116,13 +116,13 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     Raises
     ------
     skyfix.errors.InputError
-        An impossible option.
+        An impossible option, centroids that are not (N, 2) numbers, or a frame size below 1.
     skyfix.errors.CameraError
         An impossible ``fov_deg``.
     """
-    check_options(centroid_sigma_px, n_sigma, triangle_stars=triangle_stars, confirm_stars=confirm_stars,
-                  per_field=per_field,
-                  max_candidates=max_candidates, max_matches=max_matches)
+    check_options(centroid_sigma_px, n_sigma, xy, width, height, triangle_stars=triangle_stars,
+                  confirm_stars=confirm_stars, per_field=per_field, max_candidates=max_candidates,
+                  max_matches=max_matches)
     frame = frame_for(METHOD, xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
                       camera=camera, database=database, epoch=epoch, min_stars=3,
                       prob_threshold=prob_threshold, centroid_sigma_px=centroid_sigma_px)

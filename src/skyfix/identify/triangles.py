@@ -524,8 +524,19 @@ def confirm_fourth(pairs, vectors, rays, triangle_stars, triangle_catalog, scale
     return n
 
 
-def check_options(centroid_sigma_px: float, n_sigma: float, **bounds: int) -> None:
-    """Raise :class:`~skyfix.errors.InputError` (one line) for an impossible option."""
+def check_options(centroid_sigma_px: float, n_sigma: float, xy, width, height, **bounds: int) -> None:
+    """Raise :class:`~skyfix.errors.InputError` (one line) for centroids ``xy`` that are not an
+    (N, 2) array of numbers (an empty one is fine), a frame size below one pixel, or an
+    impossible option."""
+    try:
+        shape = np.shape(np.asarray(xy, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise InputError("centroids must be an (N, 2) array of pixel positions (numbers)") from None
+    if not ((len(shape) == 2 and shape[1] == 2) or (xy is not None and np.size(xy) == 0)):
+        raise InputError(f"centroids must be an (N, 2) array of pixel positions, got shape {shape}")
+    for name, size in (("width", width), ("height", height)):
+        if not (isinstance(size, (int, np.integer, float)) and size >= 1):
+            raise InputError(f"frame {name} must be a positive number of pixels, got {size!r}")
     if not (centroid_sigma_px > 0.0 and math.isfinite(centroid_sigma_px)):
         raise InputError(f"centroid_sigma_px must be a positive number of pixels, got {centroid_sigma_px!r}")
     if not (n_sigma > 0.0 and math.isfinite(n_sigma)):
