@@ -38,8 +38,8 @@ def boresight_arcsec(A_true, A_est) -> float:
 
 
 def check_known_field(identify, database):
-    """Orion's seven brightest stars are named right, with a camera and with a FOV only, and
-    the same stars mirrored (x → W − 1 − x) are refused."""
+    """Orion's seven brightest stars are named right, with a camera and with a FOV only; the
+    same stars mirrored (x → W − 1 − x) are refused, and so are three of them alone."""
     cam = Camera.from_fov(W, H, FOV)
     for kw in ({"camera": cam}, {"fov_deg": FOV}):
         ident = identify(ORION_XY, W, H, database=database, **kw)
@@ -50,6 +50,10 @@ def check_known_field(identify, database):
         mirrored[:, 0] = W - 1 - mirrored[:, 0]
         refused = identify(mirrored, W, H, database=database, **kw)
         assert not refused.success and refused.reason.startswith("no match")
+        # three stars alone prove nothing to these methods (no fourth star, nothing to verify):
+        # refused, never guessed (the triangle method judges lone triangles)
+        lone = identify(ORION_XY[:3], W, H, database=database, **kw)
+        assert not lone.success and lone.reason.startswith(("no match", "too few stars (3 detected"))
 
 
 def check_mirrored_fields(identify, database, n=6):
