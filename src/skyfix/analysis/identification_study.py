@@ -51,8 +51,8 @@ from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_cent
 from skyfix.camera import Camera
 
 __all__ = ["CASES", "Condition", "FULL", "QUICK", "StudySettings", "TrialRecord", "cell_summary",
-           "method_names", "quest_catalogue", "run_block", "run_study", "summarize",
-           "three_star_frames", "upper_bound_95", "write_study"]
+           "method_names", "perturbation_sweep", "quest_catalogue", "run_block", "run_study",
+           "summarize", "table_3_7", "three_star_frames", "upper_bound_95", "write_study"]
 
 EPOCH = 2025.0
 WIDTH, HEIGHT = 1280, 960
@@ -449,16 +449,26 @@ def quest_catalogue(n_stars: int = 513, max_angle_deg: float = 21.25) -> dict:
             "worst_arcsec": worst, "thesis": {"clusters": 26437, "identity": 25564, "success_pct": 96.7}}
 
 
-def three_star_frames(n_stars: int = 513, max_angle_deg: float = 21.25, n_clusters: int = 300,
-                      method: str = "triangle", seed: int = 0) -> dict:
-    """The clusters of :func:`quest_catalogue` as 3-star frames: each cluster seen by thesis 000's
-    camera (MT9V022 preset, calibrated) at a random roll with its centroid on the boresight,
-    identified by ``method`` with its database, and judged against the truth: right, wrong, or
-    refused ("ambiguous": 3 stars are often not unique among the database's)."""
+SHIFTS_PX = (0.0, 0.0004, 0.0008, 0.01, 0.1, 0.5, 1.0, 2.0, 5.0, 10.0)
+"""Thesis 000's sweep moved one star by 0.01 % steps of a pixel up to 1 % (its Table 6 means:
+0.04–0.06 %); skyfix's tolerances are set by the centroid noise, so the sweep goes on to 5 px."""
+
+
+def perturbation_sweep(shifts_px: tuple[float, ...] = SHIFTS_PX, n_stars: int = 513,
+                       max_angle_deg: float = 21.25, n_clusters: int = 200, method: str = "triangle",
+                       seed: int = 0, exactly_three: bool = False) -> dict:
+    """Thesis 000 Table 6 and §6.4: the clusters of :func:`quest_catalogue` as frames — each
+    seen by thesis 000's camera (preset ``mt9v022``, calibrated) at a random roll with its
+    centroid on the boresight, with every other catalogue star in view (``exactly_three``: only
+    the clusters with none) — one cluster star moved along x by each of ``shifts_px``,
+    identified by ``method`` and judged against the truth: right, wrong, or refused. As in the
+    thesis, the catalogue is identified against itself: the database is built from the same
+    stars. (The thesis's frames held the cluster alone; skyfix rejects a match that leaves a
+    catalogue star in view undetected, so such a frame is not a frame it can be given.)"""
     from skyfix.camera import camera_from_preset
     from skyfix.catalog import load_hipparcos
     from skyfix.geometry import attitude_from_radec_roll, normalize, vector_to_radec
-    from skyfix.identify import default_database, identify
+    from skyfix.identify import PatternDatabase, identify
 
     cat = load_hipparcos(epoch=EPOCH)
     v = cat.vectors[:n_stars]
@@ -466,35 +476,152 @@ def three_star_frames(n_stars: int = 513, max_angle_deg: float = 21.25, n_cluste
     rng = np.random.default_rng(seed)
     pick = rng.choice(len(tri), size=min(n_clusters, len(tri)), replace=False)
     camera = camera_from_preset("mt9v022")
-    db = default_database(progress=False)
-    right = wrong = refused = outside = 0
-    reasons: dict[str, int] = {}
+    # the thesis identified the catalogue against itself: a database of the same stars
+    stars = cat.subset(np.arange(n_stars))
+    db = PatternDatabase.build(camera.fov_deg / 1.2, camera.fov_deg * 1.2, catalog=stars, epoch=EPOCH)
+    frames = []
     for t in tri[pick]:
         ra, dec = vector_to_radec(normalize(v[t].sum(0)))
         A = attitude_from_radec_roll(float(ra), float(dec), rng.uniform(0, 2 * math.pi))
         xy, front = camera.ray_to_pixel(v[t] @ A.T)
         if not (front.all() and camera.in_frame(xy).all()):
-            outside += 1
             continue
-        ident = identify(xy, camera.width, camera.height, method=method, camera=camera, database=db,
-                         epoch=EPOCH)
-        if not ident.success:
-            refused += 1
-            key = ident.reason.split(":")[0][:40]
-            reasons[key] = reasons.get(key, 0) + 1
-        elif _judge(ident, A, camera)[0]:
-            wrong += 1
-        else:
-            right += 1
-    n = right + wrong + refused
-    return {"case": "three-star-frames", "method": method, "frames": n, "outside_frame": outside,
-            "right": right, "wrong": wrong, "refused": refused,
-            "wrong_upper95_pct": 100.0 * upper_bound_95(wrong, n),
-            "refusals": reasons}
+        # the frame holds every catalogue star in view (a camera sees them all), the cluster first
+        near = np.setdiff1d(stars.cone(A[2], math.radians(40.0)), t)
+        other, front = camera.ray_to_pixel(v[near] @ A.T)
+        other = other[front & camera.in_frame(other)]
+        if exactly_three and len(other):
+            continue
+        frames.append((A, np.vstack([xy, other]), int(rng.integers(3))))
+    rows = []
+    for shift in shifts_px:
+        right = wrong = 0
+        reasons: dict[str, int] = {}
+        for A, xy, star in frames:
+            moved = xy.copy()
+            moved[star, 0] += shift
+            ident = identify(moved, camera.width, camera.height, method=method, camera=camera, database=db,
+                             epoch=EPOCH)
+            if not ident.success:
+                key = ident.reason.split(":")[0][:50]
+                reasons[key] = reasons.get(key, 0) + 1
+            elif _judge(ident, A, camera)[0]:
+                wrong += 1
+            else:
+                right += 1
+        n = len(frames)
+        rows.append({"shift_px": shift, "frames": n, "right": right, "wrong": wrong,
+                     "refused": n - right - wrong,
+                     "right_pct": 100.0 * right / max(n, 1),
+                     "wrong_upper95_pct": 100.0 * upper_bound_95(wrong, n), "refusals": reasons})
+    return {"case": "perturbation", "method": method, "clusters": len(tri),
+            "not_used": len(pick) - len(frames),
+            "rows": rows, "thesis": {"table_6_mean_tolerance_pct_px": {"x": 0.04, "y": 0.05, "z": 0.06},
+                                     "success_at_0.04pct_px": 75, "success_beyond_0.08pct_px": "< 50"}}
+
+
+def three_star_frames(n_clusters: int = 10_000, method: str = "triangle", seed: int = 0) -> dict:
+    """:func:`perturbation_sweep` with no shift on the clusters of the 170 brightest stars (000's
+    magnitude-3 catalogue) alone in thesis 000's frame (exactly three catalogue stars in view):
+    3-star fields, solved or refused as ambiguous."""
+    return {**perturbation_sweep((0.0,), n_stars=170, max_angle_deg=31.8, n_clusters=n_clusters,
+                                 method=method, seed=seed, exactly_three=True), "case": "three-star-frames"}
 
 
 CASES: dict[str, Callable[..., dict]] = {
     "quest-catalogue": quest_catalogue,
     "three-star-frames": three_star_frames,
+    "perturbation": perturbation_sweep,
 }
 
+
+
+class MatchingRow(NamedTuple):
+    """One row of thesis 004's Table 3-7: the errors simulated and the tolerances matched with
+    (µrad, mag), and the thesis's outcome of 1000 trials."""
+
+    sigma_p_urad: float
+    sigma_mv: float
+    d_uncert_urad: float
+    mv_uncert: float
+    thesis_fail_lt3: int
+    thesis_fail_gt3: int
+    thesis_success_pct: float
+
+
+TABLE_3_7_ROWS = (
+    MatchingRow(50, 0.3, 50, 0.3, 4, 177, 81.9),
+    MatchingRow(50, 0.3, 75, 0.45, 5, 17, 97.8),
+    MatchingRow(50, 0.3, 100, 0.6, 3, 9, 98.8),
+    MatchingRow(50, 0.3, 150, 0.6, 2, 4, 99.4),
+    MatchingRow(100, 0.3, 200, 0.45, 4, 24, 97.2),
+)
+
+
+def table_3_7(trials: int = 1000, method: str = "van-bezooijen", seed: int = 0,
+              rows: tuple[MatchingRow, ...] = TABLE_3_7_ROWS) -> dict:
+    """Thesis 004 Table 3-7: ``trials`` attitudes drawn uniformly inside the Table 3-5 envelope,
+    the Sunsat camera (preset ``sunsat``), Gaussian errors σ_p on each star's position and σ_Mv on
+    its magnitude, the ≤ 8 brightest stars (thesis 004's V ≤ 6: the 5,026 brightest) identified
+    by ``method`` against a pattern database of the envelope's sub-catalogue
+    (:func:`skyfix.analysis.coverage.sub_catalogue`, 588 stars; thesis 540). For van Bezooijen
+    the tolerances are the thesis's: the distance tolerance d_uncert (``centroid_sigma_px`` =
+    d_uncert · f / √2 with ``n_sigma`` 1) and Mv_uncert on the magnitudes given. Counted as in
+    the thesis: failures with < 3 stars in view, failures with more, wrong, success."""
+    from skyfix.analysis import coverage as cv
+    from skyfix.camera import camera_from_preset
+    from skyfix.catalog import load_hipparcos
+    from skyfix.identify import PatternDatabase, identify
+
+    camera = camera_from_preset("sunsat")
+    f = math.sqrt(camera.fx * camera.fy)
+    full = load_hipparcos(epoch=EPOCH)
+    limit = cv.limit_for_count(full.brighter_than(8.0), cv.THESIS_004_CATALOG_SIZE)
+    t0 = time.perf_counter()
+    sub = cv.sub_catalogue(full, cv.sunsat_attitudes(cv.TABLE_3_5), 11.17, 8.32, limit)
+    db = PatternDatabase.build(8.0, 12.0, catalog=sub, epoch=EPOCH)
+    rng = np.random.default_rng(seed)
+    env = cv.TABLE_3_5
+    angles = [np.radians(rng.uniform(lo, hi, trials)) for lo, hi in env]
+    attitudes = cv.sunsat_attitude_matrix(*angles)
+    warm = synthetic_centroids(camera, attitudes[0], full, mag_limit=limit, rng=seed)
+    identify(warm.xy[:8], camera.width, camera.height, method=method, camera=camera, database=db, epoch=EPOCH)
+    build_s = time.perf_counter() - t0  # the sub-catalogue, its database and the method's tables
+    out_rows = []
+    for row in rows:
+        fail_lt3 = fail_gt3 = wrong = ok = 0
+        times = []
+        reasons: dict[str, int] = {}
+        for k, A in enumerate(attitudes):
+            field = synthetic_centroids(camera, A, full, mag_limit=limit, mag_sigma=row.sigma_mv,
+                                        sigma_px=row.sigma_p_urad * 1e-6 * f,
+                                        rng=np.random.default_rng([seed, k]))
+            xy, mag = field.xy[:8], field.mag[:8]
+            options = {}
+            if method == "van-bezooijen":
+                options = dict(magnitudes=mag, magnitude_tolerance=row.mv_uncert, n_sigma=1.0,
+                               centroid_sigma_px=row.d_uncert_urad * 1e-6 * f / math.sqrt(2.0), max_stars=8)
+            t1 = time.perf_counter()
+            ident = identify(xy, camera.width, camera.height, method=method, camera=camera, database=db,
+                             epoch=EPOCH, **options)
+            times.append(1e3 * (time.perf_counter() - t1))
+            if not ident.success:
+                key = ident.reason.split(":")[0][:50]
+                reasons[key] = reasons.get(key, 0) + 1
+                if len(xy) < 3:
+                    fail_lt3 += 1
+                else:
+                    fail_gt3 += 1
+            elif _judge(ident, A, camera)[0]:
+                wrong += 1
+            else:
+                ok += 1
+        out_rows.append({**row._asdict(), "trials": trials, "fail_lt3": fail_lt3, "fail_gt3": fail_gt3,
+                         "wrong": wrong, "wrong_upper95_pct": 100.0 * upper_bound_95(wrong, trials),
+                         "success_pct": 100.0 * ok / trials, "median_ms": float(np.median(times)),
+                         "max_ms": float(np.max(times)), "failures": reasons})
+    return {"case": "table-3-7", "method": method, "sub_catalogue_stars": len(sub), "mag_limit_hp": limit,
+            "database_build_s": build_s, "rows": out_rows}
+
+
+CASES["table-3-7"] = table_3_7
