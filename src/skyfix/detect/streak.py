@@ -518,7 +518,7 @@ def _weighted_centre(img, box, shape, xc, yc, reach_x, reach_y):
 @njit(cache=True, fastmath=_CONTRACT)
 def _gather(img, box, shape, xc, yc, buf):
     """The pixels within the reach of the streak centred at ``(xc, yc)`` (:func:`_span`) into
-    the columns of ``buf`` (6, ≥ their count): ``a`` and ``b`` (along and across the motion),
+    the columns of ``buf`` (9 rows, ≥ their count): ``a`` and ``b`` (along and across the motion),
     the row walk's three Gaussians and the value above the sky. Returns their count."""
     m = 0
     col = _column_start(box.x0 - xc, box.y0 - yc, shape)
@@ -540,34 +540,33 @@ def _gather(img, box, shape, xc, yc, buf):
 
 
 @njit(cache=True, fastmath=_VECTOR, error_model="numpy")
-def _sums(img, box, shape, xc, yc, amp, ig, wmin, buf):
+def _sums(img, box, shape, xc, yc, amp, ig, buf):
     """One pass over the streak's reach at the centre ``(xc, yc)``: the sums of the weighted
     normal equations with the amplitude left out (the model is linear in it, :func:`_scaled`):
     ``Σ wᵢ·jᵢ·jₖ`` (6: ``j = (profile, ∂x, ∂y)``, the gradient of the profile without the
-    amplitude's −A), ``Σ wᵢ·jᵢ·vᵢ`` (3), and the sandwich's meat ``Σ (wᵢ·dᵢ)²·jᵢ·jₖ`` (6) with
-    the residual ``d`` at ``amp``. The weights ``wᵢ`` are the pixels' inverse variances, their
-    shot noise at ``amp`` with the gain's inverse ``ig``. With ``amp > 0`` (a pass that may be
-    the last), also the streak's footprint (the pixels above the sky where the profile is at
-    least ``wmin``): its count and ``Σ v``, ``Σ v·dx``, ``Σ v·dy``, ``Σ v·dx²``, ``Σ v·dy²``,
-    ``Σ v·dx·dy`` about ``(xc, yc)``; the meat only without the gain (zeros otherwise).
+    amplitude's −A) and ``Σ wᵢ·jᵢ·vᵢ`` (3), and the count of the pixels, whose ``j`` it leaves in
+    ``buf``'s rows 6–8 for :func:`_meat_footprint`. The weights ``wᵢ`` are the pixels' inverse
+    variances: the sky's, ``1/noise²``, and with the gain's inverse ``ig`` their shot noise at
+    ``amp`` (taken as a factor ``1/(1 + μᵢ·ig/noise²)`` of the sky's, which multiplies the sums
+    after the loop).
 
     The row walk is a recurrence from pixel to pixel: :func:`_gather` runs it into ``buf``; the
     sums are one loop without a branch, which the compiler vectorises (four pixels at a time):
     numba's check of each division for a zero (``error_model="numpy"`` leaves it out; nothing
-    here divides by zero) or the sums' fixed order (``_VECTOR``) would each keep it scalar."""
+    here divides by zero) or the sums' fixed order (``_VECTOR``) would each keep it scalar. Without
+    the gain (a tracker's fit) the weights are all the sky's: the loop divides by nothing but
+    its erfs' own."""
     v0 = box.noise * box.noise if box.noise > 0 else 1.0
-    last = 1.0 if amp > 0.0 else 0.0
-    meat = last if ig == 0.0 else 0.0
     m = _gather(img, box, shape, xc, yc, buf)
-    ux, uy = shape.ux, shape.uy
+    shot = max(amp, 0.0) * ig / v0  # the shot noise at the peak, in sky variances
     s00 = s01 = s02 = s11 = s12 = s22 = t0 = t1 = t2 = 0.0
-    m00 = m01 = m02 = m11 = m12 = m22 = 0.0
-    n = sv = svx = svy = svxx = svyy = svxy = 0.0
     for k in range(m):
-        a, b, v = buf[0, k], buf[1, k], buf[5, k]
-        w, gx, gy = _weight(a, b, buf[2, k], buf[3, k], buf[4, k], shape)
-        mu = amp * w
-        iv = 1.0 / (v0 + max(mu, 0.0) * ig)
+        w, gx, gy = _weight(buf[0, k], buf[1, k], buf[2, k], buf[3, k], buf[4, k], shape)
+        buf[6, k] = w
+        buf[7, k] = gx
+        buf[8, k] = gy
+        v = buf[5, k]
+        iv = 1.0 if shot == 0.0 else 1.0 / (1.0 + max(w, 0.0) * shot)
         iw, igx, igy = iv * w, iv * gx, iv * gy
         s00 += iw * w
         s01 += iw * gx
@@ -578,7 +577,26 @@ def _sums(img, box, shape, xc, yc, amp, ig, wmin, buf):
         t0 += iw * v
         t1 += igx * v
         t2 += igy * v
-        r = iv * (v - mu)
+    i0 = 1.0 / v0
+    return ((i0 * s00, i0 * s01, i0 * s02, i0 * s11, i0 * s12, i0 * s22), (i0 * t0, i0 * t1, i0 * t2), m)
+
+
+@njit(cache=True, fastmath=_VECTOR, error_model="numpy")
+def _meat_footprint(box, shape, amp, ig, wmin, buf, m):
+    """At the last pass of :func:`_sums` (its ``m`` pixels and their ``j`` in ``buf``, the
+    amplitude ``amp``): the sandwich's meat ``Σ (wᵢ·dᵢ)²·jᵢ·jₖ`` (6) with the residual ``d`` at
+    ``amp``, only without the gain (zeros otherwise), and the streak's footprint (the pixels
+    above the sky where the profile is at least ``wmin``): its count and ``Σ v``, ``Σ v·dx``,
+    ``Σ v·dy``, ``Σ v·dx²``, ``Σ v·dy²``, ``Σ v·dx·dy`` about the pass's centre."""
+    v0 = box.noise * box.noise if box.noise > 0 else 1.0
+    meat = 1.0 if ig == 0.0 else 0.0
+    ux, uy = shape.ux, shape.uy
+    m00 = m01 = m02 = m11 = m12 = m22 = 0.0
+    n = sv = svx = svy = svxx = svyy = svxy = 0.0
+    for k in range(m):
+        a, b, v = buf[0, k], buf[1, k], buf[5, k]
+        w, gx, gy = buf[6, k], buf[7, k], buf[8, k]
+        r = v - amp * w
         r = r * r * meat
         m00 += r * w * w
         m01 += r * w * gx
@@ -586,7 +604,7 @@ def _sums(img, box, shape, xc, yc, amp, ig, wmin, buf):
         m11 += r * gx * gx
         m12 += r * gx * gy
         m22 += r * gy * gy
-        f = last if (v > 0.0) & (w >= wmin) else 0.0
+        f = 1.0 if (v > 0.0) & (w >= wmin) else 0.0
         fv = f * v
         dx, dy = a * ux - b * uy, a * uy + b * ux
         n += f
@@ -596,7 +614,8 @@ def _sums(img, box, shape, xc, yc, amp, ig, wmin, buf):
         svxx += fv * dx * dx
         svyy += fv * dy * dy
         svxy += fv * dx * dy
-    return ((s00, s01, s02, s11, s12, s22), (t0, t1, t2), (m00, m01, m02, m11, m12, m22),
+    i2 = 1.0 / (v0 * v0)
+    return ((i2 * m00, i2 * m01, i2 * m02, i2 * m11, i2 * m12, i2 * m22),
             (n, sv, svx, svy, svxx, svyy, svxy))
 
 
@@ -636,8 +655,8 @@ def _inverse3(m):
 def _fit(img, box, shape, xc, yc, ig, buf):
     """Gauss–Newton fit of the streak model from the weighted centre: (amplitude, x, y), its
     covariance ((JᵀWJ)⁻¹ with a gain, else the sandwich), whether it converged near the start,
-    and the footprint of :func:`_sums` at the last pass, its moments moved to the fit's centre
-    (the count, ``Σ v``, ``Σ v·dx²``, ``Σ v·dy²``, ``Σ v·dx·dy``).
+    and the footprint of :func:`_meat_footprint` at the last pass, its moments moved to the fit's
+    centre (the count, ``Σ v``, ``Σ v·dx²``, ``Σ v·dy²``, ``Σ v·dx·dy``).
     The first pass has no amplitude yet: it takes the linear least-squares one at the start (the
     model is linear in it) and weighs the pixels by the sky's noise alone; the covariance is
     from a later pass, at the amplitude and centre of the last step's start."""
@@ -649,7 +668,7 @@ def _fit(img, box, shape, xc, yc, ig, buf):
     nothing = (0.0, 0.0, 0.0, 0.0, 0.0)
     for it in range(15):
         at_x, at_y = p[1], p[2]
-        six, tv, meat6, foot = _sums(img, box, shape, at_x, at_y, p[0], ig, wmin, buf)
+        six, tv, m = _sums(img, box, shape, at_x, at_y, p[0], ig, buf)
         if it == 0:
             p[0] = tv[0] / six[0] if six[0] > 0 else 0.0
             if not p[0] > 0:
@@ -676,6 +695,7 @@ def _fit(img, box, shape, xc, yc, ig, buf):
             return p, cov, False, nothing  # lost the star
         if (small or big < 1e-3) and it > 0:
             break
+    meat6, foot = _meat_footprint(box, shape, amp, ig, wmin, buf, m)  # the last pass's
     if ig > 0:  # at the last step's start, under 0.1 σ away
         cov = inv
     else:
@@ -700,7 +720,7 @@ def fit_streaks(img, xy, motion, half_size, s, ig, sigma_pred):
     for row in (_X, _Y, _SIGMA_X, _SIGMA_Y, _ELONGATION):
         out[row, :] = np.nan
     half = np.empty((n, 2), np.int64)
-    pixels = np.empty((6, 0))  # _sums' pixels, grown to the largest window
+    pixels = np.empty((9, 0))  # _sums' pixels, grown to the largest window
     for i in range(n):
         dx, dy = motion[i, 0], motion[i, 1]
         length = math.hypot(dx, dy)
@@ -738,7 +758,7 @@ def fit_streaks(img, xy, motion, half_size, s, ig, sigma_pred):
             if not ok:
                 continue
         area = (y1 - y0 + 1) * (x1 - x0 + 1)
-        pixels = pixels if pixels.shape[1] >= area else np.empty((6, area))
+        pixels = pixels if pixels.shape[1] >= area else np.empty((9, area))
         p, cov, ok, (npix, sv, sxx, syy, sxy) = _fit(img, box, shape, xc, yc, ig, pixels)
         if not ok:
             continue
