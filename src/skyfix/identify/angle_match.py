@@ -27,7 +27,7 @@ from skyfix.identify.hypothesis import Frame
 from skyfix.identify.pairs import PairTable, pair_table
 
 __all__ = ["AngleSettings", "angle_range", "angle_settings", "angle_tolerance", "focal_for_angle",
-           "frame_pair_table", "ray_angle", "star_angle", "triple_product"]
+           "frame_pair_table", "ray_angle", "star_angle", "star_chord2", "triple_product"]
 
 _MAX_ANGLE_MARGIN = 1.02  # the pair table holds pairs a little wider than the frame's diagonal
 
@@ -116,12 +116,19 @@ def frame_pair_table(frame: Frame, per_field: int = 12) -> PairTable:
 
 
 @numba.njit(cache=True, inline="always")
-def star_angle(vectors, a, b):
-    """The angle (rad) between catalogue stars ``a`` and ``b`` (rows of ``vectors``)."""
+def star_chord2(vectors, a, b):
+    """The squared chord ``|v_a − v_b|²`` between catalogue stars ``a`` and ``b`` (rows of
+    ``vectors``): it grows with their angle θ as ``(2 sin(θ/2))²``."""
     dx = vectors[a, 0] - vectors[b, 0]
     dy = vectors[a, 1] - vectors[b, 1]
     dz = vectors[a, 2] - vectors[b, 2]
-    return chord_angle(math.sqrt(dx * dx + dy * dy + dz * dz))
+    return dx * dx + dy * dy + dz * dz
+
+
+@numba.njit(cache=True, inline="always")
+def star_angle(vectors, a, b):
+    """The angle (rad) between catalogue stars ``a`` and ``b`` (rows of ``vectors``)."""
+    return chord_angle(math.sqrt(star_chord2(vectors, a, b)))
 
 
 @numba.njit(cache=True, inline="always")

@@ -56,6 +56,7 @@ __all__ = ["METHOD", "identify", "pyramid_search", "triangle_order"]
 METHOD = "pyramid"
 
 _CHUNK = 64  # triangles per kernel call between checks of the time limit
+_NO_BOUND = 2**62
 
 
 @functools.cache
@@ -133,7 +134,8 @@ def _apex(s, table, vectors, i, j, k, cat, focal, ref, n_match, n, out_stars, ou
 
 
 @numba.njit(cache=True)
-def pyramid_search(s, table, vectors, triangles, start, stop, n, max_pairs, max_matches, out_stars, out_cat):
+def pyramid_search(s, table, vectors, triangles, start, stop, n, min_pairs, max_pairs, max_matches, out_stars,
+                   out_cat):
     """Search triangles ``start:stop`` of ``triangles`` (image rows of the ``n`` stars used) for
     a pyramid (module text, steps 2–3).
 
@@ -145,6 +147,10 @@ def pyramid_search(s, table, vectors, triangles, start, stop, n, max_pairs, max_
         The pair table (:func:`skyfix.identify.angle_match.frame_pair_table`).
     vectors : (S, 3) float64
         The catalogue unit vectors the table's rows index.
+    min_pairs, max_pairs : int
+        Only triangles whose searched side has this many candidate pairs are examined.
+    max_matches : int
+        Without a camera, the most catalogue triangles one image triangle may match.
     out_stars, out_cat : (4,) int64
         Receive the pyramid's centroid rows and catalogue rows.
 
@@ -166,21 +172,20 @@ def pyramid_search(s, table, vectors, triangles, start, stop, n, max_pairs, max_
             continue
         lo, hi = angle_range(p, i, j, s.f_lo, s.f_hi, s.noise_px)
         q0, q1 = pairs_in_range(table.angle_rad, lo, hi)
-        if q1 - q0 > max_pairs:  # work bound: a side this ambiguous is left to other triangles
+        if not min_pairs <= q1 - q0 <= max_pairs:  # a side this ambiguous is left to a later pass
             continue
         n_found = 0
         for q in range(q0, q1):
             if n_found > limit:
                 break
+            f = s.f0
+            if not s.calibrated:
+                f = focal_for_angle(p, i, j, table.angle_rad[q], s.f0, s.f_lo, s.f_hi)
+            a_ik = ray_angle(p, i, k, f)
+            t_ik = angle_tolerance(a_ik, ray_angle(p, i, j, f), f, s.noise_px, s.calibrated)
             for o in range(2):
                 ci = table.first[q] if o == 0 else table.second[q]
                 cj = table.second[q] if o == 0 else table.first[q]
-                f = s.f0
-                if not s.calibrated:
-                    f = focal_for_angle(p, i, j, table.angle_rad[q], s.f0, s.f_lo, s.f_hi)
-                a_ij = ray_angle(p, i, j, f)
-                a_ik = ray_angle(p, i, k, f)
-                t_ik = angle_tolerance(a_ik, a_ij, f, s.noise_px, s.calibrated)
                 m0, m1 = neighbours_in_range(table, ci, a_ik - t_ik, a_ik + t_ik)
                 for m in range(m0, m1):
                     ck = table.neighbour[m]
@@ -231,18 +236,20 @@ def _pyramids(frame, s, table, n, max_triangles, max_pairs, max_matches, time_li
     out_stars = np.empty(4, np.int64)
     out_cat = np.empty(4, np.int64)
     # No triangles: the first call in a process loads (or compiles) the kernel before the clock starts.
-    pyramid_search(s, table, vectors, triangles, 0, 0, n, max_pairs, max_matches, out_stars, out_cat)
+    pyramid_search(s, table, vectors, triangles, 0, 0, n, 0, max_pairs, max_matches, out_stars, out_cat)
     deadline = time.perf_counter() + time_limit_s
-    t = 0
-    while t < end:
-        if time.perf_counter() > deadline:
-            progress.stopped = "time limit reached"
-            return
-        t, found = pyramid_search(s, table, vectors, triangles, t, min(t + _CHUNK, end), n, max_pairs,
-                                  max_matches, out_stars, out_cat)
-        progress.triangles = t
-        if found:
-            yield out_stars.copy(), out_cat.copy()
+    # Two passes: triangles whose searched side has at most max_pairs candidate pairs, then the rest.
+    for min_pairs, max_pairs_pass in ((0, max_pairs), (max_pairs + 1, _NO_BOUND)):
+        t = 0
+        while t < end:
+            if time.perf_counter() > deadline:
+                progress.stopped = "time limit reached"
+                return
+            t, found = pyramid_search(s, table, vectors, triangles, t, min(t + _CHUNK, end), n, min_pairs,
+                                      max_pairs_pass, max_matches, out_stars, out_cat)
+            progress.triangles = max(progress.triangles, t)
+            if found:
+                yield out_stars.copy(), out_cat.copy()
     progress.stopped = f"{'all' if end == len(triangles) else 'max_triangles'} {end} triangles tried"
 
 
@@ -252,7 +259,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None, pattern_stars: int = 20,
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, max_triangles: int = 2000,
-             max_side_pairs: int = 3000, max_triangle_matches: int = 64, max_candidates: int = 200,
+             max_side_share: float = 0.004, max_triangle_matches: int = 64, max_candidates: int = 200,
              time_limit_s: float = 2.0, per_field: int = 12, prob_threshold: float = 1e-9) -> Identification:
     """Identify the stars of one frame, lost in space, by the Pyramid method (module text).
 
@@ -269,10 +276,11 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Angles match within ``n_sigma`` times their noise (plus the focal range's share).
     max_triangles : int
         Work bound: image triangles examined.
-    max_side_pairs : int
-        Work bound: a triangle whose searched side matches more catalogue pairs than this is
-        skipped (without a camera a long side's pairs over the focal range number thousands;
-        with one, at 15° and σ 0.5 px, at most ~1000).
+    max_side_share : float
+        Work order: a triangle whose searched side matches more than this share of the pair
+        table's pairs waits for a second pass over the triangles (without a camera a side's
+        pairs over the focal range number thousands; with one, at 15° and σ 0.5 px, below
+        0.4 %: 1000 of ~250,000).
     max_triangle_matches : int
         With only a FOV known: an image triangle that matches more catalogue triangles than this
         is skipped (a calibrated camera's must match exactly one).
@@ -306,7 +314,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     s = angle_settings(frame, centroid_sigma_px, n_sigma)
     n = min(len(frame.xy), pattern_stars)
     progress = _Progress()
-    pyramids = _pyramids(frame, s, table, n, max_triangles, max_side_pairs, max_triangle_matches,
+    max_pairs = max(int(max_side_share * len(table.angle_rad)), 1)
+    pyramids = _pyramids(frame, s, table, n, max_triangles, max_pairs, max_triangle_matches,
                          time_limit_s, progress)
     result = first_accepted(frame, pyramids, max_candidates=max_candidates)
     if result.success:

@@ -7,9 +7,10 @@ trackers", IEEE Trans. Aerospace and Electronic Systems 44(2), 2008).
    tolerance (:func:`~skyfix.identify.pairs.pairs_in_range`): each of the two centroids gets a
    vote for each of the two catalogue stars (both assignments). One compiled kernel
    (:func:`cast_votes`) adds them into a (centroid, catalogue star) table.
-2. **Candidates.** Each centroid's candidates are the ``candidates_per_star`` catalogue stars
-   with the most votes (the paper keeps the first only: in a sparse field the true star, with
-   one vote per other centroid, is often outvoted by a chance one among thousands).
+2. **Candidates.** Each of the ``n`` centroids keeps its ``candidate_nodes // n`` most-voted
+   catalogue stars (the paper keeps the first only: in a sparse field the true star, with one
+   vote per other centroid, is often outvoted by chance ones among thousands; the fewer the
+   centroids, the more candidates each keeps, at the same cost of validation).
 3. **Validation.** Every pair of candidates whose angle agrees with its centroids' angle votes
    again, for both; each centroid keeps the candidate that agrees with the most other
    centroids (most votes first on ties). The consistent set grows from the best-validated
@@ -44,7 +45,7 @@ from skyfix.identify.angle_match import (
     angle_range,
     angle_settings,
     frame_pair_table,
-    star_angle,
+    star_chord2,
 )
 from skyfix.identify.database import PatternDatabase
 from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
@@ -152,12 +153,14 @@ def validate(s, vectors, nodes, f_a, f_b, candidate, agree):
     candidates agree."""
     p = s.offsets_px
     n, k = nodes.shape
-    lo = np.empty((n, n))
+    lo = np.empty((n, n))  # each pair's range as squared chords (no angle per candidate pair)
     hi = np.empty((n, n))
     for a in range(n):
         for b in range(n):
             if a != b:
-                lo[a, b], hi[a, b] = angle_range(p, a, b, f_a, f_b, s.noise_px)
+                low, high = angle_range(p, a, b, f_a, f_b, s.noise_px)
+                lo[a, b] = (2.0 * math.sin(max(low, 0.0) / 2.0)) ** 2
+                hi[a, b] = (2.0 * math.sin(min(high, math.pi) / 2.0)) ** 2
     for a in range(n):
         top = -1
         candidate[a] = -1
@@ -174,8 +177,8 @@ def validate(s, vectors, nodes, f_a, f_b, candidate, agree):
                     if cw < 0:
                         break
                     if cw != cu:
-                        angle = star_angle(vectors, cu, cw)
-                        if lo[a, b] <= angle <= hi[a, b]:
+                        chord2 = star_chord2(vectors, cu, cw)
+                        if lo[a, b] <= chord2 <= hi[a, b]:
                             count += 1
                             break
             if count > top:
@@ -186,8 +189,8 @@ def validate(s, vectors, nodes, f_a, f_b, candidate, agree):
             ca, cb = candidate[a], candidate[b]
             agree[a, b] = False
             if a != b and ca != cb and ca >= 0 and cb >= 0:
-                angle = star_angle(vectors, ca, cb)
-                agree[a, b] = lo[a, b] <= angle <= hi[a, b]
+                chord2 = star_chord2(vectors, ca, cb)
+                agree[a, b] = lo[a, b] <= chord2 <= hi[a, b]
 
 
 class _Progress:
@@ -248,7 +251,7 @@ def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, n_candi
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None, vote_stars: int = 16,
-             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, candidates_per_star: int = 6,
+             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, candidate_nodes: int = 240,
              min_set: int = 4, sets_per_scale: int = 3,
              max_candidates: int = 200, time_limit_s: float = 2.0, per_field: int = 12,
              prob_threshold: float = 1e-9) -> Identification:
@@ -265,8 +268,9 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Expected centroid noise per axis, pixels: an angle's noise is ``σ·√2 / f``.
     n_sigma : float
         Angles match within ``n_sigma`` times their noise (plus the focal interval's share).
-    candidates_per_star : int
-        The most-voted catalogue stars each centroid keeps for the validation (the paper: 1).
+    candidate_nodes : int
+        Candidates kept over all ``n`` centroids voting: each keeps its ``candidate_nodes // n``
+        most-voted catalogue stars (at least 2) for the validation (the paper: 1 each).
     min_set : int
         Fewest centroids of a consistent set proposed (at least 3).
     sets_per_scale : int
@@ -302,8 +306,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     s = angle_settings(frame, centroid_sigma_px, n_sigma)
     n = min(len(frame.xy), vote_stars)
     progress = _Progress()
-    sets = _proposals(frame, s, table, n, candidates_per_star, min_set, sets_per_scale, time_limit_s,
-                      progress)
+    per_star = max(candidate_nodes // max(n, 1), 2)
+    sets = _proposals(frame, s, table, n, per_star, min_set, sets_per_scale, time_limit_s, progress)
     result = first_accepted(frame, sets, max_candidates=max_candidates)
     if result.success:
         return dataclasses.replace(result, n_patterns_tried=progress.steps)
