@@ -556,7 +556,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, magnitudes: np.ndarray | None = None,
              magnitude_tolerance: float = 0.5, check_mirror: bool = True, min_group: int = 3,
              max_candidates: int = 200, max_pair_matches: int = 1_000_000,
-             max_splits: int = 50_000, scale_step: float = 0.02, prompt_group: int = 5) -> Identification:
+             max_splits: int = 50_000, scale_step: float = 0.02, prompt_group: int = 5,
+             time_limit_s: float = 2.0) -> Identification:
     """Identify the stars of one frame by van Bezooijen's match groups (the module text).
 
     Parameters
@@ -589,6 +590,9 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Work bound: step 1's pair matches (a frame beyond it fails with the reason).
     max_splits : int
         Work bound: subgroup-enumeration steps per elimination level.
+    time_limit_s : float
+        Work bound: no further piece or level is searched after this long (s, counted from the
+        end of the first piece's search: the kernels' first load is not counted).
     scale_step : float
         With a FOV only, the focal range is searched in pieces this wide (relative), the nominal
         focal length's first: step 1 over the whole range at once would find ~1.5 M pair
@@ -624,7 +628,15 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     setup = match_setup(frame, max_stars=max_stars, centroid_sigma_px=centroid_sigma_px, n_sigma=n_sigma,
                         magnitudes=magnitudes, magnitude_tolerance=magnitude_tolerance)
     table, rows = frame_table(frame)
-    work = {"pairs": 0, "over": 0, "ranges": 0}
+    work = {"pairs": 0, "over": 0, "ranges": 0, "late": 0, "start": 0.0}
+
+    def late() -> bool:
+        # the clock starts once the first piece is searched (every kernel then loaded/compiled)
+        if not work["start"]:
+            work["start"] = time.perf_counter() if work["ranges"] else 0.0
+            return False
+        work["late"] = time.perf_counter() - work["start"] > time_limit_s
+        return bool(work["late"])
 
     def proposals() -> Iterator[tuple[np.ndarray, np.ndarray]]:
         # Largest groups first across the pieces of the focal range (one piece when calibrated):
@@ -643,6 +655,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
 
         pieces = []
         for scale_lo, scale_hi in scale_ranges(setup.scale_lo, setup.scale_hi, scale_step):
+            if late():
+                return
             part = setup._replace(scale_lo=scale_lo, scale_hi=scale_hi)
             matches = pair_matches(part, table, rows, max_pair_matches=max_pair_matches)
             work["ranges"] += 1
@@ -656,15 +670,20 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 sub = geometry_test(frame, part, table, match_groups(matches, ic_lim=level),
                                     check_mirror=check_mirror, min_size=level + 2, max_splits=max_splits)
                 yield from fresh(sub, sub.size >= level + 2)
-        tops = [estimated_level(matches) or 1 for _, matches in pieces]
-        subs = [geometry_test(frame, part, table, match_groups(matches, ic_lim=top),
-                              check_mirror=check_mirror, min_size=min_group, max_splits=max_splits)
-                for (part, matches), top in zip(pieces, tops, strict=True)]
+        tops, subs = [], []
+        for part, matches in pieces:
+            if late():
+                return
+            tops.append(estimated_level(matches) or 1)
+            subs.append(geometry_test(frame, part, table, match_groups(matches, ic_lim=tops[-1]),
+                                      check_mirror=check_mirror, min_size=min_group, max_splits=max_splits))
         for size in range(len(setup.rays), min_group - 1, -1):
             for sub in subs:
                 yield from fresh(sub, sub.size == size)
         for drop in range(1, len(setup.rays)):
             for (part, matches), top in zip(pieces, tops, strict=True):
+                if late():
+                    return
                 if top - drop >= 1:
                     sub = geometry_test(frame, part, table, match_groups(matches, ic_lim=top - drop),
                                         check_mirror=check_mirror, min_size=min_group, max_splits=max_splits)
@@ -672,7 +691,10 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
 
     result = first_accepted(frame, proposals(), max_candidates=max_candidates)
     if not result.success:
-        if work["over"] and work["over"] == work["ranges"]:
+        if work["late"]:
+            reason = (f"time limit ({time_limit_s} s) reached after {result.n_candidates} groups proposed "
+                      f"over {work['ranges']} focal-length ranges")
+        elif work["over"] and work["over"] == work["ranges"]:
             reason = (f"step 1 would examine {work['pairs']} pair matches, beyond max_pair_matches "
                       f"({max_pair_matches}): tolerances too wide")
         else:
