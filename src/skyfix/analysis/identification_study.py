@@ -489,29 +489,36 @@ def perturbation_sweep(shifts_px: tuple[float, ...] = SHIFTS_PX, n_stars: int = 
         # the frame holds every catalogue star in view (a camera sees them all), the cluster first
         near = np.setdiff1d(stars.cone(A[2], math.radians(40.0)), t)
         other, front = camera.ray_to_pixel(v[near] @ A.T)
-        other = other[front & camera.in_frame(other)]
-        if exactly_three and len(other):
+        seen = front & camera.in_frame(other)
+        if exactly_three and seen.any():
             continue
-        frames.append((A, np.vstack([xy, other]), int(rng.integers(3))))
+        ids = np.concatenate([stars.ids[t], stars.ids[near][seen]])
+        frames.append((A, np.vstack([xy, other[seen]]), int(rng.integers(3)), ids))
     rows = []
     for shift in shifts_px:
         right = wrong = 0
         reasons: dict[str, int] = {}
-        for A, xy, star in frames:
+        wrong_detail = []
+        for A, xy, star, ids in frames:
             moved = xy.copy()
             moved[star, 0] += shift
             ident = identify(moved, camera.width, camera.height, method=method, camera=camera, database=db,
                              epoch=EPOCH)
             if not ident.success:
-                key = ident.reason.split(":")[0][:50]
+                key = ident.reason.split(":")[0].split("(")[0].strip()
                 reasons[key] = reasons.get(key, 0) + 1
             elif _judge(ident, A, camera)[0]:
                 wrong += 1
+                err = attitude_error_rad(ident.A_icrs_to_cam, ident.camera or camera, A, camera)
+                wrong_detail.append({"boresight_arcsec": math.hypot(err[0], err[1]) / _ARCSEC,
+                                     "roll_deg": math.degrees(abs(err[2])), "matched": ident.n_matched,
+                                     "matched_true": int(np.sum(ids[ident.star_index] == ident.catalog_ids)),
+                                     "moved_star_matched": bool(star in set(ident.star_index.tolist()))})
             else:
                 right += 1
         n = len(frames)
         rows.append({"shift_px": shift, "frames": n, "right": right, "wrong": wrong,
-                     "refused": n - right - wrong,
+                     "wrong_detail": wrong_detail, "refused": n - right - wrong,
                      "right_pct": 100.0 * right / max(n, 1),
                      "wrong_upper95_pct": 100.0 * upper_bound_95(wrong, n), "refusals": reasons})
     return {"case": "perturbation", "method": method, "clusters": len(tri),
@@ -606,7 +613,7 @@ def table_3_7(trials: int = 1000, method: str = "van-bezooijen", seed: int = 0,
                              epoch=EPOCH, **options)
             times.append(1e3 * (time.perf_counter() - t1))
             if not ident.success:
-                key = ident.reason.split(":")[0][:50]
+                key = ident.reason.split(":")[0].split("(")[0].strip()
                 reasons[key] = reasons.get(key, 0) + 1
                 if len(xy) < 3:
                     fail_lt3 += 1
