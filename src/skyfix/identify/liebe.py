@@ -7,8 +7,11 @@ pattern, measured the same way, is looked up within the noise and confirmed with
 skyfix:
 
 1. holds, for each star of the pair table (:func:`skyfix.identify.pairs.pair_table`, the
-   brightest stars of every field of the frame's size), the patterns of every pair among its
-   ``k_nearest`` nearest neighbours beyond ``buffer_deg`` — not only the two nearest: a neighbour
+   brightest stars of every field of the frame's size — as many per field as the frame's
+   centroids suggest, :func:`per_field_for`: the catalogue's nearest neighbours must be the
+   image's, and a sparse frame lost ~6 % of its fields against a 12-per-field table), the
+   patterns of every pair among its ``k_nearest`` nearest neighbours beyond ``buffer_deg`` — not
+   only the two nearest: a neighbour
    missing from the image (too faint, off the edge, merged) or an extra one in it (a false star,
    a star fainter than the table's) would otherwise lose the star
    (:func:`skyfix.identify.triangles.star_triangle_table`, indexed by θ1);
@@ -58,7 +61,7 @@ from skyfix.identify.triangles import (
     star_triangle_table,
 )
 
-__all__ = ["METHOD", "StarPatterns", "identify", "star_patterns"]
+__all__ = ["METHOD", "PER_FIELD_STEPS", "StarPatterns", "identify", "per_field_for", "star_patterns"]
 
 METHOD = "liebe"
 
@@ -96,6 +99,19 @@ def star_patterns(rays: np.ndarray, k_nearest: int, buffer_rad: float) -> StarPa
     stars = np.ascontiguousarray(stars.reshape(-1, 3))
     sides = np.ascontiguousarray(describe_triangles(rays, stars)[1][:, SIDES:SIDES + 3])
     return StarPatterns(stars, describe_star_triangles(rays, stars), sides, pivot_start)
+
+
+PER_FIELD_STEPS = (4, 6, 8, 12)  # the pair tables Liebe chooses from (each built once, kept)
+
+
+def per_field_for(frame: Frame) -> int:
+    """The pair table's stars per lattice field for ``frame``: the smallest of
+    :data:`PER_FIELD_STEPS` at least the centroids a field-sized disc of the frame holds (its
+    shorter side across: ~0.6 of a 4:3 frame's centroids), else the largest."""
+    cam = frame.camera
+    disc = math.pi / 4.0 * min(cam.width, cam.height) ** 2 / (cam.width * cam.height)
+    need = math.ceil(disc * len(frame.xy))
+    return next((k for k in PER_FIELD_STEPS if k >= need), PER_FIELD_STEPS[-1])
 
 
 def _neighbour_stars(frame: Frame, table: StarTriangleTable) -> int:
@@ -155,7 +171,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              database: PatternDatabase | None = None, epoch: float | None = None,
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, k_nearest: int = 4,
              buffer_deg: float = 0.0, pivots: int = 12, neighbour_stars: int | None = None,
-             confirm_stars: int = 20, per_field: int = 12, max_candidates: int = 2000,
+             confirm_stars: int = 20, per_field: int | None = None, max_candidates: int = 2000,
              max_matches: int = 100_000, prob_threshold: float = 1e-9) -> Identification:
     """Identify the stars of one frame by Liebe's star patterns (module text).
 
@@ -181,8 +197,11 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         as the table's stars expected in the frame, 6–40).
     confirm_stars : int
         The brightest centroids tried as the confirming fourth star.
-    per_field : int
+    per_field : int, optional
         The pair table's brightest stars per lattice field (:func:`~skyfix.identify.pairs.pair_table`).
+        Default: as many as the frame's centroids would put in a field (:data:`PER_FIELD_STEPS`,
+        :func:`per_field_for`): a star's nearest neighbours in the catalogue must be the ones the
+        image shows, so a sparse frame needs a sparse table.
     max_candidates : int
         Work bound: confirmed correspondences verified.
     max_matches : int
@@ -203,9 +222,9 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         An impossible ``fov_deg``.
     """
     check_options(centroid_sigma_px, n_sigma, xy, width, height, k_nearest=k_nearest, pivots=pivots,
-                  confirm_stars=confirm_stars, per_field=per_field, max_candidates=max_candidates,
-                  max_matches=max_matches,
-                  **({} if neighbour_stars is None else {"neighbour_stars": neighbour_stars}))
+                  confirm_stars=confirm_stars, max_candidates=max_candidates, max_matches=max_matches,
+                  **({} if neighbour_stars is None else {"neighbour_stars": neighbour_stars}),
+                  **({} if per_field is None else {"per_field": per_field}))
     if k_nearest < 2:
         raise InputError(f"k_nearest must be at least 2 (a pattern needs two neighbours), got {k_nearest}")
     if not (0.0 <= buffer_deg < 90.0):
@@ -216,6 +235,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     if isinstance(frame, Identification):
         return frame
     short_deg, diag_deg = frame_angles_deg(frame)
+    per_field = per_field_for(frame) if per_field is None else per_field
     table = star_triangle_table(frame.database, short_deg, diag_deg, per_field=per_field, k_nearest=k_nearest,
                                 buffer_deg=buffer_deg)
     n_stars = min(len(frame.xy), neighbour_stars or _neighbour_stars(frame, table))
