@@ -164,7 +164,7 @@ def run_block(fov: float, cond: Condition, trials: range, methods: list[str], se
               fov_tolerance: float = 0.1) -> list[TrialRecord]:
     """Every method on the fields ``trials`` of one FOV and condition (a worker's job)."""
     from skyfix.catalog import load_hipparcos
-    from skyfix.identify import default_database, identify
+    from skyfix.identify import Identification, default_database, identify
 
     catalog = load_hipparcos(epoch=EPOCH, mag_limit=MAG_LIMIT + 1.0)
     db = default_database(progress=False)
@@ -175,7 +175,10 @@ def run_block(fov: float, cond: Condition, trials: range, methods: list[str], se
         n_stars = int(np.sum(f.star_id > 0))
         for m in methods:
             t0 = time.perf_counter()
-            ident = identify(f.xy, WIDTH, HEIGHT, method=m, **kw)
+            try:
+                ident = identify(f.xy, WIDTH, HEIGHT, method=m, **kw)
+            except Exception as exc:  # a method's bug is its failure here, not the study's end
+                ident = Identification(False, f"error: {type(exc).__name__}: {exc}")
             dt = 1e3 * (time.perf_counter() - t0)
             wrong, bore = _judge(ident, f.A_icrs_to_cam, camera) if ident.success else (False, math.nan)
             records.append(TrialRecord(m, fov, cond.name, t, n_stars, bool(ident.success), bool(wrong), bore,
