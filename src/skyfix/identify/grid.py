@@ -175,7 +175,7 @@ def catalogue_patterns(frame: Frame, table: PairTable, settings: GridSettings) -
         counts = np.zeros(n, np.int64)
         _catalogue_cells(table, frame.stars.vectors, settings, cells, counts)
         star = np.repeat(np.arange(n, dtype=np.int32), counts)
-        cell = np.concatenate([cells[i, :counts[i]] for i in range(n)]) if n else np.zeros(0, np.int64)
+        cell = cells[np.arange(settings.pattern_stars) < counts[:, None]]  # row by row, as ``star``
         order = np.argsort(cell, kind="stable")
         start = np.searchsorted(cell[order], np.arange(settings.g * (settings.g + 1) + 1)).astype(np.int64)
         return GridPatterns(start, star[order], counts.astype(np.int32))
@@ -385,14 +385,29 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     f = float(frame.camera.fx)
     n_scales = math.ceil((f / lo - f / hi) * g / 2.0 - 1e-9) + 1
     scales = np.linspace(f / hi, f / lo, n_scales) if n_scales > 1 else np.array([1.0])
-    cand = image_candidates(frame, table, patterns, settings, references, scales, image_stars=image_stars,
-                            n_orient=n_orient, min_score=min_score, top=top)
     tolerance = n_sigma * centroid_sigma_px * math.sqrt(2.0) / f
     n_tried = len(references) * n_scales * n_orient
-    result = first_accepted(frame, _proposals(frame, cand, tolerance, int(min_agree)), n_tried=n_tried,
-                            max_candidates=max_candidates)
+    found = [0]
+
+    def proposals() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        # the references nearest the centre first (most frames are solved by them), then all
+        seen: set[bytes] = set()
+        cand = None
+        for part in (references[:(len(references) + 1) // 2], references[(len(references) + 1) // 2:]):
+            more = image_candidates(frame, table, patterns, settings, part, scales, image_stars=image_stars,
+                                    n_orient=n_orient, min_score=min_score, top=top)
+            cand = more if cand is None else Candidates(*(np.concatenate(ab) for ab in zip(cand, more,
+                                                                                             strict=True)))
+            found[0] = len(cand.star)
+            for stars, catalog in _proposals(frame, cand, tolerance, int(min_agree)):
+                key = np.sort(stars).tobytes() + np.sort(catalog).tobytes()
+                if key not in seen:
+                    seen.add(key)
+                    yield stars, catalog
+
+    result = first_accepted(frame, proposals(), n_tried=n_tried, max_candidates=max_candidates)
     if not result.success:
-        return failure(METHOD, f"no agreeing grid candidates verified ({len(cand.star)} candidates of "
+        return failure(METHOD, f"no agreeing grid candidates verified ({found[0]} candidates of "
                                f"{len(references)} references, {result.n_candidates} proposals)", t0, n_tried,
                        result.n_candidates)
     return result
