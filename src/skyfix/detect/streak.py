@@ -620,11 +620,10 @@ def _meat_footprint(box, shape, amp, ig, wmin, buf, m):
 
 
 @njit(cache=True, inline="always")
-def _scaled(six, amp):
+def _scaled(six, amp, m):
     """The symmetric 3×3 ``Σ w·Jᵢ·Jₖ`` of the Jacobian ``J = (j₀, −A·j₁, −A·j₂)`` from the six
-    amplitude-free sums of :func:`_sums`."""
+    amplitude-free sums of :func:`_sums`, into ``m`` (returned)."""
     c = (1.0, -amp, -amp)
-    m = np.empty((3, 3))
     k = 0
     for i in range(3):
         for j in range(i, 3):
@@ -633,10 +632,10 @@ def _scaled(six, amp):
     return m
 
 
-@njit(cache=True)
-def _inverse3(m):
-    """The inverse of a 3×3 matrix by its adjugate (a tenth of ``pinv``'s 3 µs); pinv if near singular."""
-    adj = np.empty((3, 3))
+@njit(cache=True, inline="always")
+def _inverse3(m, adj):
+    """The inverse of a 3×3 matrix by its adjugate (a tenth of ``pinv``'s 3 µs), into ``adj``
+    (returned); pinv if near singular."""
     for i in range(3):
         for j in range(3):
             r0, r1 = (j + 1) % 3, (j + 2) % 3
@@ -651,6 +650,23 @@ def _inverse3(m):
     return adj
 
 
+@njit(cache=True, inline="always")
+def _sandwich3(a, b):
+    """``a·b·a`` of two 3×3 matrices (the fit's sandwich covariance from its meat), by loops:
+    BLAS's calls cost more than the 54 multiplications."""
+    ab = np.zeros((3, 3))
+    out = np.zeros((3, 3))
+    for i in range(3):
+        for k in range(3):
+            for j in range(3):
+                ab[i, j] += a[i, k] * b[k, j]
+    for i in range(3):
+        for k in range(3):
+            for j in range(3):
+                out[i, j] += ab[i, k] * a[k, j]
+    return out
+
+
 @njit(cache=True)
 def _fit(img, box, shape, xc, yc, ig, buf):
     """Gauss–Newton fit of the streak model from the weighted centre: (amplitude, x, y), its
@@ -662,7 +678,7 @@ def _fit(img, box, shape, xc, yc, ig, buf):
     from a later pass, at the amplitude and centre of the last step's start."""
     p = np.array([0.0, xc, yc])
     cov = np.zeros((3, 3))
-    inv = cov
+    jtj, inv, jtr, step = np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty(3)
     prev_x = prev_y = 0.0  # the last step
     wmin = 0.01 * _profile(_row_start(0.0, 0.0, shape), shape)  # the footprint: 1 % of the peak
     nothing = (0.0, 0.0, 0.0, 0.0, 0.0)
@@ -674,15 +690,18 @@ def _fit(img, box, shape, xc, yc, ig, buf):
             if not p[0] > 0:
                 return p, cov, False, nothing
         amp = p[0]
-        jtj = _scaled(six, amp)
-        jtr = np.array([tv[0] - amp * six[0], -amp * (tv[1] - amp * six[1]), -amp * (tv[2] - amp * six[2])])
-        inv = _inverse3(jtj)
-        step = inv @ jtr
+        _scaled(six, amp, jtj)
+        jtr[0] = tv[0] - amp * six[0]
+        jtr[1] = -amp * (tv[1] - amp * six[1])
+        jtr[2] = -amp * (tv[2] - amp * six[2])
+        _inverse3(jtj, inv)
+        for i in range(3):
+            step[i] = inv[i, 0] * jtr[0] + inv[i, 1] * jtr[1] + inv[i, 2] * jtr[2]
         # the χ² the step gains (its length², in σ of the fit's metric), and the distance left,
         # extrapolated from the signed ratio ρ of the last two steps (Gauss–Newton converges
         # linearly; the steps alternate, ρ < 0, when the model is wider than the stars):
         # ρ/(1 − ρ) steps
-        gain = step @ jtr
+        gain = step[0] * jtr[0] + step[1] * jtr[1] + step[2] * jtr[2]
         d = prev_x * prev_x + prev_y * prev_y
         rho = (step[1] * prev_x + step[2] * prev_y) / d if d > 0.0 else 1.0
         small = gain < _TOL_CHI2 or (abs(rho) < 1.0 and gain * (rho / (1.0 - rho)) ** 2 < _TOL_CHI2)
@@ -699,7 +718,7 @@ def _fit(img, box, shape, xc, yc, ig, buf):
     if ig > 0:  # at the last step's start, under 0.1 σ away
         cov = inv
     else:
-        cov = inv @ _scaled(meat6, amp) @ inv
+        cov = _sandwich3(inv, _scaled(meat6, amp, jtj))
     n, sv, svx, svy, svxx, svyy, svxy = foot
     ex, ey = p[1] - at_x, p[2] - at_y  # Σ v·(dx − ex)² …
     return p, cov, True, (n, sv, svxx - 2.0 * ex * svx + ex * ex * sv, svyy - 2.0 * ey * svy + ey * ey * sv,
