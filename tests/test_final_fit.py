@@ -129,7 +129,10 @@ def test_sparse_non_square_never_wrong(stars, database):
 
     s = summarize(uncalibrated_centroid_trials(150, seed=11))
     assert s["wrong"] == 0, s
-    assert s["solved"] >= 130, s
+    # 127-128 measured since the precision rule takes Student's tails (ν = the residuals' dof):
+    # a few of these sparse fields' σ, estimated from 8-20 stars less the camera fitted, no
+    # longer claim a 1e-3 chance of error (134 with Gaussian tails, in the same run).
+    assert s["solved"] >= 124, s
     assert all(0.7 <= v <= 1.5 for v in s["normalised_rms"]), s
 
 

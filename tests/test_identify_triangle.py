@@ -64,24 +64,31 @@ def test_mirrored_triangle_is_rejected(database, catalog):
 
 
 def test_shape_only_triangle_is_ambiguous(database, catalog):
-    """Three stars, a FOV known to 10 % only and a 2 px tolerance: only the triangle's shape
-    counts, and several catalogue triangles have it. Accepting any chance at all, the method
-    still refuses to choose between attitudes ("ambiguous"); at the default threshold it fails;
-    with the calibrated camera the same three stars are unique."""
+    """Three stars and a FOV known to 10 % only: only the triangle's shape counts, and over a
+    hundred catalogue triangles have it within 1 px. With the brightness test off (no star is
+    20 mag brighter than another) the method, accepting any chance at all, still refuses to
+    choose between attitudes ("ambiguous"); with it on, its rivals are refuted by bright stars
+    beside them but the chance left (8e-4) is above the threshold; with the calibrated camera
+    the same three stars are unique."""
     cam = Camera.from_fov(W, H, 30.0)
     A = random_attitudes(10, 3)[2]
     f = synthetic_centroids(cam, A, catalog, mag_limit=8.0, sigma_px=0.0, rng=2)
     loose = identify(f.xy[:3], W, H, method="triangle", fov_deg=30.0, database=database,
-                     centroid_sigma_px=2.0, lone_prob_threshold=1.0)
+                     centroid_sigma_px=1.0, lone_prob_threshold=1.0, missing_margin=20.0)
     assert not loose.success and loose.reason.startswith("ambiguous"), loose.reason
-    assert not identify(f.xy[:3], W, H, method="triangle", fov_deg=30.0, database=database).success
+    shape = identify(f.xy[:3], W, H, method="triangle", fov_deg=30.0, database=database,
+                     centroid_sigma_px=1.0)
+    assert not shape.success and shape.reason.startswith("no triangle unique enough"), shape.reason
     known = identify(f.xy[:3], W, H, method="triangle", camera=cam, database=database)
     assert known.success and not _wrong(A, known.A_icrs_to_cam, cam)
 
 
 def test_default_solve_identifies_three_star_fields(database, catalog):
     """Thesis 000's case: a 30° camera seeing only its three brightest stars, noise-free. The
-    default method cannot (4-star patterns); the fallback to triangles must, ≥ 95 %."""
+    default method cannot (4-star patterns); the fallback to triangles identifies all 40. Five
+    fail the precision rule all the same: three stars' six residuals cannot bound their own
+    noise, so the chance of an error beyond 84″ is taken from Student's tail (ν = 3), 0.1–0.7 %
+    for these five (skyfix.identify.accept.wrong_probability)."""
     cam = Camera.from_fov(W, H, 30.0)
     solved = wrong = 0
     for i, A in enumerate(random_attitudes(40, 11)):
@@ -92,7 +99,7 @@ def test_default_solve_identifies_three_star_fields(database, catalog):
             wrong += _wrong(A, sol.A_icrs_to_cam, cam)
             assert sol.method == "triangle"
     assert wrong == 0
-    assert solved >= 38, solved
+    assert solved >= 34, solved  # 35 measured
 
 
 def test_sparse_noisy_fields_with_false_stars_are_never_wrong(database, catalog):
@@ -110,7 +117,10 @@ def test_sparse_noisy_fields_with_false_stars_are_never_wrong(database, catalog)
             solved += 1
             assert not _wrong(A, sol.A_icrs_to_cam, cam), i
     print(f"sparse noisy fields solved: {solved}/150")
-    assert solved >= 5, solved  # 9: a lone noisy triangle at 30° is rarely unique (module text)
+    # 1 measured: a lone noisy triangle at 30° is rarely unique (module text), and when it is,
+    # three stars at 42″ each rarely pin the boresight within 84″ with a 1e-3 chance of error
+    # under Student's tail (ν = 3). The point of this test is the 0 wrong above.
+    assert solved >= 1, solved
 
 
 def test_rich_fields_with_fov_only(database, catalog):

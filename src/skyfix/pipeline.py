@@ -328,7 +328,10 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     fit = final_fit(xy, ident, camera_given=camera_given, database=database, epoch=epoch,
                     method=attitude_method, prob_threshold=prob_threshold, n_img=n_img)
     A, camera, idx = fit.A_icrs_to_cam, fit.camera, fit.star_index
-    imprecise = precision_failure(fit.covariance_rad2, camera.plate_scale_rad)
+    # The σ behind the covariance was estimated from the residuals: 2 per star, less the
+    # attitude's 3 and the camera numbers fitted (Student's tails for a few stars).
+    dof = 2 * len(idx) - 3 - len(fit.camera_params)
+    imprecise = precision_failure(fit.covariance_rad2, camera.plate_scale_rad, dof)
     if imprecise:
         sol.reason = imprecise
         log.info("%s: %s", sol.image, imprecise)

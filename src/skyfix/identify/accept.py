@@ -75,6 +75,7 @@ import math
 
 import numba
 import numpy as np
+from scipy.stats import t as student_t
 
 from skyfix._kernels.probability import log_binom_sf
 
@@ -242,22 +243,33 @@ def refit_focal_allowed(f_px: float, lo_px: float, hi_px: float) -> bool:
     return lo_px * 0.97 <= f_px <= hi_px * 1.03
 
 
-def wrong_probability(covariance_rad2: np.ndarray, plate_scale_rad: float) -> float:
-    """An upper bound on the chance, under the Gaussian error the covariance describes, that the
+def wrong_probability(covariance_rad2: np.ndarray, plate_scale_rad: float, dof: float = math.inf) -> float:
+    """An upper bound on the chance, under the error the covariance describes, that the
     attitude is wrong: boresight error beyond max(60″, 1 px) or roll error beyond 0.5°.
 
-    The boresight error's length is bounded by a circular Gaussian with the larger eigenvalue
-    λ of the cross-boresight block (``P(|e| > L) ≤ exp(−L²/2λ)``); the roll's is two-sided
-    normal. NaN or negative variances give 1."""
+    The boresight error's length is bounded by a circular distribution with the larger
+    eigenvalue λ of the cross-boresight block, the roll's is two-sided. With ``dof`` finite —
+    the degrees of freedom of the residuals the covariance's σ was estimated from — the tails
+    are Student's (bivariate t: ``P(|e| > L) ≤ (1 + L²/(ν λ))^(−ν/2)``; t for the roll), not
+    Gaussian (``exp(−L²/2λ)``, ν = ∞): a σ estimated from three stars' six residuals may be
+    several times too small, and a three-star solution 4σ off was called solved before
+    (``tests/test_identify_triangle.py::test_sparse_noisy_fields_with_false_stars_are_never_wrong``).
+    NaN or negative variances give 1."""
     c = np.asarray(covariance_rad2, dtype=np.float64)
     if not np.all(np.isfinite(c)):
         return 1.0
     a, b, d = c[0, 0], c[0, 1], c[1, 1]
     lam = (a + d) / 2.0 + math.sqrt(max(((a - d) / 2.0) ** 2 + b * b, 0.0))
     bound = max(WRONG_BORESIGHT_ARCSEC * _ARCSEC, plate_scale_rad)
-    p_bore = math.exp(-bound * bound / (2.0 * lam)) if lam > 0.0 else 0.0
     var_roll = c[2, 2]
-    p_roll = math.erfc(math.radians(WRONG_ROLL_DEG) / math.sqrt(2.0 * var_roll)) if var_roll > 0.0 else 0.0
+    roll = math.radians(WRONG_ROLL_DEG)
+    nu = max(float(dof), 1.0)
+    if math.isinf(nu):
+        p_bore = math.exp(-bound * bound / (2.0 * lam)) if lam > 0.0 else 0.0
+        p_roll = math.erfc(roll / math.sqrt(2.0 * var_roll)) if var_roll > 0.0 else 0.0
+    else:
+        p_bore = (1.0 + bound * bound / (nu * lam)) ** (-nu / 2.0) if lam > 0.0 else 0.0
+        p_roll = 2.0 * float(student_t.sf(roll / math.sqrt(var_roll), nu)) if var_roll > 0.0 else 0.0
     return min(p_bore + p_roll, 1.0) if lam >= 0.0 and var_roll >= 0.0 else 1.0
 
 
@@ -265,10 +277,10 @@ def wrong_probability(covariance_rad2: np.ndarray, plate_scale_rad: float) -> fl
 MAX_WRONG_PROBABILITY = 1e-3
 
 
-def precision_failure(covariance_rad2: np.ndarray, plate_scale_rad: float) -> str:
+def precision_failure(covariance_rad2: np.ndarray, plate_scale_rad: float, dof: float = math.inf) -> str:
     """Why an attitude is too uncertain to report as solved ("" when it is not): its
-    :func:`wrong_probability` beyond :data:`MAX_WRONG_PROBABILITY`."""
-    p_wrong = wrong_probability(covariance_rad2, plate_scale_rad)
+    :func:`wrong_probability` (with the residuals' ``dof``) beyond :data:`MAX_WRONG_PROBABILITY`."""
+    p_wrong = wrong_probability(covariance_rad2, plate_scale_rad, dof)
     if not p_wrong <= MAX_WRONG_PROBABILITY:  # NaN fails too
         c = np.asarray(covariance_rad2, dtype=np.float64)
         sigma_bore = math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) / _ARCSEC
