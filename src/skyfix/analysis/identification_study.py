@@ -341,23 +341,29 @@ def markdown(study: dict, summary: dict, command: str) -> str:
 
 
 def plots(study: dict, summary: dict, out: Path) -> list[Path]:
-    """solved.png (solved % per cell and method), time.png (median and p99 per method)."""
+    """solved.png (solved % per condition and method, a panel per FOV), time.png (median and p99
+    per method)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     methods = study["settings"]["methods"]
-    cells = list(summary[methods[0]]["cells"])
-    fig, ax = plt.subplots(figsize=(max(8, 0.9 * len(cells)), 4.5), dpi=100)
+    fovs = study["settings"]["fovs_deg"]
+    conds = [c["name"] for c in study["settings"]["conditions"]]
+    fig, axes = plt.subplots(len(fovs), 1, figsize=(max(8, 1.1 * len(conds)), 2.6 * len(fovs) + 1.2), dpi=100,
+                             sharex=True, squeeze=False)
     width = 0.8 / len(methods)
-    for i, m in enumerate(methods):
-        y = [summary[m]["cells"][c]["solved_pct"] for c in cells]
-        ax.bar(np.arange(len(cells)) + i * width, y, width, label=m)
-    ax.set_xticks(np.arange(len(cells)) + 0.4 - width / 2)
-    ax.set_xticklabels(cells, rotation=40, ha="right", fontsize=7)
-    ax.set_ylabel("solved %")
-    ax.legend(fontsize=7, ncol=3)
+    for ax, fov in zip(axes[:, 0], fovs, strict=True):
+        for i, m in enumerate(methods):
+            y = [summary[m]["cells"][f"{fov:g}° {c}"]["solved_pct"] for c in conds]
+            ax.bar(np.arange(len(conds)) + i * width, y, width, label=m)
+        ax.set_ylim(0, 105)
+        ax.set_ylabel(f"{fov:g}°: solved %")
+    ax = axes[-1, 0]
+    ax.set_xticks(np.arange(len(conds)) + 0.4 - width / 2)
+    ax.set_xticklabels(conds, rotation=30, ha="right", fontsize=7)
+    axes[0, 0].legend(fontsize=7, ncol=len(methods), loc="lower center", bbox_to_anchor=(0.5, 1.02))
     fig.tight_layout()
     p1 = out / "solved.png"
     fig.savefig(p1)
