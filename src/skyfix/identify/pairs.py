@@ -32,11 +32,14 @@ from scipy.spatial import cKDTree
 from skyfix._kernels.rotation import chord_angle
 from skyfix.identify.database import PatternDatabase, brightest_per_field
 
-__all__ = ["PairTable", "build_pair_table", "neighbours_in_range", "pair_table", "pairs_in_range",
-           "table_stars"]
+__all__ = ["DOUBLE_SEP", "LATTICE_STEP", "PairTable", "build_pair_table", "field_members",
+           "neighbours_in_range", "pair_table", "pairs_in_range", "rounded_fov_deg", "table_stars"]
 
-_LATTICE_STEP = 0.5  # lattice fields half a field radius apart, as the pattern database's
-_DOUBLE_SEP = 1.0 / 150.0  # drop the fainter of two stars closer than this × FOV (merged by a detector)
+LATTICE_STEP = 0.5
+"""Lattice fields half a field radius apart, as the pattern database's."""
+DOUBLE_SEP = 1.0 / 150.0
+"""The fainter of two stars closer than this × FOV is dropped (a detector merges them)."""
+_FOV_STEP = math.log(1.05)  # tables are built for FOVs ~5 % apart
 
 
 class PairTable(NamedTuple):
@@ -63,13 +66,24 @@ class PairTable(NamedTuple):
     max_angle_rad: float
 
 
+def field_members(vectors: np.ndarray, fov_rad: float, per_field: int):
+    """The ``per_field`` brightest stars of every field of radius ``fov_rad / 2`` on the tables'
+    lattice (:func:`~skyfix.identify.database.brightest_per_field` with :data:`LATTICE_STEP`
+    and :data:`DOUBLE_SEP`), a chunk of fields at a time."""
+    return brightest_per_field(vectors, fov_rad / 2.0, LATTICE_STEP, fov_rad * DOUBLE_SEP, per_field)
+
+
 def table_stars(vectors: np.ndarray, fov_rad: float, per_field: int) -> np.ndarray:
     """The ``per_field`` brightest stars of every field of radius ``fov_rad / 2`` on a lattice
     over the sky (rows of ``vectors``, brightest first; ascending)."""
-    rows = [top.ravel() for top in brightest_per_field(vectors, fov_rad / 2.0, _LATTICE_STEP,
-                                                       fov_rad * _DOUBLE_SEP, per_field)]
+    rows = [top.ravel() for top in field_members(vectors, fov_rad, per_field)]
     stars = np.unique(np.concatenate(rows))
     return stars[stars >= 0].astype(np.int32)
+
+
+def rounded_fov_deg(fov_deg: float) -> float:
+    """``fov_deg`` rounded to the tables' ~5 % steps: nearby fields share one table."""
+    return math.exp(round(math.log(fov_deg) / _FOV_STEP) * _FOV_STEP)
 
 
 def build_pair_table(vectors: np.ndarray, stars: np.ndarray, max_angle_rad: float) -> PairTable:
@@ -99,14 +113,13 @@ def pair_table(database: PatternDatabase, fov_deg: float, max_angle_deg: float, 
     at most ``max_angle_deg`` apart (the frame's diagonal with its tolerance), built on first
     use and kept with the database. Sizes are rounded up to steps of ~5 % so that nearby
     fields share one table."""
-    step = math.log(1.05)
-    fov_key = round(math.log(fov_deg) / step)
-    max_key = math.ceil(math.log(max_angle_deg) / step)
+    fov_key = round(math.log(fov_deg) / _FOV_STEP)
+    max_key = math.ceil(math.log(max_angle_deg) / _FOV_STEP)
 
     def make() -> PairTable:
         vectors = database.star_index().vectors
-        stars = table_stars(vectors, math.radians(math.exp(fov_key * step)), per_field)
-        return build_pair_table(vectors, stars, math.radians(math.exp(max_key * step)))
+        stars = table_stars(vectors, math.radians(rounded_fov_deg(fov_deg)), per_field)
+        return build_pair_table(vectors, stars, math.radians(math.exp(max_key * _FOV_STEP)))
 
     return database.derived(("pairs", fov_key, max_key, per_field), make)
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skyfix.camera import Camera
+from skyfix.errors import InputError
 
 __all__ = ["Identification", "finite_centroids"]
 
@@ -60,8 +61,21 @@ class Identification:
 def finite_centroids(xy) -> tuple[np.ndarray, np.ndarray | None]:
     """The centroids an identification method can use: ``xy`` as (N, 2) float64 without its
     non-finite rows, and the indices of the rows kept (``None`` when all were), to map its
-    results back to the caller's indices."""
-    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    results back to the caller's indices.
+
+    Raises
+    ------
+    skyfix.errors.InputError
+        ``xy`` is not an (N, 2) array of numbers.
+    """
+    try:
+        xy = np.asarray(xy, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError("centroids must be numbers, an (N, 2) array of x, y pixels") from None
+    if xy.size == 0:
+        xy = xy.reshape(0, 2)
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise InputError(f"centroids must be an (N, 2) array of x, y pixels, got shape {xy.shape}")
     finite = np.isfinite(xy).all(axis=1)
     kept = None if finite.all() else np.flatnonzero(finite)
     return (xy if kept is None else xy[kept]), kept

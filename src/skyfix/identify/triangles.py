@@ -56,11 +56,18 @@ import numpy as np
 
 from skyfix._kernels.rotation import chord_angle
 from skyfix.errors import InputError
-from skyfix.identify.database import PatternDatabase, brightest_per_field
+from skyfix.identify.database import PatternDatabase
 from skyfix.identify.hypothesis import Frame
-from skyfix.identify.pairs import PairTable, neighbours_in_range, pair_table, pairs_in_range
+from skyfix.identify.pairs import (
+    PairTable,
+    field_members,
+    neighbours_in_range,
+    pair_table,
+    pairs_in_range,
+    rounded_fov_deg,
+)
 
-__all__ = ["ANGLES", "AREA", "BY_ANGLE", "BY_AREA", "BY_SHAPE", "DOUBLE_SEP", "LATTICE_STEP", "MOMENT",
+__all__ = ["ANGLES", "AREA", "BY_ANGLE", "BY_AREA", "BY_SHAPE", "MOMENT",
            "ORDER_PARITY", "SHAPE", "SIDES", "VERTEX_ORDERS", "FeatureIndex", "FeatureMatches",
            "ImageTriangles", "StarTriangleTable", "TriangleTable", "area_moment_sigma",
            "area_moment_sigmas", "breadth_first_triangles", "check_options", "chord", "chord_sides",
@@ -84,8 +91,6 @@ BY_ANGLE = (ANGLES, ANGLES + 1, SIDES + 2)  # planar: two interior angles, the l
 
 # The lattice of fields whose brightest stars the triangles join: the pair table's
 # (skyfix.identify.pairs), so that every triangle star is a pair-table star.
-LATTICE_STEP = 0.5  # fields half a field radius apart
-DOUBLE_SEP = 1.0 / 150.0  # the fainter of two stars closer than this × FOV is dropped
 
 
 # ---- each formula once ---------------------------------------------------------------------
@@ -345,19 +350,12 @@ class StarTriangleTable(NamedTuple):
     pairs: PairTable
 
 
-def _rounded_fov_rad(fov_deg: float) -> float:
-    """``fov_deg`` rounded to the pair table's ~5 % steps (:func:`~skyfix.identify.pairs.pair_table`),
-    radians: nearby fields share one table, and the triangles' lattice is the pair table's."""
-    step = math.log(1.05)
-    return math.radians(math.exp(round(math.log(fov_deg) / step) * step))
-
-
 def field_triangles(vectors: np.ndarray, fov_rad: float, per_field: int) -> np.ndarray:
     """Every triangle (T, 3) int32, rows ascending and unique, of the ``per_field`` brightest
     stars of each lattice field of radius ``fov_rad / 2`` (the pair table's lattice)."""
     combos = breadth_first_triangles(per_field)
     packed = []
-    for top in brightest_per_field(vectors, fov_rad / 2.0, LATTICE_STEP, fov_rad * DOUBLE_SEP, per_field):
+    for top in field_members(vectors, fov_rad, per_field):
         tri = top[:, combos].reshape(-1, 3).astype(np.int64)  # members and combinations ascending
         tri = tri[(tri >= 0).all(axis=1)]
         packed.append(np.unique((tri[:, 0] << 42) | (tri[:, 1] << 21) | tri[:, 2]))
@@ -374,7 +372,7 @@ def triangle_table(database: PatternDatabase, fov_deg: float, max_angle_deg: flo
     diagonal with its tolerance). Built on first use and kept with the database (15° with a FOV
     known to 10 %: 83 k triangles, ~1.7 s)."""
     pairs = pair_table(database, fov_deg, max_angle_deg, per_field=pair_stars)
-    fov_rad = _rounded_fov_rad(fov_deg)
+    fov_rad = math.radians(rounded_fov_deg(fov_deg))
 
     def make() -> TriangleTable:
         vectors = database.star_index().vectors
