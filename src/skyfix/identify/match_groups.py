@@ -556,7 +556,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, magnitudes: np.ndarray | None = None,
              magnitude_tolerance: float = 0.5, check_mirror: bool = True, min_group: int = 3,
              max_candidates: int = 200, max_pair_matches: int = 1_000_000,
-             max_splits: int = 50_000, scale_step: float = 0.02, prompt_group: int = 5,
+             max_splits: int = 50_000, scale_step: float = 0.01, prompt_group: int = 5,
              time_limit_s: float = 2.0) -> Identification:
     """Identify the stars of one frame by van Bezooijen's match groups (the module text).
 
@@ -592,7 +592,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Work bound: subgroup-enumeration steps per elimination level.
     time_limit_s : float
         Work bound: no further piece or level is searched after this long (s, counted from the
-        end of the first piece's search: the kernels' first load is not counted).
+        end of the first geometry test: the kernels' first load is not counted).
     scale_step : float
         With a FOV only, the focal range is searched in pieces this wide (relative), the nominal
         focal length's first: step 1 over the whole range at once would find ~1.5 M pair
@@ -631,12 +631,15 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     work = {"pairs": 0, "over": 0, "ranges": 0, "late": 0, "start": 0.0}
 
     def late() -> bool:
-        # the clock starts once the first piece is searched (every kernel then loaded/compiled)
-        if not work["start"]:
-            work["start"] = time.perf_counter() if work["ranges"] else 0.0
-            return False
-        work["late"] = time.perf_counter() - work["start"] > time_limit_s
+        # the clock starts once a geometry test has run (every kernel then loaded or compiled)
+        work["late"] = bool(work["start"]) and time.perf_counter() - work["start"] > time_limit_s
         return bool(work["late"])
+
+    def tested(part: MatchSetup, groups: MatchGroups, min_size: int) -> Subgroups:
+        sub = geometry_test(frame, part, table, groups, check_mirror=check_mirror, min_size=min_size,
+                            max_splits=max_splits)
+        work["start"] = work["start"] or time.perf_counter()
+        return sub
 
     def proposals() -> Iterator[tuple[np.ndarray, np.ndarray]]:
         # Largest groups first across the pieces of the focal range (one piece when calibrated):
@@ -667,16 +670,14 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
             pieces.append((part, matches))
             level = estimated_level(matches, min_size=prompt_group)
             if level is not None:
-                sub = geometry_test(frame, part, table, match_groups(matches, ic_lim=level),
-                                    check_mirror=check_mirror, min_size=level + 2, max_splits=max_splits)
+                sub = tested(part, match_groups(matches, ic_lim=level), level + 2)
                 yield from fresh(sub, sub.size >= level + 2)
         tops, subs = [], []
         for part, matches in pieces:
             if late():
                 return
             tops.append(estimated_level(matches) or 1)
-            subs.append(geometry_test(frame, part, table, match_groups(matches, ic_lim=tops[-1]),
-                                      check_mirror=check_mirror, min_size=min_group, max_splits=max_splits))
+            subs.append(tested(part, match_groups(matches, ic_lim=tops[-1]), min_group))
         for size in range(len(setup.rays), min_group - 1, -1):
             for sub in subs:
                 yield from fresh(sub, sub.size == size)
@@ -685,8 +686,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 if late():
                     return
                 if top - drop >= 1:
-                    sub = geometry_test(frame, part, table, match_groups(matches, ic_lim=top - drop),
-                                        check_mirror=check_mirror, min_size=min_group, max_splits=max_splits)
+                    sub = tested(part, match_groups(matches, ic_lim=top - drop), min_group)
                     yield from fresh(sub, sub.size > 0)
 
     result = first_accepted(frame, proposals(), max_candidates=max_candidates)
