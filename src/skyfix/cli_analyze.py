@@ -330,7 +330,7 @@ def identification(
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed (attitudes, noise)."),
     workers: int = typer.Option(1, "--workers", min=1, help="Processes for the grid's blocks."),
     case: str = typer.Option("", "--case", help="Run only these seed experiments (comma-separated): "
-                             "quest-catalogue, three-star-frames, perturbation, table-3-7."),
+                             "quest-catalogue, three-star-frames, sparse-fields, perturbation, table-3-7."),
     verbose: int = VERBOSE,
 ) -> None:
     """Every identification method on the same simulated centroids (FOV 8°, 15°, 30°; centroid

@@ -28,6 +28,8 @@ Dask is not installed here).
 - ``table-3-7`` — thesis 004 Table 3-7: 1000 attitudes per tolerance row inside the Table 3-5
   envelope, the Sunsat camera, the ≤ 8 brightest stars, van Bezooijen's match groups on a
   database of the envelope's sub-catalogue (:func:`table_3_7`);
+- ``sparse-fields`` — issue 11's 3-star fields: 30° frames that detect exactly their three
+  brightest stars, noise-free (:func:`sparse_fields`);
 - ``perturbation`` — thesis 000 Table 6 and §6.4: one star of a catalogue cluster moved along
   x by a growing shift, the fraction still identified right (:func:`perturbation_sweep`).
 
@@ -52,7 +54,7 @@ from skyfix.camera import Camera
 
 __all__ = ["CASES", "Condition", "FULL", "QUICK", "StudySettings", "TrialRecord", "cell_summary",
            "method_names", "perturbation_sweep", "quest_catalogue", "run_block", "run_study",
-           "summarize", "table_3_7", "three_star_frames", "upper_bound_95", "write_study"]
+           "sparse_fields", "summarize", "table_3_7", "three_star_frames", "upper_bound_95", "write_study"]
 
 EPOCH = 2025.0
 WIDTH, HEIGHT = 1280, 960
@@ -641,3 +643,54 @@ def table_3_7(trials: int = 1000, method: str = "van-bezooijen", seed: int = 0,
 
 
 CASES["table-3-7"] = table_3_7
+
+
+def sparse_fields(fov_deg: float = 30.0, n_fields: int = 200, n_bright: int = 3,
+                  methods: tuple[str, ...] = ("triangle", "quad-hash"), seed: int = 0,
+                  calibrated: bool = False) -> dict:
+    """Issue 11's 3-star fields: ``n_fields`` random attitudes of a 1280 × 960 camera ``fov_deg``
+    wide, each detecting exactly its ``n_bright`` brightest catalogue stars (the limit set between
+    the ``n_bright``-th and the next), noise-free, identified by each of ``methods`` with the FOV
+    told to ±10 % (``calibrated``: the camera given): right, wrong, refused (reasons counted;
+    "ambiguous" when the stars are not unique enough to name)."""
+    from skyfix.catalog import load_hipparcos
+    from skyfix.identify import Identification, default_database, identify
+
+    catalog = load_hipparcos(epoch=EPOCH)
+    db = default_database(progress=False)
+    camera = Camera.from_fov(WIDTH, HEIGHT, fov_deg)
+    rng = np.random.default_rng(seed)
+    tally = {m: {"right": 0, "wrong": 0, "refused": 0, "reasons": {}} for m in methods}
+    used = 0
+    for A in random_attitudes(n_fields, rng):
+        every = synthetic_centroids(camera, A, catalog, mag_limit=9.0, sigma_px=0.0)
+        mags = np.sort(every.mag)
+        if len(mags) <= n_bright or mags[n_bright] - mags[n_bright - 1] < 0.05:
+            continue  # too few stars, or no clean limit between the n-th and the next
+        limit = 0.5 * (mags[n_bright - 1] + mags[n_bright])
+        field = synthetic_centroids(camera, A, catalog, mag_limit=limit, sigma_px=0.0)
+        used += 1
+        for m in methods:
+            try:
+                told = {"camera": camera} if calibrated else {"fov_deg": fov_deg,
+                                                              "fov_tolerance_deg": 0.1 * fov_deg}
+                ident = identify(field.xy, WIDTH, HEIGHT, method=m, database=db, epoch=EPOCH, **told)
+            except Exception as exc:  # a method's bug is its failure here
+                ident = Identification(False, f"error: {type(exc).__name__}")
+            t = tally[m]
+            if not ident.success:
+                t["refused"] += 1
+                key = ident.reason.split(":")[0].split("(")[0].strip()
+                t["reasons"][key] = t["reasons"].get(key, 0) + 1
+            elif _judge(ident, A, camera)[0]:
+                t["wrong"] += 1
+            else:
+                t["right"] += 1
+    for t in tally.values():
+        t["right_pct"] = 100.0 * t["right"] / max(used, 1)
+        t["wrong_upper95_pct"] = 100.0 * upper_bound_95(t["wrong"], used)
+    return {"case": "sparse-fields", "fov_deg": fov_deg, "stars": n_bright, "calibrated": calibrated,
+            "fields": used, "methods": tally}
+
+
+CASES["sparse-fields"] = sparse_fields
