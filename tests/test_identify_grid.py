@@ -111,6 +111,8 @@ def test_bad_input_is_one_line(database, camera):
         grid.identify(xy, W, H, camera=camera, database=database, g=1)
     with pytest.raises(InputError, match="grid radii out of range"):
         grid.identify(xy, W, H, camera=camera, database=database, buffer_deg=9.0)
+    with pytest.raises(InputError):
+        grid.identify(np.zeros((4, 3)), W, H, camera=camera, database=database)
     nan = np.vstack([xy, [np.nan, 3.0]])
     r = grid.identify(nan, W, H, camera=camera, database=database)  # 4 random points: no match
     assert not r.success and "no agreeing grid candidates verified" in r.reason

@@ -111,6 +111,8 @@ def test_bad_input_is_one_line(database, camera):
         mg.identify(xy, W, H, camera=camera, database=database, magnitudes=[1.0, 2.0])
     with pytest.raises(InputError, match="max_stars must be"):
         mg.identify(xy, W, H, camera=camera, database=database, max_stars=1)
+    with pytest.raises(InputError):
+        mg.identify(np.zeros((4, 3)), W, H, camera=camera, database=database)
     nan = np.vstack([xy, [np.nan, 3.0]])
     assert not mg.identify(nan, W, H, camera=camera, database=database).success  # 4 random points: no match
 

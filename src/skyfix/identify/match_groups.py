@@ -613,18 +613,19 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     t0 = time.perf_counter()
     if not 2 <= int(max_stars) <= MAX_STARS:
         raise InputError(f"max_stars must be 2–{MAX_STARS}, not {max_stars}")
-    if magnitudes is not None:
-        magnitudes = np.asarray(magnitudes, np.float64).ravel()
-        if len(magnitudes) != len(np.asarray(xy, np.float64).reshape(-1, 2)):
-            raise InputError(f"magnitudes must be one per centroid ({len(magnitudes)} given for "
-                             f"{len(np.asarray(xy).reshape(-1, 2))} centroids)")
     frame = frame_for(METHOD, xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
                       camera=camera, database=database, epoch=epoch, min_stars=3,
                       centroid_sigma_px=centroid_sigma_px)
     if isinstance(frame, Identification):
         return frame
-    if magnitudes is not None and frame.kept is not None:
-        magnitudes = magnitudes[frame.kept]
+    if magnitudes is not None:
+        magnitudes = np.asarray(magnitudes, np.float64).ravel()
+        n_rows = len(frame.xy) if frame.kept is None else len(np.asarray(xy, np.float64).reshape(-1, 2))
+        if len(magnitudes) != n_rows:
+            raise InputError(f"magnitudes must be one per centroid ({len(magnitudes)} given for {n_rows} "
+                             "centroids)")
+        if frame.kept is not None:
+            magnitudes = magnitudes[frame.kept]
     setup = match_setup(frame, max_stars=max_stars, centroid_sigma_px=centroid_sigma_px, n_sigma=n_sigma,
                         magnitudes=magnitudes, magnitude_tolerance=magnitude_tolerance)
     table, rows = frame_table(frame)
