@@ -125,3 +125,16 @@ def test_cli_coverage_json():
     assert abs(out["p_lt3"] - 0.00536) < 4 * out["p_lt3_stderr"] + 1e-4
     bad = CliRunner().invoke(app, ["analyze", "coverage", "--fov", "11,x", "--mag", "6"])
     assert bad.exit_code == 2 and "not W,H" in bad.output
+
+
+def test_bad_input_one_line(catalog):
+    for args, match in [((11.0, 8.0, float("nan"), 10), "not a number"),
+                        ((0.0, 8.0, 6.0, 10), "field of view"),
+                        ((11.0, 8.0, 6.0, 0), "n_pointings")]:
+        with pytest.raises(InputError, match=match):
+            cv.star_counts(*args, catalog=catalog)
+    with pytest.raises(InputError):
+        cv.limit_for_count(catalog, len(catalog) + 1)
+    # no star brighter than the limit: every field empty, not an error
+    empty = cv.star_counts(11.0, 8.0, -5.0, 100, catalog=catalog)
+    assert empty.n_catalog == 0 and empty.max == 0 and empty.p_lt3 == 1.0

@@ -231,6 +231,8 @@ def star_counts(fov_w_deg: float, fov_h_deg: float, mag_limit: float, n_pointing
     if fov_w_deg >= 180.0 or fov_h_deg >= 180.0:
         raise InputError("a rectangular pinhole field must be narrower than 180 degrees")
     n_pointings = check_count(n_pointings, "n_pointings")
+    if not math.isfinite(float(mag_limit)):
+        raise InputError(f"magnitude limit {mag_limit} is not a number")
     cat = coverage_catalog(mag_limit) if catalog is None else catalog.brighter_than(float(mag_limit))
     rng = np.random.default_rng(seed)
     counts = np.zeros(n_pointings, np.int32)
