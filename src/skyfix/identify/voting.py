@@ -250,7 +250,7 @@ def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, n_candi
 # method's options, all keywords with a documented default.
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
-             database: PatternDatabase | None = None, epoch: float | None = None, vote_stars: int = 16,
+             database: PatternDatabase | None = None, epoch: float | None = None, vote_stars: int = 24,
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, candidate_nodes: int = 240,
              min_set: int = 4, sets_per_scale: int = 3,
              max_candidates: int = 200, time_limit_s: float = 2.0, per_field: int = 12,
