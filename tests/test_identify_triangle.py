@@ -144,3 +144,14 @@ def test_bad_input(database):
     two = identify(np.array([[1.0, 2.0], [300.0, 400.0]]), W, H, method="triangle", fov_deg=15.0,
                    database=database)
     assert not two.success and two.reason.startswith("too few stars")
+
+
+def test_a_false_star_in_a_verified_triangle_is_caught():
+    """The study's field that came back wrong (15°, 10 false stars, field 32): a triangle of two
+    true stars and a false one, verified by eight true stars around it, 240″ and 1.7° off with
+    P 2.5e-9. Each triangle star must now fit the attitude of the others without it."""
+    from skyfix.analysis.identification_study import CONDITIONS, run_block
+
+    (record,) = run_block(15.0, CONDITIONS[5], range(32, 33), ["triangle"], seed=0)
+    assert CONDITIONS[5].n_false == 10
+    assert not record.wrong, record

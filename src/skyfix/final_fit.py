@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from skyfix._kernels import lens, rotation
+from skyfix._kernels import lens, robust, rotation
 from skyfix._rematch import CatalogueCone, equidistant_consensus, match_catalogue
 from skyfix._rematch import Matches as _Matches
 from skyfix.attitude import attitude_covariance, solve_attitude
@@ -75,40 +75,9 @@ def angles(b: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
 def inliers(resid: np.ndarray, floor: float) -> np.ndarray:
     """Stars to fit: residual lengths of 2-D Gaussian errors are Rayleigh distributed (median
     1.177 σ); those beyond 4 σ (P = 3e-4 by chance; σ floored at ``floor``) are blends or
-    mismatched faint stars. At least half of the stars, and three, are always kept."""
-    return _inliers(np.ascontiguousarray(resid, dtype=np.float64), float(floor))
-
-
-@numba.njit(cache=True)
-def _sorted(a):
-    """A sorted copy of a short 1-D array (Shell sort: compiles in a fraction of np.sort's time)."""
-    out = a.copy()
-    n = out.shape[0]
-    for gap in (701, 301, 132, 57, 23, 10, 4, 1):  # Ciura's gaps
-        for i in range(gap, n):
-            v = out[i]
-            j = i
-            while j >= gap and out[j - gap] > v:
-                out[j] = out[j - gap]
-                j -= gap
-            out[j] = v
-    return out
-
-
-@numba.njit(cache=True)
-def _inliers(resid, floor):
-    """:func:`inliers` in one pass."""
-    n = resid.shape[0]
-    if n == 0:
-        return np.zeros(0, dtype=np.bool_)
-    ordered = _sorted(resid)
-    median = ordered[n // 2] if n % 2 else (ordered[n // 2 - 1] + ordered[n // 2]) / 2.0
-    sigma = max(median / 1.177, floor)
-    keep = resid <= 4.0 * sigma
-    n_min = min(n, max(3, n // 2))
-    if keep.sum() < n_min:
-        keep = resid <= ordered[n_min - 1]
-    return keep
+    mismatched faint stars. At least half of the stars, and three, are always kept
+    (:func:`skyfix._kernels.robust.rayleigh_inliers`)."""
+    return robust.rayleigh_inliers(np.ascontiguousarray(resid, dtype=np.float64), float(floor))
 
 
 def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch: float | None = None,
@@ -486,7 +455,8 @@ def _rays_and_inliers(xy, r, A, cam):
     :func:`inliers` of their :func:`angles` to ``r`` rotated by ``A`` (σ floored at a tenth of
     the plate scale), and how many those are."""
     b = lens.pixel_rays(xy, cam)
-    keep = _inliers(rotation.angles(b, r, A), 0.1 * (1.0 / np.sqrt(cam[lens.FX] * cam[lens.FY])))
+    floor = 0.1 * (1.0 / np.sqrt(cam[lens.FX] * cam[lens.FY]))
+    keep = robust.rayleigh_inliers(rotation.angles(b, r, A), floor)
     n_kept = 0
     for k in keep:
         n_kept += k

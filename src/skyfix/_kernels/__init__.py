@@ -1,7 +1,8 @@
 """skyfix's shared numba helpers — each formula that a kernel and a readable function both need
 is written here once (:mod:`.lens`: the camera model; :mod:`.rotation`: rotations, RA/Dec, roll,
 quaternions, chord angles, TRIAD; :mod:`.wahba`: the attitude profile and information matrices;
-:mod:`.probability`: the binomial tail; :mod:`.camera_fit`: the camera fit) — and the check
+:mod:`.probability`: the binomial tail; :mod:`.camera_fit`: the camera fit; :mod:`.robust`: the
+outlier cut by residuals) — and the check
 that keeps numba's on-disk cache honest.
 
 numba caches a compiled kernel beside its source and checks only that file's timestamp: a

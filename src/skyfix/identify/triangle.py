@@ -11,8 +11,9 @@ only when a fourth image star confirms it (a catalogue neighbour at the right th
 checked in the compiled search), and the four stars are a proposal judged by the common rules
 (:func:`skyfix.identify.hypothesis.first_accepted`), exactly as any other method's.
 
-*Sparse frames* (three or four stars, or a rich frame the first way did not settle): a lone
-triangle has nothing else to verify it against, so its own chance is computed, honestly:
+*Sparse frames* (three or four stars, or up to :data:`LONE_MAX_STARS` that the first way did not
+settle): a lone triangle has nothing else to verify it against, so its own chance is computed,
+honestly:
 
 1. **How unusual a match this close is.** The catalogue triangles near the measured one — all
    three sides within ``W`` (:func:`window_rad`) — are counted, among stars no fainter than
@@ -56,6 +57,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from skyfix._kernels.robust import rayleigh_inliers
 from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
 from skyfix.errors import InputError
@@ -75,10 +77,14 @@ from skyfix.identify.pairs import PairTable, neighbours_in_range, pair_table, pa
 from skyfix.identify.result import Identification
 from skyfix.identify.verify import stars_in_view
 
-__all__ = ["AMBIGUITY_RATIO", "METHOD", "LoneJudgement", "identify", "judge_lone", "triangle_matches",
-           "window_rad"]
+__all__ = ["AMBIGUITY_RATIO", "LONE_MAX_STARS", "METHOD", "LoneJudgement", "identify", "judge_lone",
+           "triangle_matches", "window_rad"]
 
 METHOD = "triangle"
+LONE_MAX_STARS = 8
+"""Frames of more centroids than this are judged by the common rules only: the lone-triangle
+test is for sparse frames (its cost grows with the stars; a rich frame that the common rules
+cannot settle has a reason to fail)."""
 AMBIGUITY_RATIO = 100.0  # a second triangle this close to the best one's chance makes the frame ambiguous
 _MAX_MATCHES = 4096  # catalogue triangles kept per image triangle (more are counted, not kept)
 _NO_CONFIRM = np.empty((0, 3))
@@ -391,6 +397,33 @@ def _image_triangles(n: int):
     return sorted(combinations(range(n), 3), key=lambda t: (t[2], t[1], t[0]))
 
 
+def _triangle_holds(frame: Frame, judgement: LoneJudgement) -> bool:
+    """Whether each of the hypothesis's own three stars fits the attitude the other matched
+    stars give without it (rule 8's Rayleigh cut over their residuals and its own,
+    :func:`skyfix._kernels.robust.rayleigh_inliers`, floored at 0.1 px).
+
+    A triangle of two true stars and a false one lands near the truth: the stars around it verify
+    it, but the false star pulls its attitude off (a 15° frame with 10 false stars came back 240″
+    and 1.7° off with P 2.5e-9 before this check; fitted with it, the false star's residual was
+    only 3× the others', as it had pulled them too). Needs five or more matched stars."""
+    n = len(judgement.stars)
+    if n < 5:
+        return True
+    for i in range(3):
+        rest = np.arange(n) != i
+        fit = hypothesis(frame, judgement.stars[rest], judgement.catalog[rest])
+        if not fit.focal_px == fit.focal_px:
+            return False
+        order = np.concatenate([np.flatnonzero(rest), [i]])
+        stars, catalog = judgement.stars[order], judgement.catalog[order]
+        b = rays_at(frame, stars, float(fit.focal_px))
+        r = frame.stars.vectors[catalog] @ fit.A_icrs_to_cam.T
+        resid = chord_angle(np.linalg.norm(b - r, axis=1))
+        if not rayleigh_inliers(np.ascontiguousarray(resid), 0.1 / float(fit.focal_px))[-1]:
+            return False
+    return True
+
+
 def _lone_identification(frame: Frame, h: Hypothesis, judgement: LoneJudgement, n_tried: int,
                          n_candidates: int) -> Identification:
     """The Identification of an accepted sparse frame: the attitude refitted (SVD) on every
@@ -491,7 +524,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     if not sparse:
         result = first_accepted(frame, ((v, c) for _, v, _, c in candidates(True)), n_tried=len(triangles),
                                 max_candidates=max_candidates)
-        if result.success:
+        if result.success or len(frame.xy) > LONE_MAX_STARS:
             return result
         n_cand = 0
     lone: list[tuple[float, Hypothesis, LoneJudgement]] = []
@@ -501,7 +534,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
             continue
         j = judge_lone(frame, h, table, star_mag, sides_img=sides, tolerance_rad=tol, n_triangles=t + 1,
                        mag_margin=mag_margin, missing_margin=missing_margin, min_error_px=min_error_px)
-        if j.n_missing == 0:
+        if j.n_missing == 0 and _triangle_holds(frame, j):
             lone.append((j.log_chance, h, j))
     if not lone:
         return failure(METHOD, f"no catalogue triangle fits ({n_cand} candidates from {len(triangles)} "
