@@ -646,7 +646,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         # Largest groups first across the pieces of the focal range (one piece when calibrated):
         # a piece's groups of prompt_group stars or more (a constellation chance does not make)
         # as soon as the piece is searched; once every piece is, the rest at each piece's first
-        # ICLim by size; then every piece at each lower ICLim in turn.
+        # ICLim, all pieces' together by size, then residual; then every piece at each lower
+        # ICLim in turn.
         seen: set[bytes] = set()
 
         def fresh(sub: Subgroups, keep: np.ndarray) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -679,9 +680,13 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 return
             tops.append(estimated_level(matches) or 1)
             subs.append(tested(part, match_groups(matches, ic_lim=tops[-1]), min_group))
-        for size in range(len(setup.rays), min_group - 1, -1):
-            for sub in subs:
-                yield from fresh(sub, sub.size == size)
+        if subs:  # every piece's groups together: largest first, then the smallest residual
+            merged = Subgroups(np.concatenate([sub.catalog for sub in subs]),
+                               np.concatenate([sub.size for sub in subs]),
+                               np.concatenate([sub.residual_rad for sub in subs]), 0, True)
+            order = np.lexsort((merged.residual_rad, -merged.size))
+            yield from fresh(merged._replace(catalog=merged.catalog[order], size=merged.size[order]),
+                             np.ones(len(order), np.bool_))
         for drop in range(1, len(setup.rays)):
             for (part, matches), top in zip(pieces, tops, strict=True):
                 if late():
