@@ -25,6 +25,7 @@ from skyfix._kernels.probability import log_binom_sf
 from skyfix.identify.kernel_data import CentroidGrid
 
 _N_RADII = 5  # verification radii R, R/2, ..., R/16
+_PLANES_MAX_CELLS = 4.0  # stars_in_view tests edge planes when the frame's cone is < this many cell radii
 
 __all__ = ["cell_band", "star_limit", "stars_in_view", "gather_stars", "project_stars",
            "match_greedy", "grid_index", "match_grid", "verify_attitude"]
@@ -67,6 +68,19 @@ def cell_band(cell_centres, u, cone):
     return lo, a
 
 
+@numba.njit(cache=True, inline="always")
+def _edge_plane(A, f_signed, axis, offset):
+    """The camera-frame vector ``(f_signed, 0, offset)`` (``axis`` 0) or ``(0, f_signed, offset)``
+    (``axis`` 1), normalised and rotated to ICRS by ``Aᵀ``: the inner normal of a frame edge's plane
+    through the camera (:func:`stars_in_view`)."""
+    ex = f_signed if axis == 0 else 0.0
+    ey = f_signed if axis == 1 else 0.0
+    norm = np.sqrt(f_signed * f_signed + offset * offset)
+    return ((ex * A[0, 0] + ey * A[1, 0] + offset * A[2, 0]) / norm,
+            (ex * A[0, 1] + ey * A[1, 1] + offset * A[2, 1]) / norm,
+            (ex * A[0, 2] + ey * A[1, 2] + offset * A[2, 2]) / norm)
+
+
 @numba.njit(cache=True)
 def stars_in_view(A, f, k1, frame, limit, stars, view):
     """Catalogue stars (index < ``limit``) of the :class:`StarIndex` ``stars`` that project into
@@ -79,8 +93,9 @@ def stars_in_view(A, f, k1, frame, limit, stars, view):
     cache misses, most of a verification's time): with ``k1 = 0`` a star in the frame lies
     within ``atan(ext / f)`` of the boresight (``ext`` the frame's farthest corner) and on the
     inner side of the frame's four edge planes, so a cell is read only if its cap (the cell
-    radius about its centre) reaches that cone and every edge plane's inner side; with ``k1``
-    the cone is widened (``1 + 2|k1|`` and 0.01 rad) and the planes are not used.
+    radius about its centre) reaches that cone and, in fields narrower than
+    :data:`_PLANES_MAX_CELLS` cell radii, every edge plane's inner side; with ``k1`` the cone
+    is widened (``1 + 2|k1|`` and 0.01 rad) and the planes are not used.
     """
     star_vectors, cell_centres, cell_start, cell_stars = (stars.vectors, stars.cell_centres, stars.cell_start,
                                                           stars.cell_stars)
@@ -94,26 +109,31 @@ def stars_in_view(A, f, k1, frame, limit, stars, view):
         half_diag = np.arctan(ext / f) * (1.0 + 2.0 * abs(k1)) + 0.01
     cos_cell = np.cos(min(half_diag + cell_radius, np.pi))
     # The edge planes' inner normals (n·b >= 0 inside) in ICRS, and how far outside a plane a
-    # cell centre may lie with its cap still reaching inside: sin(cell radius).
-    planes = np.empty((4, 3))
-    edge = ((f, 0.0, -x_lo), (-f, 0.0, x_hi), (0.0, f, -y_lo), (0.0, -f, y_hi))
-    for i in range(4):
-        ex, ey, ez = edge[i]
-        norm = np.sqrt(ex * ex + ey * ey + ez * ez)
-        for j in range(3):
-            planes[i, j] = (ex * A[0, j] + ey * A[1, j] + ez * A[2, j]) / norm
-    reach = -np.sin(min(cell_radius, 0.5 * np.pi)) - 1e-9 if k1 == 0.0 else -2.0
+    # cell centre may lie with its cap still reaching inside: sin(cell radius) (reach).
+    # The cells tested against the planes: those whose cap is not within the frame's inscribed
+    # cone (inside every plane), and only where the cells are coarse beside the frame (cone
+    # under 4 cell radii: the 2-15 deg fields; in wider ones the tests cost more than the reads
+    # they save, measured).
+    cos_inside = -2.0  # no cell tested
+    lx = ly = lz = rx = ry = rz = tx = ty = tz = bx = by = bz_ = 0.0
+    reach = -np.sin(min(cell_radius, 0.5 * np.pi)) - 1e-9
+    if k1 == 0.0 and half_diag <= _PLANES_MAX_CELLS * cell_radius:
+        lx, ly, lz = _edge_plane(A, f, 0, -x_lo)
+        rx, ry, rz = _edge_plane(A, -f, 0, x_hi)
+        tx, ty, tz = _edge_plane(A, f, 1, -y_lo)
+        bx, by, bz_ = _edge_plane(A, -f, 1, y_hi)
+        inscribed = np.arctan(min(-x_lo, x_hi, -y_lo, y_hi) / f) - cell_radius - 1e-9
+        cos_inside = np.cos(inscribed) if inscribed > 0.0 else 2.0
     n = 0
     band_lo, band_hi = cell_band(cell_centres, A[2], half_diag + cell_radius)
     for cell in range(band_lo, band_hi):
         cx, cy, cz = cell_centres[cell, 0], cell_centres[cell, 1], cell_centres[cell, 2]
-        if cx * A[2, 0] + cy * A[2, 1] + cz * A[2, 2] < cos_cell:
+        d = cx * A[2, 0] + cy * A[2, 1] + cz * A[2, 2]
+        if d < cos_cell:
             continue
-        outside = False
-        for i in range(4):
-            if cx * planes[i, 0] + cy * planes[i, 1] + cz * planes[i, 2] < reach:
-                outside = True
-        if outside:
+        if d < cos_inside and (cx * lx + cy * ly + cz * lz < reach or cx * rx + cy * ry + cz * rz < reach
+                               or cx * tx + cy * ty + cz * tz < reach
+                               or cx * bx + cy * by + cz * bz_ < reach):
             continue
         for t in range(cell_start[cell], cell_start[cell + 1]):
             s = cell_stars[t]
@@ -353,14 +373,17 @@ def verify_attitude(A, f, image, n_cat_max, n_img, radius_px, pattern, combo, st
     r2 = radius_px * radius_px
     for j in range(n_cat):
         own = False
-        for a in range(4):
+        for a in range(pattern.shape[0]):
             if view_idx[j] == pattern[a]:
                 own = True
         if own:
             continue
         n += 1
         i = match_img[j]
-        if i >= 0 and i != combo[0] and i != combo[1] and i != combo[2] and i != combo[3]:
+        for a in range(combo.shape[0]):
+            if i == combo[a]:
+                i = -1  # one of the pattern's own centroids: not evidence
+        if i >= 0:
             d2 = (p[i, 0] - view_x[j]) ** 2 + (p[i, 1] - view_y[j]) ** 2
             lim = r2
             for m in range(_N_RADII):
