@@ -57,10 +57,13 @@ from skyfix.identify.refine import refine_entry
 from skyfix.identify.result import Identification, finite_centroids
 from skyfix.identify.verify import verify_attitude
 
-__all__ = ["Frame", "Hypothesis", "chance_log_probability", "failure", "finish", "first_accepted", "fits",
-           "frame_for", "hypothesis", "rays_at"]
+__all__ = ["CORE_STARS", "Frame", "Hypothesis", "chance_log_probability", "failure", "finish",
+           "first_accepted", "fits", "frame_for", "hypothesis", "rays_at"]
 
 _VIEW = 8192  # catalogue stars projected per verification at most
+CORE_STARS = 4
+"""The stars of a proposal whose attitude the verification judges (:func:`first_accepted`): as
+many as the 4-star method's pattern, so that every method's evidence is counted alike."""
 
 
 class Frame(NamedTuple):
@@ -260,17 +263,14 @@ def fits(frame: Frame, h: Hypothesis) -> bool:
 
 def chance_log_probability(frame: Frame, h: Hypothesis) -> float:
     """log P(a wrong attitude puts as many catalogue stars on centroids as the hypothesis's
-    does), its own centroids and catalogue stars (the first four of each) not counted — accept
-    rule 5 before the look-elsewhere factor (:func:`skyfix.identify.accept.log_prob_false` with
-    the hypotheses examined)."""
-    pattern = np.full(4, -1, np.int64)
-    combo = np.full(4, -1, np.int64)
-    k = min(4, len(h.stars))
-    pattern[:k] = h.catalog[:k]
-    combo[:k] = h.stars[:k]
+    does), its own centroids and catalogue stars (all of them: a method's chosen stars match by
+    construction) not counted — accept rule 5 before the look-elsewhere factor
+    (:func:`skyfix.identify.accept.log_prob_false` with the hypotheses examined)."""
+    own_catalog = np.ascontiguousarray(h.catalog, np.int64)
+    own_stars = np.ascontiguousarray(h.stars, np.int64)
     logp, _, _ = verify_attitude(np.ascontiguousarray(h.A_icrs_to_cam), float(h.focal_px), frame.image,
-                                 np.int64(frame.n_verify), np.int64(frame.n_verify), frame.radius_px, pattern,
-                                 combo, frame.stars, frame.view)
+                                 np.int64(frame.n_verify), np.int64(frame.n_verify), frame.radius_px,
+                                 own_catalog, own_stars, frame.stars, frame.view)
     return float(logp)
 
 
@@ -313,7 +313,13 @@ def first_accepted(frame: Frame, proposals: Iterable[tuple[np.ndarray, np.ndarra
     ranks them — that passes every rule (:func:`fits`, :func:`chance_log_probability` with every
     proposal examined so far counted, :func:`finish`), or a failure saying how many were tried.
     ``n_tried``: the image patterns the method looked at (reported). A method that proposes
-    through this function is exactly as safe as any other."""
+    through this function is exactly as safe as any other.
+
+    A proposal of more than :data:`CORE_STARS` stars (a voting set, a match group) must fit as a
+    whole, but is verified at the attitude of its first :data:`CORE_STARS` alone, the rest of
+    its stars counted as evidence like any catalogue star in view: stars a method chose *because*
+    they agree with each other would otherwise be evidence by construction (with all of them
+    left out, a 20-star set has nothing left to verify it)."""
     n = 0
     for stars, catalog in proposals:
         n += 1
@@ -323,7 +329,12 @@ def first_accepted(frame: Frame, proposals: Iterable[tuple[np.ndarray, np.ndarra
         h = hypothesis(frame, stars, catalog)
         if not fits(frame, h):
             continue
-        log_p = chance_log_probability(frame, h)
+        core = h
+        if len(h.stars) > CORE_STARS:
+            core = hypothesis(frame, h.stars[:CORE_STARS], h.catalog[:CORE_STARS])
+        if not fits(frame, core):
+            continue
+        log_p = chance_log_probability(frame, core)
         if log_prob_false(log_p, n) > frame.log_threshold:
             continue
         result = finish(frame, h, log_p, n_tried, n)
