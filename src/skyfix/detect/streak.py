@@ -379,6 +379,36 @@ def _row_next(walk, shape):
 
 
 @njit(cache=True, inline="always")
+def _row_step(walk, shape):
+    """:func:`_row_next` without its re-seeding, for where no Gaussian can underflow
+    (:func:`_no_underflow`): the recurrence alone, no exp in the loop that walks it."""
+    a, b, gp, rp, gm, rm, gb, rb = walk
+    return (a + shape.ux, b - shape.uy, gp * rp, rp * shape.ca, gm * rm, rm * shape.ca, gb * rb,
+            rb * shape.cb)
+
+
+@njit(cache=True, inline="always")
+def _no_underflow(shape):
+    """Whether every Gaussian of the profile stays above ``exp(−700)`` within the streak's reach
+    (``|a ± L/2| ≤ L + 4s``, ``|b| ≤ 4s``): streaks shorter than ~33 σ."""
+    z = (2.0 * shape.half_len + _REACH * shape.s) * shape.q
+    return z * z <= 700.0
+
+
+@njit(cache=True, inline="always")
+def _put(buf, m, walk, v):
+    """A pixel of the walk into ``buf``'s column ``m``: ``a``, ``b``, the three Gaussians and
+    its value ``v`` above the sky."""
+    a, b, gp, _, gm, _, gb, _ = walk
+    buf[0, m] = a
+    buf[1, m] = b
+    buf[2, m] = gp
+    buf[3, m] = gm
+    buf[4, m] = gb
+    buf[5, m] = v
+
+
+@njit(cache=True, inline="always")
 def _seed3(z, dzx, dzy):
     """``exp(−z²)`` and its ratios to the next pixel's along a row (``exp(−(z + dzx)²)``) and
     down a column (``exp(−(z + dzy)²)``); ``(0, 1, 1)`` where it underflows (``z² > 700``)."""
@@ -521,21 +551,22 @@ def _gather(img, box, shape, xc, yc, buf):
     the columns of ``buf`` (9 rows, ≥ their count): ``a`` and ``b`` (along and across the motion),
     the row walk's three Gaussians and the value above the sky. Returns their count."""
     m = 0
+    safe = _no_underflow(shape)
     col = _column_start(box.x0 - xc, box.y0 - yc, shape)
     for y in range(box.y0, box.y1 + 1):
         lo, hi = _span(y, box, shape, xc, yc)
         walk = _row_from(col, lo - box.x0, shape)
         col = _column_next(col, shape)
-        for x in range(lo, hi + 1):
-            a, b, gp, _, gm, _, gb, _ = walk
-            buf[0, m] = a
-            buf[1, m] = b
-            buf[2, m] = gp
-            buf[3, m] = gm
-            buf[4, m] = gb
-            buf[5, m] = img[y, x] - box.sky
-            m += 1
-            walk = _row_next(walk, shape)
+        if safe:  # two loops: one with no exp (nor its spills) in it
+            for x in range(lo, hi + 1):
+                _put(buf, m, walk, img[y, x] - box.sky)
+                m += 1
+                walk = _row_step(walk, shape)
+        else:
+            for x in range(lo, hi + 1):
+                _put(buf, m, walk, img[y, x] - box.sky)
+                m += 1
+                walk = _row_next(walk, shape)
     return m
 
 
