@@ -88,6 +88,7 @@ cannot settle has a reason to fail)."""
 AMBIGUITY_RATIO = 100.0  # a second triangle this close to the best one's chance makes the frame ambiguous
 _MAX_MATCHES = 4096  # catalogue triangles kept per image triangle (more are counted, not kept)
 _NO_CONFIRM = np.empty((0, 3))
+_FIRST_STARS = 5  # the image triangles among this many brightest stars are searched cheapest first
 _WINDOW_MAX = 4096  # catalogue triangles near a sparse frame's match tested by rule 4 (a sample beyond)
 
 
@@ -99,13 +100,16 @@ def _angle(u, v):
 
 
 @numba.njit(cache=True)
-def _confirming_star(table, vectors, a, b, c, s, confirm, tol, theta01, spread):
+def _confirming_star(table, vectors, a, b, c, s, confirm, tol, theta01, spread, need):
     """The first extra image star (row of ``confirm``: its angles to vertices 0, 1, 2 at the
     nominal focal length) that a catalogue neighbour ``e`` of ``a`` matches at scale ``s``
     (angles to ``a``, ``b``, ``c`` within ``tol``, the scale's own error — ``tol / theta01``
-    relative — and the projection's ``spread`` included), as ``(row, e)``; ``(-1, -1)`` when
-    none does."""
+    relative — and the projection's ``spread`` included), as ``(row, e)``, when at least
+    ``need`` extra stars are matched so; ``(-1, -1)`` otherwise."""
+    first_d, first_e, found = -1, -1, 0
     for d in range(confirm.shape[0]):
+        if found + confirm.shape[0] - d < need:
+            break  # too few rows left to reach ``need``
         t0 = tol * (1.0 + confirm[d, 0] / theta01) + spread * confirm[d, 0]
         q0, q1 = neighbours_in_range(table, a, confirm[d, 0] * s - t0, confirm[d, 0] * s + t0)
         t1 = tol * (1.0 + confirm[d, 1] / theta01) + spread * confirm[d, 1]
@@ -116,7 +120,12 @@ def _confirming_star(table, vectors, a, b, c, s, confirm, tol, theta01, spread):
                 continue
             if (abs(_angle(vectors[e], vectors[b]) - confirm[d, 1] * s) <= t1
                     and abs(_angle(vectors[e], vectors[c]) - confirm[d, 2] * s) <= t2):
-                return d, e
+                if found == 0:
+                    first_d, first_e = d, e
+                found += 1
+                break
+        if found >= need:
+            return first_d, first_e
     return -1, -1
 
 
@@ -125,11 +134,11 @@ def triangle_matches(table, vectors, sides, tol, calibrated, rank_limit, confirm
     """Catalogue triangles ``(a, b, c)`` whose sides match the image triangle's ``sides`` =
     (θ01, θ02, θ12) (radians), stars below ``rank_limit`` only.
 
-    ``tol`` = (t01_lo, t01_hi, t02, t12, t, spread): with ``calibrated`` the catalogue sides must
-    be within ``θ ± t02``; else side 01 within ``[t01_lo, t01_hi]`` (the focal range's) and the
-    other two within ``± t02, t12`` of ``θ · s``, ``s`` the scale side 01 implies; ``t`` is one
-    angle's tolerance and ``spread`` the projection's bending of ratios (confirmation). With rows
-    in ``confirm``
+    ``tol`` = (t01_lo, t01_hi, t02, t12, t, spread, need): with ``calibrated`` the catalogue sides
+    must be within ``θ ± t02``; else side 01 within ``[t01_lo, t01_hi]`` (the focal range's) and
+    the other two within ``± t02, t12`` of ``θ · s``, ``s`` the scale side 01 implies; ``t`` is
+    one angle's tolerance, ``spread`` the projection's bending of ratios, ``need`` the confirming
+    stars asked for (confirmation). With rows in ``confirm``
     (M, 3) — other image stars' angles to the three vertices — a triangle counts only when a
     fourth star confirms it (:func:`_confirming_star`, the seeds' fourth-star check, compiled).
     Writes up to ``len(out)`` rows of ``out`` (K, 5) = (a, b, c, confirm row or -1, its catalogue
@@ -157,7 +166,7 @@ def triangle_matches(table, vectors, sides, tol, calibrated, rank_limit, confirm
                 d, e = -1, -1
                 if confirm.shape[0]:
                     d, e = _confirming_star(table, vectors, a, b, c, s, confirm, tol[4],
-                                            math.inf if calibrated else sides[0], tol[5])
+                                            math.inf if calibrated else sides[0], tol[5], tol[6])
                     if d < 0:
                         continue
                 if n < out.shape[0]:
@@ -261,7 +270,7 @@ def judge_lone(frame: Frame, h: Hypothesis, table: PairTable, star_mag: np.ndarr
     # The box in the sides' space: side 01 over the focal range, the others as the search's.
     other = window if calibrated else window * (1.0 + sides_img[1:].max() / sides_img[0])
     tol = np.array([sides_img[0] * (1 - s_tol) - window, sides_img[0] * (1 + s_tol) + window, other, other,
-                    window, 0.0])
+                    window, 0.0, 1.0])
     found = np.empty((_WINDOW_MAX, 5), np.int32)
     n_window = triangle_matches(table, vectors, sides_img, tol, calibrated, rank, _NO_CONFIRM, found,
                                 np.empty(_WINDOW_MAX))
@@ -351,14 +360,15 @@ def _unrefuted(frame: Frame, h: Hypothesis, table: PairTable, tris: np.ndarray, 
 
 
 def _sides_order(frame: Frame, table: PairTable, tri: tuple[int, int, int],
-                 tol: float) -> tuple[np.ndarray, np.ndarray]:
+                 tol: float) -> tuple[np.ndarray, np.ndarray, float]:
     """The triangle's vertices ordered for the search, and its sides (θ01, θ02, θ12).
 
     Side 01 is searched in the pair table; its pairs are the work. With a calibrated camera its
     range is ± the tolerance whichever side it is, so the longest side (fewest pairs per radian
     is not the point: its relative error is the smallest). With a FOV only, its range is the
     focal range's (±10 %) and the other sides' tolerance grows as ``θ_other / θ01``: the side
-    whose pairs in range times that growth is least is searched."""
+    whose pairs in range times that growth is least is searched. Returns the vertices, the
+    sides and that cost (the search's work, to order image triangles by)."""
     i, j, k = tri
     best, best_cost = None, math.inf
     s_tol = frame.scale_tolerance
@@ -373,7 +383,7 @@ def _sides_order(frame: Frame, table: PairTable, tri: tuple[int, int, int],
             cost = (hi - lo) * (1.0 + s[1] / max(s[0], 1e-12))
         if cost < best_cost:
             best, best_cost = (np.array([a, b, c], np.int64), s), cost
-    return best
+    return best[0], best[1], best_cost
 
 
 def _angles_to(rays: np.ndarray, extra: np.ndarray, verts: np.ndarray) -> np.ndarray:
@@ -452,7 +462,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              database: PatternDatabase | None = None, epoch: float | None = None, max_stars: int = 8,
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, mag_margin: float = 1.0,
              missing_margin: float = 0.75, min_error_px: float = 0.05, lone_prob_threshold: float = 1e-4,
-             prob_threshold: float = 1e-9, max_candidates: int = 2000, per_field: int = 12) -> Identification:
+             prob_threshold: float = 1e-9, max_candidates: int = 2000, max_per_triangle: int = 64,
+             per_field: int = 12) -> Identification:
     """Identify a frame's stars from triangles of its brightest centroids (the module text).
 
     Parameters (beyond the interface of :mod:`skyfix.identify.methods`)
@@ -468,6 +479,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     lone_prob_threshold : float — the largest chance accepted for a sparse frame.
     prob_threshold : float — the largest chance accepted for a rich frame (as the 4-star method's).
     max_candidates : int — catalogue triangles judged at most.
+    max_per_triangle : int — on rich frames, an image triangle that more catalogue triangles
+        match (with a fourth star confirming) than this is skipped: it cannot tell them apart.
     per_field : int — catalogue stars per field in the pair table (:func:`skyfix.identify.pairs.pair_table`).
     """
     if not 3 <= int(max_stars) <= 12:
@@ -488,6 +501,12 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     tol = n_sigma * math.sqrt(2.0) * centroid_sigma_px / f0
     n = min(len(frame.xy), int(max_stars))
     triangles = _image_triangles(n)
+    # Of the first image triangles (those of the five brightest stars), the cheapest to search
+    # first: with a FOV only a long side's range holds ten thousand pairs, a short one's hundreds.
+    first = sum(1 for t in triangles if t[2] < _FIRST_STARS)
+    plan = [(tri, *_sides_order(frame, table, tri, tol)) for tri in triangles[:first]]
+    plan.sort(key=lambda e: e[3])
+    plan += [(tri, None, None, 0.0) for tri in triangles[first:]]
     out = np.empty((_MAX_MATCHES, 5), np.int32)
     err = np.empty(_MAX_MATCHES)
     n_all = len(star_mag)
@@ -498,19 +517,25 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         """(image triangle number, its vertices (and the confirming star's) and sides, catalogue
         stars) in search order; with ``confirm``, only triangles a fourth star confirms."""
         nonlocal n_cand
-        for t, tri in enumerate(triangles):
-            verts, sides = _sides_order(frame, table, tri, tol)
+        for t, (tri, verts, sides, _) in enumerate(plan):
+            if verts is None:
+                verts, sides, _ = _sides_order(frame, table, tri, tol)
             # FOV only: the scale side 01 implies carries its error into the other sides, and a
             # focal length across its range bends the sides' ratios a little (projection).
             spread = _ratio_spread(frame, verts)
             t_other = tol * (1.0 + sides[1:].max() / sides[0]) + spread * sides[0]
+            extra = np.setdiff1d(np.arange(n), verts) if confirm else np.zeros(0, np.int64)
+            # With a FOV only one confirming star is often found by chance: ask for two when
+            # three or more could confirm.
+            need = 2.0 if not frame.calibrated and len(extra) >= 3 else 1.0
             bounds = np.array([sides[0] * (1 - s_tol) - tol, sides[0] * (1 + s_tol) + tol, t_other, t_other,
-                               tol, spread])
+                               tol, spread, need])
             if frame.calibrated:
                 bounds[2] = bounds[3] = tol
-            extra = np.setdiff1d(np.arange(n), verts) if confirm else np.zeros(0, np.int64)
             angles = _angles_to(frame.rays, extra, verts)
             k = triangle_matches(table, vectors, sides, bounds, frame.calibrated, n_all, angles, out, err)
+            if confirm and k > max_per_triangle:
+                continue  # an image triangle that many catalogue ones confirm tells nothing (pyramid's rule)
             k = min(k, len(out))
             for a, b, c, d, e in out[:k][np.argsort(err[:k], kind="stable")]:  # the closest shapes first
                 if n_cand >= max_candidates:
