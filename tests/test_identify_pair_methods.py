@@ -1,6 +1,9 @@
-"""The ``pyramid`` identification method (skyfix.identify.pyramid, Mortari's Pyramid): Orion's
-bright stars named, a mirrored field rejected, bad input one line, noise-free 15° fields all
-solved and noisy fields with false stars never solved wrong."""
+"""The pair-angle methods ``pyramid`` (skyfix.identify.pyramid, Mortari's Pyramid) and ``voting``
+(skyfix.identify.voting, geometric voting), each on the same checks: Orion's bright stars named,
+a mirrored field rejected, bad input one line, noise-free 15° fields all solved and noisy
+fields with false stars never solved wrong."""
+
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -11,13 +14,39 @@ from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
 from skyfix.errors import CameraError
 from skyfix.geometry import attitude_from_radec_roll, vector_to_radec
-from skyfix.identify import pyramid
+from skyfix.identify import pyramid, voting
 
-identify = pyramid.identify
 ARCSEC = np.pi / 180 / 3600
 # Betelgeuse, Rigel, Bellatrix, Alnitak, Alnilam, Mintaka, Saiph (brightest first but Rigel)
 ORION = np.array([27989, 24436, 25336, 26727, 26311, 25930, 27366])
 W, H = 1024, 768
+
+
+class Method(NamedTuple):
+    """What differs between the two methods in these checks."""
+
+    name: str
+    identify: object
+    failed: str  # the start of a failure's reason when nothing verified
+    rich_mirror: object  # (Identification) -> bool: how a rich mirrored field failed
+    bound: dict  # a work bound of 0
+    bound_reason: str
+
+
+METHODS = [
+    Method("pyramid", pyramid.identify, "no pyramid verified",
+           # every triangle of the 20 brightest tried, none of the right hand
+           lambda r: r.n_patterns_tried == 1140, dict(max_triangles=0), "max_triangles 0 triangles tried"),
+    Method("voting", voting.identify, "no voted set verified",
+           # its votes find consistent sets, which no proper rotation fits
+           lambda r: r.n_patterns_tried == 1 and r.n_candidates >= 1, dict(max_candidates=0),
+           "no voted set verified: 0 proposed, max_candidates 0 sets proposed"),
+]
+
+
+@pytest.fixture(params=METHODS, ids=[m.name for m in METHODS])
+def method(request):
+    return request.param
 
 
 @pytest.fixture(scope="module")
@@ -44,11 +73,11 @@ def _boresight_arcsec(A_true, A_est):
 
 
 @pytest.mark.parametrize("calibrated", [True, False])
-def test_orion_is_named(database, orion, calibrated):
+def test_orion_is_named(database, orion, calibrated, method):
     xy, cam, A = orion
     kw = dict(camera=cam) if calibrated else dict(fov_deg=31.0)  # the FOV 1° off: the focal length is found
-    r = identify(xy, W, H, database=database, **kw)
-    assert r.success and r.method == "pyramid"
+    r = method.identify(xy, W, H, database=database, **kw)
+    assert r.success and r.method == method.name
     assert list(r.catalog_ids[np.argsort(r.star_index)]) == list(ORION)
     assert list(np.sort(r.star_index)) == list(range(7))
     boresight, roll = _boresight_arcsec(A, r.A_icrs_to_cam)
@@ -56,44 +85,44 @@ def test_orion_is_named(database, orion, calibrated):
     assert r.camera.fx == pytest.approx(cam.fx, rel=1e-3)
 
 
-def test_a_mirrored_field_is_rejected(database, catalog, orion):
+def test_a_mirrored_field_is_rejected(database, catalog, orion, method):
     xy, cam, _ = orion
     mirrored = xy.copy()
     mirrored[:, 0] = W - 1 - mirrored[:, 0]
     for kw in (dict(camera=cam), dict(fov_deg=30.0)):
-        r = identify(mirrored, W, H, database=database, **kw)
-        assert not r.success and "no pyramid verified" in r.reason and "\n" not in r.reason
-    # a rich field mirrored: many triangles, none of the right hand
+        r = method.identify(mirrored, W, H, database=database, **kw)
+        assert not r.success and method.failed in r.reason and "\n" not in r.reason
+    # a rich field mirrored
     cam15 = Camera.from_fov(1024, 1024, 15.0)
     A = random_attitudes(1, rng=8)[0]
     field = synthetic_centroids(cam15, A, catalog, mag_limit=6.0, sigma_px=0.3, rng=8)
     assert len(field.xy) >= 15
     mirrored = field.xy.copy()
     mirrored[:, 0] = 1023 - mirrored[:, 0]
-    assert identify(field.xy, 1024, 1024, camera=cam15, database=database).success
-    r = identify(mirrored, 1024, 1024, camera=cam15, database=database)
-    assert not r.success and r.n_patterns_tried == 1140  # every triangle of the 20 brightest tried
+    assert method.identify(field.xy, 1024, 1024, camera=cam15, database=database).success
+    r = method.identify(mirrored, 1024, 1024, camera=cam15, database=database)
+    assert not r.success and method.rich_mirror(r)
 
 
-def test_bad_input_is_one_line(database, orion):
+def test_bad_input_is_one_line(database, orion, method):
     xy, cam, _ = orion
-    r = identify(xy, W, H, database=database)
+    r = method.identify(xy, W, H, database=database)
     assert not r.success and "needs a field of view or a camera" in r.reason
-    r = identify(xy[:3], W, H, camera=cam, database=database)
+    r = method.identify(xy[:3], W, H, camera=cam, database=database)
     assert not r.success and r.reason == "too few stars (3 detected, need 4)"
     with pytest.raises(CameraError, match="impossible field of view"):
-        identify(xy, W, H, fov_deg=200.0, database=database)
+        method.identify(xy, W, H, fov_deg=200.0, database=database)
     # non-finite rows are skipped; the indices returned are the caller's
     with_nan = np.insert(xy, 2, [np.nan, 5.0], axis=0)
-    r = identify(with_nan, W, H, camera=cam, database=database)
+    r = method.identify(with_nan, W, H, camera=cam, database=database)
     assert r.success and 2 not in r.star_index
     assert list(r.catalog_ids[np.argsort(r.star_index)]) == list(ORION)
     # work bounds stop it with the reason
-    r = identify(xy, W, H, camera=cam, database=database, max_triangles=0)
-    assert not r.success and "max_triangles 0 triangles tried" in r.reason
+    r = method.identify(xy, W, H, camera=cam, database=database, **method.bound)
+    assert not r.success and method.bound_reason in r.reason
 
 
-def _campaign(database, catalog, n, *, sigma, n_false, mag_limit, seed):
+def _campaign(identify, database, catalog, n, *, sigma, n_false, mag_limit, seed):
     """(fields with >= 5 true stars, solved, wrong, boresight errors ″ of the solved, the share of
     the solved fields' matched stars that are the true ones)."""
     cam = Camera.from_fov(1024, 1024, 15.0)
@@ -120,16 +149,16 @@ def _campaign(database, catalog, n, *, sigma, n_false, mag_limit, seed):
     return fields, solved, wrong, np.array(errors), true / max(matched, 1)
 
 
-def test_noise_free_fields_are_solved(database, catalog):
-    fields, solved, wrong, err, true = _campaign(database, catalog, 50, sigma=0.0, n_false=0, mag_limit=5.5,
-                                                 seed=100)
+def test_noise_free_fields_are_solved(database, catalog, method):
+    fields, solved, wrong, err, true = _campaign(method.identify, database, catalog, 50, sigma=0.0, n_false=0,
+                                                 mag_limit=5.5, seed=100)
     assert fields >= 45 and wrong == 0 and solved == fields
     assert np.median(err) < 2.0 and true > 0.99
 
 
-def test_noisy_fields_with_false_stars_are_never_wrong(database, catalog):
-    fields, solved, wrong, err, true = _campaign(database, catalog, 200, sigma=0.5, n_false=2, mag_limit=6.0,
-                                                 seed=1000)
+def test_noisy_fields_with_false_stars_are_never_wrong(database, catalog, method):
+    fields, solved, wrong, err, true = _campaign(method.identify, database, catalog, 200, sigma=0.5,
+                                                 n_false=2, mag_limit=6.0, seed=1000)
     assert wrong == 0
     assert solved >= 0.97 * fields
     assert np.median(err) < 8.0  # 0.5 px is 26″ at 15°/1024 px; the refit averages tens of stars
