@@ -29,3 +29,11 @@ def database():
     from skyfix.identify import default_database
 
     return default_database()
+
+
+@pytest.fixture(scope="session")
+def catalog(database):
+    """Hipparcos at the default database's epoch: the catalogue whose stars it identifies."""
+    from skyfix.catalog import load_hipparcos
+
+    return load_hipparcos(epoch=database.epoch)

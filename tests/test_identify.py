@@ -16,11 +16,6 @@ ARCSEC = np.pi / 180 / 3600
 
 
 @pytest.fixture(scope="module")
-def catalog(database):
-    return load_hipparcos(epoch=database.epoch)
-
-
-@pytest.fixture(scope="module")
 def fields(catalog):
     """50 random attitudes, σ = 1 px, 8 false stars, 10 % dropouts (the issue's hardest case)."""
     cam = Camera.from_fov(W, H, FOV)

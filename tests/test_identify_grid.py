@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from identify_checks import pointing_at, wrong
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
-from skyfix.catalog import load_hipparcos
 from skyfix.errors import InputError
 from skyfix.identify import grid
 from skyfix.identify import hypothesis as hyp
@@ -22,26 +22,8 @@ ORION_BELT = (26311, 26727, 25930)  # Alnilam, Alnitak, Mintaka
 
 
 @pytest.fixture(scope="module")
-def catalog(database):
-    return load_hipparcos(epoch=database.epoch)
-
-
-@pytest.fixture(scope="module")
 def camera():
     return Camera.from_fov(W, H, FOV)
-
-
-def pointing_at(v: np.ndarray) -> np.ndarray:
-    """A_icrs_to_cam whose boresight is ``v``, camera x toward celestial east."""
-    z = v / np.linalg.norm(v)
-    x = np.cross([0.0, 0.0, 1.0], z)
-    x /= np.linalg.norm(x)
-    return np.array([x, np.cross(z, x), z])
-
-
-def wrong(A_true, A_est) -> bool:
-    e = attitude_error(A_true, A_est)
-    return np.hypot(e[0], e[1]) > 60 * ARCSEC or abs(e[2]) > np.radians(0.5)
 
 
 @pytest.fixture(scope="module")

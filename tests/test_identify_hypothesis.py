@@ -7,18 +7,12 @@ import pytest
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
-from skyfix.catalog import load_hipparcos
 from skyfix.errors import CameraError
 from skyfix.identify import hypothesis as hyp
 from skyfix.identify.accept import is_verified, log_prob_false
 
 W, H, FOV = 1024, 1024, 15.0
 ARCSEC = np.pi / 180 / 3600
-
-
-@pytest.fixture(scope="module")
-def catalog(database):
-    return load_hipparcos(epoch=database.epoch)
 
 
 def _truth(frame, field, database):

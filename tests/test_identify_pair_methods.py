@@ -11,7 +11,6 @@ import pytest
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
-from skyfix.catalog import load_hipparcos
 from skyfix.errors import CameraError
 from skyfix.geometry import attitude_from_radec_roll, vector_to_radec
 from skyfix.identify import pyramid, voting
@@ -47,11 +46,6 @@ METHODS = [
 @pytest.fixture(params=METHODS, ids=[m.name for m in METHODS])
 def method(request):
     return request.param
-
-
-@pytest.fixture(scope="module")
-def catalog(database):
-    return load_hipparcos(epoch=database.epoch)
 
 
 @pytest.fixture(scope="module")

@@ -1,8 +1,8 @@
 """The ``planar`` identification method (skyfix.identify.planar): a known field named right,
 mirrored fields refused, bad input one-line, noise-free and noisy 15° fields solved and never
-wrong (the checks of tests/triangle_method_checks.py)."""
+wrong (the checks of tests/identify_checks.py)."""
 
-import triangle_method_checks as checks
+import identify_checks as checks
 from skyfix.identify import planar
 
 

@@ -1,5 +1,7 @@
-"""What every triangle-feature identification method (liebe, planar, area-moment) must show,
-each check written once; tests/test_identify_<name>.py run them on their method.
+"""What the identification methods' tests share, each written once: the checks every
+triangle-feature method (liebe, planar, area-moment) must pass, which
+tests/test_identify_<name>.py run on their method, and the helpers other method tests use
+(:func:`wrong`, :func:`pointing_at`).
 
 A wrong attitude is a boresight error over 60" or a roll error over 0.5°.
 """
@@ -30,6 +32,14 @@ def catalog_for(database):
 def wrong(A_true, A_est) -> bool:
     err = attitude_error(A_true, A_est)
     return bool(np.hypot(err[0], err[1]) > 60 * ARCSEC or abs(err[2]) > np.radians(0.5))
+
+
+def pointing_at(v: np.ndarray) -> np.ndarray:
+    """A_icrs_to_cam whose boresight is ``v``, camera x toward celestial east."""
+    z = v / np.linalg.norm(v)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    x /= np.linalg.norm(x)
+    return np.array([x, np.cross(z, x), z])
 
 
 def boresight_arcsec(A_true, A_est) -> float:
