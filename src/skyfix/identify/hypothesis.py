@@ -56,6 +56,7 @@ from skyfix.identify.kernel_data import ImageStars, RefineSettings, StarIndex, V
 from skyfix.identify.refine import refine_entry
 from skyfix.identify.result import Identification, finite_centroids
 from skyfix.identify.verify import verify_attitude
+from skyfix.validate import check_positive
 
 __all__ = ["CORE_STARS", "Frame", "Hypothesis", "chance_log_probability", "failure", "finish",
            "first_accepted", "fits", "frame_for", "hypothesis", "rays_at"]
@@ -140,6 +141,9 @@ def frame_for(method: str, xy: np.ndarray, width: int, height: int, *, fov_deg: 
     ------
     skyfix.errors.CameraError
         An impossible ``fov_deg``.
+    skyfix.errors.InputError
+        A ``fov_deg`` or ``fov_tolerance_deg`` that is not a positive number; centroids that are
+        not an (N, 2) array of numbers.
     """
     t0 = time.perf_counter()
     xy, kept = finite_centroids(xy)
@@ -152,6 +156,9 @@ def frame_for(method: str, xy: np.ndarray, width: int, height: int, *, fov_deg: 
     if camera is not None:
         cam, lo, hi = camera, float(camera.fx), float(camera.fx)
     else:
+        fov_deg = check_positive(fov_deg, "fov_deg")  # a number (a string or NaN: one line)
+        if fov_tolerance_deg is not None:
+            fov_tolerance_deg = check_positive(fov_tolerance_deg, "fov_tolerance_deg")
         if not 0.01 < fov_deg < 170.0:
             raise CameraError(f"impossible field of view {fov_deg}° (must be 0.01°–170°)")
         tol = 0.1 * fov_deg if fov_tolerance_deg is None else fov_tolerance_deg
