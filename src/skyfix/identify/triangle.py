@@ -553,11 +553,12 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
             return result
         n_cand = 0
     lone: list[tuple[float, Hypothesis, LoneJudgement]] = []
-    for t, verts, sides, cat in candidates(False):
+    for _, verts, sides, cat in candidates(False):
         h = hypothesis(frame, verts, cat)
         if not fits(frame, h):
             continue
-        j = judge_lone(frame, h, table, star_mag, sides_img=sides, tolerance_rad=tol, n_triangles=t + 1,
+        # Every image triangle counts (rule 2): the best match is chosen among all of them.
+        j = judge_lone(frame, h, table, star_mag, sides_img=sides, tolerance_rad=tol, n_triangles=len(plan),
                        mag_margin=mag_margin, missing_margin=missing_margin, min_error_px=min_error_px)
         if j.n_missing == 0 and _triangle_holds(frame, j):
             lone.append((j.log_chance, h, j))
@@ -569,8 +570,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     if best_log > math.log(lone_prob_threshold):
         return failure(METHOD, "no triangle unique enough: best chance of a wrong match "
                                f"{math.exp(best_log):.1e} > {lone_prob_threshold:g}", frame.t0,
-                       len(triangles),
-                       n_cand)
+                       len(triangles), n_cand)
     apart = 3.0 * frame.radius_px / float(best_h.focal_px)
     rivals = {tuple(j.catalog[:3]) for lp, h, j in lone
               if lp <= best_log + math.log(AMBIGUITY_RATIO) and _rotation_angle(h, best_h) > apart}
