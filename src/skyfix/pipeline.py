@@ -331,7 +331,7 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     # The σ behind the covariance was estimated from the residuals: 2 per star, less the
     # attitude's 3 and the camera numbers fitted (Student's tails for a few stars).
     dof = 2 * len(idx) - 3 - len(fit.camera_params)
-    imprecise = precision_failure(fit.covariance_rad2, camera.plate_scale_rad, dof)
+    imprecise = precision_failure(fit.covariance_rad2, camera.plate_scale_rad, dof, camera_given)
     if imprecise:
         sol.reason = imprecise
         log.info("%s: %s", sol.image, imprecise)

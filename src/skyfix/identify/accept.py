@@ -277,18 +277,21 @@ def wrong_probability(covariance_rad2: np.ndarray, plate_scale_rad: float, dof: 
 MAX_WRONG_PROBABILITY = 1e-3
 
 
-def precision_failure(covariance_rad2: np.ndarray, plate_scale_rad: float, dof: float = math.inf) -> str:
+def precision_failure(covariance_rad2: np.ndarray, plate_scale_rad: float, dof: float = math.inf,
+                      camera_given: bool = False) -> str:
     """Why an attitude is too uncertain to report as solved ("" when it is not): its
-    :func:`wrong_probability` (with the residuals' ``dof``) beyond :data:`MAX_WRONG_PROBABILITY`."""
+    :func:`wrong_probability` (with the residuals' ``dof``) beyond :data:`MAX_WRONG_PROBABILITY`.
+    The reason ends with what would help: with no camera, the camera; with one, more stars."""
     p_wrong = wrong_probability(covariance_rad2, plate_scale_rad, dof)
     if not p_wrong <= MAX_WRONG_PROBABILITY:  # NaN fails too
         c = np.asarray(covariance_rad2, dtype=np.float64)
         sigma_bore = math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) / _ARCSEC
         sigma_roll = math.degrees(math.sqrt(max(c[2, 2], 0.0)))
+        why = ("too few stars, or too noisy, to pin the attitude down" if camera_given else
+               "the stars matched do not pin down an unknown camera: give --camera FILE or --fov")
         return (f"attitude too uncertain: σ boresight {sigma_bore:.0f}″, roll {sigma_roll:.2f}° "
                 f"({p_wrong:.1g} chance of an error beyond {WRONG_BORESIGHT_ARCSEC:.0f}″ or "
-                f"{WRONG_ROLL_DEG}°; the stars matched do not pin down an unknown camera: give "
-                "--camera FILE or --fov)")
+                f"{WRONG_ROLL_DEG}°; {why})")
     return ""
 
 
