@@ -56,6 +56,7 @@ from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
 from skyfix.identify.match_groups import frame_table
 from skyfix.identify.pairs import PairTable, neighbours_in_range
 from skyfix.identify.result import Identification
+from skyfix.identify.voting import consistent_set
 
 __all__ = ["METHOD", "GridPatterns", "GridSettings", "catalogue_patterns", "identify", "image_candidates",
            "pattern_cells"]
@@ -255,24 +256,15 @@ def image_candidates(frame: Frame, table: PairTable, patterns: GridPatterns, set
 @numba.njit(cache=True)
 def _agreeing_sets(agree, order):
     """For each candidate ``u``: ``u`` and, greedily in ``order``, every candidate that agrees
-    with all those taken so far. Row ``u`` of the result marks its set."""
+    with all those taken so far (voting's :func:`~skyfix.identify.voting.consistent_set`, seeded
+    at each candidate in turn). Row ``u`` of the result marks its set."""
     n = agree.shape[0]
     member = np.zeros((n, n), np.bool_)
     taken = np.empty(n, np.int64)
     for u in range(n):
-        taken[0] = u
-        k = 1
-        member[u, u] = True
-        for v in order:
-            ok = True
-            for i in range(k):
-                if not agree[v, taken[i]]:
-                    ok = False
-                    break
-            if ok:
-                taken[k] = v
-                k += 1
-                member[u, v] = True
+        k = consistent_set(agree, order, u, taken)
+        for i in range(k):
+            member[u, taken[i]] = True
     return member
 
 
