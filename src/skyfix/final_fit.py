@@ -51,6 +51,8 @@ class FinalFit:
     camera_params : tuple of str — camera parameters fitted (empty when the camera was given).
     log_prob_chance : float — log probability that the final matches are chance (with the
         fitted camera's freedom paid for; identification's when the stars were not re-matched).
+    noise_sigma_rad : float — the per-axis centroid noise the covariance is scaled by, with a
+        given camera (NaN with a fitted one, whose covariance also holds the camera prior's).
     """
 
     A_icrs_to_cam: np.ndarray
@@ -63,6 +65,7 @@ class FinalFit:
     covariance_rad2: np.ndarray
     camera_params: tuple[str, ...]
     log_prob_chance: float = 0.0
+    noise_sigma_rad: float = math.nan
 
 
 def angles(b: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -117,7 +120,7 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
     sigma = max(math.sqrt(float(np.sum(resid**2)) / dof), 0.05 * camera.plate_scale_rad)
     cov = attitude_covariance(A, b, sigma)
     log_p = math.log(max(ident.prob_false, 1e-300))
-    return FinalFit(A, camera, idx, ids, r, mag, resid, cov, (), log_p)
+    return FinalFit(A, camera, idx, ids, r, mag, resid, cov, (), log_p, sigma)
 
 
 class _Rematch(NamedTuple):
