@@ -585,11 +585,23 @@ def table_3_7(trials: int = 1000, method: str = "van-bezooijen", seed: int = 0,
     (:func:`skyfix.analysis.coverage.sub_catalogue`, 588 stars; thesis 540). For van Bezooijen
     the tolerances are the thesis's: the distance tolerance d_uncert (``centroid_sigma_px`` =
     d_uncert · f / √2 with ``n_sigma`` 1) and Mv_uncert on the magnitudes given. Counted as in
-    the thesis: failures with < 3 stars in view, failures with more, wrong, success."""
+    the thesis: failures with < 3 stars in view, failures with more, wrong, success.
+
+    σ_p is the error of a measured *distance* (Table 3-6 pairs it with "the uncertainty in the
+    distance measured between two stars", and the uncertainties "were set equal to the 1σ
+    errors"): each axis gets σ_p/√2. The method is given the ≤ 20 stars the sensor's region
+    growing extracts (§3.2) and matches the 8 brightest (``max_stars``); the rest only verify.
+    ``fail_thesis_found``: failures whose true stars among the 8 hold a group of ≥ 3 that passes
+    (3.1) and (3.2) for every pair — a group the thesis's largest-group rule could take, refused
+    here as not beyond chance (``refused_log10_p``: the verification's chance of each such true
+    group proposed alone, with its first four stars as the core)."""
+    import itertools
+
     from skyfix.analysis import coverage as cv
     from skyfix.camera import camera_from_preset
     from skyfix.catalog import load_hipparcos
     from skyfix.identify import PatternDatabase, identify
+    from skyfix.identify.hypothesis import chance_log_probability, frame_for, hypothesis
 
     camera = camera_from_preset("sunsat")
     f = math.sqrt(camera.fx * camera.fy)
@@ -605,16 +617,41 @@ def table_3_7(trials: int = 1000, method: str = "van-bezooijen", seed: int = 0,
     warm = synthetic_centroids(camera, attitudes[0], full, mag_limit=limit, rng=seed)
     identify(warm.xy[:8], camera.width, camera.height, method=method, camera=camera, database=db, epoch=EPOCH)
     build_s = time.perf_counter() - t0  # the sub-catalogue, its database and the method's tables
+    star_ids, star_mag, _ = db.star_arrays()
+    row_of = {int(s): i for i, s in enumerate(star_ids)}
+
+    def thesis_group(field, row: MatchingRow) -> list[tuple[int, int]]:
+        # the largest set of true (centroid, star) matches among the 8 brightest whose magnitudes
+        # and pairwise distances all pass the thesis's tests (3.1), (3.2)
+        rays = camera.pixel_to_ray(field.xy[:8])
+        cand = [(i, row_of[int(s)]) for i, s in enumerate(field.star_id[:8])
+                if int(s) in row_of and abs(field.mag[i] - star_mag[row_of[int(s)]]) <= row.mv_uncert]
+        vec = db.star_index().vectors
+        for size in range(len(cand), 2, -1):
+            for group in itertools.combinations(cand, size):
+                if all(abs(math.acos(min(1.0, rays[a] @ rays[b])) - math.acos(min(1.0, vec[ga] @ vec[gb])))
+                       <= row.d_uncert_urad * 1e-6 for (a, ga), (b, gb) in itertools.combinations(group, 2)):
+                    return list(group)
+        return []
+
+    def refused_log10_p(xy: np.ndarray, group: list[tuple[int, int]]) -> float:
+        frame = frame_for(method, xy, camera.width, camera.height, fov_deg=None, fov_tolerance_deg=None,
+                          camera=camera, database=db, epoch=EPOCH)
+        stars, cat = np.array(group).T
+        core = hypothesis(frame, stars[:4], cat[:4])
+        return chance_log_probability(frame, core) / math.log(10.0)
+
     out_rows = []
     for row in rows:
         fail_lt3 = fail_gt3 = wrong = ok = 0
+        refused: list[float] = []
         times = []
         reasons: dict[str, int] = {}
         for k, A in enumerate(attitudes):
             field = synthetic_centroids(camera, A, full, mag_limit=limit, mag_sigma=row.sigma_mv,
-                                        sigma_px=row.sigma_p_urad * 1e-6 * f,
+                                        sigma_px=row.sigma_p_urad * 1e-6 * f / math.sqrt(2.0),
                                         rng=np.random.default_rng([seed, k]))
-            xy, mag = field.xy[:8], field.mag[:8]
+            xy, mag = field.xy[:20], field.mag[:20]
             options = {}
             if method == "van-bezooijen":
                 options = dict(magnitudes=mag, magnitude_tolerance=row.mv_uncert, n_sigma=1.0,
@@ -630,6 +667,9 @@ def table_3_7(trials: int = 1000, method: str = "van-bezooijen", seed: int = 0,
                     fail_lt3 += 1
                 else:
                     fail_gt3 += 1
+                    group = thesis_group(field, row)
+                    if len(group) >= 3:
+                        refused.append(refused_log10_p(xy, group))
             elif _judge(ident, A, camera)[0]:
                 wrong += 1
             else:
@@ -637,7 +677,8 @@ def table_3_7(trials: int = 1000, method: str = "van-bezooijen", seed: int = 0,
         out_rows.append({**row._asdict(), "trials": trials, "fail_lt3": fail_lt3, "fail_gt3": fail_gt3,
                          "wrong": wrong, "wrong_upper95_pct": 100.0 * upper_bound_95(wrong, trials),
                          "success_pct": 100.0 * ok / trials, "median_ms": float(np.median(times)),
-                         "max_ms": float(np.max(times)), "failures": reasons})
+                         "max_ms": float(np.max(times)), "failures": reasons,
+                         "fail_thesis_found": len(refused), "refused_log10_p": sorted(refused)})
     return {"case": "table-3-7", "method": method, "sub_catalogue_stars": len(sub), "mag_limit_hp": limit,
             "database_build_s": build_s, "rows": out_rows}
 
