@@ -20,7 +20,7 @@ from skyfix._kernels import rotation
 from skyfix.camera import Camera
 from skyfix.errors import CameraError, InputError
 from skyfix.final_fit import final_fit
-from skyfix.identify.accept import precision_failure
+from skyfix.identify.accept import noise_posterior, precision_failure
 from skyfix.solution import Match, Solution
 from skyfix.validate import (
     check_count,
@@ -188,7 +188,8 @@ def solve_centroids(
         return sol
     fit_options = dict(camera_given=camera is not None, database=database, epoch=epoch,
                        prob_threshold=identify_options.get("prob_threshold", 1e-9),
-                       n_img=identify_options.get("refine_stars", 200))
+                       n_img=identify_options.get("refine_stars", 200),
+                       centroid_sigma_px=identify_options.get("centroid_sigma_px"))
     t0 = time.perf_counter()
     hint_failure = ""
     if hint is not None:
@@ -324,14 +325,21 @@ def _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude
 
 
 def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *, camera_given: bool,
-                   database, epoch: float | None, prob_threshold: float, n_img: int) -> None:
+                   database, epoch: float | None, prob_threshold: float, n_img: int,
+                   centroid_sigma_px: float | None = None) -> None:
     fit = final_fit(xy, ident, camera_given=camera_given, database=database, epoch=epoch,
                     method=attitude_method, prob_threshold=prob_threshold, n_img=n_img)
     A, camera, idx = fit.A_icrs_to_cam, fit.camera, fit.star_index
     # The σ behind the covariance was estimated from the residuals: 2 per star, less the
-    # attitude's 3 and the camera numbers fitted (Student's tails for a few stars).
+    # attitude's 3 and the camera numbers fitted (Student's tails for a few stars). A centroid
+    # noise stated beside a given camera is combined with it (accept.noise_posterior).
     dof = 2 * len(idx) - 3 - len(fit.camera_params)
-    imprecise = precision_failure(fit.covariance_rad2, camera.plate_scale_rad, dof, camera_given)
+    covariance = fit.covariance_rad2
+    if centroid_sigma_px is not None and math.isfinite(fit.noise_sigma_rad):
+        noise = noise_posterior(fit.residuals_rad, dof, centroid_sigma_px * camera.plate_scale_rad)
+        covariance = covariance * (noise.sigma_rad / fit.noise_sigma_rad) ** 2
+        dof = noise.dof
+    imprecise = precision_failure(covariance, camera.plate_scale_rad, dof, camera_given)
     if imprecise:
         sol.reason = imprecise
         log.info("%s: %s", sol.image, imprecise)
@@ -348,7 +356,7 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     sol.boresight_px = [float(camera.cx), float(camera.cy)]
     sol.fov_deg = camera.fov_deg
     sol.quaternion_xyzw = pointing[3:]
-    sol.covariance_arcsec2 = (fit.covariance_rad2 / _ARCSEC**2).tolist()
+    sol.covariance_arcsec2 = (covariance / _ARCSEC**2).tolist()
     sol.n_matched = len(idx)
     sol.prob_false = max(float(ident.prob_false), math.exp(fit.log_prob_chance))
     sol.rmse_arcsec = rmse / _ARCSEC

@@ -29,6 +29,10 @@ chance of being wrong: on 10 000 blind uncalibrated sparse fields with honest er
 (normalised RMS 1.02–1.08) that bound summed to 5.3 expected wrong attitudes and one came
 70″ off at 2.6σ; at 1e-3 the bound sums to 0.24 and 667 of 8767 solutions (7.6 %) fail instead
 (``tests/test_final_fit.py::test_precision_rule_bounds_the_chance_of_a_wrong_attitude``).
+The σ behind a covariance is estimated from the fit's residuals, with Student's tails for their
+few degrees of freedom; a centroid noise stated beside a calibrated camera is combined with them
+(:func:`noise_posterior`): three stars' six residuals cannot bound their own noise
+(``tests/test_noise_prior.py``).
 
 The rules, in the order a frame meets them
 ------------------------------------------
@@ -72,6 +76,7 @@ The solution (:func:`skyfix.pipeline.solve_centroids`):
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -79,10 +84,11 @@ from scipy.stats import t as student_t
 
 from skyfix._kernels.probability import log_binom_sf
 
-__all__ = ["MAX_WRONG_PROBABILITY", "MIN_REFIT_PAIRS", "QUICK_CATALOG_STARS", "QUICK_CENTROIDS",
-           "QUICK_LOG_P", "WRONG_BORESIGHT_ARCSEC", "WRONG_ROLL_DEG", "chance_log_probability",
-           "focal_allowed", "is_beyond_chance", "is_verified", "log_prob_false", "no_rotation_fits",
-           "pattern_fits", "precision_failure", "quick_check_fails", "ratio_tolerance", "refit_accepted",
+__all__ = ["MAX_WRONG_PROBABILITY", "MIN_REFIT_PAIRS", "NOISE_PRIOR_DOF", "NoiseEstimate",
+           "QUICK_CATALOG_STARS", "QUICK_CENTROIDS", "QUICK_LOG_P", "WRONG_BORESIGHT_ARCSEC",
+           "WRONG_ROLL_DEG", "chance_log_probability", "focal_allowed", "is_beyond_chance",
+           "is_verified", "log_prob_false", "no_rotation_fits", "noise_posterior", "pattern_fits",
+           "precision_failure", "quick_check_fails", "ratio_tolerance", "refit_accepted",
            "refit_focal_allowed", "wrong_probability"]
 
 # What makes an attitude wrong (the campaigns' and the benchmarks' bar): boresight error beyond
@@ -271,6 +277,53 @@ def wrong_probability(covariance_rad2: np.ndarray, plate_scale_rad: float, dof: 
         p_bore = (1.0 + bound * bound / (nu * lam)) ** (-nu / 2.0) if lam > 0.0 else 0.0
         p_roll = 2.0 * float(student_t.sf(roll / math.sqrt(var_roll), nu)) if var_roll > 0.0 else 0.0
     return min(p_bore + p_roll, 1.0) if lam >= 0.0 and var_roll >= 0.0 else 1.0
+
+
+# A centroid noise stated a priori (solve's ``centroid_sigma_px`` beside a calibrated camera) is
+# worth this many residual degrees of freedom in :func:`noise_posterior`: as sure as a σ measured
+# from six stars' residuals, not more (a stated noise can be off by tens of percent).
+NOISE_PRIOR_DOF = 10.0
+
+
+class NoiseEstimate(NamedTuple):
+    """The centroid noise a covariance is scaled by, and how surely it is known."""
+
+    sigma_rad: float  #: per-axis centroid noise, radians
+    dof: float  #: degrees of freedom behind it (Student's tails in :func:`wrong_probability`)
+
+
+def noise_posterior(residuals_rad: np.ndarray, dof: float, prior_sigma_rad: float,
+                    prior_dof: float = NOISE_PRIOR_DOF) -> NoiseEstimate:
+    """The centroid noise from a stated value and the fit's residuals together.
+
+    Three stars leave ν = 3 residual degrees of freedom: their σ alone, ``s² = Σ r² / ν``, may
+    be several times too small, and Student's tails (:func:`wrong_probability`) then give even
+    a noise-free three-star attitude a 0.1–1 % chance of a 12σ error — a chance the data cannot
+    lower, since all-but-zero residuals are only polynomially (``∝ σ^−ν``) less likely under a
+    larger noise. What lowers it honestly is knowing the noise beforehand: a stated ``σ₀``
+    counts as a scaled-inverse-χ² prior of ``ν₀`` degrees of freedom, and the posterior is
+
+        ``σ² = (ν₀ σ₀² + ν s²) / (ν₀ + ν)``, with ``ν₀ + ν`` degrees of freedom
+
+    (the conjugate update of a normal model's variance): residuals far beyond ``σ₀`` still
+    raise σ, three lucky tiny ones lower it only to ``σ₀ √(ν₀ / (ν₀ + ν))``. The noise stated
+    must be the centroids' own: stated 3.3 times too small, 300 three- to five-star 30° fields
+    (benchmarks/sparse_noise_prior.py) came back with none wrong but error bars 2.2 times too
+    small (normalised RMS 2.1–2.2; 1.0–1.1 stated right). Refusing a stated noise the residuals
+    refute (F test, 1 %) did not help: the fields it let through were those whose residuals
+    happened to agree with the wrong noise.
+
+    Parameters
+    ----------
+    residuals_rad : (M,) angles between the stars' rays and their catalogue directions, rad.
+    dof : float — the residuals' degrees of freedom (2M less the numbers fitted).
+    prior_sigma_rad : float — the stated per-axis centroid noise, rad.
+    prior_dof : float — what it is worth (:data:`NOISE_PRIOR_DOF`).
+    """
+    r = np.asarray(residuals_rad, dtype=np.float64)
+    ss = float(r @ r)
+    total = prior_dof + max(float(dof), 0.0)
+    return NoiseEstimate(math.sqrt((prior_dof * prior_sigma_rad**2 + ss) / total), total)
 
 
 # The largest chance of a wrong attitude (wrong_probability) a solution may carry.
