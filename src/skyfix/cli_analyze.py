@@ -321,45 +321,68 @@ def coverage(
 def identification(
     out: Path = typer.Option(Path("identification-study"), "--out", help="Output directory (JSON, Markdown, "
                              "PNG)."),
-    quick: bool = typer.Option(False, "--quick", help="15° only, noise-free and all-errors cells, 20 fields "
-                               "(a smoke run for CI)."),
+    quick: bool = typer.Option(False, "--quick", help="15° only, noise-free and all-errors cells, 20 fields, "
+                               "60 safety frames, no seed experiments (a smoke run for CI)."),
     methods: str = typer.Option("", "--methods", help="Comma-separated identification methods (default: "
                                 "every registered one)."),
     trials: int = typer.Option(None, "--trials", min=1, help="Fields per FOV and condition (default 100; "
                                "--quick: 20)."),
+    safety_trials: int = typer.Option(None, "--safety-trials", min=0, help="Frames of the safety case, each "
+                                      "solved by every method (default 10000; --quick: 60; 0: none)."),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed (attitudes, noise)."),
-    workers: int = typer.Option(1, "--workers", min=1, help="Processes for the grid's blocks."),
-    case: str = typer.Option("", "--case", help="Run only these seed experiments (comma-separated): "
-                             "quest-catalogue, three-star-frames, sparse-fields, perturbation, table-3-7."),
+    workers: int = typer.Option(1, "--workers", min=1, help="Processes for the grid's blocks, the safety "
+                                "frames and the seed experiments."),
+    case: str = typer.Option("", "--case", help="Run only these (comma-separated): safety, quest-catalogue, "
+                             "three-star-frames, sparse-fields, perturbation, table-3-7."),
     verbose: int = VERBOSE,
 ) -> None:
     """Every identification method on the same simulated centroids (FOV 8°, 15°, 30°; centroid
     noise, false stars, dropped stars, magnitude noise): solved %, wrong % with its 95 % upper
-    bound, median and p99 time, table size and build time; and the seeds' experiments by name."""
+    bound, median and p99 time, table size and build time; the safety case (≥ 10⁴ random noisy
+    frames per method through the solve, every wrong attitude kept to replay); and the seeds'
+    experiments. Without --case and --quick: all of them."""
     from skyfix.analysis import identification_study as st
 
     add_verbosity(verbose)
     names = tuple(m.strip().lower() for m in methods.split(",") if m.strip())
     method_list = st.method_names(names)  # one line for an unknown name
     cases = [c.strip().lower() for c in case.split(",") if c.strip()]
-    bad = [c for c in cases if c not in st.CASES]
+    bad = [c for c in cases if c not in st.CASES and c != "safety"]
     if bad:
-        fail(f"unknown case {', '.join(bad)}; choose from {', '.join(st.CASES)}")
+        fail(f"unknown case {', '.join(bad)}; choose from safety, {', '.join(st.CASES)}")
     base = st.QUICK if quick else st.FULL
-    settings = base._replace(methods=tuple(method_list), seed=int(seed),
-                             workers=check_count(workers, "--workers", minimum=1),
+    workers = check_count(workers, "--workers", minimum=1)
+    settings = base._replace(methods=tuple(method_list), seed=int(seed), workers=workers,
                              trials=check_count(trials, "--trials") if trials is not None else base.trials)
+    safety_base = st.SAFETY_QUICK if quick else st.SAFETY_FULL
+    n_safety = (check_count(safety_trials, "--safety-trials", minimum=0) if safety_trials is not None
+                else safety_base.trials)
+    safety = safety_base._replace(trials=n_safety, methods=tuple(method_list), seed=int(seed),
+                                  workers=workers)
     command = ("skyfix analyze identification" + (" --quick" if quick else "")
                + (f" --methods {','.join(names)}" if names else "")
                + (f" --trials {trials}" if trials else "")
+               + (f" --safety-trials {safety_trials}" if safety_trials is not None else "")
                + (f" --seed {seed}" if seed else "") + (f" --workers {workers}" if workers != 1 else "")
                + (f" --case {','.join(cases)}" if cases else ""))
     prepare_outputs({"--out": [out / "identification_study.json"]})
-    if cases:
+    seed_cases = [c for c in cases if c != "safety"]
+    if "safety" in cases and n_safety:
+        n_jobs = -(-n_safety // safety.block)
+        with _progress(n_jobs, False) as bar, compile_notice(bar):
+            task = bar.add_task("safety", total=n_jobs)
+            out.mkdir(parents=True, exist_ok=True)
+            result = st.run_safety(safety, checkpoint=out / "identification_safety.partial.jsonl",
+                                   progress=lambda what: bar.update(task, advance=1, description=what))
+        paths = st.write_safety(result, out, command=command)
+        typer.echo(paths[1].read_text())
+        for p in paths:
+            typer.echo(f"wrote {p}")
+    if seed_cases:
         results = {}
-        with _progress(len(cases), False) as bar, compile_notice(bar):
-            task = bar.add_task("seed experiments", total=len(cases))
-            for c in cases:
+        with _progress(len(seed_cases), False) as bar, compile_notice(bar):
+            task = bar.add_task("seed experiments", total=len(seed_cases))
+            for c in seed_cases:
                 bar.update(task, description=c)
                 results[c] = st.CASES[c]()
                 bar.update(task, advance=1)
@@ -368,11 +391,15 @@ def identification(
         path.write_text(json.dumps(results, indent=1))
         typer.echo(json.dumps(results, indent=1))
         typer.echo(f"wrote {path}")
+    if cases:
         return
-    n_blocks = len(settings.fovs_deg) * len(settings.conditions)
-    with _progress(n_blocks, False) as bar, compile_notice(bar):
-        task = bar.add_task("identification study", total=n_blocks)
-        study = st.run_study(settings, progress=lambda what: bar.update(task, advance=1, description=what))
+    all_cases = () if quick else tuple(st.CASES)
+    n_jobs = (len(settings.fovs_deg) * len(settings.conditions) + len(all_cases)
+              + (-(-n_safety // safety.block) if n_safety else 0))
+    with _progress(n_jobs, False) as bar, compile_notice(bar):
+        task = bar.add_task("identification study", total=n_jobs)
+        study = st.run_study(settings, progress=lambda what: bar.update(task, advance=1, description=what),
+                             safety=safety if n_safety else None, cases=all_cases)
     paths = st.write_study(study, out, command=command)
     typer.echo(paths[1].read_text())
     for p in paths:

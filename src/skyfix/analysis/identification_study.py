@@ -188,11 +188,14 @@ def run_block(fov: float, cond: Condition, trials: range, methods: list[str], se
     return records
 
 
-def _warm(methods: list[str], fovs_deg: tuple[float, ...] = (8.0, 15.0, 30.0)) -> dict[str, dict]:
+def _warm(methods: list[str], fovs_deg: tuple[float, ...] = (8.0, 15.0, 30.0), cameras: bool = False
+          ) -> dict[str, dict]:
     """Two calls per method and FOV outside the clock (the first builds the method's tables
     beside the shared database and loads its compiled kernels). Returns per method the bytes of
     the tables it added to the database (:meth:`~skyfix.identify.PatternDatabase.derived`) and
-    its first calls' time beyond the second's (the build)."""
+    its first calls' time beyond the second's (the build). With ``cameras``, then one call per
+    method and FOV with the camera given (the tables a calibrated camera's search builds), not
+    counted."""
     from skyfix.catalog import load_hipparcos
     from skyfix.identify import default_database, identify
 
@@ -212,6 +215,10 @@ def _warm(methods: list[str], fovs_deg: tuple[float, ...] = (8.0, 15.0, 30.0)) -
         derived = db.__dict__.get("_derived", {})
         added = [v for key, v in derived.items() if key not in before]
         out[m] = {"bytes": _nbytes(added), "tables": len(added), "build_s": max(build, 0.0)}
+    for m in methods if cameras else ():
+        for fov, f in fields:
+            identify(f.xy, WIDTH, HEIGHT, method=m, camera=Camera.from_fov(WIDTH, HEIGHT, fov), database=db,
+                     epoch=EPOCH)
     return out
 
 
@@ -232,8 +239,13 @@ def _nbytes(value, seen: set | None = None) -> int:
     return 0
 
 
-def run_study(settings: StudySettings = FULL, progress: Callable[[str], None] | None = None) -> dict:
-    """Run the grid; returns ``{"settings", "records", "tables"}`` (records as :class:`TrialRecord`)."""
+def run_study(settings: StudySettings = FULL, progress: Callable[[str], None] | None = None,
+              safety: SafetySettings | None = None, cases: tuple[str, ...] = ()) -> dict:
+    """Run the grid and, when asked, the safety case (:func:`run_safety`, with ``safety``'s frames,
+    seed and bounds; its methods and workers are the grid's) and seed experiments (``cases``,
+    names of :data:`CASES` with their defaults), all as jobs of one pool of ``settings.workers``
+    processes. Returns ``{"settings", "records", "tables"}`` (records as :class:`TrialRecord`),
+    with ``"safety"`` (as :func:`run_safety`'s) and ``"cases"`` (name → result) when run."""
     from skyfix.identify import default_database_path
 
     methods = method_names(settings.methods)
@@ -241,33 +253,35 @@ def run_study(settings: StudySettings = FULL, progress: Callable[[str], None] | 
     path = default_database_path()
     tables["pattern_database"] = {"bytes": int(path.stat().st_size) if path.exists() else 0}
     blocks = [(fov, c) for fov in settings.fovs_deg for c in settings.conditions]
-    workers = max(1, min(int(settings.workers), len(blocks)))
-    records: list[TrialRecord] = []
-    if workers == 1:
-        for fov, c in blocks:
-            records += run_block(fov, c, range(settings.trials), methods, settings.seed,
-                                 settings.fov_tolerance)
-            if progress is not None:
-                progress(f"{fov:g}° {c.name}")
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        ctx = mp.get_context("spawn")  # no fork of a process holding numba's and rich's threads
-        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_warm,
-                                 initargs=(methods, settings.fovs_deg)) as pool:
-            futures = {pool.submit(run_block, fov, c, range(settings.trials), methods, settings.seed,
-                                   settings.fov_tolerance): (fov, c) for fov, c in blocks}
-            for fut in as_completed(futures):
-                records += fut.result()
-                if progress is not None:
-                    fov, c = futures[fut]
-                    progress(f"{fov:g}° {c.name}")
+    case_jobs = [(CASES[c],) for c in cases]  # the longest first: they set the pool's end
+    grid_jobs = [(run_block, fov, c, range(settings.trials), methods, settings.seed, settings.fov_tolerance)
+                 for fov, c in blocks]
+    safety_jobs = [] if safety is None else _safety_jobs(safety, methods)
+    parts = _pool(case_jobs + grid_jobs + safety_jobs, settings.workers, methods, settings.fovs_deg, progress,
+                  _job_label)
+    records: list[TrialRecord] = [r for part in parts[len(case_jobs):len(case_jobs) + len(grid_jobs)]
+                                  for r in part]
     order = {(fov, c.name): i for i, (fov, c) in enumerate(blocks)}
     records.sort(key=lambda r: (order[(r.fov_deg, r.condition)], r.trial, methods.index(r.method)))
     meta = dict(settings._asdict(), conditions=[c._asdict() for c in settings.conditions], methods=methods,
                 camera=f"{WIDTH}×{HEIGHT}", mag_limit=MAG_LIMIT, epoch=EPOCH, cpu_count=os.cpu_count())
-    return {"settings": meta, "records": records, "tables": tables}
+    study = {"settings": meta, "records": records, "tables": tables}
+    if safety is not None:
+        study["safety"] = _safety_result(safety._replace(methods=tuple(methods), workers=settings.workers),
+                                         methods, parts[len(case_jobs) + len(grid_jobs):])
+    if cases:
+        study["cases"] = dict(zip(cases, parts[:len(case_jobs)], strict=True))
+    return study
+
+
+def _job_label(job: tuple) -> str:
+    """What a job of :func:`run_study`'s pool did, for the progress bar."""
+    fn = job[0]
+    if fn is run_block:
+        return f"{job[1]:g}° {job[2].name}"
+    if fn is run_safety_block:
+        return f"safety frames {job[1].start}–{job[1].stop - 1}"
+    return next((name for name, f in CASES.items() if f is fn), getattr(fn, "__name__", "case"))
 
 
 def cell_summary(records: list[TrialRecord]) -> dict:
@@ -403,17 +417,25 @@ def _clean(v):
 
 def write_study(study: dict, out_dir: str | Path, command: str = "skyfix analyze identification"
                 ) -> list[Path]:
-    """Write ``identification_study.json`` (every trial), ``identification_study.md`` and the plots."""
+    """Write ``identification_study.json`` (every trial), ``identification_study.md`` and the plots
+    (with ``study["safety"]`` from :func:`run_safety`: its table, its records and safety.png too)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     summary = summarize(study)
+    doc = {"settings": study["settings"], "tables": study["tables"], "summary": summary,
+           "cases": study.get("cases", {}), "records": [r._asdict() for r in study["records"]]}
+    text = markdown(study, summary, command)
+    extra = []
+    if study.get("safety"):
+        safe = safety_summary(study["safety"]["records"])
+        doc["safety"] = safety_json(study["safety"], safe)
+        text += "\n" + safety_markdown(study["safety"], safe, command)
+        extra.append(safety_plot(safe, out))
     pj = out / "identification_study.json"
-    pj.write_text(json.dumps(_clean({"settings": study["settings"], "tables": study["tables"],
-                                     "summary": summary, "cases": study.get("cases", {}),
-                                     "records": [r._asdict() for r in study["records"]]})))
+    pj.write_text(json.dumps(_clean(doc)))
     pm = out / "identification_study.md"
-    pm.write_text(markdown(study, summary, command))
-    return [pj, pm, *plots(study, summary, out)]
+    pm.write_text(text)
+    return [pj, pm, *plots(study, summary, out), *extra]
 
 
 # --- the seeds' experiments ---------------------------------------------------------------------
@@ -735,3 +757,381 @@ def sparse_fields(fov_deg: float = 30.0, n_fields: int = 200, n_bright: int = 3,
 
 
 CASES["sparse-fields"] = sparse_fields
+
+
+# --- the safety case ----------------------------------------------------------------------------
+class SafetyDraw(NamedTuple):
+    """One random frame of the safety case (:func:`safety_draw`): the study's axes drawn at random."""
+
+    trial: int
+    fov_deg: float
+    sigma_px: float
+    n_false: int
+    dropout: float
+    mag_sigma: float
+    camera_given: bool  # the true camera given, else the FOV told to ±10 %
+    bright_stars: int  # 0: every star to Hp 6.5; 3, 4 or 5: only that many brightest stars
+
+
+class SafetyMix(NamedTuple):
+    """How the safety case draws its frames (:func:`safety_draw`)."""
+
+    fovs_deg: tuple[float, ...] = (8.0, 15.0, 30.0)
+    max_sigma_px: float = 2.0
+    max_false: int = 10
+    max_dropout: float = 0.2
+    max_mag_sigma: float = 0.5
+    camera_given_share: float = 0.5
+    three_star_share: float = 0.2  # frames of exactly their 3 brightest catalogue stars
+    few_star_share: float = 0.2  # frames of their 4 or 5 brightest
+
+
+SAFETY_MIX = SafetyMix()
+SAFETY_KEY = 5_417  # a seed word of the safety case's fields (apart from the grid's)
+
+
+class SafetyTrial(NamedTuple):
+    """One method's solve (:func:`skyfix.pipeline.solve_centroids`) of one safety frame."""
+
+    method: str
+    trial: int
+    fov_deg: float
+    sigma_px: float
+    n_false: int
+    dropout: float
+    mag_sigma: float
+    camera_given: bool
+    bright_stars: int
+    n_stars: int  # catalogue stars among the centroids
+    n_centroids: int
+    solved: bool
+    wrong: bool  # solved, and the boresight > 60″ or the roll > 0.5° from the truth
+    boresight_arcsec: float  # NaN when not solved
+    roll_deg: float
+    normalised: float  # √(δθᵀ P⁻¹ δθ) with the reported covariance P (NaN when not solved)
+    n_matched: int
+    prob_false: float
+    time_ms: float
+    reason: str
+
+
+def safety_draw(trial: int, seed: int = 0, mix: SafetyMix = SAFETY_MIX) -> SafetyDraw:
+    """The parameters of safety frame ``trial``: a function of ``(seed, trial)`` alone, so any
+    frame can be replayed (:func:`safety_field`, :func:`replay_safety`)."""
+    rng = np.random.default_rng([seed, SAFETY_KEY, trial, 0])
+    kind = rng.random()
+    bright = 3 if kind < mix.three_star_share else (
+        int(rng.integers(4, 6)) if kind < mix.three_star_share + mix.few_star_share else 0)
+    return SafetyDraw(trial, float(rng.choice(mix.fovs_deg)), float(rng.uniform(0.0, mix.max_sigma_px)),
+                      int(rng.integers(0, mix.max_false + 1)), float(rng.uniform(0.0, mix.max_dropout)),
+                      float(rng.uniform(0.0, mix.max_mag_sigma)), bool(rng.random() < mix.camera_given_share),
+                      bright)
+
+
+def safety_field(draw: SafetyDraw, catalog, seed: int = 0):
+    """The camera and the centroids (:class:`~skyfix.analysis.synthetic_centroids.SyntheticField`)
+    of a safety frame: a random attitude, the catalogue stars to Hp 6.5 — or, for a sparse frame,
+    to a limit halfway between its ``bright_stars``-th and next brightest star (``catalog`` must
+    reach Hp 7.5) — with the draw's centroid noise, dropped stars, magnitude noise and false stars."""
+    rng = np.random.default_rng([seed, SAFETY_KEY, draw.trial, 1])
+    camera = Camera.from_fov(WIDTH, HEIGHT, draw.fov_deg)
+    A = random_attitudes(1, rng)[0]
+    limit = MAG_LIMIT
+    if draw.bright_stars:
+        mags = np.sort(synthetic_centroids(camera, A, catalog, mag_limit=MAG_LIMIT + 1.0, sigma_px=0.0).mag)
+        k = draw.bright_stars
+        limit = 0.5 * (mags[k - 1] + mags[k]) if len(mags) > k else MAG_LIMIT + 1.0
+    f = synthetic_centroids(camera, A, catalog, mag_limit=limit, sigma_px=draw.sigma_px, n_false=draw.n_false,
+                            dropout=draw.dropout, mag_sigma=draw.mag_sigma, rng=rng)
+    return camera, f
+
+
+def _safety_options(method: str, bounds: dict[str, dict]) -> dict:
+    """The options the safety case gives ``method`` (its work bounds, :data:`SAFETY_BOUNDS`)."""
+    return dict(bounds.get(method, {}))
+
+
+SAFETY_BOUNDS: dict[str, dict] = {
+    "triangle": {"max_candidates": 200},
+    "liebe": {"max_candidates": 200},
+    "pyramid": {"max_candidates": 50, "time_limit_s": 0.25},
+    "van-bezooijen": {"max_candidates": 50, "time_limit_s": 0.25},
+}
+"""Work bounds the safety case gives a method (its own options, as a user could), so that 10⁴
+frames per method fit the study's time: the refusals, not the solves, take the time (a search
+that finds nothing runs to its bound), and these bounds cut their cost by ~35 % with 2 of 360
+solves lost (40 frames, ``van-bezooijen``). The others run with their defaults — and the default
+solve (``quad-hash``) with its sparse-field fallback to ``triangle`` at the latter's defaults."""
+
+
+def safety_trial(method: str, draw: SafetyDraw, camera: Camera, field, bounds: dict[str, dict] | None = None
+                 ) -> SafetyTrial:
+    """``method`` on one safety frame, through the solve a user calls
+    (:func:`skyfix.pipeline.solve_centroids` with ``identify_method=method``: the final fit, the
+    precision rule and — for the default method — the sparse-field fallback included), judged
+    against the truth."""
+    from skyfix.pipeline import solve_centroids
+
+    told = {"camera": camera} if draw.camera_given else {"fov_deg": draw.fov_deg,
+                                                        "fov_tolerance_deg": 0.1 * draw.fov_deg}
+    options = _safety_options(method, SAFETY_BOUNDS if bounds is None else bounds)
+    t0 = time.perf_counter()
+    try:
+        sol = solve_centroids(field.xy, WIDTH, HEIGHT, identify_method=method, epoch=EPOCH, **told, **options)
+        solved, reason = sol.solved, sol.reason
+    except Exception as exc:  # a method's bug is its failure here, not the study's end
+        sol, solved, reason = None, False, f"error: {type(exc).__name__}: {exc}"
+    dt = 1e3 * (time.perf_counter() - t0)
+    bore = roll = norm = math.nan
+    wrong = False
+    if solved:
+        from skyfix.identify.accept import WRONG_BORESIGHT_ARCSEC, WRONG_ROLL_DEG
+
+        err = attitude_error_rad(sol.A_icrs_to_cam, sol.camera, field.A_icrs_to_cam, camera)
+        bore, roll = math.hypot(err[0], err[1]) / _ARCSEC, math.degrees(abs(err[2]))
+        wrong = bore > WRONG_BORESIGHT_ARCSEC or roll > WRONG_ROLL_DEG
+        e = err / _ARCSEC
+        try:
+            norm = float(math.sqrt(e @ np.linalg.solve(np.asarray(sol.covariance_arcsec2), e)))
+        except (np.linalg.LinAlgError, ValueError):
+            norm = math.inf
+    return SafetyTrial(method, draw.trial, draw.fov_deg, draw.sigma_px, draw.n_false, draw.dropout,
+                       draw.mag_sigma, draw.camera_given, draw.bright_stars, int(np.sum(field.star_id > 0)),
+                       len(field.xy), bool(solved), bool(wrong), bore, roll, norm,
+                       int(sol.n_matched) if solved else 0, float(sol.prob_false) if solved else math.nan, dt,
+                       reason)
+
+
+def run_safety_block(trials: range, methods: list[str], seed: int = 0, mix: SafetyMix = SAFETY_MIX,
+                     bounds: dict[str, dict] | None = None) -> list[SafetyTrial]:
+    """Every method on the safety frames ``trials`` (a worker's job), interleaved frame by frame."""
+    from skyfix.catalog import load_hipparcos
+
+    catalog = load_hipparcos(epoch=EPOCH, mag_limit=MAG_LIMIT + 1.0)
+    out = []
+    for t in trials:
+        draw = safety_draw(t, seed, mix)
+        camera, field = safety_field(draw, catalog, seed)
+        out += [safety_trial(m, draw, camera, field, bounds) for m in methods]
+    return out
+
+
+def replay_safety(trial: int, method: str, seed: int = 0, mix: SafetyMix = SAFETY_MIX,
+                  bounds: dict[str, dict] | None = None) -> SafetyTrial:
+    """Replay one safety trial (a wrong one from the JSON's ``safety.wrong``)."""
+    return run_safety_block(range(trial, trial + 1), [method], seed, mix, bounds)[0]
+
+
+class SafetySettings(NamedTuple):
+    """What :func:`run_safety` runs."""
+
+    trials: int = 10_000  # frames; every method solves each one
+    methods: tuple[str, ...] = ()  # empty: every registered method
+    seed: int = 0
+    workers: int = 1
+    mix: SafetyMix = SAFETY_MIX
+    block: int = 250  # frames per worker job
+
+
+SAFETY_FULL = SafetySettings()
+SAFETY_QUICK = SafetySettings(trials=30, block=15)
+
+
+def _pool(jobs: list[tuple], workers: int, methods: list[str], fovs_deg: tuple[float, ...],
+          progress: Callable[[str], None] | None, label: Callable[[tuple], str],
+          done: Callable[[object], None] | None = None) -> list:
+    """Run ``jobs`` — ``(function, *args)`` tuples — in ``workers`` spawned processes (each warmed
+    by :func:`_warm`, calibrated cameras included) or, with one worker, here; returns their
+    results in the jobs' order (``done`` is given each result as it comes)."""
+    results: list = [None] * len(jobs)
+    workers = max(1, min(int(workers), len(jobs)))
+    if workers == 1:
+        _warm(methods, fovs_deg, cameras=True)
+        for i, (fn, *args) in enumerate(jobs):
+            results[i] = fn(*args)
+            if done is not None:
+                done(results[i])
+            if progress is not None:
+                progress(label(jobs[i]))
+        return results
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    ctx = mp.get_context("spawn")  # no fork of a process holding numba's and rich's threads
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_warm,
+                             initargs=(methods, fovs_deg, True)) as pool:
+        futures = {pool.submit(fn, *args): i for i, (fn, *args) in enumerate(jobs)}
+        for fut in as_completed(futures):
+            i = futures[fut]
+            results[i] = fut.result()
+            if done is not None:
+                done(results[i])
+            if progress is not None:
+                progress(label(jobs[i]))
+    return results
+
+
+def run_safety(settings: SafetySettings = SAFETY_FULL, progress: Callable[[str], None] | None = None,
+               checkpoint: str | Path | None = None) -> dict:
+    """The safety case: ``settings.trials`` random frames (:func:`safety_draw`), each solved by
+    every method through :func:`skyfix.pipeline.solve_centroids`. Returns ``{"settings",
+    "records"}`` (records as :class:`SafetyTrial`, in frame then method order). With
+    ``checkpoint``, each block's records are appended to that file as JSON lines as they come
+    (a long run's work survives its end)."""
+    methods = method_names(settings.methods)
+    done = None
+    if checkpoint is not None:
+        path = Path(checkpoint)
+        path.write_text("")
+
+        def done(part: list[SafetyTrial]) -> None:
+            with path.open("a") as fh:
+                fh.writelines(json.dumps(_clean(r._asdict())) + "\n" for r in part)
+
+    parts = _pool(_safety_jobs(settings, methods), settings.workers, methods, settings.mix.fovs_deg, progress,
+                  _job_label, done)
+    return _safety_result(settings, methods, parts)
+
+
+def _safety_jobs(settings: SafetySettings, methods: list[str]) -> list[tuple]:
+    step = max(1, int(settings.block))
+    return [(run_safety_block, range(a, min(a + step, settings.trials)), methods, settings.seed, settings.mix)
+            for a in range(0, settings.trials, step)]
+
+
+def _safety_result(settings: SafetySettings, methods: list[str], parts: list[list[SafetyTrial]]) -> dict:
+    meta = dict(settings._asdict(), mix=settings.mix._asdict(), methods=methods, camera=f"{WIDTH}×{HEIGHT}",
+                mag_limit=MAG_LIMIT, epoch=EPOCH, bounds=SAFETY_BOUNDS, cpu_count=os.cpu_count())
+    return {"settings": meta, "records": [r for part in parts for r in part]}
+
+
+def _kind(r: SafetyTrial) -> str:
+    return {0: "full", 3: "3-star"}.get(r.bright_stars, "4–5-star")
+
+
+def safety_summary(records: list[SafetyTrial]) -> dict:
+    """Per method: trials, solved, wrong with its 95 % upper bound, median and p99 time, median
+    boresight error and the normalised error's median and p99 over the solved, solved % per
+    kind of frame (3-star, 4–5-star, full; camera given or FOV only), and every wrong trial."""
+    out: dict[str, dict] = {}
+    for m in dict.fromkeys(r.method for r in records):
+        mine = [r for r in records if r.method == m]
+        n = len(mine)
+        solved = [r for r in mine if r.solved]
+        wrong = [r for r in mine if r.wrong]
+        t = np.array([r.time_ms for r in mine])
+        right = [r for r in solved if not r.wrong]
+        norm = np.array([r.normalised for r in right]) if right else np.array([np.nan])
+        kinds = {}
+        for kind in ("3-star", "4–5-star", "full"):
+            for given in (True, False):
+                sub = [r for r in mine if _kind(r) == kind and r.camera_given == given]
+                key = f"{kind}, {'camera' if given else 'FOV only'}"
+                kinds[key] = {"n": len(sub), "solved": sum(r.solved for r in sub),
+                              "wrong": sum(r.wrong for r in sub),
+                              "solved_pct": 100.0 * sum(r.solved for r in sub) / max(len(sub), 1)}
+        out[m] = {"n": n, "solved": len(solved), "solved_pct": 100.0 * len(solved) / max(n, 1),
+                  "wrong": len(wrong), "wrong_upper95_pct": 100.0 * upper_bound_95(len(wrong), n),
+                  "with_false_stars": sum(r.n_false > 0 for r in mine),
+                  "median_ms": float(np.median(t)) if n else math.nan,
+                  "p99_ms": float(np.percentile(t, 99)) if n else math.nan,
+                  "total_s": float(t.sum()) / 1e3 if n else 0.0,
+                  "median_boresight_arcsec": float(np.median([r.boresight_arcsec for r in right]))
+                  if right else math.nan,
+                  "median_normalised": float(np.median(norm)),
+                  "p99_normalised": float(np.percentile(norm, 99)),
+                  "kinds": kinds, "wrong_trials": [r._asdict() for r in wrong]}
+    return out
+
+
+def safety_markdown(safety: dict, summary: dict, command: str = "") -> str:
+    """The safety case's table in Markdown."""
+    s = safety["settings"]
+    mix = s["mix"]
+    lines = [f"## Safety: {s['trials']:,} frames per method\n",
+             (f"`{command}` — " if command else "")
+             + f"seed {s['seed']}; each frame a random attitude, FOV from {mix['fovs_deg']}, centroid σ "
+             f"0–{mix['max_sigma_px']:g} px, 0–{mix['max_false']} false stars, "
+             f"0–{100 * mix['max_dropout']:.0f} % dropped, magnitude noise 0–{mix['max_mag_sigma']:g}, "
+             f"the camera given to "
+             f"{100 * mix['camera_given_share']:.0f} % (else the FOV to ±10 %); "
+             f"{100 * mix['three_star_share']:.0f} % of the frames hold only their 3 brightest stars, "
+             f"{100 * mix['few_star_share']:.0f} % their 4 or 5. Solved through `solve_centroids(..., "
+             "identify_method=NAME)`; **wrong**: solved with the boresight > 60″ or the roll > 0.5° from the "
+             "truth.\n",
+             "| method | trials | with false stars | solved % | wrong | wrong ≤ (95 %) | median ms | p99 ms "
+             "| median boresight ″ | normalised error median / p99 |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for m, a in summary.items():
+        lines.append(f"| {m} | {a['n']} | {a['with_false_stars']} | {a['solved_pct']:.1f} | {a['wrong']} | "
+                     f"{a['wrong_upper95_pct']:.3f} % | {a['median_ms']:.1f} | {a['p99_ms']:.0f} | "
+                     f"{a['median_boresight_arcsec']:.1f} | {a['median_normalised']:.2f} / "
+                     f"{a['p99_normalised']:.2f} |")
+    kinds = list(next(iter(summary.values()))["kinds"]) if summary else []
+    lines += ["\nSolved % per kind of frame (frames; wrong in brackets when any):\n",
+              "| frames | n | " + " | ".join(summary) + " |", "|---|---|" + "---|" * len(summary)]
+    for k in kinds:
+        first = next(iter(summary.values()))["kinds"][k]
+        cells = [a["kinds"][k] for a in summary.values()]
+        row = [f"{c['solved_pct']:.1f}" + (f" ({c['wrong']})" if c["wrong"] else "") for c in cells]
+        lines.append(f"| {k} | {first['n']} | " + " | ".join(row) + " |")
+    wrong = [w for a in summary.values() for w in a["wrong_trials"]]
+    if wrong:
+        lines += ["\nWrong trials (replay: `identification_study.replay_safety(trial, method, seed)`):\n",
+                  "| method | trial | FOV | camera | stars / centroids | σ px | false | boresight ″ | roll ° "
+                  "| P(false) |", "|---|---|---|---|---|---|---|---|---|---|"]
+        for w in wrong:
+            lines.append(f"| {w['method']} | {w['trial']} | {w['fov_deg']:g}° | {w['camera_given']} | "
+                         f"{w['n_stars']} / {w['n_centroids']} | {w['sigma_px']:.2f} | {w['n_false']} | "
+                         f"{w['boresight_arcsec']:.0f} | {w['roll_deg']:.2f} | {w['prob_false']:.2g} |")
+    return "\n".join(lines) + "\n"
+
+
+def safety_plot(summary: dict, out: Path) -> Path:
+    """safety.png: solved % per method and kind of frame, the wrong count over each group."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    methods = list(summary)
+    kinds = list(summary[methods[0]]["kinds"])
+    fig, ax = plt.subplots(figsize=(10, 4.2), dpi=100)
+    width = 0.8 / len(kinds)
+    x = np.arange(len(methods))
+    for i, k in enumerate(kinds):
+        ax.bar(x + i * width, [summary[m]["kinds"][k]["solved_pct"] for m in methods], width, label=k)
+    for j, m in enumerate(methods):
+        ax.text(x[j] + 0.4 - width / 2, 102, f"wrong {summary[m]['wrong']}/{summary[m]['n']}", ha="center",
+                fontsize=7)
+    ax.set_ylim(0, 110)
+    ax.set_xticks(x + 0.4 - width / 2)
+    ax.set_xticklabels(methods, rotation=30, ha="right")
+    ax.set_ylabel("solved %")
+    ax.legend(fontsize=7, ncol=3, loc="lower center", bbox_to_anchor=(0.5, 1.0))
+    fig.tight_layout()
+    path = out / "safety.png"
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def safety_json(safety: dict, summary: dict) -> dict:
+    """The safety case for the study's JSON: settings, summary (every wrong trial with its frame's
+    number, to replay) and the records as columns."""
+    recs = safety["records"]
+    columns = {f: [getattr(r, f) for r in recs] for f in SafetyTrial._fields}
+    return {"settings": safety["settings"], "summary": summary, "records": columns}
+
+
+def write_safety(safety: dict, out_dir: str | Path, command: str = "") -> list[Path]:
+    """Write the safety case alone (:func:`run_safety`): ``identification_safety.json`` (settings,
+    summary with every wrong trial, records as columns), ``identification_safety.md`` and safety.png."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = safety_summary(safety["records"])
+    pj = out / "identification_safety.json"
+    pj.write_text(json.dumps(_clean(safety_json(safety, summary))))
+    pm = out / "identification_safety.md"
+    pm.write_text(safety_markdown(safety, summary, command))
+    return [pj, pm, safety_plot(summary, out)]
