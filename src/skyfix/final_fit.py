@@ -53,6 +53,9 @@ class FinalFit:
         fitted camera's freedom paid for; identification's when the stars were not re-matched).
     noise_sigma_rad : float — the per-axis centroid noise the covariance is scaled by, with a
         given camera (NaN with a fitted one, whose covariance also holds the camera prior's).
+    residual_dof : float — the degrees of freedom of the residuals that noise was estimated
+        from: 2M − 3 with a given camera, 2M less the fit's effective number of parameters
+        (:attr:`skyfix.calibrate.PriorFit.n_effective`, the divisor of its σ²) with a fitted one.
     """
 
     A_icrs_to_cam: np.ndarray
@@ -66,6 +69,7 @@ class FinalFit:
     camera_params: tuple[str, ...]
     log_prob_chance: float = 0.0
     noise_sigma_rad: float = math.nan
+    residual_dof: float = math.nan
 
 
 def angles(b: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -120,7 +124,7 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
     sigma = max(math.sqrt(float(np.sum(resid**2)) / dof), 0.05 * camera.plate_scale_rad)
     cov = attitude_covariance(A, b, sigma)
     log_p = math.log(max(ident.prob_false, 1e-300))
-    return FinalFit(A, camera, idx, ids, r, mag, resid, cov, (), log_p, sigma)
+    return FinalFit(A, camera, idx, ids, r, mag, resid, cov, (), log_p, sigma, 2 * len(idx) - 3)
 
 
 class _Rematch(NamedTuple):
@@ -374,7 +378,7 @@ def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> Fin
     A = solve_attitude(b, cur.r, method=method)
     resid = rotation.angles(b, cur.r, np.ascontiguousarray(A))
     return FinalFit(A, fit.camera, cur.idx, cur.ids, cur.r, cur.mag, resid, fit.covariance_rad2,
-                    fit.parameters, log_p)
+                    fit.parameters, log_p, residual_dof=2 * len(cur.idx) - fit.n_effective)
 
 
 def _grow(xy: np.ndarray, fit, cur: _Matches, rematch: _Rematch, log_p: float):
