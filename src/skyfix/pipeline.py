@@ -205,9 +205,14 @@ def solve_centroids(
     ident = identify(xy, width, height, method=identify_method, fov_deg=fov_deg,
                      fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database, epoch=epoch,
                      **identify_options)
-    if not ident.success and sparse_fallback(identify_method, len(xy), camera, fov_deg):
-        ident = _identify_sparse(ident, xy, width, height, fov_deg, fov_tolerance_deg, camera, database,
-                                 epoch, identify_options)
+    assumed = None  # a preset camera the sparse fallback took from the frame's size
+    if not ident.success and sparse_fallback(identify_method, len(xy), camera, fov_deg, width, height):
+        ident, assumed = _identify_sparse(ident, xy, width, height, fov_deg, fov_tolerance_deg, camera,
+                                          database, epoch, identify_options)
+        if assumed is not None:
+            fit_options["camera_given"] = True
+            log.info("%s: sparse frame identified through the %s preset's camera (its %d×%d size)",
+                     name, assumed, width, height)
     t1 = time.perf_counter()
     sol.time_ms = {"identify": 1e3 * (t1 - t0)}
     sol.method = ident.method
@@ -234,31 +239,60 @@ the ``triangle`` method (:func:`sparse_fallback`)."""
 _SPARSE_OPTIONS = ("prob_threshold", "centroid_sigma_px")
 
 
-def sparse_fallback(identify_method: str, n_stars: int, camera: Camera | None, fov_deg: float | None) -> bool:
+def preset_cameras(width: int, height: int) -> dict[str, Camera]:
+    """The seed cameras (:data:`skyfix.camera.PRESETS`) whose image is ``width`` × ``height``."""
+    from skyfix.camera import PRESETS, camera_from_preset
+
+    return {name: camera_from_preset(name) for name, spec in PRESETS.items()
+            if (spec["width"], spec["height"]) == (width, height)}
+
+
+def sparse_fallback(identify_method: str, n_stars: int, camera: Camera | None, fov_deg: float | None,
+                    width: int = 0, height: int = 0) -> bool:
     """Whether a frame the default identification failed is tried again with the ``triangle``
     method: the default method was asked for (a method named explicitly is used alone), the
     frame is sparse (at most :data:`SPARSE_FIELD_STARS` centroids: the 4-star hash needs more to
     verify a pattern beyond chance, thesis 000's camera sees three stars per frame), and the
-    scale is known (a camera or a FOV: a triangle's angles need it)."""
+    scale is known (a camera or a FOV: a triangle's angles need it) or the frame is the size of
+    a seed camera's (:func:`preset_cameras`), whose camera is then tried."""
     from skyfix.identify import get_method
     from skyfix.identify.methods import DEFAULT_METHOD
 
     return (get_method(identify_method) is get_method(DEFAULT_METHOD) and n_stars <= SPARSE_FIELD_STARS
-            and (camera is not None or fov_deg is not None))
+            and (camera is not None or fov_deg is not None or bool(preset_cameras(width, height))))
 
 
 def _identify_sparse(failed, xy: np.ndarray, width: int, height: int, fov_deg, fov_tolerance_deg, camera,
                      database, epoch, identify_options: dict):
     """The triangle method's identification of a sparse frame, or the default's failure with the
-    triangle method's reason beside it."""
-    from skyfix.identify import identify
+    triangle method's reason beside it; and the name of the preset camera it was identified
+    through (None: the camera or FOV given).
 
-    sparse = identify(xy, width, height, method="triangle", fov_deg=fov_deg,
-                      fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database, epoch=epoch,
-                      **{k: identify_options[k] for k in _SPARSE_OPTIONS if k in identify_options})
-    if sparse.success:
-        return sparse
-    return dataclasses.replace(failed, reason=f"{failed.reason}; triangle: {sparse.reason}")
+    With neither a camera nor a FOV, each seed camera of the frame's size is tried as a
+    calibrated camera, the chance accepted divided among them (the triangle method's
+    ``lone_prob_threshold`` and ``prob_threshold`` over their number): a frame from another
+    camera of that size is then a random triangle to them, and the final fit's precision rule
+    still judges the attitude through the camera assumed."""
+    from skyfix.identify import identify
+    from skyfix.identify.angle_match import LONE_PROB_THRESHOLD
+
+    options = {k: identify_options[k] for k in _SPARSE_OPTIONS if k in identify_options}
+    if camera is not None or fov_deg is not None:
+        tries = {None: dict(camera=camera, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg)}
+    else:
+        presets = preset_cameras(width, height)
+        k = len(presets)
+        options["prob_threshold"] = options.get("prob_threshold", 1e-9) / k
+        options["lone_prob_threshold"] = LONE_PROB_THRESHOLD / k
+        tries = {name: dict(camera=cam) for name, cam in presets.items()}
+    reasons = []
+    for name, scale in tries.items():
+        sparse = identify(xy, width, height, method="triangle", database=database, epoch=epoch, **scale,
+                          **options)
+        if sparse.success:
+            return sparse, name
+        reasons.append(sparse.reason if name is None else f"{name} camera: {sparse.reason}")
+    return dataclasses.replace(failed, reason=f"{failed.reason}; triangle: {'; '.join(reasons)}"), None
 
 
 # The options of identify_near that lost in space's default method shares (same names, same meaning).
@@ -331,9 +365,9 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
                     method=attitude_method, prob_threshold=prob_threshold, n_img=n_img)
     A, camera, idx = fit.A_icrs_to_cam, fit.camera, fit.star_index
     # The σ behind the covariance was estimated from the residuals: 2 per star, less the
-    # attitude's 3 and the camera numbers fitted (Student's tails for a few stars). A centroid
+    # attitude's 3 and the camera's effective share (Student's tails for a few stars). A centroid
     # noise stated beside a given camera is combined with it (accept.noise_posterior).
-    dof = 2 * len(idx) - 3 - len(fit.camera_params)
+    dof = fit.residual_dof
     covariance = fit.covariance_rad2
     if centroid_sigma_px is not None and math.isfinite(fit.noise_sigma_rad):
         noise = noise_posterior(fit.residuals_rad, dof, centroid_sigma_px * camera.plate_scale_rad)
