@@ -161,3 +161,29 @@ def test_a_false_star_in_a_verified_triangle_is_caught():
     (record,) = run_block(15.0, CONDITIONS[5], range(32, 33), ["triangle"], seed=0)
     assert CONDITIONS[5].n_false == 10
     assert not record.wrong, record
+
+
+def test_sparse_frame_of_a_preset_size_solves_through_its_camera(catalog):
+    """No camera, no FOV: a 752×480 frame of four stars is tried through the MT9V022 preset's
+    camera (the only seed camera of that size) and solved with it; the same frames from a 25°
+    lens on a sensor of that size are never wrong (the preset's scale is 19 % off: a random
+    triangle to it)."""
+    from skyfix.camera import camera_from_preset
+    from skyfix.pipeline import preset_cameras
+
+    assert list(preset_cameras(752, 480)) == ["mt9v022"] and not preset_cameras(1000, 1000)
+    preset = camera_from_preset("mt9v022")
+    other = Camera.from_fov(752, 480, 25.0)
+    solved = {"mt9v022": 0, "25°": 0}
+    for i, A in enumerate(random_attitudes(30, 41)):
+        for key, cam in (("mt9v022", preset), ("25°", other)):
+            f = synthetic_centroids(cam, A, catalog, mag_limit=7.0, sigma_px=0.2, rng=i)
+            if (~f.is_false).sum() < 4:
+                continue
+            sol = solve_centroids(f.xy[:4], 752, 480)
+            if sol.solved:
+                solved[key] += 1
+                assert not _wrong(A, sol.A_icrs_to_cam, cam), (key, i)
+                if key == "mt9v022":
+                    assert sol.method == "triangle" and sol.camera == preset
+    assert solved["mt9v022"] >= 13, solved  # 16 measured (0 of the 25° frames)
