@@ -221,6 +221,20 @@ def solve_centroids(
         log.info("%s: identification failed: %s", name, ident.reason)
         return sol
     _fill_attitude(sol, xy, ident, attitude_method, **fit_options)
+    if (not sol.solved and assumed is None and camera is None and fov_deg is None
+            and sparse_fallback(identify_method, len(xy), None, None, width, height)):
+        # Identified, but too uncertain through a camera fitted to a few stars: a seed camera of
+        # the frame's size, if the stars confirm it, pins the attitude down.
+        again, assumed = _identify_sparse(ident, xy, width, height, None, None, None, database, epoch,
+                                          identify_options)
+        if assumed is not None:
+            retry = Solution(image=name, n_detected=len(xy), method=again.method)
+            _fill_attitude(retry, xy, again, attitude_method, **{**fit_options, "camera_given": True})
+            if retry.solved:
+                log.info("%s: sparse frame solved through the %s preset's camera (its %d×%d size)", name,
+                         assumed, width, height)
+                retry.time_ms = sol.time_ms
+                sol = retry
     sol.time_ms["attitude"] = 1e3 * (time.perf_counter() - t1)
     sol.time_ms["total"] = 1e3 * (time.perf_counter() - t0)
     if sol.solved:
