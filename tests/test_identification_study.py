@@ -74,10 +74,14 @@ def test_cli_case_and_bad_names(tmp_path):
     res = CliRunner().invoke(app, ["analyze", "identification", "--methods", "bogus", "--out", str(tmp_path)])
     assert res.exit_code == 2 and "bogus" in res.output and "Traceback" not in res.output
     res = CliRunner().invoke(app, ["analyze", "identification", "--quick", "--methods", "quad-hash",
-                                   "--trials", "5", "--out", str(tmp_path)])
+                                   "--trials", "5", "--safety-trials", "4", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
     data = json.loads((tmp_path / "identification_study.json").read_text())
     assert len(data["records"]) == 10
+    safety = data["safety"]
+    assert safety["summary"]["quad-hash"]["n"] == 4 and safety["records"]["trial"] == [0, 1, 2, 3]
+    assert safety["summary"]["quad-hash"]["wrong"] == 0
+    assert "## Safety: 4 frames per method" in (tmp_path / "identification_study.md").read_text()
     assert data["summary"]["quad-hash"]["all"]["wrong"] == 0
     assert math.isfinite(data["summary"]["quad-hash"]["all"]["median_ms"])
     assert (tmp_path / "solved.png").stat().st_size > 1000

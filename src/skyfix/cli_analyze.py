@@ -329,6 +329,8 @@ def identification(
                                "--quick: 20)."),
     safety_trials: int = typer.Option(None, "--safety-trials", min=0, help="Frames of the safety case, each "
                                       "solved by every method (default 10000; --quick: 60; 0: none)."),
+    safety_first: int = typer.Option(0, "--safety-first", min=0, help="Number of the first safety frame (a "
+                                     "campaign split in parts: frames N … N + --safety-trials − 1)."),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed (attitudes, noise)."),
     workers: int = typer.Option(1, "--workers", min=1, help="Processes for the grid's blocks, the safety "
                                 "frames and the seed experiments."),
@@ -358,11 +360,13 @@ def identification(
     n_safety = (check_count(safety_trials, "--safety-trials", minimum=0) if safety_trials is not None
                 else safety_base.trials)
     safety = safety_base._replace(trials=n_safety, methods=tuple(method_list), seed=int(seed),
-                                  workers=workers)
+                                  workers=workers,
+                                  first=check_count(safety_first, "--safety-first", minimum=0))
     command = ("skyfix analyze identification" + (" --quick" if quick else "")
                + (f" --methods {','.join(names)}" if names else "")
                + (f" --trials {trials}" if trials else "")
                + (f" --safety-trials {safety_trials}" if safety_trials is not None else "")
+               + (f" --safety-first {safety_first}" if safety_first else "")
                + (f" --seed {seed}" if seed else "") + (f" --workers {workers}" if workers != 1 else "")
                + (f" --case {','.join(cases)}" if cases else ""))
     prepare_outputs({"--out": [out / "identification_study.json"]})
