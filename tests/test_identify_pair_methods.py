@@ -157,3 +157,59 @@ def test_noisy_fields_with_false_stars_are_never_wrong(database, catalog, method
     assert solved >= 0.97 * fields
     assert np.median(err) < 8.0  # 0.5 px is 26″ at 15°/1024 px; the refit averages tens of stars
     assert true > 0.98  # the refit's matches (a close double's components may swap, as with quad-hash)
+
+
+# Noise-free 15° fields of 5–7 stars (V 5.5; trials of random_attitudes(1200, rng=100), field rng
+# 100 + trial, the camera given on odd trials, the FOV on even ones) that both methods failed
+# before sparse frames were judged by the triangle method's sparse-frame rules: too few stars
+# beyond a 4-star proposal to verify it at 1e-9.
+SPARSE_TRIALS = (53, 105, 110, 211, 287, 294, 442, 505, 617, 621, 730, 910, 1070, 1172)
+
+
+def test_sparse_noise_free_fields_are_solved(database, catalog, method):
+    cam = Camera.from_fov(1024, 1024, 15.0)
+    attitudes = random_attitudes(1200, rng=100)
+    for t in SPARSE_TRIALS:
+        field = synthetic_centroids(cam, attitudes[t], catalog, mag_limit=5.5, sigma_px=0.0, rng=100 + t)
+        assert 5 <= len(field.xy) <= 7
+        kw = dict(camera=cam) if t % 2 else dict(fov_deg=15.0)
+        r = method.identify(field.xy, 1024, 1024, database=database, **kw)
+        assert r.success, (t, r.reason)
+        assert list(r.catalog_ids) == list(field.star_id[r.star_index]) and len(r.star_index) >= 5
+        boresight, roll = _boresight_arcsec(attitudes[t], r.A_icrs_to_cam)
+        assert boresight < 2.0 and roll < np.radians(0.01)
+        assert 0.0 < r.prob_false < 1e-4  # the sparse rules' threshold
+
+
+def test_a_sparse_field_too_noisy_to_pin_down_is_refused(database, catalog, method):
+    # Six true stars and two false ones at σ 1 px (52″ at 15°/1024 px): the sparse rules named
+    # the right stars, but their attitude came back 97″ off before the precision rule.
+    cam = Camera.from_fov(1024, 1024, 15.0)
+    A = random_attitudes(4000, rng=11)[363]
+    field = synthetic_centroids(cam, A, catalog, mag_limit=5.0, sigma_px=1.0, n_false=2, rng=11 + 363)
+    assert len(field.xy) == 8 and field.is_false.sum() == 2
+    r = method.identify(field.xy, 1024, 1024, camera=cam, database=database, centroid_sigma_px=1.0)
+    assert not r.success and "attitude too uncertain" in r.reason and "\n" not in r.reason
+    # the rule is the sparse frames' own: a looser threshold does not let the frame through
+    r = method.identify(field.xy, 1024, 1024, camera=cam, database=database, centroid_sigma_px=1.0,
+                        lone_prob_threshold=0.5)
+    assert not r.success
+
+
+def test_noisy_sparse_fields_with_false_stars_are_never_wrong(database, catalog, method):
+    # 15° fields of at most 8 centroids (V 5.0, σ 0.5 px, two false stars among them)
+    cam = Camera.from_fov(1024, 1024, 15.0)
+    fields = solved = wrong = 0
+    for t, A in enumerate(random_attitudes(200, rng=21)):
+        field = synthetic_centroids(cam, A, catalog, mag_limit=5.0, sigma_px=0.5, n_false=2, rng=21 + t)
+        if not 4 <= len(field.xy) <= 8:
+            continue
+        fields += 1
+        kw = dict(camera=cam) if t % 2 else dict(fov_deg=15.0)
+        r = method.identify(field.xy, 1024, 1024, database=database, **kw)
+        if r.success:
+            boresight, roll = _boresight_arcsec(A, r.A_icrs_to_cam)
+            wrong += boresight > 60 or roll > np.radians(0.5)
+            solved += 1
+    assert fields >= 60 and wrong == 0
+    assert solved >= 0.1 * fields  # sparse frames with false stars are solved, not only refused

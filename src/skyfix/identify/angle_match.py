@@ -17,19 +17,30 @@ noise of the pair that fixed it in proportion, ``noise / f · (1 + θ / θ_pair)
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from typing import NamedTuple
 
 import numba
 import numpy as np
 
 from skyfix._kernels.rotation import chord_angle
-from skyfix.identify.hypothesis import Frame
+from skyfix.attitude import attitude_covariance
+from skyfix.geometry import rotation_angle_between
+from skyfix.identify.accept import noise_posterior, precision_failure
+from skyfix.identify.hypothesis import Frame, finish, fits, hypothesis, rays_at
 from skyfix.identify.pairs import PairTable, pair_table
+from skyfix.identify.result import Identification
+from skyfix.identify.triangle import AMBIGUITY_RATIO, LONE_MAX_STARS, judge_lone
 
-__all__ = ["AngleSettings", "angle_range", "angle_settings", "angle_tolerance", "focal_for_angle",
-           "frame_pair_table", "ray_angle", "star_angle", "star_chord2", "triple_product"]
+__all__ = ["LONE_PROB_THRESHOLD", "AngleSettings", "angle_range", "angle_settings", "angle_tolerance",
+           "focal_for_angle", "frame_pair_table", "longest_side_first", "ray_angle", "recorded",
+           "sparse_identification", "star_angle", "star_chord2", "triple_product"]
 
 _MAX_ANGLE_MARGIN = 1.02  # the pair table holds pairs a little wider than the frame's diagonal
+LONE_PROB_THRESHOLD = 1e-4
+"""The largest chance of a wrong match accepted for a sparse frame's proposal (as the
+``triangle`` method's ``lone_prob_threshold``: a frame of a few stars cannot reach the 1e-9 of a
+rich one, whose other stars verify it)."""
 
 
 class AngleSettings(NamedTuple):
@@ -138,3 +149,101 @@ def triple_product(vectors, a, b, c):
     return (vectors[c, 0] * (vectors[a, 1] * vectors[b, 2] - vectors[a, 2] * vectors[b, 1])
             + vectors[c, 1] * (vectors[a, 2] * vectors[b, 0] - vectors[a, 0] * vectors[b, 2])
             + vectors[c, 2] * (vectors[a, 0] * vectors[b, 1] - vectors[a, 1] * vectors[b, 0]))
+
+
+def recorded(proposals: Iterator[tuple[np.ndarray, np.ndarray]],
+             into: list[tuple[np.ndarray, np.ndarray]]) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """``proposals`` passed on unchanged, each one also appended to ``into`` (for
+    :func:`sparse_identification` once the common rules have judged them all)."""
+    for stars, catalog in proposals:
+        into.append((stars, catalog))
+        yield stars, catalog
+
+
+def longest_side_first(frame: Frame, stars: np.ndarray, catalog: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Three matched centroid rows ``stars`` (and their ``catalog`` rows) in the vertex order of
+    :func:`skyfix.identify.triangle.judge_lone` — the longest image side θ01 first — and the
+    image sides (θ01, θ02, θ12) at the nominal focal length."""
+    v = frame.rays[stars]
+    sides = chord_angle(np.linalg.norm(v[[0, 0, 1]] - v[[1, 2, 2]], axis=1))  # 01, 02, 12
+    order = ((0, 1, 2), (0, 2, 1), (1, 2, 0))[int(np.argmax(sides))]
+    stars, catalog = stars[list(order)], catalog[list(order)]
+    v = frame.rays[stars]
+    return stars, catalog, chord_angle(np.linalg.norm(v[[0, 0, 1]] - v[[1, 2, 2]], axis=1))
+
+
+def sparse_identification(frame: Frame, table: PairTable, proposals: list[tuple[np.ndarray, np.ndarray]], *,
+                          n_stars: int, tolerance_rad: float, centroid_sigma_px: float, n_tried: int,
+                          threshold: float = LONE_PROB_THRESHOLD, mag_margin: float = 1.0,
+                          missing_margin: float = 0.75, min_error_px: float = 0.05) -> Identification | str:
+    """A sparse frame's identification from proposals the common rules refused, or why not.
+
+    A frame of at most :data:`~skyfix.identify.triangle.LONE_MAX_STARS` centroids has too few
+    stars beyond a 4-star proposal to verify it at 1e-9. Each proposal's first three stars are
+    judged as the ``triangle`` method judges a sparse frame's triangle
+    (:func:`skyfix.identify.triangle.judge_lone`: how unusual a catalogue triangle this close is,
+    every one of the ``C(n_stars, 3)`` image triangles counted as a look, every other star —
+    the proposal's fourth included — verifying it as a binomial tail, a bright catalogue star in
+    view on no centroid refuting it). The best is accepted when its chance is at most
+    ``threshold`` and no proposal that puts the camera elsewhere comes within
+    :data:`~skyfix.identify.triangle.AMBIGUITY_RATIO` of it; the refit on every matched star
+    (:func:`skyfix.identify.hypothesis.finish`) must then pass as always, and the attitude of so
+    few stars be precise enough to be right (:func:`skyfix.identify.accept.precision_failure`,
+    the solve's rule, with the stated ``centroid_sigma_px`` and the matched stars' residuals:
+    a few stars at σ 1 px leave the boresight tens of arcseconds uncertain).
+
+    Returns
+    -------
+    Identification or str
+        The identification, or the reason none was accepted.
+    """
+    if len(frame.xy) > LONE_MAX_STARS:
+        return f"a frame of more than {LONE_MAX_STARS} stars is not judged as sparse"
+    _, star_mag, _ = frame.database.star_arrays()
+    n_triangles = math.comb(max(int(n_stars), 3), 3)
+    judged = []
+    seen: set[bytes] = set()
+    for stars, catalog in proposals:
+        tri, cat, sides = longest_side_first(frame, np.asarray(stars[:3], np.int64),
+                                             np.asarray(catalog[:3], np.int64))
+        key = np.concatenate([tri, cat]).tobytes()
+        if key in seen:
+            continue
+        seen.add(key)
+        h = hypothesis(frame, tri, cat)
+        if not fits(frame, h):
+            continue
+        j = judge_lone(frame, h, table, star_mag, sides_img=sides, tolerance_rad=tolerance_rad,
+                       n_triangles=n_triangles, mag_margin=mag_margin, missing_margin=missing_margin,
+                       min_error_px=min_error_px)
+        if j.n_missing == 0:
+            judged.append((j.log_chance, h, j))
+    if not proposals:
+        return "nothing proposed"
+    if not judged:
+        return "no proposal passes the sparse-frame rules"
+    judged.sort(key=lambda e: e[0])
+    best_log, best_h, best_j = judged[0]
+    if best_log > math.log(threshold):
+        return f"sparse frame: best chance of a wrong match {math.exp(best_log):.1e} > {threshold:g}"
+    apart = 3.0 * frame.radius_px / float(best_h.focal_px)
+    rivals = {tuple(j.catalog[:3]) for lp, h, j in judged[1:]
+              if lp <= best_log + math.log(AMBIGUITY_RATIO)
+              and rotation_angle_between(h.A_icrs_to_cam, best_h.A_icrs_to_cam) > apart}
+    if rivals:
+        return f"ambiguous: {len(rivals) + 1} proposals fit these stars about equally well"
+    full = hypothesis(frame, best_j.stars, best_j.catalog)
+    if not fits(frame, full):
+        return "sparse frame: the matched stars fit no one rotation"
+    b = rays_at(frame, full.stars, full.focal_px)
+    r = frame.stars.vectors[full.catalog] @ full.A_icrs_to_cam.T
+    residuals = chord_angle(np.linalg.norm(b - r, axis=1))
+    noise = noise_posterior(residuals, 2 * len(b) - 3, float(centroid_sigma_px) / full.focal_px)
+    covariance = attitude_covariance(full.A_icrs_to_cam, b, noise.sigma_rad)
+    plate_scale = float(frame.camera.plate_scale_rad)
+    imprecise = precision_failure(covariance, plate_scale, noise.dof, frame.calibrated)
+    if imprecise:
+        return f"sparse frame: {imprecise}"
+    result = finish(frame, full, best_log, n_tried, len(proposals))
+    return result if result is not None else "sparse frame: the refit is not beyond chance"

@@ -37,12 +37,15 @@ import numpy as np
 
 from skyfix.camera import Camera
 from skyfix.identify.angle_match import (
+    LONE_PROB_THRESHOLD,
     angle_range,
     angle_settings,
     angle_tolerance,
     focal_for_angle,
     frame_pair_table,
     ray_angle,
+    recorded,
+    sparse_identification,
     star_angle,
     triple_product,
 )
@@ -50,6 +53,7 @@ from skyfix.identify.database import PatternDatabase
 from skyfix.identify.hypothesis import failure, first_accepted, frame_for
 from skyfix.identify.pairs import neighbours_in_range, pairs_in_range
 from skyfix.identify.result import Identification
+from skyfix.identify.triangle import LONE_MAX_STARS
 
 __all__ = ["METHOD", "identify", "pyramid_search", "triangle_order"]
 
@@ -260,7 +264,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              database: PatternDatabase | None = None, epoch: float | None = None, pattern_stars: int = 20,
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, max_triangles: int = 2000,
              max_side_share: float = 0.004, max_triangle_matches: int = 64, max_candidates: int = 200,
-             time_limit_s: float = 2.0, per_field: int = 12, prob_threshold: float = 1e-9) -> Identification:
+             time_limit_s: float = 2.0, per_field: int = 12, prob_threshold: float = 1e-9,
+             lone_prob_threshold: float = LONE_PROB_THRESHOLD) -> Identification:
     """Identify the stars of one frame, lost in space, by the Pyramid method (module text).
 
     Parameters
@@ -293,6 +298,10 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Catalogue stars per field of the pair table (:func:`skyfix.identify.pairs.pair_table`).
     prob_threshold : float
         Largest accepted probability that the match is chance.
+    lone_prob_threshold : float
+        The same for a sparse frame (at most 8 centroids) whose proposals ``prob_threshold``
+        refused: each proposal's triangle judged by the ``triangle`` method's sparse-frame rules
+        (:func:`skyfix.identify.angle_match.sparse_identification`).
 
     Returns
     -------
@@ -317,9 +326,19 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     max_pairs = max(int(max_side_share * len(table.angle_rad)), 1)
     pyramids = _pyramids(frame, s, table, n, max_triangles, max_pairs, max_triangle_matches,
                          time_limit_s, progress)
-    result = first_accepted(frame, pyramids, max_candidates=max_candidates)
+    proposed: list[tuple[np.ndarray, np.ndarray]] = []
+    result = first_accepted(frame, recorded(pyramids, proposed), max_candidates=max_candidates)
     if result.success:
         return dataclasses.replace(result, n_patterns_tried=progress.triangles)
+    sparse = ""
+    if len(frame.xy) <= LONE_MAX_STARS:  # too few stars to verify at prob_threshold: the sparse rules
+        sparse = sparse_identification(frame, table, proposed[:result.n_candidates], n_stars=n,
+                                       tolerance_rad=s.noise_px / s.f0,
+                                       centroid_sigma_px=centroid_sigma_px,
+                                       n_tried=progress.triangles, threshold=lone_prob_threshold)
+        if isinstance(sparse, Identification):
+            return dataclasses.replace(sparse, n_patterns_tried=progress.triangles)
+        sparse = f"; {sparse}"
     stopped = progress.stopped or f"max_candidates {max_candidates} pyramids proposed"
-    return failure(METHOD, f"no pyramid verified: {result.n_candidates} proposed, {stopped}", frame.t0,
-                   progress.triangles, result.n_candidates)
+    return failure(METHOD, f"no pyramid verified: {result.n_candidates} proposed, {stopped}{sparse}",
+                   frame.t0, progress.triangles, result.n_candidates)

@@ -41,16 +41,20 @@ import numpy as np
 from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
 from skyfix.identify.angle_match import (
+    LONE_PROB_THRESHOLD,
     AngleSettings,
     angle_range,
     angle_settings,
     frame_pair_table,
+    recorded,
+    sparse_identification,
     star_chord2,
 )
 from skyfix.identify.database import PatternDatabase
 from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
 from skyfix.identify.pairs import PairTable, pairs_in_range
 from skyfix.identify.result import Identification
+from skyfix.identify.triangle import LONE_MAX_STARS
 
 __all__ = ["METHOD", "cast_votes", "consistent_set", "focal_steps", "identify", "top_voted", "validate"]
 
@@ -254,7 +258,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, candidate_nodes: int = 240,
              min_set: int = 4, sets_per_scale: int = 3,
              max_candidates: int = 200, time_limit_s: float = 2.0, per_field: int = 12,
-             prob_threshold: float = 1e-9) -> Identification:
+             prob_threshold: float = 1e-9,
+             lone_prob_threshold: float = LONE_PROB_THRESHOLD) -> Identification:
     """Identify the stars of one frame, lost in space, by geometric voting (module text).
 
     Parameters
@@ -272,7 +277,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Candidates kept over all ``n`` centroids voting: each keeps its ``candidate_nodes // n``
         most-voted catalogue stars (at least 2) for the validation (the paper: 1 each).
     min_set : int
-        Fewest centroids of a consistent set proposed (at least 3).
+        Fewest centroids of a frame (and of a consistent set proposed; at least 3). In a sparse
+        frame (at most 8 centroids) sets of 3 are proposed too.
     sets_per_scale : int
         Work bound: consistent sets proposed per focal interval.
     max_candidates : int
@@ -284,6 +290,10 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Catalogue stars per field of the pair table (:func:`skyfix.identify.pairs.pair_table`).
     prob_threshold : float
         Largest accepted probability that the match is chance.
+    lone_prob_threshold : float
+        The same for a sparse frame (at most 8 centroids) whose proposals ``prob_threshold``
+        refused: each proposal's triangle judged by the ``triangle`` method's sparse-frame rules
+        (:func:`skyfix.identify.angle_match.sparse_identification`).
 
     Returns
     -------
@@ -307,10 +317,23 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     n = min(len(frame.xy), vote_stars)
     progress = _Progress()
     per_star = max(candidate_nodes // max(n, 1), 2)
+    if len(frame.xy) <= LONE_MAX_STARS:  # a sparse frame's true star has few votes: sets of three too
+        min_set = 3
     sets = _proposals(frame, s, table, n, per_star, min_set, sets_per_scale, time_limit_s, progress)
-    result = first_accepted(frame, sets, max_candidates=max_candidates)
+    proposed: list[tuple[np.ndarray, np.ndarray]] = []
+    result = first_accepted(frame, recorded(sets, proposed), max_candidates=max_candidates)
     if result.success:
         return dataclasses.replace(result, n_patterns_tried=progress.steps)
+    sparse = ""
+    if len(frame.xy) <= LONE_MAX_STARS:  # too few stars to verify at prob_threshold: the sparse rules
+        sparse = sparse_identification(frame, table, proposed[:result.n_candidates], n_stars=n,
+                                       tolerance_rad=s.noise_px / s.f0,
+                                       centroid_sigma_px=centroid_sigma_px,
+                                       n_tried=progress.steps, threshold=lone_prob_threshold)
+        if isinstance(sparse, Identification):
+            return dataclasses.replace(sparse, n_patterns_tried=progress.steps)
+        sparse = f"; {sparse}"
     stopped = progress.stopped or f"max_candidates {max_candidates} sets proposed"
-    return failure(METHOD, f"no voted set verified: {result.n_candidates} proposed, {stopped}", frame.t0,
+    return failure(METHOD, f"no voted set verified: {result.n_candidates} proposed, {stopped}{sparse}",
+                   frame.t0,
                    progress.steps, result.n_candidates)
