@@ -618,8 +618,9 @@ def table_3_7(trials: int = 1000, method: str = "van-bezooijen", seed: int = 0,
     its magnitude, the ≤ 8 brightest stars (thesis 004's V ≤ 6: the 5,026 brightest) identified
     by ``method`` against a pattern database of the envelope's sub-catalogue
     (:func:`skyfix.analysis.coverage.sub_catalogue`, 588 stars; thesis 540). For van Bezooijen
-    the tolerances are the thesis's: the distance tolerance d_uncert (``centroid_sigma_px`` =
-    d_uncert · f / √2 with ``n_sigma`` 1) and Mv_uncert on the magnitudes given. Counted as in
+    the tolerances are the thesis's: the distance tolerance d_uncert (the noise stated as it is,
+    ``centroid_sigma_px`` = σ_p · f / √2, and ``n_sigma`` = d_uncert / σ_p) and Mv_uncert on the
+    magnitudes given. Counted as in
     the thesis: failures with < 3 stars in view, failures with more, wrong, success.
 
     σ_p is the error of a measured *distance* (Table 3-6 pairs it with "the uncertainty in the
@@ -689,8 +690,9 @@ def table_3_7(trials: int = 1000, method: str = "van-bezooijen", seed: int = 0,
             xy, mag = field.xy[:20], field.mag[:20]
             options = {}
             if method == "van-bezooijen":
-                options = dict(magnitudes=mag, magnitude_tolerance=row.mv_uncert, n_sigma=1.0,
-                               centroid_sigma_px=row.d_uncert_urad * 1e-6 * f / math.sqrt(2.0), max_stars=8)
+                options = dict(magnitudes=mag, magnitude_tolerance=row.mv_uncert,
+                               n_sigma=row.d_uncert_urad / row.sigma_p_urad,
+                               centroid_sigma_px=row.sigma_p_urad * 1e-6 * f / math.sqrt(2.0), max_stars=8)
             t1 = time.perf_counter()
             ident = identify(xy, camera.width, camera.height, method=method, camera=camera, database=db,
                              epoch=EPOCH, **options)
