@@ -79,8 +79,14 @@ def test_judge_counts_a_wrong_attitude(monkeypatch, catalog, rotvec, wrong):
 def test_small_run_bookkeeping_and_replay(tmp_path):
     mix = st.SAFETY_MIX._replace(fovs_deg=(15.0, 30.0))  # the 8° frames' refusals take the time
     settings = st.SafetySettings(trials=6, methods=("quad-hash", "grid"), block=4, mix=mix)
-    safety = st.run_safety(settings)
+    safety = st.run_safety(settings, checkpoint=tmp_path / "part.jsonl")
     recs = safety["records"]
+    back = st.read_checkpoint(tmp_path / "part.jsonl")  # the blocks as they came, read back in order
+    assert len(back) == len(recs)
+    for a, b in zip(back, recs, strict=True):
+        same = [x == y or (isinstance(x, float) and math.isnan(x) and math.isnan(y))
+                for x, y in zip(a, b, strict=True)]
+        assert all(same), (a, b)
     assert [(r.trial, r.method) for r in recs] == [(t, m) for t in range(6) for m in ("quad-hash", "grid")]
     for r in recs:
         assert r.n_centroids >= r.n_stars and r.time_ms > 0

@@ -67,7 +67,7 @@ __all__ = ["CASES", "Condition", "FULL", "QUICK", "SAFETY_BOUNDS", "SAFETY_FULL"
            "TrialRecord", "cell_summary", "method_names", "perturbation_sweep", "quest_catalogue",
            "replay_safety", "run_block", "run_safety", "run_safety_block", "run_study", "safety_draw",
            "safety_field", "safety_summary", "safety_trial", "sparse_fields", "summarize", "table_3_7",
-           "three_star_frames", "upper_bound_95", "write_safety", "write_study"]
+           "read_checkpoint", "three_star_frames", "upper_bound_95", "write_safety", "write_study"]
 
 EPOCH = 2025.0
 WIDTH, HEIGHT = 1280, 960
@@ -1151,3 +1151,18 @@ def write_safety(safety: dict, out_dir: str | Path, command: str = "") -> list[P
     pm = out / "identification_safety.md"
     pm.write_text(safety_markdown(safety, summary, command))
     return [pj, pm, safety_plot(summary, out)]
+
+
+def read_checkpoint(path: str | Path) -> list[SafetyTrial]:
+    """The records a safety run checkpointed (:func:`run_safety`'s ``checkpoint``; several parts'
+    files may be concatenated), in frame then method order — for :func:`safety_summary`,
+    :func:`safety_markdown` and :func:`safety_plot` when a run was stopped or split."""
+    nan_fields = ("boresight_arcsec", "roll_deg", "normalised", "prob_false")
+    records = []
+    for line in Path(path).read_text().splitlines():
+        if line.strip():
+            row = json.loads(line)
+            row.update({k: math.nan for k in nan_fields if row[k] is None})
+            records.append(SafetyTrial(**row))
+    order = {m: i for i, m in enumerate(dict.fromkeys(r.method for r in records))}
+    return sorted(records, key=lambda r: (r.trial, order[r.method]))
