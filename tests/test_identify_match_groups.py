@@ -151,3 +151,30 @@ def test_noisy_fields_with_false_stars_are_never_wrong(database, camera, catalog
             solved += 1
     assert solved >= 0.95 * n
     assert np.median(boresight) < 8.0  # 0.5 px = 26" per star, ~30 stars refitted
+
+
+def test_sparse_noise_free_fields_are_solved(database, camera, catalog):
+    # Noise-free 15° fields of 5–7 stars (V 5.5; random_attitudes(1200, rng=100)[t], field rng
+    # 100 + t; camera given on odd trials, the FOV on even ones) that the method refused before
+    # sparse frames were judged by the triangle method's sparse-frame rules
+    # (skyfix.identify.angle_match.sparse_identification): too few stars beyond a group.
+    attitudes = random_attitudes(1200, rng=100)
+    for t in (53, 110, 287, 294, 442, 621):
+        field = synthetic_centroids(camera, attitudes[t], catalog, mag_limit=5.5, sigma_px=0.0, rng=100 + t)
+        assert 5 <= len(field.xy) <= 7
+        kw = dict(camera=camera) if t % 2 else dict(fov_deg=FOV)
+        r = mg.identify(field.xy, W, H, database=database, **kw)
+        assert r.success and r.method == "van-bezooijen", (t, r.reason)
+        assert np.array_equal(r.catalog_ids, field.star_id[r.star_index]) and len(r.star_index) >= 5
+        e = attitude_error(attitudes[t], r.A_icrs_to_cam)
+        assert np.hypot(e[0], e[1]) < 2 * ARCSEC
+        assert 0.0 < r.prob_false < 1e-4
+
+
+def test_a_sparse_field_too_noisy_to_pin_down_is_refused(database, camera, catalog):
+    # six true stars and two false ones at σ 1 px (52″ at 15°/1024 px): the group's stars are
+    # right, but its attitude's σ is 59″ — refused, not reported 97″ off
+    A = random_attitudes(4000, rng=11)[363]
+    field = synthetic_centroids(camera, A, catalog, mag_limit=5.0, sigma_px=1.0, n_false=2, rng=11 + 363)
+    r = mg.identify(field.xy, W, H, camera=camera, database=database, centroid_sigma_px=1.0)
+    assert not r.success and "sparse frame: attitude too uncertain" in r.reason and "\n" not in r.reason

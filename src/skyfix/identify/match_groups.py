@@ -66,10 +66,12 @@ import numpy as np
 from skyfix._kernels.rotation import chord_angle, det3
 from skyfix.camera import Camera
 from skyfix.errors import InputError
+from skyfix.identify.angle_match import LONE_PROB_THRESHOLD, recorded, sparse_identification
 from skyfix.identify.database import PatternDatabase
 from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
 from skyfix.identify.pairs import PairTable, pair_table, pairs_in_range
 from skyfix.identify.result import Identification
+from skyfix.identify.triangle import LONE_MAX_STARS
 
 __all__ = ["METHOD", "MatchGroups", "MatchSetup", "PairMatches", "Subgroups", "TableRows", "estimated_level",
            "frame_table", "geometry_test", "identify", "match_groups", "match_setup", "pair_matches",
@@ -557,7 +559,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              magnitude_tolerance: float = 0.5, check_mirror: bool = True, min_group: int = 3,
              max_candidates: int = 200, max_pair_matches: int = 1_000_000,
              max_splits: int = 50_000, scale_step: float = 0.01, prompt_group: int = 5,
-             time_limit_s: float = 2.0) -> Identification:
+             time_limit_s: float = 2.0, lone_prob_threshold: float = LONE_PROB_THRESHOLD) -> Identification:
     """Identify the stars of one frame by van Bezooijen's match groups (the module text).
 
     Parameters
@@ -597,6 +599,11 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         With a FOV only, the focal range is searched in pieces this wide (relative), the nominal
         focal length's first: step 1 over the whole range at once would find ~1.5 M pair
         matches at 15° ± 10 %, and its groups would be mostly chance.
+    lone_prob_threshold : float
+        A sparse frame (at most 8 centroids) whose groups the common rules refused (too few
+        stars beyond a group to verify it at 1e-9): the largest chance of a wrong match accepted
+        when each group's triangle is judged by the ``triangle`` method's sparse-frame rules
+        (:func:`skyfix.identify.angle_match.sparse_identification`).
 
     Returns
     -------
@@ -695,7 +702,16 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                     sub = tested(part, match_groups(matches, ic_lim=top - drop), min_group)
                     yield from fresh(sub, sub.size > 0)
 
-    result = first_accepted(frame, proposals(), max_candidates=max_candidates)
+    proposed: list[tuple[np.ndarray, np.ndarray]] = []
+    result = first_accepted(frame, recorded(proposals(), proposed), max_candidates=max_candidates)
+    sparse = ""
+    if not result.success and len(frame.xy) <= LONE_MAX_STARS:
+        sparse = sparse_identification(frame, table, proposed[:result.n_candidates], n_stars=len(setup.rays),
+                                       tolerance_rad=setup.tolerance_rad, centroid_sigma_px=centroid_sigma_px,
+                                       n_tried=work["ranges"], threshold=lone_prob_threshold)
+        if isinstance(sparse, Identification):
+            return sparse
+        sparse = f"; {sparse}"
     if not result.success:
         if work["late"]:
             reason = (f"time limit ({time_limit_s} s) reached after {result.n_candidates} groups proposed "
@@ -705,6 +721,6 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                       f"({max_pair_matches}): tolerances too wide")
         else:
             reason = (f"no match group verified ({result.n_candidates} proposed, {work['pairs']} pair "
-                      f"matches over {work['ranges']} focal-length ranges)")
+                      f"matches over {work['ranges']} focal-length ranges){sparse}")
         return failure(METHOD, reason, t0, work["ranges"], result.n_candidates)
     return result
