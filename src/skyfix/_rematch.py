@@ -15,9 +15,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from skyfix._kernels import lens, rotation
+from skyfix.identify.verify import cell_band
 
-__all__ = ["CONE_MARGIN", "CatalogueCone", "Matches", "chord", "equidistant_consensus", "match_catalogue",
-           "rotated", "star_tree", "within"]
+__all__ = ["CONE_MARGIN", "CatalogueCone", "Matches", "chord", "cone_stars", "equidistant_consensus",
+           "match_catalogue", "rotated", "star_tree", "within"]
 
 
 class Matches(NamedTuple):
@@ -52,17 +53,20 @@ CONE_MARGIN = math.radians(3.0)
 
 
 # A cone holding more than this share of the sky is found by :func:`within` over every catalogue
-# star (in catalogue order, no sort), a smaller one by a star tree query (then sorted): a 40° cone
-# (the wide band's 118 000 stars) 2.6 → 0.7 ms, a 4° one (the narrow band's 482 000) 0.24 ms by the
-# tree against 0.6 by the scan; they cross near 2 % of the sky.
+# star (in catalogue order, no sort), a smaller one from the sky cells that reach it
+# (:func:`cone_stars`, then sorted). Against a star tree query then a sort (what both replace): a
+# 40° cone of the wide band's 118 000 stars 2.6 → 0.7 ms by the scan, a 4° one of the narrow
+# band's 482 000 0.6 ms by the scan, 0.24 by the tree — whose build, once per process and band,
+# took 250 ms for the narrow band's stars, landing in the first sparse frame's solve.
 _SCAN_SHARE = 0.02
 
 
 class CatalogueCone:
     """The catalogue stars about the boresight, for every re-match of one final fit: the stars
-    within a cone :data:`CONE_MARGIN` wider than the frame's are found once (by a star tree
-    query, or for a cone wider than :data:`_SCAN_SHARE` of the sky by :func:`within` over the
-    whole catalogue: the tree's test, squared chord within the squared radius, the same stars)
+    within a cone :data:`CONE_MARGIN` wider than the frame's are found once (from the sky cells
+    that reach it, :func:`cone_stars`, or for a cone wider than :data:`_SCAN_SHARE` of the sky by
+    :func:`within` over the whole catalogue: both the star tree's test, squared chord within the
+    squared radius, so the same stars as :func:`star_tree` finds)
     and each re-match takes its cone from those stars by the same test, and each star's vector
     at the epoch is computed once. (A tree query of a 60–90° cone returns 10–20 thousand stars
     and took 8 ms a re-match; the rest of one takes 1–2.)"""
@@ -71,21 +75,24 @@ class CatalogueCone:
         self.database, self.epoch = database, epoch
         self._axis: np.ndarray | None = None
 
-    def cone(self, axis: np.ndarray, half_angle: float) -> tuple[np.ndarray, np.ndarray]:
+    def cone(self, axis: np.ndarray, half_angle: float, limit: int | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
         """The stars within ``half_angle`` (rad) of ``axis``: their database indices, brightest
-        first (database order), and their rows in the cache (for :meth:`vectors`)."""
+        first (database order), and their rows in the cache (for :meth:`vectors`); only the
+        first ``limit`` of them when given (the scan stops there)."""
         if self._axis is None or _angle(axis, self._axis) + half_angle > self._half_angle:
             self._half_angle = min(half_angle + CONE_MARGIN, math.pi)
             self._axis = np.array(axis, dtype=np.float64)
             all_points = self.database.star_arrays()[2]
+            chord2 = chord(self._half_angle) ** 2
             if (1.0 - math.cos(self._half_angle)) / 2.0 > _SCAN_SHARE:
-                self._index = within(all_points, self._axis, chord(self._half_angle) ** 2)
+                self._index = within(all_points, self._axis, chord2, len(all_points))
             else:
-                index = star_tree(self.database).query_ball_point(self._axis, chord(self._half_angle))
-                self._index = np.sort(np.asarray(index, dtype=np.int64))
+                self._index = cone_stars(*self.database.star_index(), self._axis, self._half_angle, chord2)
             self._points = all_points[self._index]
             self._vectors = np.full((len(self._index), 3), np.nan)
-        rows = within(self._points, np.ascontiguousarray(axis, dtype=np.float64), chord(half_angle) ** 2)
+        rows = within(self._points, np.ascontiguousarray(axis, dtype=np.float64), chord(half_angle) ** 2,
+                      len(self._points) if limit is None else limit)
         return self._index[rows], rows
 
     def vectors(self, rows: np.ndarray) -> np.ndarray:
@@ -98,11 +105,14 @@ class CatalogueCone:
 
 
 @numba.njit(cache=True)
-def within(points, axis, chord2):
-    """Rows of ``points`` (N, 3) whose squared distance to ``axis`` is at most ``chord2``."""
-    rows = np.empty(points.shape[0], dtype=np.int64)
+def within(points, axis, chord2, limit):
+    """The first ``limit`` rows of ``points`` (N, 3) whose squared distance to ``axis`` is at most
+    ``chord2`` (the scan stops there)."""
+    rows = np.empty(min(points.shape[0], limit), dtype=np.int64)
     n = 0
     for i in range(points.shape[0]):
+        if n == limit:
+            break
         dx = points[i, 0] - axis[0]
         dy = points[i, 1] - axis[1]
         dz = points[i, 2] - axis[2]
@@ -110,6 +120,38 @@ def within(points, axis, chord2):
             rows[n] = i
             n += 1
     return rows[:n]
+
+
+@numba.njit(cache=True)
+def cone_stars(vectors, cell_centres, cell_start, cell_stars, cell_radius, axis, half_angle, chord2):
+    """Indices (ascending: brightest first) of the stars ``vectors`` (S, 3) whose squared distance
+    to ``axis`` is at most ``chord2`` (the squared chord of ``half_angle``, rad), read from the sky
+    cells whose cap of ``cell_radius`` about their centre reaches the cone: those of
+    :func:`skyfix.identify.verify.cell_band`'s z band within ``half_angle + cell_radius`` of the
+    axis. The first five arguments are a :class:`~skyfix.identify.kernel_data.StarIndex`'s."""
+    reach = min(half_angle + cell_radius, np.pi)
+    cos_reach = np.cos(reach) - 1e-9
+    lo, hi = cell_band(cell_centres, axis, reach)
+    cells = np.empty(hi - lo, dtype=np.int64)
+    n_cells = total = 0
+    for c in range(lo, hi):
+        cx, cy, cz = cell_centres[c, 0], cell_centres[c, 1], cell_centres[c, 2]
+        if cx * axis[0] + cy * axis[1] + cz * axis[2] >= cos_reach:
+            cells[n_cells] = c
+            n_cells += 1
+            total += cell_start[c + 1] - cell_start[c]
+    out = np.empty(total, dtype=np.int64)
+    n = 0
+    for c in cells[:n_cells]:
+        for k in range(cell_start[c], cell_start[c + 1]):
+            s = cell_stars[k]
+            dx = vectors[s, 0] - axis[0]
+            dy = vectors[s, 1] - axis[1]
+            dz = vectors[s, 2] - axis[2]
+            if dx * dx + dy * dy + dz * dz <= chord2:
+                out[n] = s
+                n += 1
+    return np.sort(out[:n])
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -139,10 +181,9 @@ def match_catalogue(xy: np.ndarray, fit, stars: CatalogueCone, max_radius_px: fl
     half_diag = math.radians(camera.fov_diagonal_deg) / 2.0 * 1.05
     if math.isnan(half_diag):  # a fisheye's θ polynomial that folds back before the corners
         half_diag = math.pi / 2.0
-    near, rows = stars.cone(A[2], half_diag)
     # The brightest first (database order); the cone is at most ~2.5× the frame's area, so
     # 6× as many as will be kept is enough to fill the frame's quota.
-    near, rows = near[:12 * len(xy)], rows[:12 * len(xy)]
+    near, rows = stars.cone(A[2], half_diag, 12 * len(xy))
     empty = Matches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
     if len(near) == 0:
         return empty, 0, 1.0
