@@ -322,13 +322,13 @@ def identification(
     out: Path = typer.Option(Path("identification-study"), "--out", help="Output directory (JSON, Markdown, "
                              "PNG)."),
     quick: bool = typer.Option(False, "--quick", help="15° only, noise-free and all-errors cells, 20 fields, "
-                               "60 safety frames, no seed experiments (a smoke run for CI)."),
+                               "20 safety frames, no seed experiments (a smoke run for CI)."),
     methods: str = typer.Option("", "--methods", help="Comma-separated identification methods (default: "
                                 "every registered one)."),
     trials: int = typer.Option(None, "--trials", min=1, help="Fields per FOV and condition (default 100; "
                                "--quick: 20)."),
     safety_trials: int = typer.Option(None, "--safety-trials", min=0, help="Frames of the safety case, each "
-                                      "solved by every method (default 10000; --quick: 60; 0: none)."),
+                                      "solved by every method (default 10000; --quick: 20; 0: none)."),
     safety_first: int = typer.Option(0, "--safety-first", min=0, help="Number of the first safety frame (a "
                                      "campaign split in parts: frames N … N + --safety-trials − 1)."),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed (attitudes, noise)."),

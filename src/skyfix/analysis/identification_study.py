@@ -950,7 +950,7 @@ class SafetySettings(NamedTuple):
 
 
 SAFETY_FULL = SafetySettings()  # 10⁴ frames: ~0.65 CPU-s a frame for the nine methods
-SAFETY_QUICK = SafetySettings(trials=30, block=15)
+SAFETY_QUICK = SafetySettings(trials=20, block=10)
 
 
 def _pool(jobs: list[tuple], workers: int, methods: list[str], fovs_deg: tuple[float, ...],
