@@ -181,6 +181,19 @@ def test_sparse_noise_free_fields_are_solved(database, catalog, method):
         assert 0.0 < r.prob_false < 1e-4  # the sparse rules' threshold
 
 
+def test_sparse_mirrored_fields_are_rejected(database, catalog, method):
+    # the same sparse fields seen in a mirror: the sparse rules' hypotheses must fit a proper rotation
+    cam = Camera.from_fov(1024, 1024, 15.0)
+    attitudes = random_attitudes(1200, rng=100)
+    for t in SPARSE_TRIALS[:8]:
+        field = synthetic_centroids(cam, attitudes[t], catalog, mag_limit=5.5, sigma_px=0.0, rng=100 + t)
+        mirrored = field.xy.copy()
+        mirrored[:, 0] = 1023 - mirrored[:, 0]
+        kw = dict(camera=cam) if t % 2 else dict(fov_deg=15.0)
+        r = method.identify(mirrored, 1024, 1024, database=database, **kw)
+        assert not r.success and method.failed in r.reason and "\n" not in r.reason
+
+
 def test_a_sparse_field_too_noisy_to_pin_down_is_refused(database, catalog, method):
     # Six true stars and two false ones at σ 1 px (52″ at 15°/1024 px): the sparse rules named
     # the right stars, but their attitude came back 97″ off before the precision rule.
