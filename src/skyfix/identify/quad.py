@@ -26,7 +26,8 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -50,7 +51,7 @@ from skyfix.identify.kernel_data import (
 )
 from skyfix.identify.refine import refine_entry
 from skyfix.identify.result import Identification, finite_centroids
-from skyfix.identify.search import breadth_first_combinations, search_entry
+from skyfix.identify.search import breadth_first_combinations, centre_first_combinations, search_entry
 
 __all__ = ["METHOD", "identify"]
 
@@ -59,6 +60,12 @@ METHOD = "quad-hash"
 
 def _failure(reason: str, t0: float, n_tried: int = 0, n_cand: int = 0) -> Identification:
     return failure(METHOD, reason, t0, n_tried, n_cand)
+
+
+def _accepted(res: Identification | None, focal: tuple[float, float, float]) -> Identification | None:
+    """``res`` if its refitted focal length is within the search's allowed range (accept rule 7),
+    else None (the search goes on)."""
+    return res if res is not None and refit_focal_allowed(res.camera.fx, *focal[1:]) else None
 
 
 _COMPILED = False
@@ -81,7 +88,7 @@ def _compile_kernels() -> None:
                  tuple(patterns), tuple(stars), tuple(VerifySettings(4, 5.0, -20.0)), 0)
     settings = RefineSettings(True, 12, 4, 4, 5.0, 1.0, 1)
     refine_entry(tuple(image), np.eye(3), 1000.0, tuple(settings), tuple(stars))
-    _undistorted_offsets(image.offsets_px, -1e-7)  # the wide searches' distortion hypotheses
+    _undistorted_offsets(image.offsets_px, _Distortion(-1e-7))  # the wide searches' distortion hypotheses
     _COMPILED = True
 
 
@@ -227,10 +234,15 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                            float(centroid_sigma_px), 3)
     verification = tuple(VerifySettings(n_verify, float(radius), log_threshold))
     geometry = (int(width), int(height), cx, cy)
-    searches = [_Search(source, focal, camera, xy[:n_p], geometry, tolerances(source), 16 if i == 0 else 4,
-                        kappa)
-                for i, (source, focal) in enumerate(passes)
-                for kappa in _distortion_hypotheses(camera, focal, geometry)]
+    # A wide search's pattern order puts the central stars' patterns forward (_CENTRE_SHARE).
+    centre_first = _CentreFirst(xy[:n_pat], geometry)
+    searches = []
+    for i, (source, focal) in enumerate(passes):
+        hypotheses = _distortion_hypotheses(camera, focal, geometry)
+        order = centre_first if len(hypotheses) > 1 else (lambda stop: combos)
+        first_chunk = 16 if i == 0 else 4
+        searches += [_Search(source, focal, camera, xy[:n_p], geometry, tolerances(source), first_chunk,
+                             distortion, order) for distortion in hypotheses]
     total = min(len(combos), max_patterns)
     n_lookups = n_cand = 0
     while True:
@@ -259,16 +271,20 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 start = search.pos[tier]
                 stop = min(goal, start + 512)
                 plain = search.plain()
-                hit = search_entry(plain.image, combos, start, stop, plain.focal, tier_tolerances,
-                                   plain.patterns, plain.stars, verification, n_cand)
+                hit = search_entry(plain.image, search.combos(stop), start, stop, plain.focal,
+                                   tier_tolerances, plain.patterns, plain.stars, verification, n_cand)
                 search.pos[tier] = start + hit.n_done
                 n_lookups += hit.n_done
                 n_cand += hit.n_candidates
                 if hit.found:
                     ctx = _Context(kept, search.geometry, camera, plain.image_stars, refit, search.database(),
-                                   epoch, log_threshold, t0, search.kappa)
-                    res = _finish(ctx, hit, max(s.pos[0] for s in searches), n_cand)
-                    if res is not None and refit_focal_allowed(res.camera.fx, *search.focal[1:]):  # rule 7
+                                   epoch, log_threshold, t0, search.distortion)
+                    n_tried = max(s.pos[0] for s in searches)
+                    res = _accepted(_finish(ctx, hit, n_tried, n_cand), search.focal)
+                    if search.distortion.equidistant_px:
+                        rivals = [s for s in searches if s.source is search.source and s is not search]
+                        res = _most_stars(res, ctx, hit, rivals, n_tried, n_cand)
+                    if res is not None:
                         return res
                     # A refit that fails or leaves the allowed range: search on.
         search.spent_s += time.perf_counter() - t_start
@@ -290,14 +306,16 @@ class _Plain(NamedTuple):
 class _Search:
     """The 4-star search of one frame in one database: where it stands (``pos``: image patterns
     looked up at each tolerance tier; ``spent_s``: time taken; ``chunk``: patterns in its next
-    turn) and, loaded on first use (a default band's database is built then, the first time one
-    is needed), the kernels' arguments."""
+    turn), the order of its image patterns (``combos(stop)``: (C, 4), at least the first
+    ``stop``) and, loaded on first use (a default band's database is built then, the first time
+    one is needed), the kernels' arguments."""
 
     def __init__(self, source, focal: tuple[float, float, float], camera: Camera | None, xy: np.ndarray,
                  geometry: tuple[int, int, float, float], tiers: list[tuple], first_chunk: int,
-                 kappa: float) -> None:
+                 distortion: _Distortion, combos: Callable[[int], np.ndarray]) -> None:
         self.source, self.focal, self.camera, self.xy, self.geometry = source, focal, camera, xy, geometry
-        self.kappa = kappa  # the radial distortion assumed, px⁻² (see _distortion_hypotheses)
+        self.distortion = distortion  # the radial distortion assumed (see _distortion_hypotheses)
+        self.combos = combos
         self.tiers = tiers  # its tolerance tiers, as the kernel takes them
         self.pos = [0] * len(tiers)
         self.spent_s = 0.0
@@ -327,9 +345,9 @@ class _Search:
                 c_p = _fisheye_extent(camera, f0)
             frame = np.array([c_p[:, 0].min(), c_p[:, 0].max(), c_p[:, 1].min(), c_p[:, 1].max()])
         else:
-            p = _undistorted_offsets(self.xy - np.array([cx, cy]), self.kappa)
+            p = _undistorted_offsets(self.xy - np.array([cx, cy]), self.distortion)
             corners = np.array([[-0.5 - cx, -0.5 - cy], [width - 0.5 - cx, height - 0.5 - cy]])
-            c_p = _undistorted_offsets(corners, self.kappa)  # a barrel's corners: the extremes
+            c_p = _undistorted_offsets(corners, self.distortion)  # a barrel's corners: the extremes
             frame = np.array([c_p[0, 0], c_p[1, 0], c_p[0, 1], c_p[1, 1]])
         db = self.database()
         image = ImageStars(p, frame)
@@ -337,39 +355,96 @@ class _Search:
                       tuple(db.pattern_table()), tuple(db.star_index()))
 
 
+class _Distortion(NamedTuple):
+    """A radial distortion a wide search with no camera assumes, in pixels about the principal
+    point (:func:`_distortion_hypotheses`): cubic, an offset ``p`` seen at ``p (1 + kappa |p|²)``
+    (``kappa`` px⁻²); or, when ``equidistant_px`` is set, an equidistant fisheye's of that focal
+    length ``f``: a star ``θ`` off axis, at ``f tan θ`` in the search's offsets, seen at ``f θ``."""
+
+    kappa: float = 0.0
+    equidistant_px: float = 0.0
+
+
 # Radial distortion assumed by the searches of wide fields with no camera, as the share by which
 # it moves the frame's corner in (barrel, negative) or out: a lens of k1 = −0.3 squeezes the
 # corner of a 45° frame by ~9 %, of a 60° frame by ~22 %, beyond what the tolerance tiers absorb
 # (~6 %); each share is a search of its own. Shares beyond −1/3 fold the frame (no lens does).
 _CORNER_DISTORTION = (0.0, -0.12, -0.24)
+# A fisheye is none of those: an equidistant lens's corner is squeezed by −34 % at 90° (beyond
+# the cubic's fold) and its stars between move unlike a cubic's. One more search assumes an
+# equidistant lens whose frame corner is this far off axis (rad; a 90° fisheye on a 4:3 frame:
+# 56°). Searched with the cubic shares instead, 6 of 100 90° frames were found only after
+# 2000–3400 patterns or not at all; with it, none after 350 (a lens assumed 15 % wider than
+# the frame's failed 4 of them: the angle is no wider than the 90° lens's).
+_FISHEYE_CORNER_RAD = 0.98
 _DISTORTION_MIN_FOV_DEG = 40.0  # narrower fields: the loose tier absorbs their distortion
 
 
 def _distortion_hypotheses(camera: Camera | None, focal: tuple[float, float, float],
-                           geometry: tuple[int, int, float, float]) -> list[float]:
-    """The radial distortions (κ, px⁻²: a pixel offset ``p`` from the principal point is seen at
-    ``p (1 + κ |p|²)``) a search with this focal range assumes: none with a camera or when every
-    focal length allowed is narrower than :data:`_DISTORTION_MIN_FOV_DEG` (at the middle of the
-    range: a wide band's search, not the standard band's, which serves up to 40°); else one per
-    :data:`_CORNER_DISTORTION` share ``q`` (the corner at ``c`` px is seen at ``c`` from
-    ``c / (1 + q)``, so ``κ = q (1 + q)² / c²``). A pixel-space κ needs no focal length: the
-    hypothesis holds across the band."""
+                           geometry: tuple[int, int, float, float]) -> list[_Distortion]:
+    """The radial distortions a search with this focal range assumes: none with a camera or when
+    every focal length allowed is narrower than :data:`_DISTORTION_MIN_FOV_DEG` (at the middle of
+    the range: a wide band's search, not the standard band's, which serves up to 40°); else one
+    cubic per :data:`_CORNER_DISTORTION` share ``q`` (the corner at ``c`` px is seen at ``c`` from
+    ``c / (1 + q)``, so ``κ = q (1 + q)² / c²``) and the equidistant fisheye's whose corner is
+    :data:`_FISHEYE_CORNER_RAD` off axis (``f = c / θ``). A pixel-space distortion needs no
+    focal length: the hypothesis holds across the band."""
     width, height, cx, cy = geometry
     if camera is not None or _fov_from_focal(width, math.sqrt(focal[1] * focal[2])) < _DISTORTION_MIN_FOV_DEG:
-        return [0.0]
-    return [q * (1.0 + q) ** 2 / _half_diagonal(geometry) ** 2 for q in _CORNER_DISTORTION]
+        return [_Distortion()]
+    c = _half_diagonal(geometry)
+    return ([_Distortion(q * (1.0 + q) ** 2 / c**2) for q in _CORNER_DISTORTION]
+            + [_Distortion(equidistant_px=c / _FISHEYE_CORNER_RAD)])
 
 
-def _composed_distortion(k1: float, k_px: float, r_max: float) -> tuple[float, float, float]:
+def _composed_distortion(k1: float, distortion: _Distortion, f_px: float, half_diagonal_px: float
+                         ) -> tuple[float, float, float]:
     """Brown–Conrady ``k1, k2, k3`` of the refit's radial ``k1`` (of offsets a search undistorted by
-    κ) followed by that κ (``k_px = κ f²``): ``r_d = r (1 + k1 r²)(1 + k_px r² (1 + k1 r²)²)``, fitted
-    by least squares over the frame's radii (to ``r_max``, normalised); without κ, ``(k1, 0, 0)``."""
-    if k_px == 0.0:
+    ``distortion``) followed by that distortion, at the refit's focal length ``f_px``, fitted by
+    least squares over the frame's radii; without a distortion, ``(k1, 0, 0)``. Cubic
+    (``k_px = κ f²``): ``r_d = r (1 + k1 r²)(1 + k_px r² (1 + k1 r²)²)`` to 1.2× the half-diagonal
+    (normalised); equidistant (``e = f_e / f``): ``r_d = e atan(r (1 + k1 r²) / e)`` to 1.05× the
+    corner's undistorted radius (a fisheye's corner lies far beyond its half-diagonal)."""
+    if distortion.equidistant_px:
+        fe = distortion.equidistant_px
+        e = fe / f_px
+        u_max = fe * math.tan(min(half_diagonal_px / fe, 1.5)) / f_px
+        u = np.linspace(0.0, 1.05 * u_max, 64)[1:]
+        r2 = u**2
+        radial = e * np.arctan(u * (1.0 + k1 * r2) / e) / u - 1.0
+    elif distortion.kappa:
+        k_px = distortion.kappa * f_px * f_px
+        r2 = np.linspace(0.0, 1.2 * (half_diagonal_px / f_px), 64)[1:] ** 2
+        radial = (1.0 + k1 * r2) * (1.0 + k_px * r2 * (1.0 + k1 * r2) ** 2) - 1.0
+    else:
         return k1, 0.0, 0.0
-    r2 = np.linspace(0.0, 1.2 * r_max, 64)[1:] ** 2
-    radial = (1.0 + k1 * r2) * (1.0 + k_px * r2 * (1.0 + k1 * r2) ** 2) - 1.0
     coef = np.linalg.lstsq(np.stack([r2, r2**2, r2**3], axis=1), radial, rcond=None)[0]
     return float(coef[0]), float(coef[1]), float(coef[2])
+
+
+# A wide search with no camera looks up the patterns of the stars within this share of the
+# half-diagonal of the principal point as early as the brightest stars' (interleaved:
+# :func:`skyfix.identify.search.centre_first_combinations`). In the field campaign's 45°, 60° and
+# 90° frames (seed 1, 100 each), the image pattern a search found the frame at went from median
+# 12 / 7 / 8 and at most 1435 / 1440 / 296 to median 3 / 3 / 3 and at most 185 / 87 / 126.
+_CENTRE_SHARE = 0.5
+
+
+class _CentreFirst:
+    """The wide searches' image patterns (:func:`~skyfix.identify.search.centre_first_combinations`
+    of the pattern stars ``xy`` (N, 2) within :data:`_CENTRE_SHARE` of the half-diagonal of the
+    principal point), computed as far as a search asks (``self(stop)``: at least the first
+    ``stop``), twice that each time: most frames are found within the first hundred."""
+
+    def __init__(self, xy: np.ndarray, geometry: tuple[int, int, float, float]) -> None:
+        width, height, cx, cy = geometry
+        self.central = np.hypot(xy[:, 0] - cx, xy[:, 1] - cy) <= _CENTRE_SHARE * _half_diagonal(geometry)
+        self.combos = np.zeros((0, 4), dtype=np.int64)
+
+    def __call__(self, stop: int) -> np.ndarray:
+        if len(self.combos) < stop:
+            self.combos = centre_first_combinations(self.central, max(2 * stop, 64))
+        return self.combos
 
 
 def _half_diagonal(geometry: tuple[int, int, float, float]) -> float:
@@ -378,14 +453,21 @@ def _half_diagonal(geometry: tuple[int, int, float, float]) -> float:
     return math.hypot(max(cx + 0.5, width - 0.5 - cx), max(cy + 0.5, height - 0.5 - cy))
 
 
-def _undistorted_offsets(p: np.ndarray, kappa: float) -> np.ndarray:
-    """Offsets ``p`` (N, 2) seen through the pixel-space radial distortion ``kappa`` (see
-    :func:`_distortion_hypotheses`), undistorted: the camera model's own inversion
-    (:func:`skyfix._kernels.lens.undistort`) with a unit focal length, so it works in pixels."""
-    if kappa == 0.0:
+def _undistorted_offsets(p: np.ndarray, distortion: _Distortion) -> np.ndarray:
+    """Offsets ``p`` (N, 2) seen through the pixel-space radial ``distortion`` (see
+    :func:`_distortion_hypotheses`), undistorted: a cubic's by the camera model's own inversion
+    (:func:`skyfix._kernels.lens.undistort`) with a unit focal length, so it works in pixels; an
+    equidistant lens's in closed form, ``f tan(|p| / f)`` (kept short of 90° off axis)."""
+    if distortion.equidistant_px:
+        fe = distortion.equidistant_px
+        r = np.hypot(p[:, 0], p[:, 1])
+        theta = np.minimum(r / fe, 1.5)
+        scale = np.where(r > 0.0, fe * np.tan(theta) / np.maximum(r, 1e-300), 1.0)
+        return p * scale[:, None]
+    if distortion.kappa == 0.0:
         return p
     numbers = lens.camera_numbers(Camera(width=2, height=2, fx=1.0, fy=1.0, cx=0.0, cy=0.0))
-    numbers[lens.K1] = kappa
+    numbers[lens.K1] = distortion.kappa
     x, y = lens.undistort(np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1]), numbers)
     return np.stack([x, y], axis=1)
 
@@ -465,7 +547,22 @@ class _Context:
     epoch: float | None
     log_threshold: float
     t0: float
-    kappa: float = 0.0  # the radial distortion the search assumed, px⁻² (_distortion_hypotheses)
+    distortion: _Distortion = _Distortion()  # the search's assumed distortion (_distortion_hypotheses)
+
+
+def _most_stars(res: Identification | None, ctx: _Context, hit: SearchResult, rivals: list[_Search],
+                n_tried: int, n_cand: int) -> Identification | None:
+    """Of ``res`` (the equidistant search's hit refitted, or None) and the same hit refitted
+    under each rival search's distortion (the cubic ones of the same database), the one that
+    matches the most stars (``res`` on a tie; each passing accept rules 6 and 7). A frame of any
+    lens may show a central pattern that fits the fisheye's distortion first: a 45° frame of
+    k1 −0.3 kept 78 stars through the fisheye's refit where the cubic one matches 184."""
+    for other in rivals:
+        alt = _accepted(_finish(replace(ctx, image=other.plain().image_stars, distortion=other.distortion),
+                                hit, n_tried, n_cand), other.focal)
+        if alt is not None and (res is None or len(alt.star_index) > len(res.star_index)):
+            res = alt
+    return res
 
 
 def _finish(ctx: _Context, hit: SearchResult, n_tried: int, n_cand: int) -> Identification | None:
@@ -486,9 +583,11 @@ def _finish(ctx: _Context, hit: SearchResult, n_tried: int, n_cand: int) -> Iden
     if camera is None:
         width, height, cx, cy = ctx.geometry
         f_fit = float(fit.focal_px)
-        k1, k2, k3 = _composed_distortion(float(fit.k1), ctx.kappa * f_fit * f_fit,
-                                          _half_diagonal(ctx.geometry) / f_fit)
-        camera = Camera(width=width, height=height, fx=f_fit, fy=f_fit, cx=cx, cy=cy, k1=k1, k2=k2, k3=k3)
+        k1, k2, k3 = _composed_distortion(float(fit.k1), ctx.distortion, f_fit, _half_diagonal(ctx.geometry))
+        try:
+            camera = Camera(width=width, height=height, fx=f_fit, fy=f_fit, cx=cx, cy=cy, k1=k1, k2=k2, k3=k3)
+        except CameraError:  # a polynomial that folds before the frame's edge: no camera, search on
+            return None
     if ctx.kept is not None:
         star_index = ctx.kept[star_index]
     star_ids, star_mag, _ = db.star_arrays()

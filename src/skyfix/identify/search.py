@@ -12,6 +12,7 @@ rules that accept or reject a candidate are the helpers of :mod:`skyfix.identify
 
 from __future__ import annotations
 
+import math
 from itertools import permutations
 
 import numba
@@ -43,9 +44,10 @@ from skyfix.identify.kernel_data import (
 )
 from skyfix.identify.verify import verify_attitude
 
-__all__ = ["breadth_first_combinations", "search", "search_entry"]
+__all__ = ["breadth_first_combinations", "centre_first_combinations", "search", "search_entry"]
 
 _COMBOS: dict[int, np.ndarray] = {}
+_COMBO_ROWS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 _PERMS = np.array(list(permutations(range(4))), dtype=np.int64)  # (24, 4): every vertex correspondence
 
 
@@ -62,6 +64,64 @@ def breadth_first_combinations(n: int) -> np.ndarray:
         order = np.lexsort((c[:, 2], c[:, 1], c[:, 0], c[:, 3]))
         _COMBOS[n] = np.ascontiguousarray(c[order], dtype=np.int64)
     return _COMBOS[n]
+
+
+def centre_first_combinations(central: np.ndarray, count: int | None = None) -> np.ndarray:
+    """The 4-subsets of the ``n = len(central)`` brightest stars in two breadth-first orders
+    interleaved: over the stars by brightness (:func:`breadth_first_combinations`) and over them
+    with the ``central`` ones (bool, (n,)) first, each group by brightness; every subset at the
+    earlier of its two places (ties: the brightness order's). All of them, or the first
+    ``count`` (a search that finds its frame early needs no more). A wide, distorted frame's
+    central stars keep their shapes under any distortion hypothesis, and a database field about
+    the boresight holds their brightest; the brightness order's patterns still come no more
+    than twice as late."""
+    n = len(central)
+    base = breadth_first_combinations(n)
+    if n not in _COMBO_ROWS:
+        binom = np.array([[math.comb(i, k) for k in range(5)] for i in range(n)], dtype=np.int64)
+        rows = np.empty(math.comb(n, 4), dtype=np.int64)
+        rows[_colex_rank(base, binom)] = np.arange(len(base))
+        _COMBO_ROWS[n] = (binom, rows)
+    binom, rows = _COMBO_ROWS[n]
+    order = np.argsort(~np.asarray(central, dtype=bool), kind="stable")  # central first, by brightness
+    return _interleaved(base, order, binom, rows, len(base) if count is None else min(count, len(base)))
+
+
+@numba.njit(cache=True)
+def _interleaved(base, order, binom, rows, count):
+    """The first ``count`` of ``base``'s rows in the order ``base[0], other[0], base[1], other[1],
+    ...`` without repeats, ``other[j]`` the row of ``base`` holding the stars ``order[base[j]]``
+    (``rows``: colex rank -> row of ``base``; ``binom``: C(i, k))."""
+    n = len(base)
+    out = np.empty((count, 4), dtype=base.dtype)
+    seen = np.zeros(n, dtype=np.bool_)
+    k = 0
+    for j in range(n):
+        if k >= count:
+            break
+        if not seen[j]:
+            seen[j] = True
+            out[k] = base[j]
+            k += 1
+        a, b, c, d = order[base[j, 0]], order[base[j, 1]], order[base[j, 2]], order[base[j, 3]]
+        a, b = min(a, b), max(a, b)  # a sorting network: a <= b <= c <= d
+        c, d = min(c, d), max(c, d)
+        a, c = min(a, c), max(a, c)
+        b, d = min(b, d), max(b, d)
+        b, c = min(b, c), max(b, c)
+        row = rows[binom[a, 1] + binom[b, 2] + binom[c, 3] + binom[d, 4]]
+        if not seen[row] and k < count:
+            seen[row] = True
+            out[k] = base[row]
+            k += 1
+    return out
+
+
+def _colex_rank(combos: np.ndarray, binom: np.ndarray) -> np.ndarray:
+    """The colexicographic rank of each ascending 4-subset row of ``combos`` (C(c0,1) + C(c1,2) +
+    C(c2,3) + C(c3,4)), from the binomial table ``binom[i, k] = C(i, k)``."""
+    return (binom[combos[:, 0], 1] + binom[combos[:, 1], 2] + binom[combos[:, 2], 3]
+            + binom[combos[:, 3], 4])
 
 
 @numba.njit(cache=True)
