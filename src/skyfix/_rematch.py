@@ -17,8 +17,8 @@ from scipy.spatial import cKDTree
 from skyfix._kernels import lens, rotation
 from skyfix.identify.verify import cell_band
 
-__all__ = ["CONE_MARGIN", "CatalogueCone", "Matches", "chord", "cone_stars", "equidistant_consensus",
-           "match_catalogue", "rotated", "star_tree", "within"]
+__all__ = ["CONE_MARGIN", "CatalogueCone", "Matches", "Rematched", "chord", "cone_stars",
+           "equidistant_consensus", "match_catalogue", "rotated", "star_tree", "within"]
 
 
 class Matches(NamedTuple):
@@ -36,6 +36,17 @@ class Matches(NamedTuple):
         a, b = np.argsort(self.idx), np.argsort(other.idx)
         return (len(self.idx) == len(other.idx) and np.array_equal(self.idx[a], other.idx[b])
                 and np.array_equal(self.ids[a], other.ids[b]))
+
+
+class Rematched(NamedTuple):
+    """What :func:`match_catalogue` found: the matches, how many catalogue stars were predicted
+    in the frame, the RMS search radius (px), and whether every one of those stars was looked
+    for (none beyond ``max_radius_px``: then the match is the one without that limit)."""
+
+    matches: Matches
+    n_catalog: int
+    rms_radius_px: float
+    complete: bool
 
 
 def star_tree(database) -> cKDTree:
@@ -166,7 +177,7 @@ def chord(angle: float) -> float:
 
 
 def match_catalogue(xy: np.ndarray, fit, stars: CatalogueCone, max_radius_px: float = math.inf
-                    ) -> tuple[Matches, int, float]:
+                    ) -> Rematched:
     """Match the catalogue stars in view (the brightest, twice as many as centroids) to the
     centroids ``xy`` through the fitted camera and attitude of ``fit`` (a
     :class:`~skyfix.calibrate.PriorFit`). Each star is searched within 3.5 σ of its predicted
@@ -175,8 +186,9 @@ def match_catalogue(xy: np.ndarray, fit, stars: CatalogueCone, max_radius_px: fl
     aspect unconstrained), at least 1 px. Unambiguous pairs only (a centroid with two catalogue
     stars within the radius, a blend, or a star claimed by two centroids says nothing reliable).
     A star whose radius would exceed ``max_radius_px`` is not looked for (nor counted).
-    Returns the matches, how many catalogue stars were predicted in the frame, and the RMS
-    search radius (px) for the chance test."""
+    Returns the matches, how many catalogue stars were predicted in the frame, the RMS search
+    radius (px) for the chance test, and whether no star was left out for its radius
+    (:class:`Rematched`)."""
     camera, A = fit.camera, fit.A_icrs_to_cam
     half_diag = math.radians(camera.fov_diagonal_deg) / 2.0 * 1.05
     if math.isnan(half_diag):  # a fisheye's θ polynomial that folds back before the corners
@@ -184,21 +196,24 @@ def match_catalogue(xy: np.ndarray, fit, stars: CatalogueCone, max_radius_px: fl
     # The brightest first (database order); the cone is at most ~2.5× the frame's area, so
     # 6× as many as will be kept is enough to fill the frame's quota.
     near, rows = stars.cone(A[2], half_diag, 12 * len(xy))
-    empty = Matches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
+    empty = Rematched(Matches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0)),
+                      0, 1.0, True)
     if len(near) == 0:
-        return empty, 0, 1.0
+        return empty
     v = stars.vectors(rows)
     uv, front = camera.ray_to_pixel(v @ A.T)
     seen = np.flatnonzero(front & camera.in_frame(uv))[:2 * len(xy)]  # brightest first (database order)
     near, v, uv = near[seen], v[seen], uv[seen]
     if len(near) == 0:
-        return empty, 0, 1.0
+        return empty
     radius = np.maximum(3.5 * np.hypot(fit.sigma_px, fit.prediction_sigma_px(v)), 1.0)
+    complete = True
     if max_radius_px < math.inf:
         look = radius <= max_radius_px
+        complete = bool(look.all())
         near, v, uv, radius = near[look], v[look], uv[look], radius[look]
         if len(near) == 0:
-            return empty, 0, 1.0
+            return empty._replace(complete=False)
     dist, j = cKDTree(xy).query(uv, distance_upper_bound=float(radius.max()))
     hit = dist <= radius
     star, cen = np.flatnonzero(hit), j[hit]
@@ -211,7 +226,7 @@ def match_catalogue(xy: np.ndarray, fit, stars: CatalogueCone, max_radius_px: fl
     ids = star_ids[near[star]].astype(np.int64)
     mag = star_mag[near[star]].astype(np.float64)
     rms_radius = float(np.sqrt(np.mean(radius**2)))
-    return Matches(cen.astype(np.int64), ids, v[star], mag), len(near), rms_radius
+    return Rematched(Matches(cen.astype(np.int64), ids, v[star], mag), len(near), rms_radius, complete)
 
 
 @numba.njit(cache=True)

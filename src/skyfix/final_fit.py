@@ -142,17 +142,21 @@ class _Rematch(NamedTuple):
 
 def _matched(xy: np.ndarray, fit, rematch: _Rematch, max_radius_px: float = math.inf):
     """:func:`match_catalogue` of the brightest ``rematch.n_use`` centroids of ``xy`` through
-    ``fit``, computed once per fit and radius: a grow's last re-match, which confirms its fit,
-    is the re-match the first check made or the choice between models scores (the fit object
-    held in the memo, so its id is never another's)."""
-    key = (id(fit), max_radius_px)
+    ``fit`` (the matches, the catalogue stars predicted, the RMS radius), computed once per fit
+    and radius: a grow's last re-match, which confirms its fit, is the re-match the first check
+    made or the choice between models scores (the fit object held in the memo, so its id is
+    never another's); and a re-match limited to ``max_radius_px`` that left no star out is the
+    unlimited one (a fisheye's grow, then its score)."""
     memo = rematch.memo
-    if memo is not None and key in memo and memo[key][0] is fit:
-        return memo[key][1]
+    if memo is not None:
+        for (fit_id, radius), (held, result) in memo.items():
+            if fit_id == id(fit) and held is fit and (radius == max_radius_px
+                                                      or (max_radius_px == math.inf and result.complete)):
+                return result[:3]
     result = match_catalogue(xy[:rematch.n_use], fit, rematch.stars, max_radius_px)
     if memo is not None:
-        memo[key] = (fit, result)
-    return result
+        memo[id(fit), max_radius_px] = (fit, result)
+    return result[:3]
 
 
 def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, method: str,
