@@ -270,7 +270,8 @@ def run_study(settings: StudySettings = FULL, progress: Callable[[str], None] | 
     grid_jobs = [(run_block, fov, c, range(settings.trials), methods, settings.seed, settings.fov_tolerance)
                  for fov, c in blocks]
     safety_jobs = [] if safety is None else _safety_jobs(safety, methods)
-    parts = _pool(case_jobs + grid_jobs + safety_jobs, settings.workers, methods, settings.fovs_deg, progress,
+    warm_fovs = tuple(sorted(set(settings.fovs_deg) | set(() if safety is None else safety.mix.fovs_deg)))
+    parts = _pool(case_jobs + grid_jobs + safety_jobs, settings.workers, methods, warm_fovs, progress,
                   _job_label)
     records: list[TrialRecord] = [r for part in parts[len(case_jobs):len(case_jobs) + len(grid_jobs)]
                                   for r in part]
