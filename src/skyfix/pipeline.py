@@ -205,14 +205,20 @@ def solve_centroids(
     ident = identify(xy, width, height, method=identify_method, fov_deg=fov_deg,
                      fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database, epoch=epoch,
                      **identify_options)
-    assumed = None  # a preset camera the sparse fallback took from the frame's size
+    assumed = None  # a preset camera taken from the frame's size (preset_cameras)
     if not ident.success and sparse_fallback(identify_method, len(xy), camera, fov_deg, width, height):
         ident, assumed = _identify_sparse(ident, xy, width, height, fov_deg, fov_tolerance_deg, camera,
                                           database, epoch, identify_options)
+    elif (not ident.success and camera is None and fov_deg is None and _default_method(identify_method)
+          and preset_cameras(width, height)):
+        again, assumed = _identify_through_presets(xy, width, height, database, epoch, identify_method,
+                                                   identify_options)
         if assumed is not None:
-            fit_options["camera_given"] = True
-            log.info("%s: sparse frame identified through the %s preset's camera (its %d×%d size)",
-                     name, assumed, width, height)
+            ident = again
+    if assumed is not None:
+        fit_options["camera_given"] = True
+        log.info("%s: identified through the %s preset's camera (its %d×%d size)", name, assumed, width,
+                 height)
     t1 = time.perf_counter()
     sol.time_ms = {"identify": 1e3 * (t1 - t0)}
     sol.method = ident.method
@@ -222,17 +228,22 @@ def solve_centroids(
         return sol
     _fill_attitude(sol, xy, ident, attitude_method, **fit_options)
     if (not sol.solved and assumed is None and camera is None and fov_deg is None
-            and sparse_fallback(identify_method, len(xy), None, None, width, height)):
+            and _default_method(identify_method) and preset_cameras(width, height)):
         # Identified, but too uncertain through a camera fitted to a few stars: a seed camera of
-        # the frame's size, if the stars confirm it, pins the attitude down.
-        again, assumed = _identify_sparse(ident, xy, width, height, None, None, None, database, epoch,
-                                          identify_options)
+        # the frame's size, if the stars confirm it, pins the attitude down (a sparse frame through
+        # the triangle method, a richer one through the default method with that camera).
+        if len(xy) <= SPARSE_FIELD_STARS:
+            again, assumed = _identify_sparse(ident, xy, width, height, None, None, None, database, epoch,
+                                              identify_options)
+        else:
+            again, assumed = _identify_through_presets(xy, width, height, database, epoch, identify_method,
+                                                       identify_options)
         if assumed is not None:
             retry = Solution(image=name, n_detected=len(xy), method=again.method)
             _fill_attitude(retry, xy, again, attitude_method, **{**fit_options, "camera_given": True})
             if retry.solved:
-                log.info("%s: sparse frame solved through the %s preset's camera (its %d×%d size)", name,
-                         assumed, width, height)
+                log.info("%s: solved through the %s preset's camera (its %d×%d size)", name, assumed,
+                         width, height)
                 retry.time_ms = sol.time_ms
                 sol = retry
     sol.time_ms["attitude"] = 1e3 * (time.perf_counter() - t1)
@@ -261,6 +272,15 @@ def preset_cameras(width: int, height: int) -> dict[str, Camera]:
             if (spec["width"], spec["height"]) == (width, height)}
 
 
+def _default_method(identify_method: str) -> bool:
+    """Whether ``identify_method`` names the default method (a method named explicitly is used
+    alone, with no fallback)."""
+    from skyfix.identify import get_method
+    from skyfix.identify.methods import DEFAULT_METHOD
+
+    return get_method(identify_method) is get_method(DEFAULT_METHOD)
+
+
 def sparse_fallback(identify_method: str, n_stars: int, camera: Camera | None, fov_deg: float | None,
                     width: int = 0, height: int = 0) -> bool:
     """Whether a frame the default identification failed is tried again with the ``triangle``
@@ -269,10 +289,7 @@ def sparse_fallback(identify_method: str, n_stars: int, camera: Camera | None, f
     verify a pattern beyond chance, thesis 000's camera sees three stars per frame), and the
     scale is known (a camera or a FOV: a triangle's angles need it) or the frame is the size of
     a seed camera's (:func:`preset_cameras`), whose camera is then tried."""
-    from skyfix.identify import get_method
-    from skyfix.identify.methods import DEFAULT_METHOD
-
-    return (get_method(identify_method) is get_method(DEFAULT_METHOD) and n_stars <= SPARSE_FIELD_STARS
+    return (_default_method(identify_method) and n_stars <= SPARSE_FIELD_STARS
             and (camera is not None or fov_deg is not None or bool(preset_cameras(width, height))))
 
 
@@ -307,6 +324,28 @@ def _identify_sparse(failed, xy: np.ndarray, width: int, height: int, fov_deg, f
             return sparse, name
         reasons.append(sparse.reason if name is None else f"{name} camera: {sparse.reason}")
     return dataclasses.replace(failed, reason=f"{failed.reason}; triangle: {'; '.join(reasons)}"), None
+
+
+def _identify_through_presets(xy: np.ndarray, width: int, height: int, database, epoch, identify_method: str,
+                              identify_options: dict):
+    """The default method's identification of a frame through each seed camera of its size
+    (:func:`preset_cameras`) as a calibrated camera, the chance accepted divided among them; and
+    the name of the preset that identified it (None: none did — the first result is returned
+    failed). For a frame the default method identified with no camera but whose attitude through
+    the camera fitted to its stars is too uncertain."""
+    from skyfix.identify import identify
+
+    presets = preset_cameras(width, height)
+    options = dict(identify_options)
+    options["prob_threshold"] = options.get("prob_threshold", 1e-9) / len(presets)
+    first = None
+    for name, cam in presets.items():
+        again = identify(xy, width, height, method=identify_method, camera=cam, database=database,
+                         epoch=epoch, **options)
+        if again.success:
+            return again, name
+        first = again if first is None else first
+    return first, None
 
 
 # The options of identify_near that lost in space's default method shares (same names, same meaning).
