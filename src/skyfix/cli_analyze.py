@@ -328,7 +328,8 @@ def identification(
     trials: int = typer.Option(None, "--trials", min=1, help="Fields per FOV and condition (default 100; "
                                "--quick: 20)."),
     safety_trials: int = typer.Option(None, "--safety-trials", min=0, help="Frames of the safety case, each "
-                                      "solved by every method (default 10000; --quick: 20; 0: none)."),
+                                      "solved by every method (default: 1000 in the whole study, 10000 "
+                                      "with --case safety; --quick: 20; 0: none)."),
     safety_first: int = typer.Option(0, "--safety-first", min=0, help="Number of the first safety frame (a "
                                      "campaign split in parts: frames N … N + --safety-trials − 1)."),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed (attitudes, noise)."),
@@ -356,7 +357,7 @@ def identification(
     workers = check_count(workers, "--workers", minimum=1)
     settings = base._replace(methods=tuple(method_list), seed=int(seed), workers=workers,
                              trials=check_count(trials, "--trials") if trials is not None else base.trials)
-    safety_base = st.SAFETY_QUICK if quick else st.SAFETY_FULL
+    safety_base = st.SAFETY_QUICK if quick else st.SAFETY_FULL if cases else st.SAFETY_STUDY
     n_safety = (check_count(safety_trials, "--safety-trials", minimum=0) if safety_trials is not None
                 else safety_base.trials)
     safety = safety_base._replace(trials=n_safety, methods=tuple(method_list), seed=int(seed),

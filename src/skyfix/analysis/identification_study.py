@@ -63,7 +63,8 @@ from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_cent
 from skyfix.camera import Camera
 
 __all__ = ["CASES", "Condition", "FULL", "QUICK", "SAFETY_BOUNDS", "SAFETY_FULL", "SAFETY_MIX",
-           "SAFETY_QUICK", "SafetyDraw", "SafetyMix", "SafetySettings", "SafetyTrial", "StudySettings",
+           "SAFETY_QUICK", "SAFETY_STUDY", "SafetyDraw", "SafetyMix", "SafetySettings", "SafetyTrial",
+           "StudySettings",
            "TrialRecord", "cell_summary", "method_names", "perturbation_sweep", "quest_catalogue",
            "replay_safety", "run_block", "run_safety", "run_safety_block", "run_study", "safety_draw",
            "safety_field", "safety_summary", "safety_trial", "sparse_fields", "summarize", "table_3_7",
@@ -951,6 +952,9 @@ class SafetySettings(NamedTuple):
 
 
 SAFETY_FULL = SafetySettings()  # 10⁴ frames: ~0.64 CPU-s a frame for the nine methods (~53 min on 2 cores)
+# The whole study's share: 10³ frames (~5 min of 2 cores), so that grid, safety sample and seed
+# experiments run in one command; the 10⁴ frames are `--case safety` alone (SAFETY_FULL).
+SAFETY_STUDY = SafetySettings(trials=1_000)
 SAFETY_QUICK = SafetySettings(trials=20, block=10)
 
 
