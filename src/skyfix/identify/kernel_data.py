@@ -146,6 +146,8 @@ class SearchResult(NamedTuple):
     log_prob_false : float — log P(so many matches by chance), look-elsewhere included.
     combo_index, pattern_index : int — the image combination and the catalogue pattern.
     n_matched, n_catalog : int — verification matches and catalogue stars tried.
+    n_compared : int — catalogue patterns whose ratios were compared (the key runs walked): with
+        ``n_done`` and ``n_candidates``, the work the call did (:func:`skyfix.identify.quad.search_work`).
     """
 
     found: bool
@@ -158,6 +160,7 @@ class SearchResult(NamedTuple):
     pattern_index: int
     n_matched: int
     n_catalog: int
+    n_compared: int
 
 
 class RefineSettings(NamedTuple):

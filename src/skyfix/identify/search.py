@@ -229,6 +229,7 @@ def search(image, combos, start, stop, focal, tolerances, patterns, stars, verif
     view = ViewBuffers(np.empty(8192, dtype=np.int64), np.empty(8192), np.empty(8192),
                        np.zeros(n_img, dtype=np.bool_), np.empty(8192, dtype=np.int64))
     n_cand = 0
+    n_compared = 0
     for c in range(start, stop):
         combo = combos[c]
         _pattern_edges(p, combo, f0, edges)
@@ -268,6 +269,7 @@ def search(image, combos, start, stop, focal, tolerances, patterns, stars, verif
                 break
         x0, x1, x2, x3, x4 = ratios[0], ratios[1], ratios[2], ratios[3], ratios[4]
         for k in range(n_runs):
+            n_compared += runs[k, 1] - runs[k, 0]
             for q in range(runs[k, 0], runs[k, 1]):
                 # Branch-free: about 40 % of patterns pass each ratio, so an early exit per ratio
                 # mispredicts; the five differences and their maximum cost less.
@@ -348,5 +350,6 @@ def search(image, combos, start, stop, focal, tolerances, patterns, stars, verif
                                                        pattern_stars[q], combo, stars, view)
                 logp = log_prob_false(logp, cand_before + n_cand)  # every candidate examined so far
                 if is_verified(logp, log_threshold):  # accept rule 5
-                    return SearchResult(True, c - start + 1, n_cand, A, f1, logp, c, q, n_match, n_cat)
-    return SearchResult(False, stop - start, n_cand, np.zeros((3, 3)), 0.0, 0.0, -1, -1, 0, 0)
+                    return SearchResult(True, c - start + 1, n_cand, A, f1, logp, c, q, n_match, n_cat,
+                                        n_compared)
+    return SearchResult(False, stop - start, n_cand, np.zeros((3, 3)), 0.0, 0.0, -1, -1, 0, 0, n_compared)
