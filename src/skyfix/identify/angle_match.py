@@ -17,7 +17,7 @@ noise of the pair that fixed it in proportion, ``noise / f · (1 + θ / θ_pair)
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import NamedTuple
 
 import numba
@@ -27,7 +27,7 @@ from skyfix._kernels.rotation import chord_angle
 from skyfix.attitude import attitude_covariance
 from skyfix.geometry import rotation_angle_between
 from skyfix.identify.accept import noise_posterior, precision_failure
-from skyfix.identify.hypothesis import Frame, finish, fits, hypothesis, rays_at
+from skyfix.identify.hypothesis import Frame, finish, first_accepted, fits, hypothesis, rays_at
 from skyfix.identify.pairs import PairTable, pair_table
 from skyfix.identify.result import Identification
 from skyfix.identify.triangle import AMBIGUITY_RATIO, LONE_MAX_STARS, judge_lone
@@ -158,6 +158,28 @@ def recorded(proposals: Iterator[tuple[np.ndarray, np.ndarray]],
     for stars, catalog in proposals:
         into.append((stars, catalog))
         yield stars, catalog
+
+
+def judged(frame: Frame, table: PairTable, proposals: Iterator[tuple[np.ndarray, np.ndarray]], *,
+           max_candidates: int, n_stars: int, tolerance_rad: float, centroid_sigma_px: float,
+           work: Callable[[], int], threshold: float = LONE_PROB_THRESHOLD) -> tuple[Identification, str]:
+    """A correspondence method's ``proposals`` judged: by the common rules
+    (:func:`skyfix.identify.hypothesis.first_accepted`, at most ``max_candidates``) and, on a
+    sparse frame (at most :data:`~skyfix.identify.triangle.LONE_MAX_STARS` centroids) that they
+    refuse, by :func:`sparse_identification` over the same proposals (``work()``: the method's
+    count of what it searched, read once the proposals are spent). Returns the identification —
+    successful from either, else the common rules' failure — and the sparse rules' reason to
+    append to the method's own ("; ..." or "")."""
+    proposed: list[tuple[np.ndarray, np.ndarray]] = []
+    result = first_accepted(frame, recorded(proposals, proposed), max_candidates=max_candidates)
+    if result.success or len(frame.xy) > LONE_MAX_STARS:
+        return result, ""
+    sparse = sparse_identification(frame, table, proposed[:result.n_candidates], n_stars=n_stars,
+                                   tolerance_rad=tolerance_rad, centroid_sigma_px=centroid_sigma_px,
+                                   n_tried=work(), threshold=threshold)
+    if isinstance(sparse, Identification):
+        return sparse, ""
+    return result, f"; {sparse}"
 
 
 def longest_side_first(frame: Frame, stars: np.ndarray, catalog: np.ndarray

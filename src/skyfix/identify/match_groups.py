@@ -66,12 +66,11 @@ import numpy as np
 from skyfix._kernels.rotation import chord_angle, det3
 from skyfix.camera import Camera
 from skyfix.errors import InputError
-from skyfix.identify.angle_match import LONE_PROB_THRESHOLD, recorded, sparse_identification
+from skyfix.identify.angle_match import LONE_PROB_THRESHOLD, judged
 from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
+from skyfix.identify.hypothesis import Frame, failure, frame_for
 from skyfix.identify.pairs import PairTable, pair_table, pairs_in_range
 from skyfix.identify.result import Identification
-from skyfix.identify.triangle import LONE_MAX_STARS
 
 __all__ = ["METHOD", "MatchGroups", "MatchSetup", "PairMatches", "Subgroups", "TableRows", "estimated_level",
            "frame_table", "geometry_test", "identify", "match_groups", "match_setup", "pair_matches",
@@ -702,16 +701,9 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                     sub = tested(part, match_groups(matches, ic_lim=top - drop), min_group)
                     yield from fresh(sub, sub.size > 0)
 
-    proposed: list[tuple[np.ndarray, np.ndarray]] = []
-    result = first_accepted(frame, recorded(proposals(), proposed), max_candidates=max_candidates)
-    sparse = ""
-    if not result.success and len(frame.xy) <= LONE_MAX_STARS:
-        sparse = sparse_identification(frame, table, proposed[:result.n_candidates], n_stars=len(setup.rays),
-                                       tolerance_rad=setup.tolerance_rad, centroid_sigma_px=centroid_sigma_px,
-                                       n_tried=work["ranges"], threshold=lone_prob_threshold)
-        if isinstance(sparse, Identification):
-            return sparse
-        sparse = f"; {sparse}"
+    result, sparse = judged(frame, table, proposals(), max_candidates=max_candidates, n_stars=len(setup.rays),
+                            tolerance_rad=setup.tolerance_rad, centroid_sigma_px=centroid_sigma_px,
+                            work=lambda: work["ranges"], threshold=lone_prob_threshold)
     if not result.success:
         if work["late"]:
             reason = (f"time limit ({time_limit_s} s) reached after {result.n_candidates} groups proposed "

@@ -43,17 +43,15 @@ from skyfix.identify.angle_match import (
     angle_tolerance,
     focal_for_angle,
     frame_pair_table,
+    judged,
     ray_angle,
-    recorded,
-    sparse_identification,
     star_angle,
     triple_product,
 )
 from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import failure, first_accepted, frame_for
+from skyfix.identify.hypothesis import failure, frame_for
 from skyfix.identify.pairs import neighbours_in_range, pairs_in_range
 from skyfix.identify.result import Identification
-from skyfix.identify.triangle import LONE_MAX_STARS
 
 __all__ = ["METHOD", "identify", "pyramid_search", "triangle_order"]
 
@@ -326,19 +324,11 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     max_pairs = max(int(max_side_share * len(table.angle_rad)), 1)
     pyramids = _pyramids(frame, s, table, n, max_triangles, max_pairs, max_triangle_matches,
                          time_limit_s, progress)
-    proposed: list[tuple[np.ndarray, np.ndarray]] = []
-    result = first_accepted(frame, recorded(pyramids, proposed), max_candidates=max_candidates)
+    result, sparse = judged(frame, table, pyramids, max_candidates=max_candidates, n_stars=n,
+                            tolerance_rad=s.noise_px / s.f0, centroid_sigma_px=centroid_sigma_px,
+                            work=lambda: progress.triangles, threshold=lone_prob_threshold)
     if result.success:
         return dataclasses.replace(result, n_patterns_tried=progress.triangles)
-    sparse = ""
-    if len(frame.xy) <= LONE_MAX_STARS:  # too few stars to verify at prob_threshold: the sparse rules
-        sparse = sparse_identification(frame, table, proposed[:result.n_candidates], n_stars=n,
-                                       tolerance_rad=s.noise_px / s.f0,
-                                       centroid_sigma_px=centroid_sigma_px,
-                                       n_tried=progress.triangles, threshold=lone_prob_threshold)
-        if isinstance(sparse, Identification):
-            return dataclasses.replace(sparse, n_patterns_tried=progress.triangles)
-        sparse = f"; {sparse}"
     stopped = progress.stopped or f"max_candidates {max_candidates} pyramids proposed"
     return failure(METHOD, f"no pyramid verified: {result.n_candidates} proposed, {stopped}{sparse}",
                    frame.t0, progress.triangles, result.n_candidates)

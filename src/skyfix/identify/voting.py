@@ -46,12 +46,11 @@ from skyfix.identify.angle_match import (
     angle_range,
     angle_settings,
     frame_pair_table,
-    recorded,
-    sparse_identification,
+    judged,
     star_chord2,
 )
 from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
+from skyfix.identify.hypothesis import Frame, failure, frame_for
 from skyfix.identify.pairs import PairTable, pairs_in_range
 from skyfix.identify.result import Identification
 from skyfix.identify.triangle import LONE_MAX_STARS
@@ -320,19 +319,11 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     if len(frame.xy) <= LONE_MAX_STARS:  # a sparse frame's true star has few votes: sets of three too
         min_set = 3
     sets = _proposals(frame, s, table, n, per_star, min_set, sets_per_scale, time_limit_s, progress)
-    proposed: list[tuple[np.ndarray, np.ndarray]] = []
-    result = first_accepted(frame, recorded(sets, proposed), max_candidates=max_candidates)
+    result, sparse = judged(frame, table, sets, max_candidates=max_candidates, n_stars=n,
+                            tolerance_rad=s.noise_px / s.f0, centroid_sigma_px=centroid_sigma_px,
+                            work=lambda: progress.steps, threshold=lone_prob_threshold)
     if result.success:
         return dataclasses.replace(result, n_patterns_tried=progress.steps)
-    sparse = ""
-    if len(frame.xy) <= LONE_MAX_STARS:  # too few stars to verify at prob_threshold: the sparse rules
-        sparse = sparse_identification(frame, table, proposed[:result.n_candidates], n_stars=n,
-                                       tolerance_rad=s.noise_px / s.f0,
-                                       centroid_sigma_px=centroid_sigma_px,
-                                       n_tried=progress.steps, threshold=lone_prob_threshold)
-        if isinstance(sparse, Identification):
-            return dataclasses.replace(sparse, n_patterns_tried=progress.steps)
-        sparse = f"; {sparse}"
     stopped = progress.stopped or f"max_candidates {max_candidates} sets proposed"
     return failure(METHOD, f"no voted set verified: {result.n_candidates} proposed, {stopped}{sparse}",
                    frame.t0,
