@@ -115,6 +115,15 @@ class CatalogueCone:
         return self._vectors[rows]
 
 
+@numba.njit(inline="always")
+def _chord2(points, i, axis) -> float:
+    """The squared distance from ``points[i]`` to ``axis``."""
+    dx = points[i, 0] - axis[0]
+    dy = points[i, 1] - axis[1]
+    dz = points[i, 2] - axis[2]
+    return dx * dx + dy * dy + dz * dz
+
+
 @numba.njit(cache=True)
 def within(points, axis, chord2, limit):
     """The first ``limit`` rows of ``points`` (N, 3) whose squared distance to ``axis`` is at most
@@ -124,10 +133,7 @@ def within(points, axis, chord2, limit):
     for i in range(points.shape[0]):
         if n == limit:
             break
-        dx = points[i, 0] - axis[0]
-        dy = points[i, 1] - axis[1]
-        dz = points[i, 2] - axis[2]
-        if dx * dx + dy * dy + dz * dz <= chord2:
+        if _chord2(points, i, axis) <= chord2:
             rows[n] = i
             n += 1
     return rows[:n]
@@ -156,10 +162,7 @@ def cone_stars(vectors, cell_centres, cell_start, cell_stars, cell_radius, axis,
     for c in cells[:n_cells]:
         for k in range(cell_start[c], cell_start[c + 1]):
             s = cell_stars[k]
-            dx = vectors[s, 0] - axis[0]
-            dy = vectors[s, 1] - axis[1]
-            dz = vectors[s, 2] - axis[2]
-            if dx * dx + dy * dy + dz * dz <= chord2:
+            if _chord2(vectors, s, axis) <= chord2:
                 out[n] = s
                 n += 1
     return np.sort(out[:n])
