@@ -341,7 +341,7 @@ def precision_failure(covariance_rad2: np.ndarray, plate_scale_rad: float, dof: 
         sigma_bore = math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) / _ARCSEC
         sigma_roll = math.degrees(math.sqrt(max(c[2, 2], 0.0)))
         why = ("too few stars, or too noisy, to pin the attitude down" if camera_given else
-               "the stars matched do not pin down an unknown camera: give --camera FILE or --fov")
+               "the stars matched do not pin down an uncalibrated camera: give one, --camera FILE")
         bound = max(WRONG_BORESIGHT_ARCSEC, plate_scale_rad / _ARCSEC)
         return (f"attitude too uncertain: σ boresight {sigma_bore:.0f}″, roll {sigma_roll:.2f}° "
                 f"({p_wrong:.1g} chance of an error beyond {bound:.0f}″ or {WRONG_ROLL_DEG}°; {why})")
