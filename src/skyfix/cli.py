@@ -100,6 +100,11 @@ def solve(
         None, "--attitude-hint", metavar="RA,DEC,ROLL[,UNCERTAINTY_DEG]",
         help="A rough attitude, degrees (uncertainty: the largest error, default 1): identify the stars "
              "near it first, falling back to lost in space. Needs --camera or --fov for the scale."),
+    centroid_sigma: float = typer.Option(
+        None, "--centroid-sigma", metavar="PX",
+        help="The centroids' noise, pixels, when known (a calibrated tracker's): the search's "
+             "tolerances, and with --camera a prior on the noise the error bars rest on — three or "
+             "four stars' residuals cannot bound it alone (docs/identification-methods.md#triangle)."),
     smear: str = typer.Option(
         None, "--smear", metavar="DX,DY",
         help="The stars' streak over the exposure when the camera turned, pixels (a gyro's rate × the "
@@ -113,6 +118,8 @@ def solve(
                         ("--fov", "--fov-tolerance", "--epoch", "--attitude"))
     hint = _attitude_hint(attitude_hint)
     smear_px = _smear(smear)
+    noise = {} if centroid_sigma is None else {"centroid_sigma_px": check_positive(centroid_sigma,
+                                                                                   "--centroid-sigma")}
     _identify_method(identify_method)
     wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
     prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
@@ -135,7 +142,7 @@ def solve(
             try:
                 sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
                                   database=database, epoch=epoch, attitude_method=method, attitude_hint=hint,
-                                  identify_method=identify_method, smear_px=smear_px, **maps)
+                                  identify_method=identify_method, smear_px=smear_px, **maps, **noise)
                 any_failed |= not sol.solved
                 typer.echo(sol.to_json() if json_out else _summary(sol))
                 if sol.solved and wcs_path is not None:
