@@ -209,10 +209,9 @@ def solve_centroids(
     if not ident.success and sparse_fallback(identify_method, len(xy), camera, fov_deg, width, height):
         ident, assumed = _identify_sparse(ident, xy, width, height, fov_deg, fov_tolerance_deg, camera,
                                           database, epoch, identify_options)
-    elif (not ident.success and camera is None and fov_deg is None and _default_method(identify_method)
-          and preset_cameras(width, height)):
-        again, assumed = _identify_through_presets(xy, width, height, database, epoch, identify_method,
-                                                   identify_options)
+    elif not ident.success and _preset_retry(identify_method, camera, fov_deg, width, height):
+        again, assumed = _identify_by_preset(ident, xy, width, height, database, epoch, identify_method,
+                                             identify_options)
         if assumed is not None:
             ident = again
     if assumed is not None:
@@ -227,17 +226,11 @@ def solve_centroids(
         log.info("%s: identification failed: %s", name, ident.reason)
         return sol
     _fill_attitude(sol, xy, ident, attitude_method, **fit_options)
-    if (not sol.solved and assumed is None and camera is None and fov_deg is None
-            and _default_method(identify_method) and preset_cameras(width, height)):
+    if not sol.solved and assumed is None and _preset_retry(identify_method, camera, fov_deg, width, height):
         # Identified, but too uncertain through a camera fitted to a few stars: a seed camera of
-        # the frame's size, if the stars confirm it, pins the attitude down (a sparse frame through
-        # the triangle method, a richer one through the default method with that camera).
-        if len(xy) <= SPARSE_FIELD_STARS:
-            again, assumed = _identify_sparse(ident, xy, width, height, None, None, None, database, epoch,
-                                              identify_options)
-        else:
-            again, assumed = _identify_through_presets(xy, width, height, database, epoch, identify_method,
-                                                       identify_options)
+        # the frame's size, if the stars confirm it, pins the attitude down.
+        again, assumed = _identify_by_preset(ident, xy, width, height, database, epoch, identify_method,
+                                             identify_options)
         if assumed is not None:
             retry = Solution(image=name, n_detected=len(xy), method=again.method)
             _fill_attitude(retry, xy, again, attitude_method, **{**fit_options, "camera_given": True})
@@ -324,6 +317,27 @@ def _identify_sparse(failed, xy: np.ndarray, width: int, height: int, fov_deg, f
             return sparse, name
         reasons.append(sparse.reason if name is None else f"{name} camera: {sparse.reason}")
     return dataclasses.replace(failed, reason=f"{failed.reason}; triangle: {'; '.join(reasons)}"), None
+
+
+def _preset_retry(identify_method: str, camera: Camera | None, fov_deg: float | None, width: int,
+                  height: int) -> bool:
+    """Whether a frame the no-hint solve could not solve is tried through the seed cameras of its
+    size (:func:`preset_cameras`): the default method was asked for, and neither a camera nor a
+    FOV was given."""
+    return (camera is None and fov_deg is None and _default_method(identify_method)
+            and bool(preset_cameras(width, height)))
+
+
+def _identify_by_preset(failed, xy: np.ndarray, width: int, height: int, database, epoch,
+                        identify_method: str, identify_options: dict):
+    """A frame's identification through the seed cameras of its size: a sparse one (at most
+    :data:`SPARSE_FIELD_STARS` centroids) by the triangle method (:func:`_identify_sparse`), a
+    richer one by the default method (:func:`_identify_through_presets`); and the preset's name
+    (None: none identified it)."""
+    if len(xy) <= SPARSE_FIELD_STARS:
+        return _identify_sparse(failed, xy, width, height, None, None, None, database, epoch,
+                                identify_options)
+    return _identify_through_presets(xy, width, height, database, epoch, identify_method, identify_options)
 
 
 def _identify_through_presets(xy: np.ndarray, width: int, height: int, database, epoch, identify_method: str,
