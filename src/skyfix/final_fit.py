@@ -25,7 +25,7 @@ import numpy as np
 from skyfix._kernels import lens, robust, rotation
 from skyfix._rematch import CatalogueCone, equidistant_consensus, match_catalogue
 from skyfix._rematch import Matches as _Matches
-from skyfix.attitude import attitude_covariance, solve_attitude
+from skyfix.attitude import CENTROID_NOISE_FLOOR_PX, attitude_covariance, solve_attitude
 from skyfix.calibrate import CameraPrior, fit_camera_with_prior
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
@@ -118,10 +118,10 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
         idx, ids, r, mag, b = idx[keep], ids[keep], r[keep], mag[keep], b[keep]
     A = solve_attitude(b, r, method=method)
     resid = rotation.angles(b, r, np.ascontiguousarray(A))
-    # Per-axis σ from the fit's own residuals (3 attitude dof used), floored at 0.05 px
-    # so a lucky tiny residual does not claim an impossible precision.
+    # Per-axis σ from the fit's own residuals (3 attitude dof used), floored at
+    # CENTROID_NOISE_FLOOR_PX so a lucky tiny residual does not claim an impossible precision.
     dof = max(2 * len(idx) - 3, 1)
-    sigma = max(math.sqrt(float(np.sum(resid**2)) / dof), 0.05 * camera.plate_scale_rad)
+    sigma = max(math.sqrt(float(np.sum(resid**2)) / dof), CENTROID_NOISE_FLOOR_PX * camera.plate_scale_rad)
     cov = attitude_covariance(A, b, sigma)
     log_p = math.log(max(ident.prob_false, 1e-300))
     return FinalFit(A, camera, idx, ids, r, mag, resid, cov, (), log_p, sigma, 2 * len(idx) - 3)

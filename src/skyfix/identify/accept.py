@@ -298,9 +298,11 @@ def noise_posterior(residuals_rad: np.ndarray, dof: float, prior_sigma_rad: floa
 
     Three stars leave ν = 3 residual degrees of freedom: their σ alone, ``s² = Σ r² / ν``, may
     be several times too small, and Student's tails (:func:`wrong_probability`) then give even
-    a noise-free three-star attitude a 0.1–1 % chance of a 12σ error — a chance the data cannot
-    lower, since all-but-zero residuals are only polynomially (``∝ σ^−ν``) less likely under a
-    larger noise. What lowers it honestly is knowing the noise beforehand: a stated ``σ₀``
+    a noise-free three-star attitude (σ at the final fit's floor,
+    :data:`skyfix.attitude.CENTROID_NOISE_FLOOR_PX`) a real chance of a 12σ error when its
+    stars are bunched — a chance the data cannot lower, since all-but-zero residuals are only
+    polynomially (``∝ σ^−ν``) less likely under a larger noise. What lowers it honestly is
+    knowing the noise beforehand: a stated ``σ₀``
     counts as a scaled-inverse-χ² prior of ``ν₀`` degrees of freedom, and the posterior is
 
         ``σ² = (ν₀ σ₀² + ν s²) / (ν₀ + ν)``, with ``ν₀ + ν`` degrees of freedom

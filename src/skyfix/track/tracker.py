@@ -55,6 +55,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from skyfix.attitude import CENTROID_NOISE_FLOOR_PX
 from skyfix.camera import Camera
 from skyfix.detect.centroid import centroider
 from skyfix.detect.streak import streak_model_sigma
@@ -201,7 +202,7 @@ class Tracker:
                  psf_sigma_px: float | None = None, k_sigma: float = 4.0,
                  min_stars: int = 3, max_coast_frames: int = 5, max_rate_dps: float = 3.0,
                  exposure_s: float | None = None, line_time_s: float = 0.0, star_radius_px: float = 3.0,
-                 max_window_px: float = 60.0, min_snr: float = 5.0, floor_px: float = 0.02,
+                 max_window_px: float = 60.0, min_snr: float = 5.0, floor_px: float = CENTROID_NOISE_FLOOR_PX,
                  mag_tolerance: float = 1.5, nis_gate: float = 25.0, predictor_options: dict | None = None,
                  solve_options: dict | None = None) -> None:
         from skyfix.detect import CENTROIDERS
