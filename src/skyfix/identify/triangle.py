@@ -44,7 +44,9 @@ honestly:
 
 The sparse frame is accepted when the product is at most ``lone_prob_threshold`` (1e-4 by
 default: a lone triangle cannot reach the 1e-9 of a rich frame; a solution reports the chance it
-was given, ``prob_false``). A mirror image is rejected as everywhere: no proper rotation fits it.
+was given, ``prob_false``). A mirror image is rejected as everywhere, since no proper rotation
+fits it — and where a near-symmetric group of stars fits one all the same, by
+:func:`unless_mirrored`: the frame flipped left-right matching more surely refuses the match.
 """
 
 from __future__ import annotations
@@ -78,7 +80,7 @@ from skyfix.identify.result import Identification
 from skyfix.identify.verify import stars_in_view
 
 __all__ = ["AMBIGUITY_RATIO", "LONE_MAX_STARS", "METHOD", "LoneJudgement", "identify", "judge_lone",
-           "triangle_matches", "window_rad"]
+           "triangle_matches", "unless_mirrored", "window_rad"]
 
 METHOD = "triangle"
 LONE_MAX_STARS = 8
@@ -483,13 +485,56 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         match (with a fourth star confirming) than this is skipped: it cannot tell them apart.
     per_field : int — catalogue stars per field in the pair table (:func:`skyfix.identify.pairs.pair_table`).
     """
+    options = {"fov_deg": fov_deg, "fov_tolerance_deg": fov_tolerance_deg, "camera": camera,
+               "database": database, "epoch": epoch, "max_stars": max_stars,
+               "centroid_sigma_px": centroid_sigma_px, "n_sigma": n_sigma, "mag_margin": mag_margin,
+               "missing_margin": missing_margin, "min_error_px": min_error_px,
+               "lone_prob_threshold": lone_prob_threshold, "prob_threshold": prob_threshold,
+               "max_candidates": max_candidates, "max_per_triangle": max_per_triangle, "per_field": per_field}
+    t0 = time.perf_counter()
+    result, lone = _identify(xy, width, height, **options)
+    return unless_mirrored(result, xy, width, height, options, t0) if lone else result
+
+
+def unless_mirrored(result: Identification, xy: np.ndarray, width: int, height: int, options: dict,
+                     t0: float) -> Identification:
+    """Rule 5 for the mirror image: a sparse frame's lone triangle ``result`` is refused when
+    the same centroids flipped left-right (about the principal point) are identified more
+    surely (a smaller chance of a wrong match). A frame flipped by its reader (a FITS row
+    order, a mirror in the optics) is a real input, and a near-symmetric constellation seen
+    mirrored can put three or four of its stars on the sky's own within the tolerance: Orion's
+    Rigel and belt, mirrored, were named with a chance of 8e-5
+    (``tests/test_identify_every_method.py``); flipped back they match with 3e-15. A flipped
+    frame is the rarer input, so a mirror that fits only about as well (within
+    :data:`AMBIGUITY_RATIO`, rule 5's margin between two hypotheses of the same frame) does not
+    refuse: it would cost 2 of the 40 noise-free three-star fields of
+    ``tests/test_identify_triangle.py``, whose mirrored triangles match other catalogue ones."""
+    flipped = np.array(xy, dtype=np.float64)
+    flipped[:, 0] = 2.0 * float(result.camera.cx) - flipped[:, 0]
+    mirror, _ = _identify(flipped, width, height, **options)
+    if not mirror.success or mirror.prob_false >= result.prob_false:
+        return result
+    return failure(METHOD, "ambiguous: the stars fit the sky mirrored left-right better (chance "
+                           f"{mirror.prob_false:.1e} against {result.prob_false:.1e}): a mirror image? "
+                           "Flip it before solving", t0,
+                   result.n_patterns_tried, result.n_candidates)
+
+
+def _identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None,
+              fov_tolerance_deg: float | None, camera: Camera | None, database: PatternDatabase | None,
+              epoch: float | None, max_stars: int, centroid_sigma_px: float, n_sigma: float,
+              mag_margin: float, missing_margin: float, min_error_px: float, lone_prob_threshold: float,
+              prob_threshold: float, max_candidates: int, max_per_triangle: int,
+              per_field: int) -> tuple[Identification, bool]:
+    """:func:`identify` without the mirror rule: the Identification, and whether it is a sparse
+    frame's lone triangle (accepted by rules 1–5)."""
     if not 3 <= int(max_stars) <= 12:
         raise InputError(f"max_stars must be 3–12, not {max_stars}")
     frame = frame_for(METHOD, xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
                       camera=camera, database=database, epoch=epoch, min_stars=3,
                       prob_threshold=prob_threshold, centroid_sigma_px=centroid_sigma_px)
     if isinstance(frame, Identification):
-        return frame
+        return frame, False
     cam = frame.camera
     f0 = float(cam.fx)
     s_tol = frame.scale_tolerance
@@ -550,7 +595,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         result = first_accepted(frame, ((v, c) for _, v, _, c in candidates(True)), n_tried=len(triangles),
                                 max_candidates=max_candidates)
         if result.success or len(frame.xy) > LONE_MAX_STARS:
-            return result
+            return result, False
         n_cand = 0
     lone: list[tuple[float, Hypothesis, LoneJudgement]] = []
     for _, verts, sides, cat in candidates(False):
@@ -564,20 +609,20 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
             lone.append((j.log_chance, h, j))
     if not lone:
         return failure(METHOD, f"no catalogue triangle fits ({n_cand} candidates from {len(triangles)} "
-                               "image triangles)", frame.t0, len(triangles), n_cand)
+                               "image triangles)", frame.t0, len(triangles), n_cand), False
     lone.sort(key=lambda e: e[0])
     best_log, best_h, best_j = lone[0]
     if best_log > math.log(lone_prob_threshold):
         return failure(METHOD, "no triangle unique enough: best chance of a wrong match "
                                f"{math.exp(best_log):.1e} > {lone_prob_threshold:g}", frame.t0,
-                       len(triangles), n_cand)
+                       len(triangles), n_cand), False
     apart = 3.0 * frame.radius_px / float(best_h.focal_px)
     rivals = {tuple(j.catalog[:3]) for lp, h, j in lone
               if lp <= best_log + math.log(AMBIGUITY_RATIO) and _rotation_angle(h, best_h) > apart}
     if rivals:
         return failure(METHOD, f"ambiguous: {len(rivals) + 1} catalogue triangles fit these stars about "
-                               "equally well", frame.t0, len(triangles), n_cand)
-    return _lone_identification(frame, best_h, best_j, len(triangles), n_cand)
+                               "equally well", frame.t0, len(triangles), n_cand), False
+    return _lone_identification(frame, best_h, best_j, len(triangles), n_cand), True
 
 
 def _rotation_angle(a: Hypothesis, b: Hypothesis) -> float:
