@@ -497,8 +497,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
 
 
 def unless_mirrored(result: Identification, xy: np.ndarray, width: int, height: int, options: dict,
-                     t0: float) -> Identification:
-    """Rule 5 for the mirror image: a sparse frame's lone triangle ``result`` is refused when
+                    t0: float) -> Identification:
+    """Rule 7, the mirror image (docs/identification-methods.md#triangle): a sparse frame's lone triangle ``result`` is refused when
     the same centroids flipped left-right (about the principal point) are identified more
     surely (a smaller chance of a wrong match). A frame flipped by its reader (a FITS row
     order, a mirror in the optics) is a real input, and a near-symmetric constellation seen
