@@ -498,9 +498,9 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
 
 def unless_mirrored(result: Identification, xy: np.ndarray, width: int, height: int, options: dict,
                     t0: float) -> Identification:
-    """Rule 7, the mirror image (docs/identification-methods.md#triangle): a sparse frame's lone triangle ``result`` is refused when
-    the same centroids flipped left-right (about the principal point) are identified more
-    surely (a smaller chance of a wrong match). A frame flipped by its reader (a FITS row
+    """Rule 7, the mirror image (docs/identification-methods.md#triangle): a sparse frame's
+    lone triangle ``result`` is refused when the same centroids flipped left-right (about the
+    principal point) are identified more surely (a smaller chance of a wrong match). A frame flipped by its reader (a FITS row
     order, a mirror in the optics) is a real input, and a near-symmetric constellation seen
     mirrored can put three or four of its stars on the sky's own within the tolerance: Orion's
     Rigel and belt, mirrored, were named with a chance of 8e-5
