@@ -500,10 +500,10 @@ def unless_mirrored(result: Identification, xy: np.ndarray, width: int, height: 
                     t0: float) -> Identification:
     """Rule 7, the mirror image (docs/identification-methods.md#triangle): a sparse frame's
     lone triangle ``result`` is refused when the same centroids flipped left-right (about the
-    principal point) are identified more surely (a smaller chance of a wrong match). A frame flipped by its reader (a FITS row
-    order, a mirror in the optics) is a real input, and a near-symmetric constellation seen
-    mirrored can put three or four of its stars on the sky's own within the tolerance: Orion's
-    Rigel and belt, mirrored, were named with a chance of 8e-5
+    principal point) are identified more surely (a smaller chance of a wrong match). A frame
+    flipped by its reader (a FITS row order, a mirror in the optics) is a real input, and a
+    near-symmetric constellation seen mirrored can put three or four of its stars on the sky's
+    own within the tolerance: Orion's Rigel and belt, mirrored, were named with a chance of 8e-5
     (``tests/test_identify_every_method.py``); flipped back they match with 3e-15. A flipped
     frame is the rarer input, so a mirror that fits only about as well (within
     :data:`AMBIGUITY_RATIO`, rule 5's margin between two hypotheses of the same frame) does not
