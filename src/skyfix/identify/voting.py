@@ -205,6 +205,7 @@ class _Progress:
     def __init__(self) -> None:
         self.steps = 0
         self.stopped = ""
+        self.deadline = math.inf  # the search's end, set by the first pass: a second one shares it
 
 
 def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, n_candidates: int, min_set: int,
@@ -224,7 +225,9 @@ def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, n_candi
     top_voted(votes, table.stars, nodes)
     validate(s, frame.stars.vectors, nodes, s.f0, s.f0, candidate, agree)
     consistent_set(agree, np.arange(n), 0, members)
-    deadline = time.perf_counter() + time_limit_s
+    if math.isinf(progress.deadline):
+        progress.deadline = time.perf_counter() + time_limit_s
+    deadline = progress.deadline
     for f_a, f_b in steps:
         if time.perf_counter() > deadline:
             progress.stopped = "time limit reached"
