@@ -1,13 +1,14 @@
 """The final fit alone: its time per frame and its boresight error, on frames of a few kinds.
 
 Each frame is a synthetic centroid field (``skyfix.analysis.synthetic_centroids``) from a known
-camera and attitude, identified once (``skyfix.identify.identify``, with or without the FOV);
-then ``skyfix.final_fit.final_fit`` (no camera file) is timed ``--repeat`` times on that
-identification and the median kept. Reported per kind: frames identified, the median (and
-90th percentile) over frames of the final fit's ms, the median boresight error (″) at the
-image centre against the truth, the normalised error's RMS per axis (x, y, roll) at the fit's
-boresight pixel, and, with ``--count``, how many camera fits (``prior_gauss_newton``) and
-re-matches (``match_catalogue``) a frame took.
+camera and attitude, or the centroids skyfix extracts from an image of suite c's independent
+renderer (``benchmarks/render.py``: kinds ``r8``, ``r15``, ``r30``), identified once
+(``skyfix.identify.identify``, with or without the FOV); then ``skyfix.final_fit.final_fit``
+(no camera file) is timed ``--repeat`` times on that identification and the median kept.
+Reported per kind: frames identified, the median (and 90th percentile) over frames of the final
+fit's ms, the median boresight error (″) at the image centre against the truth, the normalised
+error's RMS per axis (x, y, roll) at the fit's boresight pixel, and, with ``--count``, how many
+camera fits (``prior_gauss_newton``) and re-matches (``match_catalogue``) a frame took.
 
 A/B against another tree, in the same run, interleaved (two processes per kind, alternately)::
 
@@ -42,7 +43,8 @@ class Kind(NamedTuple):
     k1: float = 0.0
     projection: str = "pinhole"
     sigma_px: float = 0.1
-    catalog: str = "hip"  # or "gaia" (deeper than the database: the real sky)
+    catalog: str = "hip"  # "gaia" (deeper than the database: the real sky), or "render": images
+    # from benchmarks/render.py (suite c's renderer, Hipparcos to 9) through skyfix's extraction
     fov_given: bool = True
 
 
@@ -51,17 +53,25 @@ KINDS = {
     "8": Kind("8° 1280×960", 8.0, 9.0),
     "15": Kind("15° 1280×960", 15.0, 8.0),
     "30": Kind("30° 752×480", 30.0, 7.0, 752, 480),
+    "30s": Kind("30° 752×480 sparse", 30.0, 5.0, 752, 480, sigma_px=0.3),
     "45": Kind("45° k1 −0.3", 45.0, 6.0, k1=-0.3, catalog="gaia", sigma_px=0.5),
     "90": Kind("90° fisheye", 90.0, 5.0, projection="kannala-brandt", catalog="gaia", sigma_px=0.5),
+    "r8": Kind("8° rendered image", 8.0, 9.0, catalog="render"),
+    "r15": Kind("15° rendered image", 15.0, 9.0, catalog="render"),
+    "r30": Kind("30° rendered image", 30.0, 9.0, catalog="render"),
 }
-DEFAULT_KINDS = "15,15n,8,30,30n,45n,90n"
+DEFAULT_KINDS = "r15,r15n,r8,r30,15,8,30,30n,30sn,45n,90n"
 ARCSEC = math.pi / (180.0 * 3600.0)
 
 
 def kind_of(key: str) -> Kind:
-    k = KINDS[key.rstrip("n")]
-    no_fov = key.endswith("n")
+    k = KINDS[_key(key)]
+    no_fov = _key(key) != key
     return k._replace(fov_given=not no_fov, name=k.name + (", no FOV" if no_fov else ""))
+
+
+def _key(key: str) -> str:
+    return key[:-1] if key.endswith("n") and key[:-1] in KINDS else key
 
 
 def true_camera(k: Kind):
@@ -87,9 +97,16 @@ def run_kind(key: str, n_frames: int, repeat: int, seed: int, count: bool) -> di
 
     k = kind_of(key)
     epoch = 2025.0
-    catalog = load_gaia(epoch=epoch) if k.catalog == "gaia" else load_hipparcos(epoch=epoch)
-    cam = true_camera(k)
     rng = np.random.default_rng(seed)
+    if k.catalog == "render":
+        from render import RenderSpec, StarSky, render
+        from skyfix.detect import extract_centroids
+
+        spec = RenderSpec(width=k.width, height=k.height, fov_deg=k.fov_deg, mag_limit=k.mag_limit)
+        sky = StarSky(mag_limit=k.mag_limit, epoch=epoch)
+    else:
+        catalog = load_gaia(epoch=epoch) if k.catalog == "gaia" else load_hipparcos(epoch=epoch)
+    cam = true_camera(k)
     counts = {"fits": 0, "rematches": 0}
     if count:  # wrap the kernels the final fit calls by module attribute
         gn, mc = camera_fit.prior_gauss_newton, _rematch.match_catalogue
@@ -107,9 +124,12 @@ def run_kind(key: str, n_frames: int, repeat: int, seed: int, count: bool) -> di
     centre = ((k.width - 1) / 2.0, (k.height - 1) / 2.0)
     rows = []
     for A in random_attitudes(n_frames, rng):
-        field = synthetic_centroids(cam, A, catalog, mag_limit=k.mag_limit, sigma_px=k.sigma_px,
-                                    n_false=int(rng.integers(0, 4)), dropout=0.05, mag_sigma=0.2, rng=rng)
-        xy = field.xy[:200]
+        if k.catalog == "render":
+            xy = extract_centroids(render(A, sky, spec, rng), max_stars=200).xy
+        else:
+            field = synthetic_centroids(cam, A, catalog, mag_limit=k.mag_limit, sigma_px=k.sigma_px,
+                                        n_false=int(rng.integers(0, 4)), dropout=0.05, mag_sigma=0.2, rng=rng)
+            xy = field.xy[:200]
         if len(xy) < 4:
             continue
         ident = identify(xy, k.width, k.height, fov_deg=cam.fov_deg if k.fov_given else None, epoch=epoch)

@@ -141,7 +141,8 @@ def test_fisheye_parameters_and_priors_are_checked():
 
 
 # A pinhole's prior fit and Jacobian before the fisheye was added to the fit (commit ee28012), as
-# float.hex: the fisheye's branches must leave the pinhole's arithmetic as it was.
+# float.hex: the fisheye's branches must leave the pinhole's arithmetic as it was (the fit with
+# every parameter free, model="all", as it then was).
 _PINHOLE_BEFORE = {
     "fx": "0x1.2bf55e488ca95p+12", "k1": "-0x1.748e9a2ac96bfp-4", "cov00": "0x1.d6e78149af02ap-34",
     "J": "0x1.b2012e15c84c0p+19",
@@ -158,7 +159,7 @@ def _pinhole_numbers() -> dict[str, str]:
     start = Camera.from_fov(1280, 960, cam.fov_deg)
     A0 = attitude_from_radec_roll(1.0 + 1e-4, 0.3, 0.4)
     held_p = CameraPrior.uncalibrated(1280, 960)._replace(sigma_tangential=0.0)  # p1, p2 as at ee28012
-    fit = fit_camera_with_prior(xy, r, start, A0, held_p, principal_point="fit")
+    fit = fit_camera_with_prior(xy, r, start, A0, held_p, principal_point="fit", model="all")
     codes = np.array([camera_fit.F, camera_fit.ASPECT, camera_fit.PRINCIPAL_POINT, camera_fit.K1_TERM,
                       camera_fit.K2_TERM, camera_fit.TANGENTIAL], dtype=np.int64)
     J, _ = camera_fit.jacobian_rows(xy, np.ascontiguousarray(r @ A0.T), lens.camera_numbers(cam), 0.2, codes)

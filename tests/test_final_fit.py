@@ -284,7 +284,7 @@ def test_outlier_cut_drops_a_star_off_the_fitted_camera_and_only_it(stars):
     centroid 3 px off (a blend) is dropped by its externally studentised residual, and no good
     star is."""
     from skyfix.calibrate import CameraPrior
-    from skyfix.final_fit import _drop_outliers, _Matches, _prior_fit
+    from skyfix.final_fit import _fit_without_outliers, _Matches
 
     rng = np.random.default_rng(4)
     cam = Camera(1280, 960, 4800.0, 4800.0 * 1.03, 640.0, 470.0, k1=-0.1)
@@ -296,7 +296,7 @@ def test_outlier_cut_drops_a_star_off_the_fitted_camera_and_only_it(stars):
     m = _Matches(np.arange(40), np.arange(40), r, np.zeros(40))
     prior = CameraPrior.uncalibrated(1280, 960)
     start = Camera.from_fov(1280, 960, cam.fov_deg)
-    fit = _prior_fit(xy, r, start, A, prior)
-    fit, kept = _drop_outliers(xy, fit, m, prior)
+    fit, kept = _fit_without_outliers(xy, m, start, A, prior)
     assert sorted(set(range(40)) - set(kept.idx.tolist())) == [7]
+    assert fit.kept.sum() == 39 and not fit.kept[7]
     assert fit.sigma_px < 0.3

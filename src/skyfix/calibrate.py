@@ -365,12 +365,6 @@ def prior_parameters(projection: str, tangential: bool = False) -> tuple[str, ..
     return _PRIOR_PARAMETERS_OF[projection]
 
 
-# The principal point is moved off the prior's centre when its move is beyond this χ² (2 dof) of
-# its posterior: 1e-3 by chance. (At 30, 3e-7, 5 of 10 000 blind uncalibrated fields were wrong;
-# at 13.8, 2, with the same solves: benchmarks/suite_blind.py.)
-_PP_CHI2 = 13.8
-
-
 class CameraPrior(NamedTuple):
     """What is known of a camera before its image is solved: a Gaussian prior on each parameter
     but the focal length (free) — the principal point about ``(cx, cy)``, the pixel aspect
@@ -445,24 +439,30 @@ class PriorFit(NamedTuple):
 
     Attributes
     ----------
-    camera : Camera — the fitted model (maximum a posteriori).
+    camera : Camera — the fitted model (maximum a posteriori of the model fitted).
     A_icrs_to_cam : (3, 3) — the fitted attitude.
-    residuals_px : (N, 2) — reprojection residuals, px.
+    residuals_px : (M, 2) — reprojection residuals of the stars kept, px.
     sigma_px : float — centroid noise per axis estimated from the residuals, px.
     covariance_rad2 : (3, 3) — attitude error about the camera axes (x, y, roll), rad², at the
-        principal point, with every camera parameter marginalised over its posterior.
-    n_effective : float — effective number of fitted numbers (3 rotations + the camera's
-        share: ``trace`` of the hat matrix); the camera's part is what the stars paid for it.
-    outlier_chi2 : (N,) — each star's residual against what the others predict for it
-        (studentised: ``rᵀ (σ² (I − H))⁻¹ r`` with ``H`` its 2×2 block of the hat matrix, and
-        σ from the other stars' residuals unless ``robust``): for a star that fits the model,
-        twice an F(2, dof − 2) variable, dof = ``2N − n_effective``.
+        principal point, with every camera parameter of :attr:`parameters` marginalised over its
+        posterior (those held too: what the stars leave of them is in the error bar).
+    n_effective : float — effective number of fitted numbers of that posterior, every parameter
+        of :attr:`parameters` free (3 rotations + the camera's share: ``trace`` of the hat
+        matrix); the camera's part is what a re-match through this camera pays for.
+    outlier_chi2 : (M,) — each kept star's residual against what the others predict for it
+        under the model fitted (studentised: ``rᵀ (σ² (I − H))⁻¹ r`` with ``H`` its 2×2 block of
+        the hat matrix, and σ from the other stars' residuals unless ``robust``): for a star that
+        fits the model, twice an F(2, dof − 2) variable, dof = ``2M`` less the model's numbers.
     parameter_covariance : (P, P) — posterior covariance of the parameter step (rotations,
         then the camera's :attr:`parameters` in the scaled units of
         :mod:`skyfix._kernels.camera_fit`).
-    largest_move_px : float — the largest distance by which the fit moved a star's predicted
-        position from where the starting camera and attitude put it.
-    parameters : tuple[str, ...] — the camera parameters fitted (:attr:`CameraPrior.parameters`).
+    largest_move_px : float — the largest distance by which the fit moved a kept star's
+        predicted position from where the starting camera and attitude put it.
+    parameters : tuple[str, ...] — the camera parameters of the posterior
+        (:attr:`CameraPrior.parameters`).
+    fitted : tuple[str, ...] — those of them the fit moved from the prior's values (the model
+        the stars chose; ``f`` always).
+    kept : (N,) bool — which of the stars given the fit kept (all but the outliers it dropped).
     """
 
     camera: Camera
@@ -475,6 +475,8 @@ class PriorFit(NamedTuple):
     parameter_covariance: np.ndarray
     largest_move_px: float = 0.0
     parameters: tuple[str, ...] = PRIOR_PARAMETERS
+    fitted: tuple[str, ...] = PRIOR_PARAMETERS
+    kept: np.ndarray | None = None
 
     def prediction_sigma_px(self, r_icrs: np.ndarray) -> np.ndarray:
         """How uncertain (px, the larger axis's σ) the fitted model's pixel position of each
@@ -491,9 +493,13 @@ class PriorFit(NamedTuple):
                                                     0.0)))
 
 
+_PRINCIPAL_POINT_MODES = {"hold": kernels.PP_HOLD, "auto": kernels.PP_AUTO, "fit": kernels.PP_FIT}
+
+
 def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_cam: np.ndarray,
                           prior: CameraPrior, *, robust: bool = False, iterations: int = 12,
-                          sigma_floor_px: float = 0.05, principal_point: str = "auto") -> PriorFit:
+                          sigma_floor_px: float = 0.05, principal_point: str = "auto",
+                          model: str = "evidence", drop_outliers: bool = False) -> PriorFit:
     """Fit attitude, focal length, aspect, principal point and the distortion to matched stars,
     each camera parameter but the focal length held by its ``prior`` (maximum a posteriori):
     :attr:`CameraPrior.parameters` — a pinhole's k1, k2 (its k3 held) and, with a tangential σ
@@ -506,11 +512,20 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     with ``robust`` from their median (a
     2-D Gaussian's residual length has median 1.1774 σ) and with Cauchy weights
     ``w = 1 / (1 + (|residual| / 3σ)²)``, so that a few wrong stars cannot hold the model away
-    from the many right ones; floored at ``sigma_floor_px``. The covariance is the
-    posterior's, ``(JᵀWJ/σ² + Λ)⁻¹``. Its attitude block is taken for the frame at the
-    principal point *as a pixel*: a principal-point shift moves the optical axis but not the sky
-    position of that pixel, so only what the principal point does beyond a shift (the field's
-    perspective and the distortion centre) enters the attitude's error bar.
+    from the many right ones; floored at ``sigma_floor_px``.
+
+    ``model``: ``"evidence"`` fits only the camera numbers the stars call for — of the models
+    that free the focal length and any subset of the other parameters (the principal point as
+    ``principal_point`` says), the one of largest marginal likelihood under the prior
+    (:func:`skyfix._kernels.camera_fit.log_evidence`), the others held at the prior's values
+    (square pixels, no distortion) — so an ordinary lens is fitted as what it is, a pinhole, and
+    a distorted one with the terms it needs; ``"all"`` frees every parameter (never chosen with
+    ``robust``, which frees all). Either way the covariance is the posterior's with every
+    parameter free, ``(JᵀWJ/σ² + Λ)⁻¹`` at the result: what the stars leave unknown of a
+    parameter held is in the attitude's error bar. Its attitude block is taken for the frame at
+    the principal point *as a pixel*: a principal-point shift moves the optical axis but not the
+    sky position of that pixel, so only what the principal point does beyond a shift (the
+    field's perspective and the distortion centre) enters the attitude's error bar.
 
     ``principal_point``: ``"fit"`` moves the principal point from the prior's as the stars
     ask; ``"hold"`` keeps it at the prior's (the image centre), so that the attitude refers to
@@ -519,6 +534,10 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     prior's, the move beyond χ² = 13.8 of its posterior: a wide or distorted field, a crop) and
     holds it elsewhere.
 
+    ``drop_outliers``: as the fit converges, drop the star whose studentised residual is the
+    worst beyond the 3.4e-4 tail (:func:`skyfix._kernels.camera_fit.outlier_limit`), one at a time,
+    and fit on (at most half the stars; three always kept): :attr:`PriorFit.kept`.
+
     Parameters
     ----------
     xy : (N, 2) — star positions, px.
@@ -526,64 +545,37 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     camera, A_icrs_to_cam : the starting model and attitude.
     prior : CameraPrior — of the camera's projection (:meth:`CameraPrior.uncalibrated`).
     robust : bool — Cauchy weights and a median σ (for matches that may hold wrong stars).
-    iterations : int — most Gauss–Newton steps.
+    iterations : int — most Gauss–Newton steps (per model fitted).
     sigma_floor_px : float — smallest centroid noise believed, px.
     principal_point : str — ``"auto"``, ``"fit"`` or ``"hold"`` (above).
+    model : str — ``"evidence"`` or ``"all"`` (above).
+    drop_outliers : bool — drop outliers as the fit goes (above).
     """
-    xy = np.ascontiguousarray(xy, dtype=np.float64)
-    r = np.ascontiguousarray(r_icrs, dtype=np.float64)
-    A0 = np.ascontiguousarray(A_icrs_to_cam, dtype=np.float64)
-    prior_numbers = np.array([getattr(prior, k) for k in kernels.PRIOR_NUMBERS], dtype=np.float64)
-    half_diag = float(math.hypot(camera.width, camera.height) / 2.0)
-    cam0 = lens.camera_numbers(camera)
-    if principal_point not in ("auto", "fit", "hold"):
+    if principal_point not in _PRINCIPAL_POINT_MODES:
         raise ValueError(f"principal_point must be 'auto', 'fit' or 'hold', not {principal_point!r}")
+    if model not in ("evidence", "all"):
+        raise ValueError(f"model must be 'evidence' or 'all', not {model!r}")
     if prior.projection != camera.projection:
         raise ValueError(f"a {prior.projection} prior for a {camera.projection} camera: "
                          f"CameraPrior.uncalibrated(..., projection={camera.projection!r})")
-    fixed = prior_numbers.copy()
-    fixed[kernels.SIGMA_PP] = 1e-9 * prior.sigma_principal_point_px
-    if principal_point == "fit":
-        gn = kernels.prior_gauss_newton(xy, r, A0, cam0, half_diag, prior_numbers, bool(robust),
-                                        int(iterations), float(sigma_floor_px), prior_numbers)
-        moved = gn.moved
-    else:
-        # Fit with the principal point held at the prior's; the posterior and one step with it
-        # free come from the result: the step tells "auto" whether the stars pin it down
-        # elsewhere.
-        held = cam0.copy()
-        held[lens.CX], held[lens.CY] = prior.cx, prior.cy
-        gn = kernels.prior_gauss_newton(xy, r, A0, held, half_diag, fixed, bool(robust),
-                                        int(iterations), float(sigma_floor_px), prior_numbers)
-        moved = gn.moved
-        if principal_point == "auto":
-            # Moved only when the stars say so: the move against its posterior covariance beyond
-            # _PP_CHI2 (2 dof: 1e-3 by chance) and the posterior σ a third of the prior's or less.
-            x, y = kernels.STEP_CX, kernels.STEP_CY
-            inv = gn.covariance
-            (mx, my), (c00, c01, c11) = (gn.step[x], gn.step[y]), (inv[x, x], inv[x, y], inv[y, y])
-            det = c00 * c11 - c01 * c01
-            chi2_move = (c11 * mx * mx - 2.0 * c01 * mx * my + c00 * my * my) / det if det > 0 else 0.0
-            principal_point = "hold"
-            pinned = 3.0 * math.sqrt(max(c00, c11)) * gn.cam[lens.FX] < prior.sigma_principal_point_px
-            if pinned and chi2_move > _PP_CHI2:
-                principal_point = "fit"
-                res_held = gn.residuals
-                gn = kernels.prior_gauss_newton(xy, r, gn.A, gn.cam, half_diag, prior_numbers, bool(robust),
-                                                int(iterations), float(sigma_floor_px), prior_numbers)
-                moved += float(np.max(np.hypot(*(gn.residuals - res_held).T)))
+    options = kernels.PriorFitOptions(bool(robust), int(iterations), float(sigma_floor_px),
+                                      _PRINCIPAL_POINT_MODES[principal_point], model == "evidence",
+                                      bool(drop_outliers))
+    half_diag = float(math.hypot(camera.width, camera.height) / 2.0)
+    gn = kernels.prior_gauss_newton(np.ascontiguousarray(xy, dtype=np.float64),
+                                    np.ascontiguousarray(r_icrs, dtype=np.float64),
+                                    np.ascontiguousarray(A_icrs_to_cam, dtype=np.float64),
+                                    lens.camera_numbers(camera), half_diag, _prior_numbers(prior), options)
     camera = camera.replace(**dict(zip(lens.CAMERA_NUMBERS, gn.cam.tolist(), strict=True)))
-    inv = gn.covariance
-    # Attitude of the frame at the principal point's pixel: a shift (δcx, δcy) of the principal
-    # point (scaled by fx) with no change of that pixel's sky direction is the rotation
-    # (−δcy·fx/fy, δcx, 0) — take the covariance of rotation + that share of the shift.
-    T = np.zeros((3, len(inv)))
-    T[:, :3] = np.eye(3)
-    T[1, kernels.STEP_CX] = 1.0
-    T[0, kernels.STEP_CY] = -camera.fx / camera.fy
-    cov = T @ inv @ T.T
-    return PriorFit(camera, gn.A, gn.residuals, math.sqrt(gn.sigma2), cov, gn.n_effective, gn.chi2, inv,
-                    float(moved), prior.parameters)
+    parameters = prior.parameters
+    fitted = tuple(name for name, free in zip(parameters, gn.fitted.tolist(), strict=True) if free)
+    return PriorFit(camera, gn.A, gn.residuals, math.sqrt(gn.sigma2), gn.attitude_covariance, gn.n_effective,
+                    gn.chi2, gn.covariance, float(gn.moved), parameters, fitted, gn.kept)
+
+
+def _prior_numbers(prior: CameraPrior) -> np.ndarray:
+    """The prior's numbers as the kernel takes them (:data:`skyfix._kernels.camera_fit.PRIOR_NUMBERS`)."""
+    return np.array([getattr(prior, k) for k in kernels.PRIOR_NUMBERS], dtype=np.float64)
 
 
 def frame_at_pixel(A_icrs_to_cam: np.ndarray, camera: Camera, pixel: tuple[float, float]) -> np.ndarray:

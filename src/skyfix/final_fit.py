@@ -23,6 +23,7 @@ import numba
 import numpy as np
 
 from skyfix._kernels import lens, robust, rotation
+from skyfix._kernels.camera_fit import OUTLIER_CHI2
 from skyfix._rematch import CatalogueCone, equidistant_consensus, match_catalogue
 from skyfix._rematch import Matches as _Matches
 from skyfix.attitude import CENTROID_NOISE_FLOOR_PX, attitude_covariance, solve_attitude
@@ -192,8 +193,7 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
     # The common case: identification's simpler model (focal length, k1) already fitted every
     # star; if the full model fits them too and hardly moves any star, re-matching through it
     # would find the same stars.
-    fit = _prior_fit(xy[verified.idx], verified.r, cam0, ident.A_icrs_to_cam, prior)
-    fit, cur = _drop_outliers(xy, fit, verified, prior)
+    fit, cur = _fit_without_outliers(xy, verified, cam0, ident.A_icrs_to_cam, prior)
     if len(verified.idx) - len(cur.idx) > max(2, len(verified.idx) // 20):
         # Many stars off the model: least squares may have bent to the wrong ones; fit robustly.
         fit, cur = _robust_prior_fit(xy, verified, cam0, ident.A_icrs_to_cam, prior)
@@ -366,12 +366,11 @@ def _prior_starts(prior: CameraPrior) -> list[CameraPrior]:
 def _grow_from_start(xy: np.ndarray, verified: _Matches, camera: Camera, A: np.ndarray,
                      start: CameraPrior, rematch: _Rematch):
     """The verified stars fitted with the camera held near ``start`` (aspect, k1), those that
-    miss it dropped (:func:`_drop_outliers`), then grown under the real prior (:func:`_grow`,
+    miss it dropped (:func:`_fit_without_outliers`), then grown under the real prior (:func:`_grow`,
     against the brightest ``rematch.n_use`` centroids): a wrong neighbour that the free fit
     bent the camera to fit misses a held camera near the true one and is dropped."""
     cam = replace(camera, fy=camera.fx * start.aspect, k1=start.k1)
-    fit = fit_camera_with_prior(xy[verified.idx], verified.r, cam, A, start, principal_point="hold")
-    fit, cur = _drop_outliers(xy, fit, verified, start)
+    fit, cur = _fit_without_outliers(xy, verified, cam, A, start, principal_point="hold")
     return _grow(xy[:rematch.n_use], fit, cur, rematch, math.inf)
 
 
@@ -382,14 +381,14 @@ def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> Fin
     A = solve_attitude(b, cur.r, method=method)
     resid = rotation.angles(b, cur.r, np.ascontiguousarray(A))
     return FinalFit(A, fit.camera, cur.idx, cur.ids, cur.r, cur.mag, resid, fit.covariance_rad2,
-                    fit.parameters, log_p, residual_dof=2 * len(cur.idx) - fit.n_effective)
+                    fit.fitted, log_p, residual_dof=2 * len(cur.idx) - fit.n_effective)
 
 
 def _grow(xy: np.ndarray, fit, cur: _Matches, rematch: _Rematch, log_p: float):
-    """Re-match through ``fit`` and refit (least squares and :func:`_drop_outliers`) until the
-    matches stop changing — or repeat the last re-match, the outlier test dropping again what
-    the re-match adds — as long as each re-match is beyond chance with the fitted camera paid
-    for.
+    """Re-match through ``fit`` and refit (least squares, outliers dropped:
+    :func:`_fit_without_outliers`) until the matches stop changing — or repeat the last
+    re-match, the outlier test dropping again what the re-match adds — as long as each re-match
+    is beyond chance with the fitted camera paid for.
     Returns (fit, matches, log P(chance)) of the last accepted step (``log_p`` for the start)."""
     last = None
     for _ in range(6):
@@ -405,14 +404,10 @@ def _grow(xy: np.ndarray, fit, cur: _Matches, rematch: _Rematch, log_p: float):
             break
         last = new
         # Matched within the model's own gates: least squares and the outlier test suffice.
-        fit, cur = _drop_outliers(xy, _prior_fit(xy[new.idx], new.r, fit.camera, fit.A_icrs_to_cam,
-                                                 rematch.prior), new, rematch.prior)
+        fit, cur = _fit_without_outliers(xy, new, fit.camera, fit.A_icrs_to_cam, rematch.prior)
     return fit, cur, log_p
 
 
-# A star whose studentised residual (χ², 2 dof) exceeds this is dropped: P = 3.4e-4 for a star
-# that fits, the tail of a 4σ cut.
-_OUTLIER_CHI2 = 16.0
 # A robust fit needs redundancy: with fewer stars than twice the camera's and attitude's nine
 # numbers, its median σ is too optimistic and drops good stars.
 _ROBUST_MIN_STARS = 18
@@ -422,42 +417,34 @@ def _prior_fit(xy: np.ndarray, r: np.ndarray, camera: Camera, A: np.ndarray, pri
                **options):
     """:func:`~skyfix.calibrate.fit_camera_with_prior` with the principal point moved only where
     the stars pin it down (a distorted or wide field, an off-centre crop) and otherwise held at
-    the image centre with its uncertainty in the covariance."""
+    the image centre with its uncertainty in the covariance, and the other camera numbers fitted
+    where the stars call for them (``model="evidence"``)."""
     return fit_camera_with_prior(xy, r, camera, A, prior, principal_point="auto", **options)
 
 
-def _outlier_limit(dof: float) -> float:
-    """The externally studentised χ² a good star exceeds with probability 3.4e-4 (the tail of
-    :data:`_OUTLIER_CHI2`): twice the F(2, m) quantile, m = dof − 2, in closed form
-    (``P(F > x) = (1 + 2x/m)^(−m/2)``); it tends to :data:`_OUTLIER_CHI2` for many stars."""
-    m = max(dof - 2.0, 1.0)
-    return m * (math.exp(_OUTLIER_CHI2 / m) - 1.0)
+def _fit_without_outliers(xy: np.ndarray, m: _Matches, camera: Camera, A: np.ndarray, prior: CameraPrior,
+                          principal_point: str = "auto"):
+    """:func:`~skyfix.calibrate.fit_camera_with_prior` on the matches ``m``, dropping the star whose
+    studentised residual (its miss against what the other stars predict) is the worst beyond the
+    3.4e-4 tail, one at a time, as the fit goes (``drop_outliers``; three stars always kept):
+    the fit and the matches it kept."""
+    fit = fit_camera_with_prior(xy[m.idx], m.r, camera, A, prior, principal_point=principal_point,
+                                drop_outliers=True)
+    return fit, (m if fit.kept.all() else m.take(fit.kept))
 
 
 def _robust_prior_fit(xy: np.ndarray, m: _Matches, camera: Camera, A: np.ndarray, prior: CameraPrior):
     """:func:`fit_camera_with_prior` on the matches: a robust fit first (a few wrong stars
-    cannot hold the model), the stars it finds beyond :data:`_OUTLIER_CHI2` dropped (at least
-    half and three kept), then least squares and :func:`_drop_outliers`."""
+    cannot hold the model), the stars it finds beyond :data:`~skyfix._kernels.camera_fit.OUTLIER_CHI2`
+    dropped (at least half and three kept), then least squares without the outliers
+    (:func:`_fit_without_outliers`)."""
     if len(m.idx) >= _ROBUST_MIN_STARS:
         fit = _prior_fit(xy[m.idx], m.r, camera, A, prior, robust=True, iterations=20)
-        keep = fit.outlier_chi2 <= _OUTLIER_CHI2
+        keep = fit.outlier_chi2 <= OUTLIER_CHI2
         if keep.sum() >= max(3, len(keep) // 2):
             m = m.take(keep)
         camera, A = fit.camera, fit.A_icrs_to_cam
-    return _drop_outliers(xy, _prior_fit(xy[m.idx], m.r, camera, A, prior), m, prior)
-
-
-def _drop_outliers(xy: np.ndarray, fit, m: _Matches, prior: CameraPrior):
-    """While the worst star's studentised residual (its miss against what the other stars
-    predict, :attr:`~skyfix.calibrate.PriorFit.outlier_chi2`) is beyond :func:`_outlier_limit`,
-    drop it and fit again (three stars are always kept)."""
-    for _ in range(max(len(m.idx) // 2, 1)):
-        worst = int(np.argmax(fit.outlier_chi2))
-        if fit.outlier_chi2[worst] <= _outlier_limit(2 * len(m.idx) - fit.n_effective) or len(m.idx) <= 3:
-            break
-        m = m.take(np.arange(len(m.idx)) != worst)
-        fit = _prior_fit(xy[m.idx], m.r, fit.camera, fit.A_icrs_to_cam, prior)
-    return fit, m
+    return _fit_without_outliers(xy, m, camera, A, prior)
 
 
 @numba.njit(cache=True)

@@ -13,8 +13,8 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["angles", "chord_angle", "det3", "pointing", "proper_rotation", "radec_of_vectors", "rodrigues",
-           "rotation_vector", "spd_inverse", "triad", "vector_radec"]
+__all__ = ["angles", "cholesky", "chord_angle", "det3", "pointing", "proper_rotation", "radec_of_vectors",
+           "rodrigues", "rotation_vector", "spd_inverse", "triad", "vector_radec"]
 
 
 @numba.njit(cache=True, inline="always")
@@ -139,9 +139,9 @@ def rotation_vector(A):
 
 
 @numba.njit(cache=True)
-def spd_inverse(M):
-    """Inverse of a small symmetric positive definite matrix by Cholesky, and whether it was
-    (a pivot ≤ 0 returns False); a tenth of a LAPACK call's overhead at these sizes."""
+def cholesky(M):
+    """The lower triangular ``L`` with ``L Lᵀ = M`` of a small symmetric positive definite
+    matrix, and whether it was (a pivot ≤ 0 returns False)."""
     k = M.shape[0]
     L = np.zeros((k, k))
     for j in range(k):
@@ -156,6 +156,17 @@ def spd_inverse(M):
             for p in range(j):
                 t -= L[i, p] * L[j, p]
             L[i, j] = t / L[j, j]
+    return L, True
+
+
+@numba.njit(cache=True)
+def spd_inverse(M):
+    """Inverse of a small symmetric positive definite matrix by Cholesky (:func:`cholesky`), and
+    whether it was (a pivot ≤ 0 returns False); a tenth of a LAPACK call's overhead at these sizes."""
+    L, ok = cholesky(M)
+    if not ok:
+        return L, False
+    k = M.shape[0]
     Li = np.zeros((k, k))  # L⁻¹, lower triangular
     for j in range(k):
         Li[j, j] = 1.0 / L[j, j]

@@ -60,10 +60,9 @@ The final fit (:func:`skyfix.final_fit.final_fit`), whose rules live beside the 
    attitude is dropped, at least half and three kept — :func:`skyfix.final_fit.inliers`
    (``tests/test_final_fit_kernels.py::test_inliers_drop_outliers_keep_half``).
 9. No camera: while the worst star's externally studentised χ² is beyond
-   ``skyfix.final_fit._outlier_limit`` (a good star's chance 3.4e-4, ``_OUTLIER_CHI2``) it
-   is dropped and the camera refitted (``skyfix.final_fit._drop_outliers``). No test of the
-   default suite pins it: with it disabled, the sunsat, wrong-neighbour, sparse and crop tests
-   of ``tests/test_final_fit.py`` still pass.
+   ``skyfix._kernels.camera_fit.outlier_limit`` (a good star's chance 3.4e-4, ``OUTLIER_CHI2``)
+   it is dropped and the camera refitted (``fit_camera_with_prior(..., drop_outliers=True)``;
+   ``tests/test_final_fit.py::test_outlier_cut_drops_a_star_off_the_fitted_camera_and_only_it``).
 10. No camera: the stars re-matched through the fitted camera must be beyond chance with the
     camera's freedom paid for (*Freedom paid for* above, :func:`chance_log_probability`);
     otherwise the verified stars are kept.
