@@ -4,9 +4,10 @@ outliers out, attitude and its covariance.
 Identification proves *which* stars are in the image; this stage makes the attitude as good
 and its error bar as honest as the stars allow. With a camera given by the user the camera is
 taken as exact and Wahba's problem is solved with the chosen method (QUEST covariance). With
-no camera, every camera number is fitted under a prior
-(:func:`skyfix.calibrate.fit_camera_with_prior`: aspect, k1, k2, principal point held at the
-image centre but free in the covariance), the catalogue is re-matched through the fitted model
+no camera, the camera numbers the stars call for are fitted under a prior, the others held at the
+prior's values but free in the covariance (:func:`skyfix.calibrate.fit_camera_with_prior`: aspect,
+k1, k2, p1, p2 chosen by evidence, the principal point held at the image centre unless the stars
+pin it elsewhere), the catalogue is re-matched through the fitted model
 and the re-matched stars must again be beyond chance, paying for the camera numbers fitted to
 them (:mod:`skyfix.identify.accept`). A field 60° wide or more may be a fisheye's: a
 Kannala–Brandt camera (k1..k4) is fitted and grown too, and the stars choose between the two
@@ -162,7 +163,7 @@ def _matched(xy: np.ndarray, fit, rematch: _Rematch, max_radius_px: float = math
 
 def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, method: str,
                         log_threshold: float, n_img: int) -> FinalFit:
-    """No camera given: fit every camera parameter under its prior
+    """No camera given: fit the camera parameters the stars call for under their prior
     (:func:`skyfix.calibrate.fit_camera_with_prior`), re-match the catalogue through the fitted
     model, and repeat until the matches stop changing (:func:`_grow`). The re-matched stars must
     be beyond chance *after paying for the camera numbers fitted to them*

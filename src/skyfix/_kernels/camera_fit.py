@@ -46,13 +46,13 @@ from skyfix._kernels.lens import (
 )
 from skyfix._kernels.rotation import cholesky, rodrigues, spd_inverse
 
-__all__ = ["ASPECT", "F", "K1_TERM", "K2_TERM", "K3_TERM", "K4_TERM", "KB_PRIOR_CODES", "MODEL_CHANGES",
-           "OUTLIER_CHI2", "PP_AUTO", "PP_CHI2", "PP_FIT", "PP_HOLD", "PRINCIPAL_POINT", "PRIOR_CODES",
-           "PRIOR_NUMBERS", "STEP_CX", "STEP_CY", "TANGENTIAL", "TANGENTIAL_PRIOR_CODES", "GaussNewtonResult",
-           "ModelScores", "PriorFitOptions", "apply_step", "choose_model", "code_size", "frame_covariance",
-           "free_columns", "hold_at_prior", "jacobian_rows", "log_evidence", "normal_equations_at_start",
-           "outlier_limit", "prior_codes", "prior_gauss_newton", "prior_terms", "residuals_for_steps",
-           "score_blocks", "score_models"]
+__all__ = ["ASPECT", "F", "HELD_SHIFT_CHI2", "K1_TERM", "K2_TERM", "K3_TERM", "K4_TERM", "KB_PRIOR_CODES",
+           "MODEL_CHANGES", "OUTLIER_CHI2", "PP_AUTO", "PP_CHI2", "PP_FIT", "PP_HOLD", "PRINCIPAL_POINT",
+           "PRIOR_CODES", "PRIOR_NUMBERS", "STEP_CX", "STEP_CY", "TANGENTIAL", "TANGENTIAL_PRIOR_CODES",
+           "GaussNewtonResult", "ModelScores", "PriorFitOptions", "apply_step", "choose_model", "code_size",
+           "frame_covariance", "frame_step", "free_columns", "held_shift_chi2", "hold_at_prior",
+           "jacobian_rows", "log_evidence", "normal_equations_at_start", "outlier_limit", "prior_codes",
+           "prior_gauss_newton", "prior_terms", "residuals_for_steps", "score_blocks", "score_models"]
 
 # Kernel codes of the camera parameters (skyfix.calibrate.CAMERA_PARAMETERS names them).
 # The radial terms are consecutive: k_j's code is K1_TERM + j − 1.
@@ -87,6 +87,9 @@ OUTLIER_CHI2 = 16.0
 # The model choice by evidence may change the camera numbers fitted this many times in one fit
 # (each change refits from the last; a fourth choice would be a cycle).
 MODEL_CHANGES = 3
+# Numbers held at the prior's values that move the attitude beyond this χ² of their noise
+# (held_shift_chi2; 3 dof: 1e-3 by chance) are all freed.
+HELD_SHIFT_CHI2 = 16.3
 
 
 
@@ -657,19 +660,30 @@ def _model_step(JtJ, g, sigma2, lam, dev, cols):
 def choose_model(JtJ, g, rr, sigma2, lam, dev, codes, free):
     """Which of the parameters ``codes`` to fit (bool, one per code): of every model that frees
     ``f``, the principal point as ``free`` has it, and any subset of the others, the one of
-    largest :func:`log_evidence` (the simpler on a tie: subsets in order of their bit mask)."""
+    largest :func:`log_evidence` (the simpler on a tie: subsets in order of their bit mask). With
+    the principal point free, decentring (p1, p2) is fitted with it: the two trade, and a lens's
+    decentring held at 0 goes into the principal point and the boresight (thesis 003's MT9P031
+    lens: cy 974.0–974.5 against 975.7, the boresight 2–3σ off)."""
     optional = np.empty(codes.shape[0], dtype=np.int64)
     n_opt = 0
+    pp_free = False
     for k in range(codes.shape[0]):
-        if codes[k] != F and codes[k] != PRINCIPAL_POINT:
+        if codes[k] == PRINCIPAL_POINT:
+            pp_free = free[k]
+        elif codes[k] != F:
             optional[n_opt] = k
             n_opt += 1
     best = free.copy()
     best_z = -math.inf
     trial = free.copy()
     for mask in range(1 << n_opt):
+        decentring = True
         for o in range(n_opt):
             trial[optional[o]] = (mask >> o) & 1 == 1
+            if codes[optional[o]] == TANGENTIAL:
+                decentring = trial[optional[o]]
+        if pp_free and not decentring:
+            continue
         z = log_evidence(JtJ, g, rr, sigma2, lam, dev, free_columns(codes, trial))
         if z > best_z:
             best_z = z
@@ -833,19 +847,19 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options):
         JtJ, g = _normal_equations(J, res, w)
         lam, dev = prior_terms(cam, rmax, prior, codes)
         inv, n_eff_all, step = _posterior(JtJ, g, sigma2, lam, dev)
+        cols = free_columns(codes, free)
+        if cols.shape[0] == lam.shape[0]:
+            inv_f, n_eff = inv, n_eff_all
+        else:  # the model fitted's own posterior, for its hat matrix and the error bar's bias term
+            k = cols.shape[0]
+            sub = np.empty((k, k))
+            sub_lam = np.empty(k)
+            for a in range(k):
+                sub_lam[a] = lam[cols[a]]
+                for b in range(k):
+                    sub[a, b] = JtJ[cols[a], cols[b]]
+            inv_f, n_eff, _ = _posterior(sub, np.zeros(k), sigma2, sub_lam, np.zeros(k))
         if not checked:  # (else the converged step's are the model's: it moved no star by 2e-3 px)
-            cols = free_columns(codes, free)
-            if cols.shape[0] == lam.shape[0]:
-                inv_f, n_eff = inv, n_eff_all
-            else:  # the model fitted's own posterior, for its hat matrix
-                k = cols.shape[0]
-                sub = np.empty((k, k))
-                sub_lam = np.empty(k)
-                for a in range(k):
-                    sub_lam[a] = lam[cols[a]]
-                    for b in range(k):
-                        sub[a, b] = JtJ[cols[a], cols[b]]
-                inv_f, n_eff, _ = _posterior(sub, np.zeros(k), sigma2, sub_lam, np.zeros(k))
             chi2 = _studentised(J, res, inv_f, cols, w, sigma2, n_eff, options.robust, options.sigma_floor)
             if options.drop_outliers and drops < max_drops and xs.shape[0] > 3:
                 worst = int(np.argmax(chi2))
@@ -865,6 +879,8 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options):
             pinned = 3.0 * math.sqrt(max(c00, c11)) * cam[FX] < prior[SIGMA_PP]
             if pinned and chi2_move > PP_CHI2:
                 free[pp] = True
+                for k in range(n_codes):  # decentring with it (choose_model)
+                    free[k] = free[k] or codes[k] == TANGENTIAL
                 continue
         if select and changes < MODEL_CHANGES:
             best = _chosen(JtJ, g, res, step, n_eff_all, lam, dev, codes, free, options.sigma_floor)
@@ -875,6 +891,15 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options):
                 free = best
                 changes += 1
                 continue
+        if select and cols.shape[0] < lam.shape[0]:
+            # The attitude is what the fit is for: where the numbers held at the prior's values move
+            # it beyond their noise (HELD_SHIFT_CHI2), the stars see them (as the principal point
+            # would take a lens's decentring): every one is freed (the principal point as it is).
+            if held_shift_chi2(inv, inv_f, cols, step, cam[FX] / cam[FY]) > HELD_SHIFT_CHI2:
+                for k in range(n_codes):
+                    free[k] = free[k] or codes[k] != PRINCIPAL_POINT
+                select = False
+                continue
         break
     moved_px = 0.0
     for i in range(res.shape[0]):
@@ -883,6 +908,17 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options):
     kept[index] = True
     return GaussNewtonResult(A, cam, sigma2, inv, frame_covariance(inv, cam[FX] / cam[FY]), n_eff_all, res,
                              chi2, step, moved_px, kept, free)
+
+
+@numba.njit(cache=True)
+def frame_step(step, fx_over_fy):
+    """The rotation (3,) of the frame at the principal point's pixel that a prior fit's ``step``
+    (P,) makes (:func:`frame_covariance`'s ``T step``)."""
+    out = np.empty(3)
+    out[0] = step[0] - fx_over_fy * step[STEP_CY]
+    out[1] = step[1] + step[STEP_CX]
+    out[2] = step[2]
+    return out
 
 
 @numba.njit(cache=True)
@@ -897,4 +933,28 @@ def frame_covariance(inv, fx_over_fy):
         T[k, k] = 1.0
     T[1, STEP_CX] = 1.0
     T[0, STEP_CY] = -fx_over_fy
-    return T @ inv @ T.T
+    return T @ np.ascontiguousarray(inv) @ T.T
+
+
+@numba.njit(cache=True)
+def held_shift_chi2(inv, inv_f, cols, step, fx_over_fy):
+    """How far, in its own noise, holding camera numbers at the prior's values moves the attitude
+    at the principal point's pixel: ``δᵀ D⁺ δ``, δ the frame's rotation to the mean of the
+    posterior ``inv`` with every number free (:func:`frame_step`), ``D = C_all − C_fitted`` the
+    covariance that rotation has where the held numbers are the truth (C the attitude covariances
+    of ``inv`` and of the fitted model's posterior ``inv_f`` on the step columns ``cols``): a χ²
+    with as many degrees of freedom as ``D``'s rank where the held numbers are the truth, large
+    where the stars see them away from the prior's and the attitude follows."""
+    fitted_inv = np.zeros_like(inv)
+    for a in range(cols.shape[0]):
+        for b in range(cols.shape[0]):
+            fitted_inv[cols[a], cols[b]] = inv_f[a, b]
+    D = frame_covariance(inv, fx_over_fy) - frame_covariance(fitted_inv, fx_over_fy)
+    vals, vecs = np.linalg.eigh(0.5 * (D + D.T))
+    delta = frame_step(step, fx_over_fy)
+    chi2 = 0.0
+    for k in range(3):
+        if vals[k] > 1e-9 * vals[2]:
+            t = vecs[0, k] * delta[0] + vecs[1, k] * delta[1] + vecs[2, k] * delta[2]
+            chi2 += t * t / vals[k]
+    return chi2
