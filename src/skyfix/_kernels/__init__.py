@@ -33,7 +33,7 @@ import os
 import re
 from pathlib import Path
 
-__all__ = ["drop_stale_kernel_caches"]
+__all__ = ["drop_stale_kernel_caches", "kernel_cache_folder", "source_digest"]
 
 _PACKAGE = Path(__file__).resolve().parent.parent
 _STAMP = "skyfix_kernels.json"
@@ -43,6 +43,30 @@ _NAMED_TUPLE = re.compile(rb"\(\s*(typing\.)?NamedTuple\s*\)")
 
 def _sources(package: Path) -> list[Path]:
     return sorted(p for p in package.rglob("*.py") if "__pycache__" not in p.parts)
+
+
+_SOURCE_STATS: dict[Path, str] = {}  # the stat line of each package, as first seen by this process
+
+
+def source_digest(package: Path = _PACKAGE) -> str:
+    """A digest of the package's sources as they are now (each file's name, size and
+    modification time: what :func:`drop_stale_kernel_caches` compares), taken once per process;
+    it changes when any source file does (:mod:`skyfix.warmup` keys its stamp on it)."""
+    stats = _SOURCE_STATS.get(package)
+    if stats is None:
+        stats = _SOURCE_STATS[package] = _stat_line(package, _sources(package))
+    return hashlib.sha256(stats.encode()).hexdigest()[:32]
+
+
+def kernel_cache_folder(package: Path = _PACKAGE) -> Path | None:
+    """The folder beside the package's sources where its kernel-cache stamps live (and numba's
+    cache, for a writable install); None for a read-only install."""
+    folder = package / "__pycache__"
+    try:
+        folder.mkdir(exist_ok=True)
+    except OSError:
+        return None
+    return folder if os.access(folder, os.W_OK) else None
 
 
 def _stat_line(package: Path, paths: list[Path]) -> str:
@@ -156,7 +180,7 @@ def drop_stale_kernel_caches(package: Path = _PACKAGE) -> bool:
     cache = package / "__pycache__"
     stamp = cache / _STAMP
     try:
-        stats = _stat_line(package, _sources(package))
+        stats = _SOURCE_STATS[package] = _stat_line(package, _sources(package))
         try:
             old = json.loads(stamp.read_text())
             old_digests, old_stats = dict(old["digests"]), str(old["stats"])

@@ -45,7 +45,7 @@ from numba import njit
 
 from skyfix.detect._grid import sky_grid
 from skyfix.detect._stats import argsort_descending
-from skyfix.detect.background import Background, estimate_background
+from skyfix.detect.background import Background, estimate_background, frame_f32
 from skyfix.detect.centroids import Centroids
 from skyfix.detect.deblend import DeblendRule, deblend
 from skyfix.detect.labelling import (
@@ -124,9 +124,7 @@ def extract_components(
 
 def run(image: np.ndarray, s: Options) -> Centroids:
     """:func:`extract_components` with its keywords as :class:`Options` (the registry's form)."""
-    img = np.asarray(image)
-    if not (img.dtype in (np.uint8, np.uint16) and img.flags.c_contiguous):
-        img = np.ascontiguousarray(img, dtype=np.float32)
+    img = frame_f32(image)
     c = _one_pass(img, s, check_finite=True)
     if c is None:  # NaN/Inf pixels (or an overflowing sum): replace them, then once more
         try:
@@ -158,9 +156,7 @@ def _one_pass(img: np.ndarray, s: Options, check_finite: bool) -> Centroids | No
     thr_grid = bg.level_smooth + np.maximum(s.sigma * bg.noise_smooth, floor)
     ws = _workspace(h, w)
     frames = ws.frames
-    is_float = img.dtype == np.float32
-    total, vmax = smooth_threshold(img, img.view(np.int32) if is_float else img, is_float, thr_grid, sky,
-                                   frames)
+    total, vmax = smooth_threshold(img, img.view(np.int32), thr_grid, sky, frames)
     if check_finite and not math.isfinite(total):
         return None
     saturation = full_scale(float(vmax)) if s.saturation is None else s.saturation

@@ -47,8 +47,7 @@ class Method(NamedTuple):
 
     #: ``extract(frame, options) -> Centroids``, ``options`` the :class:`Options`
     extract: Callable[[np.ndarray, Options], Centroids]
-    #: takes frames with non-finite pixels (it finds them itself) and 8/16-bit frames as they
-    #: are; the others get a finite float32 frame
+    #: takes frames with non-finite pixels (it finds them itself); the others get them replaced
     raw_frames: bool = False
 
 
@@ -181,14 +180,9 @@ def extract_centroids(
     max_stars = check_count(max_stars, "max_stars")
     detector = METHODS[method]
     try:
-        raw = np.asarray(image)
-        if detector.raw_frames and centroid == "com" and raw.ndim == 2 and raw.size and raw.dtype in (
-                np.uint8, np.uint16):
-            # 8/16-bit frames go to the kernels as they are (no float32 copy; same numbers)
-            img = np.ascontiguousarray(raw)
-        else:
-            # a method that finds non-finite pixels itself (while smoothing) saves a pass
-            img = as_image(image, name="image", replace_nonfinite=not detector.raw_frames)
+        # float32 for every kernel (detect.background.frame_f32); a method that finds non-finite
+        # pixels itself (while smoothing) saves a pass
+        img = as_image(image, name="image", replace_nonfinite=not detector.raw_frames)
     except ImageReadError:
         return Centroids.empty((0, 0) if np.ndim(image) != 2 else np.shape(image), reason="unusable")
     h, w = img.shape

@@ -66,14 +66,14 @@ CANDIDATE = np.dtype([("id", np.int32), ("y0", np.int64), ("y1", np.int64), ("x0
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
-def smooth_threshold(img, bits, float_bits, thr_grid, sky, frames):
+def smooth_threshold(img, bits, thr_grid, sky, frames):
     """One pass: the frame smoothed into ``frames.smooth``, above threshold into ``frames.mask``.
 
     The smoothing is :func:`~skyfix.detect.background.smooth3`'s; ``frames.blocks`` flags the
     64-pixel blocks of each mask row that hold a set pixel (the labelling skips the others).
 
-    ``bits`` is a float32 ``img`` viewed as int32 (``float_bits``), or an unsigned integer
-    ``img`` itself (its values are their own order). ``thr_grid`` is the threshold on the tile
+    ``img`` is float32 (:func:`~skyfix.detect.background.frame_f32`) and ``bits`` the same
+    pixels viewed as int32 (for the maximum). ``thr_grid`` is the threshold on the tile
     grid of ``sky`` (a :class:`~skyfix.detect._grid.SkyGrid`), interpolated bilinearly (raised
     on the border, :func:`_threshold_at`).
     Returns the sum of the raw frame (non-finite if any pixel is) and its maximum.
@@ -120,8 +120,6 @@ def smooth_threshold(img, bits, float_bits, thr_grid, sky, frames):
             for wi in range(8 * c, 8 * c + 8):
                 any_set |= words[wi]
             blocks[y, c] = any_set != 0
-    if not float_bits:
-        return total, float(top)
     top ^= (top >> 31) & np.int32(0x7FFFFFFF)
     return total, float(np.array([top], np.int32).view(np.float32)[0])
 
