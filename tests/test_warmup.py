@@ -127,3 +127,60 @@ assert warmup.warm(["solve"]) == {{}}
     assert lines[0].startswith("skyfix: first use: compiling the kernels of star extraction")
     assert "doing something else (once; about" in lines[0]
     assert lines[-1].startswith("skyfix: compiled in ")
+
+
+def test_needs_compile_first_and_are_part_of_the_path():
+    assert warmup._with_needs(["track", "hint"]) == ["extract", "identify", "final-fit", "track", "hint"]
+    for job in warmup.JOBS.values():
+        assert all(n in warmup.JOBS for n in job.needs)
+        assert callable(getattr(_warm_jobs, job.name.replace("-", "_")))
+    # the tracker waits for the solve's jobs: it starts when the longest of them is done
+    solve = warmup._with_needs(warmup.PATHS["solve"])
+    longest = max(warmup.JOBS[j].cpu_s for j in solve) + 1.0
+    track = warmup.JOBS["track"].cpu_s + 1.0
+    assert warmup.estimate_s(warmup._with_needs(["track"]), 8) == pytest.approx(longest + track)
+
+
+# What a first use of each path does, to check that its warm-up job compiled what that use needs.
+_USES = {
+    "hint": "skyfix.solve(SKY, camera=CAM, attitude_hint=HINT)",
+    "centroiders": "[extract_centroids(IMG, centroid=c) for c in ('iwcog', 'gaussian')]",
+    "method-triangle": "skyfix.solve(SKY, fov_deg=FOV, identify_method='triangle')",
+    "detector-region_grow": "extract_centroids(IMG, method='region_grow')",
+}
+_SLOW_USES = {
+    **{f"method-{m}": f"skyfix.solve(SKY, fov_deg=FOV, identify_method='{m}')"
+       for m in ("liebe", "planar", "area-moment", "pyramid", "grid", "voting", "van-bezooijen")},
+    "detector-threshold_hillclimb": "extract_centroids(IMG, method='threshold_hillclimb')",
+    "detector-regionprops": "extract_centroids(IMG, method='regionprops')",
+}
+
+
+@pytest.mark.parametrize("path", [*_USES, *(pytest.param(p, marks=pytest.mark.slow) for p in _SLOW_USES)])
+def test_a_path_s_jobs_compile_what_its_first_use_needs(path):
+    # In a fresh process (nothing compiled in it yet): the path's jobs, then a real use of the
+    # feature; the use must add no kernel signature the jobs did not (or its first use compiles).
+    use = {**_USES, **_SLOW_USES}[path]
+    code = f"""
+import sys
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+from test_warmup import _kernel_signatures, SKY
+import skyfix
+from skyfix import _warm_jobs, warmup
+from skyfix.detect import extract_centroids
+from skyfix.io import read_image
+for job in warmup._with_needs(warmup.PATHS["solve"] + warmup.PATHS[{path!r}]):
+    getattr(_warm_jobs, job.replace("-", "_"))()
+IMG = read_image(SKY)
+sol = skyfix.solve(SKY)  # a solve's kernels are warm before any other path's first use
+CAM, FOV, HINT = sol.camera, sol.fov_deg, sol.A_icrs_to_cam
+before = _kernel_signatures()
+{use}
+after = _kernel_signatures()
+new = {{k: sorted(v - before.get(k, set())) for k, v in after.items() if v - before.get(k, set())}}
+print("NEW", new)
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=1800,
+                         env={**os.environ, "PYTHONPATH": str(ROOT / "src"), "SKYFIX_WARMUP": "0"})
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "NEW {}", out.stdout[-3000:]

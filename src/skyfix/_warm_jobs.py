@@ -16,7 +16,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Scene", "database", "extract", "final_fit", "identify", "scene"]
+__all__ = ["Scene", "centroiders", "database", "extract", "final_fit", "hint", "identify", "scene",
+           "simulate", "track"]
 
 
 class Scene(NamedTuple):
@@ -126,3 +127,116 @@ def final_fit() -> None:
     r = cat.vectors[s.rows]
     for method in METHODS:
         attitude_covariance(solve_attitude(b, r, method=method), b, 1e-5)
+
+
+def hint() -> None:
+    """A solve near an attitude hint (:func:`skyfix.identify.hint.identify_near`), camera given."""
+    from skyfix.pipeline import solve_centroids
+
+    s = scene()
+    solve_centroids(s.xy, s.camera.width, s.camera.height, camera=s.camera, attitude_hint=s.A_icrs_to_cam,
+                    database=database())
+
+
+def centroiders() -> None:
+    """The windowed centroiders (``iwcog``, ``gaussian``) after an extraction."""
+    from skyfix.detect import CENTROIDERS, extract_centroids
+
+    for name in CENTROIDERS:
+        if name != "com":
+            extract_centroids(scene().frame, centroid=name, max_stars=50)
+
+
+def _detector(name: str) -> None:
+    from skyfix.detect import extract_centroids
+
+    extract_centroids(scene().frame, method=name, max_stars=50)
+
+
+def detector_threshold_hillclimb() -> None:
+    """Thesis 000's detector."""
+    _detector("threshold_hillclimb")
+
+
+def detector_region_grow() -> None:
+    """Thesis 004's detector."""
+    _detector("region_grow")
+
+
+def detector_regionprops() -> None:
+    """Thesis 003's detector."""
+    _detector("regionprops")
+
+
+def _method(name: str) -> None:
+    """Identification method ``name`` with a FOV and with a camera (sparse frames: the brightest 6
+    stars, which some methods judge by rules of their own)."""
+    from skyfix.identify import identify
+
+    s = scene()
+    w, h = s.camera.width, s.camera.height
+    for xy in (s.xy, s.xy[:6]):
+        identify(xy, w, h, method=name, fov_deg=s.camera.fov_deg, database=database())
+        identify(xy, w, h, method=name, camera=s.camera, database=database())
+
+
+def method_triangle() -> None:
+    _method("triangle")
+
+
+def method_liebe() -> None:
+    _method("liebe")
+
+
+def method_planar() -> None:
+    _method("planar")
+
+
+def method_area_moment() -> None:
+    _method("area-moment")
+
+
+def method_pyramid() -> None:
+    _method("pyramid")
+
+
+def method_grid() -> None:
+    _method("grid")
+
+
+def method_voting() -> None:
+    _method("voting")
+
+
+def method_van_bezooijen() -> None:
+    _method("van-bezooijen")
+
+
+def track() -> None:
+    """The tracker over a few frames turning at 0.5°/s: lost in space, acquiring, tracking."""
+    from scipy.spatial.transform import Rotation
+
+    from skyfix.track import Tracker
+
+    s = scene()
+    tracker = Tracker(s.camera, database=database())
+    rng = np.random.default_rng(5)
+    axis = np.array([0.3, -0.2, 0.93])
+    axis /= np.linalg.norm(axis)
+    for k in range(6):
+        t = 0.1 * k
+        A = Rotation.from_rotvec(axis * math.radians(0.5) * t).as_matrix() @ s.A_icrs_to_cam
+        xy, front = s.camera.ray_to_pixel(s.catalog.vectors @ A.T)
+        inside = front & (xy[:, 0] > 2) & (xy[:, 0] < 637) & (xy[:, 1] > 2) & (xy[:, 1] < 477)
+        rows = np.flatnonzero(inside)
+        tracker.update(_render(xy[rows], s.catalog.mag[rows], s.camera.height, s.camera.width, rng), t)
+
+
+def simulate() -> None:
+    """The simulator: a frame at rest and one turning (smear, rolling shutter), of the scene's stars."""
+    from skyfix.simulate import render
+
+    s = scene()
+    for rate in (None, (0.002, -0.001, 0.003)):
+        render(s.A_icrs_to_cam, "generic", exposure_s=0.1, epoch=2026.0, seed=1, catalog=s.catalog,
+               rate_rad_s=rate)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import selectors
 import subprocess
@@ -49,6 +50,7 @@ class Job(NamedTuple):
     name: str
     what: str  #: what it compiles, for the notice ("the extraction")
     cpu_s: float  #: CPU seconds to compile, measured on a 2-core 2026 x86 machine (a guide for the ETA)
+    needs: tuple[str, ...] = ()  #: jobs whose kernels this one's stage also runs: they compile first
 
 
 #: Every job by name (:mod:`skyfix._warm_jobs` defines a function of each name, ``-`` as ``_``).
@@ -56,11 +58,34 @@ JOBS: dict[str, Job] = {job.name: job for job in (
     Job("extract", "star extraction", 38.0),
     Job("identify", "lost-in-space identification", 42.0),
     Job("final-fit", "the final fit", 16.0),
+    Job("hint", "identification near an attitude hint", 30.0, ("final-fit",)),
+    Job("centroiders", "the windowed centroiders", 20.0),
+    Job("detector-threshold_hillclimb", "the threshold_hillclimb detector", 5.0),
+    Job("detector-region_grow", "the region_grow detector", 5.0),
+    Job("detector-regionprops", "the regionprops detector", 5.0),
+    Job("method-triangle", "the triangle method", 10.0),
+    Job("method-liebe", "the liebe method", 20.0),
+    Job("method-planar", "the planar method", 8.0),
+    Job("method-area-moment", "the area-moment method", 5.0),
+    Job("method-pyramid", "the pyramid method", 18.0),
+    Job("method-grid", "the grid method", 14.0),
+    Job("method-voting", "the voting method", 6.0),
+    Job("method-van-bezooijen", "the van-bezooijen method", 14.0),
+    Job("track", "the tracker", 85.0, ("extract", "identify", "final-fit")),
+    Job("simulate", "the simulator", 20.0),
 )}
 
-#: Paths by name: the jobs whose kernels one use of skyfix needs.
+#: Paths by name: the jobs whose kernels one use of skyfix needs. ``solve`` is the default solve;
+#: the others are what a first use of a feature adds to it.
 PATHS: dict[str, tuple[str, ...]] = {
     "solve": ("extract", "identify", "final-fit"),
+    "hint": ("hint",),
+    "centroiders": ("centroiders",),
+    **{f"detector-{d}": (f"detector-{d}",) for d in ("threshold_hillclimb", "region_grow", "regionprops")},
+    **{f"method-{m}": (f"method-{m}",) for m in ("triangle", "liebe", "planar", "area-moment", "pyramid",
+                                                   "grid", "voting", "van-bezooijen")},
+    "track": ("track",),
+    "simulate": ("simulate",),
 }
 
 _ENV = "SKYFIX_WARMUP"
@@ -76,23 +101,57 @@ def is_warm(path: str) -> bool:
         return True
     stamp = _read_stamp()
     done = stamp.get("jobs", {}) if stamp.get("key") == _stamp_key() else {}
-    if all(done.get(job) for job in PATHS[path]):
+    if all(done.get(job) for job in _with_needs(PATHS[path])):
         _warm_here.add(path)
         return True
     return False
 
 
 def estimate_s(jobs: Sequence[str], workers: int) -> float:
-    """Wall seconds to compile ``jobs`` on ``workers`` cores: the longest-first schedule of their
-    measured CPU seconds (:attr:`Job.cpu_s`), plus a second to start each worker."""
-    loads = [0.0] * max(workers, 1)
-    for cost in sorted((JOBS[j].cpu_s for j in jobs), reverse=True):
-        i = loads.index(min(loads))
-        loads[i] += cost + 1.0
-    return max(loads) if jobs else 0.0
+    """Wall seconds to compile ``jobs`` on ``workers`` cores: their measured CPU seconds
+    (:attr:`Job.cpu_s`) plus a second to start each worker, scheduled as :func:`_next_job`
+    picks them (longest first among those whose needs are compiled)."""
+    todo = list(jobs)
+    free = [0.0] * max(workers, 1)  # when each worker is next free
+    finish: dict[str, float] = {}
+    while todo:
+        i = free.index(min(free))
+        now = free[i]
+        job = _next_job(todo, lambda j, now=now: finish.get(j, math.inf) <= now or j not in jobs)
+        if job is None:  # wait for the running job a need is waiting on
+            free[i] = min((t for t in finish.values() if t > now), default=now + 1.0)
+            continue
+        todo.remove(job)
+        free[i] += JOBS[job].cpu_s + 1.0
+        finish[job] = free[i]
+    return max(finish.values(), default=0.0)
 
 
-def ensure(path: str, *, alongside: Callable[[], object] | None = None, also: str = "") -> None:
+def _next_job(todo: Sequence[str], ready: Callable[[str], bool]) -> str | None:
+    """Of the jobs ``todo``, the costliest whose needs are all ``ready`` (None: none is)."""
+    for job in sorted(todo, key=lambda j: -JOBS[j].cpu_s):
+        if all(ready(n) for n in JOBS[job].needs):
+            return job
+    return None
+
+
+def _with_needs(jobs: Iterable[str]) -> list[str]:
+    """``jobs`` and, before them, the jobs they need (transitively), each once."""
+    out: list[str] = []
+
+    def add(job: str) -> None:
+        if job not in out:
+            for need in JOBS[job].needs:
+                add(need)
+            out.append(job)
+
+    for job in jobs:
+        add(job)
+    return out
+
+
+def ensure(path: str, *, alongside: Callable[[], object] | None = None, also: str = "",
+           missing_ok: bool = False) -> None:
     """Make sure the kernels of ``path`` (:data:`PATHS`) are compiled before they are needed.
 
     A warm path returns at once. Otherwise its jobs compile in worker processes, with a notice
@@ -100,9 +159,14 @@ def ensure(path: str, *, alongside: Callable[[], object] | None = None, also: st
     pattern database's first build, say; ``also`` says what it does, for the notice: "building
     the pattern database"). With ``SKYFIX_WARMUP=0``, inside a worker, or when workers cannot be
     started, nothing is compiled up front (the kernels compile in this process on first use) and
-    ``alongside`` still runs.
+    ``alongside`` still runs. A path of no name in :data:`PATHS` is an error, or with
+    ``missing_ok`` nothing to do (a method registered by a user has no warm-up of its own).
     """
     if path not in PATHS:
+        if missing_ok:
+            if alongside is not None:
+                alongside()
+            return
         raise KeyError(f"unknown warm-up path {path!r}; known: {', '.join(PATHS)}")
     if is_warm(path) or not _enabled():
         if alongside is not None:
@@ -127,10 +191,8 @@ def warm(paths: Iterable[str] | None = None, *, workers: int | None = None,
     for p in names:
         if p not in PATHS:
             raise KeyError(f"unknown warm-up path {p!r}; known: {', '.join(PATHS)}")
-    jobs: list[str] = []
-    for p in names:
-        if not is_warm(p):
-            jobs.extend(j for j in PATHS[p] if j not in jobs)
+    done = _done_jobs()
+    jobs = [j for j in _with_needs(j for p in names if not is_warm(p) for j in PATHS[p]) if not done.get(j)]
     if not jobs:
         if alongside is not None:
             alongside()
@@ -163,7 +225,8 @@ class _Runner:
     """Runs jobs in worker processes, ``n`` at once, longest first, and shows their progress."""
 
     def __init__(self, jobs: list[str], n: int, title: str, console) -> None:
-        self.todo = sorted(jobs, key=lambda j: -JOBS[j].cpu_s)
+        self.todo = list(jobs)
+        self.finished: set[str] = set()  # succeeded or failed: the jobs that need them may start
         self.n = max(1, min(n, len(jobs)))
         self.title = title
         self.console = console
@@ -198,10 +261,14 @@ class _Runner:
         running: dict[int, tuple[str, subprocess.Popen]] = {}
         while self.todo or running:
             while self.todo and len(running) < self.n:
-                job = self.todo.pop(0)
+                job = _next_job(self.todo, lambda j: j in self.finished or j not in self.cpu)
+                if job is None:
+                    break  # the rest wait for what they need
+                self.todo.remove(job)
                 proc = _start_worker(job)
                 if proc is None:
                     self.failed[job] = "could not start a worker process"
+                    self.finished.add(job)
                     continue
                 running[proc.stdout.fileno()] = (job, proc)
                 sel.register(proc.stdout, selectors.EVENT_READ)
@@ -221,6 +288,7 @@ class _Runner:
                 proc.stderr.close()
                 if proc.wait() != 0 and job not in self.failed:
                     self.failed[job] = err.splitlines()[-1] if err else f"exit status {proc.returncode}"
+                self.finished.add(job)
                 display.update(self._fraction())
         sel.close()
 

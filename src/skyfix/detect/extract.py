@@ -179,6 +179,13 @@ def extract_centroids(
     sigma = check_positive(sigma, "sigma")
     max_stars = check_count(max_stars, "max_stars")
     detector = METHODS[method]
+    if method != "components" or centroid != "com":  # their kernels, compiled up front (skyfix.warmup)
+        from skyfix import warmup
+
+        if method != "components":
+            warmup.ensure(f"detector-{method}", missing_ok=True)
+        if centroid != "com":
+            warmup.ensure("centroiders")
     try:
         # float32 for every kernel (detect.background.frame_f32); a method that finds non-finite
         # pixels itself (while smoothing) saves a pass

@@ -136,5 +136,10 @@ def identify(xy: np.ndarray, width: int, height: int, *, method: str = DEFAULT_M
     skyfix.errors.InputError
         An unknown method.
     """
-    return get_method(method)(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
-                              camera=camera, database=database, epoch=epoch, **options)
+    found = get_method(method)
+    if found is not METHODS[DEFAULT_METHOD]:
+        from skyfix import warmup
+
+        warmup.ensure(f"method-{method.lower()}", missing_ok=True)  # its kernels, compiled up front
+    return found(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg, camera=camera,
+                 database=database, epoch=epoch, **options)
