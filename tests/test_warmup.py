@@ -143,6 +143,7 @@ def test_needs_compile_first_and_are_part_of_the_path():
 
 # What a first use of each path does, to check that its warm-up job compiled what that use needs.
 _USES = {
+    "attitude": "[skyfix.solve(SKY, attitude_method=m) for m in ('quest', 'esoq2', 'q-method', 'triad')]",
     "hint": "skyfix.solve(SKY, camera=CAM, attitude_hint=HINT)",
     "centroiders": "[extract_centroids(IMG, centroid=c) for c in ('iwcog', 'gaussian')]",
     "method-triangle": "skyfix.solve(SKY, fov_deg=FOV, identify_method='triangle')",

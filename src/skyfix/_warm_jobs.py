@@ -16,8 +16,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Scene", "centroiders", "database", "extract", "final_fit", "hint", "identify", "scene",
-           "simulate", "track"]
+__all__ = ["Scene", "attitude", "centroiders", "database", "extract", "final_fit", "hint", "identify",
+           "scene", "simulate", "track"]
 
 
 class Scene(NamedTuple):
@@ -101,9 +101,8 @@ def identify() -> None:
 
 
 def final_fit() -> None:
-    """The final fit of an identification, with the camera fitted and given, each attitude
-    solver, and the Solution's numbers."""
-    from skyfix.attitude import METHODS, attitude_covariance, solve_attitude
+    """The final fit of an identification, with the camera fitted and given, the default attitude
+    solver (SVD), and the Solution's numbers."""
     from skyfix.final_fit import final_fit as fit
     from skyfix.identify.accept import chance_log_probability
     from skyfix.identify.result import Identification
@@ -123,8 +122,15 @@ def final_fit() -> None:
                          result.catalog_mag, result.residuals_rad)
     n = len(s.rows)
     chance_log_probability(n, 2 * n, n, 3.0, 640.0 * 480.0, 2.0)  # a re-match's test
+
+
+def attitude() -> None:
+    """The attitude solvers but the default (``quest``, ``esoq2``, ``q-method``, ``triad``)."""
+    from skyfix.attitude import METHODS, attitude_covariance, solve_attitude
+
+    s = scene()
     b = s.camera.pixel_to_ray(s.xy)
-    r = cat.vectors[s.rows]
+    r = s.catalog.vectors[s.rows]
     for method in METHODS:
         attitude_covariance(solve_attitude(b, r, method=method), b, 1e-5)
 

@@ -58,6 +58,7 @@ JOBS: dict[str, Job] = {job.name: job for job in (
     Job("extract", "star extraction", 38.0),
     Job("identify", "lost-in-space identification", 42.0),
     Job("final-fit", "the final fit", 16.0),
+    Job("attitude", "the attitude solvers", 8.0),
     Job("hint", "identification near an attitude hint", 30.0, ("final-fit",)),
     Job("centroiders", "the windowed centroiders", 20.0),
     Job("detector-threshold_hillclimb", "the threshold_hillclimb detector", 5.0),
@@ -79,6 +80,7 @@ JOBS: dict[str, Job] = {job.name: job for job in (
 #: the others are what a first use of a feature adds to it.
 PATHS: dict[str, tuple[str, ...]] = {
     "solve": ("extract", "identify", "final-fit"),
+    "attitude": ("attitude",),
     "hint": ("hint",),
     "centroiders": ("centroiders",),
     **{f"detector-{d}": (f"detector-{d}",) for d in ("threshold_hillclimb", "region_grow", "regionprops")},
