@@ -2,7 +2,9 @@
 
 Every tool sees the same centroid sets, interleaved set by set so that the load of a shared
 machine falls on all tools alike. Every tool is told the FOV (15°, no bound on its error);
-skyfix is also run without a FOV (row ``skyfix (no FOV)``) when ``nofov`` is set.
+skyfix is also run without a FOV (row ``skyfix (no FOV)``) when ``nofov`` is set. With
+``--against REF`` the two sides are two skyfix workers, given the same sets in alternating
+batches.
 Reports solved %, wrong attitudes (boresight > 60″ or roll > 0.5°), median and p99 of the
 wall time of the centroids → attitude call, and the ratios skyfix / peer.
 """
@@ -11,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from common import boresight_error_arcsec, is_wrong, median, pct, ratio, roll_error_deg
+from common import boresight_error_arcsec, call_many, is_wrong, median, pct, ratio, roll_error_deg
 from report import print_table, say
 from synthetic import SyntheticSpec, centroid_sets
 
@@ -21,11 +23,10 @@ def configs(n: int, seed: int = 1) -> list[SyntheticSpec]:
             for i, (s, f) in enumerate([(0.5, 3), (0.5, 8), (1.0, 3), (1.0, 8)])]
 
 
-def _run_tool(tool, s, spec: SyntheticSpec, fov_deg: float | None) -> dict:
-    try:
-        a = tool.solve_centroids(s.xy, spec.width, spec.height, fov_deg, flux=s.flux)
-    except Exception as exc:  # noqa: BLE001 - a crash counts as a failure, and is recorded
-        return {"solved": False, "status": f"{type(exc).__name__}: {exc}"[:120], "time_ms": float("nan")}
+def _outcome(a, s) -> dict:
+    """One answer (an Attempt, or the exception the call raised) as a row of the suite."""
+    if isinstance(a, BaseException):  # a crash counts as a failure, and is recorded
+        return {"solved": False, "status": f"{type(a).__name__}: {a}"[:120], "time_ms": float("nan")}
     out = {"solved": a.solved, "status": a.status, "time_ms": a.time_ms}
     if a.solved:
         bore, roll = boresight_error_arcsec(a.A, s.A_true), roll_error_deg(a.A, s.A_true)
@@ -33,20 +34,33 @@ def _run_tool(tool, s, spec: SyntheticSpec, fov_deg: float | None) -> dict:
     return out
 
 
-def run(tools: dict, n: int = 1000, n_cedar: int | None = None, nofov: bool = True) -> dict:
+def jobs(tools: dict, nofov: bool = True) -> list[tuple[str, object, bool]]:
+    """(row name, tool, told the FOV?): every tool with the FOV, then each skyfix side without it."""
+    out = [(name, tool, True) for name, tool in tools.items()]
+    if nofov:
+        out += [(f"{name} (no FOV)", tool, False) for name, tool in tools.items()
+                if getattr(tool, "is_skyfix", False)]
+    return out
+
+
+def run(tools: dict, n: int = 1000, n_cedar: int | None = None, nofov: bool = True, batch: int = 1,
+        alternate: bool = False) -> dict:
+    """``batch`` sets go to each tool in turn (one round trip for a worker-backed skyfix);
+    ``alternate`` reverses the tools' order every other batch (``--against``: A B, B A, ...)."""
     results = {}
     for spec in configs(n):
         sets, generator = centroid_sets(spec)
-        runs = {name: [] for name in tools}
-        if nofov and "skyfix" in tools:
-            runs["skyfix (no FOV)"] = []
-        for i, s in enumerate(sets):
-            for name, tool in tools.items():
-                if name == "cedar-solve" and n_cedar is not None and i >= n_cedar:
-                    continue
-                runs[name].append(_run_tool(tool, s, spec, spec.fov_deg))
-            if "skyfix (no FOV)" in runs:
-                runs["skyfix (no FOV)"].append(_run_tool(tools["skyfix"], s, spec, None))
+        todo = jobs(tools, nofov)
+        runs = {name: [] for name, _, _ in todo}
+        for k, start in enumerate(range(0, len(sets), batch)):
+            chunk = list(enumerate(sets[start:start + batch], start))
+            for name, tool, told in (todo[::-1] if alternate and k % 2 else todo):
+                mine = [(i, s) for i, s in chunk if not (name == "cedar-solve" and n_cedar is not None
+                                                         and i >= n_cedar)]
+                fov = spec.fov_deg if told else None
+                calls = [((s.xy, spec.width, spec.height, fov), {"flux": s.flux}) for _, s in mine]
+                answers = call_many(tool, "solve_centroids", calls)
+                runs[name] += [_outcome(a, s) for a, (_, s) in zip(answers, mine, strict=True)]
         summary = {name: _summary(rs) for name, rs in runs.items()}
         results[spec.label] = {"spec": spec.__dict__, "generator": generator,
                                "mean_stars": float(np.mean([len(s.xy) for s in sets])),
@@ -57,6 +71,27 @@ def run(tools: dict, n: int = 1000, n_cedar: int | None = None, nofov: bool = Tr
                                              if r.get("wrong")] for k, v in runs.items()}}
         _print(spec, summary, generator, results[spec.label]["mean_stars"])
     return results
+
+
+def against_measures(results: dict, tree: str, ref: str) -> list:
+    """Tree vs REF, per configuration, with and without the FOV (``against.Measure`` rows)."""
+    from against import Measure
+
+    out = []
+    for label, v in results.items():
+        summ = v["summary"]
+        for suffix in ("", " (no FOV)"):
+            a, b = summ.get(tree + suffix), summ.get(ref + suffix)
+            if not (a and b):
+                continue
+            where = f"{label}{suffix}"
+            out += [Measure("b", f"{where}: median ms", a["median_ms"], b["median_ms"], "median"),
+                    Measure("b", f"{where}: p99 ms", a["p99_ms"], b["p99_ms"], "p99"),
+                    Measure("b", f"{where}: solved", a["solved"], b["solved"], "count", "higher"),
+                    Measure("b", f"{where}: wrong", a["wrong"], b["wrong"], "count"),
+                    Measure("b", f"{where}: median ″", a["median_bore_arcsec"], b["median_bore_arcsec"],
+                            "median")]
+    return out
 
 
 def _summary(rs: list[dict]) -> dict:
