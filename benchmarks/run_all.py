@@ -157,8 +157,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--batch", type=int, default=None,
                     help="suite b: centroid sets per turn of each tool (default 1; 10 with --against)")
     ap.add_argument("--best-of", type=int, default=None,
-                    help="suite b: solve each set this many times in a row (skyfix) and report the median "
-                         "of the fastest too (default 1; 3 with --against, where it is the flagged figure)")
+                    help="suite b: solve each set this many times in a row (every tool) and report the "
+                         "median of the fastest too (default 1; 3 with --against, where it is flagged)")
     ap.add_argument("--startup-n", type=int, default=None,
                     help="suite h: runs per measure (default 5; quick 3)")
     ap.add_argument("--startup", default="cli,process,in-process",

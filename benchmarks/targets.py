@@ -140,13 +140,16 @@ def check_issue22(results: dict) -> list[dict]:
 
     for label, v in results.get("synthetic_centroids", {}).items():
         summ = v["summary"]
-        t3 = _tetra3rs_mme(summ, "median_ms")
+        # the median of each set's fastest of --best-of solves, when the run made them (README)
+        key = "median_best_ms" if "median_best_ms" in summ.get("skyfix", {}) else "median_ms"
+        t3 = _tetra3rs_mme(summ, key)
         for name in ("skyfix", "skyfix (no FOV)"):
             sk = summ.get(name)
             if not sk:
                 continue
-            r = sk["median_ms"] / t3 if math.isfinite(t3) and t3 > 0 else float("nan")
-            add(f"synthetic {label}, {name}: median / tetra3rs (mme 0.002)", r, "≤ 0.6",
+            r = sk[key] / t3 if math.isfinite(t3) and t3 > 0 else float("nan")
+            best = f" (best of {sk['reps']})" if key == "median_best_ms" else ""
+            add(f"synthetic {label}, {name}: median{best} / tetra3rs (mme 0.002)", r, "≤ 0.6",
                 _ok(r, lambda y: y <= 0.6))
             add(f"synthetic {label}, {name}: p99 ms", sk["p99_ms"], "≤ 5",
                 _ok(sk["p99_ms"], lambda y: y <= 5))
