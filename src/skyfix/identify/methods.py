@@ -62,7 +62,7 @@ from __future__ import annotations
 import functools
 import importlib
 import inspect
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, MutableMapping
 from typing import Protocol
 
 import numpy as np
@@ -86,34 +86,39 @@ class IdentifyMethod(Protocol):
                  **options) -> Identification: ...
 
 
-class _Registry(Mapping):
+class _Registry(MutableMapping):
     """``name → method``, each method's module imported the first time its name is looked up: a
     solve imports the methods it runs, not every one (their kernels' set-up costs a process
-    start ~0.1 s). Iterating gives the names without importing anything."""
+    start ~0.1 s). Iterating gives the names without importing anything; a method can be
+    registered (or replaced) as in a dict, ``METHODS[name] = function``."""
 
     def __init__(self, modules: dict[str, str]) -> None:
-        self._modules = modules
-        self._methods: dict[str, IdentifyMethod] = {}
+        self._entries: dict[str, str | IdentifyMethod] = dict(modules)  # a str: the module, not yet imported
 
     def __getitem__(self, name: str) -> IdentifyMethod:
-        method = self._methods.get(name)
-        if method is None:
-            method = importlib.import_module(self._modules[name]).identify
-            self._methods[name] = method
-        return method
+        entry = self._entries[name]
+        if isinstance(entry, str):
+            entry = self._entries[name] = importlib.import_module(entry).identify
+        return entry
+
+    def __setitem__(self, name: str, method: IdentifyMethod) -> None:
+        self._entries[name] = method
+
+    def __delitem__(self, name: str) -> None:
+        del self._entries[name]
 
     def __iter__(self) -> Iterator[str]:
-        return iter(self._modules)
+        return iter(self._entries)
 
     def __len__(self) -> int:
-        return len(self._modules)
+        return len(self._entries)
 
     def __repr__(self) -> str:
-        return f"METHODS({', '.join(self._modules)})"
+        return f"METHODS({', '.join(self._entries)})"
 
 
 #: The methods by name (each name is its module's ``METHOD``; ``"hash"`` is the 4-star hash too).
-METHODS: Mapping[str, IdentifyMethod] = _Registry({
+METHODS: MutableMapping[str, IdentifyMethod] = _Registry({
     quad.METHOD: "skyfix.identify.quad",
     "hash": "skyfix.identify.quad",
     "triangle": "skyfix.identify.triangle",
