@@ -26,8 +26,6 @@ editing ``_kernels/lens.py`` drops every kernel that inlines it
 
 from __future__ import annotations
 
-import ast
-import hashlib
 import json
 import os
 import re
@@ -42,7 +40,11 @@ _NAMED_TUPLE = re.compile(rb"\(\s*(typing\.)?NamedTuple\s*\)")
 
 
 def _sources(package: Path) -> list[Path]:
-    return sorted(p for p in package.rglob("*.py") if "__pycache__" not in p.parts)
+    out = []
+    for root, dirs, files in os.walk(package):
+        dirs[:] = [d for d in dirs if d != "__pycache__"]  # numba's cached kernels: hundreds of files
+        out += [Path(root, f) for f in files if f.endswith(".py")]
+    return sorted(out)
 
 
 _SOURCE_STATS: dict[Path, str] = {}  # the stat line of each package, as first seen by this process
@@ -90,6 +92,8 @@ def _module_file(package: Path, dotted: str) -> Path | None:
 def _imports(package: Path, path: Path, text: bytes) -> set[Path]:
     """The package's source files that ``path`` imports (``import skyfix.x``, ``from skyfix.x
     import y`` — ``y`` too when it is a module — and relative imports)."""
+    import ast  # here, not at the top: only a changed source needs it (``import skyfix`` stays cheap)
+
     name = package.name
     try:
         tree = ast.parse(text)
@@ -133,6 +137,8 @@ def _closure(start: Path, graph: dict[Path, set[Path]]) -> set[Path]:
 def kernel_digests(package: Path = _PACKAGE) -> dict[str, str]:
     """For each source file holding numba kernels, the digest of what its kernels depend on
     (the module docstring says what that is)."""
+    import hashlib
+
     paths = _sources(package)
     text = {p: p.read_bytes() for p in paths}
     graph = {p: _imports(package, p, text[p]) for p in paths}

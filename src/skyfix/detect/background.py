@@ -32,7 +32,6 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit
-from scipy import ndimage
 
 from skyfix.detect._grid import bilinear, grid_weights
 from skyfix.detect._smooth import column_sum, smooth_at, smooth_row
@@ -196,6 +195,8 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     else:
         level = med.reshape(ny, nx)
     if grid_filter > 1 and min(ny, nx) > 1:
+        from scipy import ndimage
+
         level = ndimage.median_filter(level, size=grid_filter, mode="nearest")
     cy = 0.5 * (edges_y[:-1] + edges_y[1:]) - 0.5
     cx = 0.5 * (edges_x[:-1] + edges_x[1:]) - 0.5
@@ -211,6 +212,8 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
         level_raw = level
     noise_s = stats[..., 1]
     if grid_filter > 1 and min(ny, nx) > 1:
+        from scipy import ndimage
+
         noise_s = ndimage.median_filter(noise_s, size=grid_filter, mode="nearest")
     # raw-pixel noise: one pooled robust estimate, spread over the tiles like the smoothed noise
     # residuals about the sky model: their median is near 0, a good first pivot

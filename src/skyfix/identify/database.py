@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import BinaryIO, NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from skyfix._kernels.rotation import chord_angle
 from skyfix.cache import CorruptFileError, verify, write_npz
@@ -391,6 +390,8 @@ def readonly_view(a: np.ndarray) -> np.ndarray:
 
 def _cell_index(vectors: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Stars grouped by nearest Fibonacci-lattice cell: centres, start offsets, stars, radius."""
+    from scipy.spatial import cKDTree
+
     centres = fibonacci_sphere(n_cells)
     dist, cell = cKDTree(centres).query(vectors)
     order = np.lexsort((np.arange(len(vectors)), cell))  # by cell, then brightness
@@ -415,6 +416,8 @@ def brightest_per_field(vectors: np.ndarray, radius: float, lattice_step: float,
     stars. The pattern database (4-combinations of each row) and the pair table
     (:mod:`skyfix.identify.pairs`) choose their stars this way.
     """
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(vectors)
     # Drop the fainter member of close pairs (vectors are brightest first).
     pairs = tree.query_pairs(2 * math.sin(double_sep / 2), output_type="ndarray")
