@@ -57,6 +57,8 @@ def source_digest(package: Path = _PACKAGE) -> str:
     stats = _SOURCE_STATS.get(package)
     if stats is None:
         stats = _SOURCE_STATS[package] = _stat_line(package, _sources(package))
+    import hashlib
+
     return hashlib.sha256(stats.encode()).hexdigest()[:32]
 
 
