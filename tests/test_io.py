@@ -411,3 +411,20 @@ def test_reading_plain_fits_does_not_import_astropy(tmp_path, frame):
     out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "a.fits")], capture_output=True,
                          text=True, check=True).stdout
     assert out.strip() == "(40, 56) False"
+
+
+def test_without_imagecodecs_png_inflates_with_zlib_and_jpeg_goes_to_pillow(tmp_path, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "imagecodecs", None)  # `import imagecodecs` raises ImportError
+    pixels = np.random.default_rng(8).integers(0, 65536, (15, 17)).astype(np.uint16)
+    _png_file(tmp_path / "z.png", pixels, 0)
+    got = read_image_with_header(tmp_path / "z.png")
+    assert got.decoder == "skyfix-png"
+    np.testing.assert_array_equal(got.data, pixels)
+    Image.fromarray((pixels >> 8).astype(np.uint8)).save(tmp_path / "z.jpg")
+    assert read_image_with_header(tmp_path / "z.jpg").decoder == "pillow"
+    data = (tmp_path / "z.png").read_bytes()
+    (tmp_path / "t.png").write_bytes(data[:-40])  # the zlib stream cut short
+    with pytest.raises(ImageReadError, match="skyfix-png decoder cannot read"):
+        read_image_with_header(tmp_path / "t.png", decoder="skyfix-png")
