@@ -173,9 +173,9 @@ def available(module: str) -> bool:
 
 def skyfix_png_zlib(p: Path) -> np.ndarray:
     """skyfix's PNG decoder as it runs without imagecodecs: Python's zlib inflates."""
-    from skyfix.io import read_image_with_header
-
     import imagecodecs
+
+    from skyfix.io import read_image_with_header
 
     sys.modules["imagecodecs"] = None  # `import imagecodecs` raises ImportError
     try:
