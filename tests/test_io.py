@@ -428,3 +428,25 @@ def test_without_imagecodecs_png_inflates_with_zlib_and_jpeg_goes_to_pillow(tmp_
     (tmp_path / "t.png").write_bytes(data[:-40])  # the zlib stream cut short
     with pytest.raises(ImageReadError, match="skyfix-png decoder cannot read"):
         read_image_with_header(tmp_path / "t.png", decoder="skyfix-png")
+
+
+@pytest.mark.parametrize("inflater", ["imagecodecs", "zlib"])
+def test_png_image_data_longer_than_the_image_is_not_decoded(tmp_path, monkeypatch, inflater):
+    import struct
+    import sys
+    import zlib
+
+    if inflater == "zlib":
+        monkeypatch.setitem(sys.modules, "imagecodecs", None)
+    else:
+        pytest.importorskip("imagecodecs")
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    rows = b"".join(b"\0" + bytes(4) for _ in range(4)) + bytes(1 << 20)  # 4×4 grey, then 1 MiB more
+    ihdr = struct.pack(">IIBBBBB", 4, 4, 8, 0, 0, 0, 0)
+    (tmp_path / "long.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
+                                        + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+    with pytest.raises(ImageReadError, match="skyfix-png decoder cannot read"):
+        read_image_with_header(tmp_path / "long.png", decoder="skyfix-png")

@@ -240,6 +240,7 @@ def _replace_nonfinite(img: np.ndarray, name: str) -> np.ndarray:
 # ---- PNG ----------------------------------------------------------------------------------
 
 _PNG_CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}  # colour type → samples per pixel: grey, RGB, grey+A, RGBA
+_PNG_MAX_PIXELS = 178_956_970  # larger: Pillow's decompression-bomb check gives the verdict
 
 
 def _png_skyfix(p: Path) -> tuple[np.ndarray, dict] | None:
@@ -272,7 +273,7 @@ def _png_skyfix(p: Path) -> tuple[np.ndarray, dict] | None:
         return None
     width, height, depth, colour, compression, filter_method, interlace = ihdr
     if (depth not in (8, 16) or colour not in _PNG_CHANNELS or compression or filter_method or interlace
-            or not width or not height):
+            or not 0 < width * height <= _PNG_MAX_PIXELS):
         return None
     channels = _PNG_CHANNELS[colour]
     bpp = channels * depth // 8
@@ -296,9 +297,12 @@ def _inflate(stream: bytes | memoryview, size: int) -> bytes | None:
 
         out = imagecodecs.deflate_decode(stream, out=size)
     except ImportError:
+        inflater = zlib.decompressobj()
         try:
-            out = zlib.decompress(stream, bufsize=size)
+            out = inflater.decompress(stream, size + 1)  # never more than the image (a zip bomb)
         except zlib.error:
+            return None
+        if not inflater.eof:  # cut short, or longer than the image
             return None
     except Exception:  # imagecodecs.DeflateError: corrupt, truncated or longer than the image
         return None
