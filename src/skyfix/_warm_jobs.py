@@ -84,9 +84,20 @@ def database():
 
 
 def extract() -> None:
-    """The default extraction of a float32 frame (every image reaches the kernels as float32)."""
-    from skyfix.detect import extract_centroids
+    """Reading a PNG file (its row filters are undone by a kernel) and the default extraction of
+    a float32 frame (every image reaches the kernels as float32)."""
+    import tempfile
+    from pathlib import Path
 
+    from PIL import Image
+
+    from skyfix.detect import extract_centroids
+    from skyfix.io import read_image
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "frame.png"
+        Image.fromarray(np.clip(scene().frame, 0, 65535).astype(np.uint16)).save(path)
+        read_image(path)
     for _ in range(2):  # the second call of a frame size reuses (and clears) the first's buffers
         extract_centroids(scene().frame, max_stars=200)
 
