@@ -185,3 +185,22 @@ print("NEW", new)
                          env={**os.environ, "PYTHONPATH": str(ROOT / "src"), "SKYFIX_WARMUP": "0"})
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().splitlines()[-1] == "NEW {}", out.stdout[-3000:]
+
+
+def test_warmup_command_lists_paths_and_refuses_unknown_ones():
+    from typer.testing import CliRunner
+
+    from skyfix.cli import app
+
+    runner = CliRunner()
+    listed = runner.invoke(app, ["warmup", "--list"])
+    assert listed.exit_code == 0, listed.output
+    lines = listed.stdout.splitlines()
+    assert [ln.split()[0] for ln in lines] == list(warmup.PATHS)
+    assert all(ln.split(None, 1)[1] == "compiled" or "to compile: about" in ln for ln in lines)
+    assert lines[0].split(None, 1)[1] == "compiled"  # the session compiled the solve's kernels first
+    bad = runner.invoke(app, ["warmup", "solve", "bogus"])
+    assert bad.exit_code == 2
+    assert bad.stderr.startswith("skyfix: error: unknown warm-up path 'bogus'; choose from solve, ")
+    done = runner.invoke(app, ["warmup", "solve"])
+    assert done.exit_code == 0 and done.stdout == "skyfix: 1 path(s) compiled already\n"

@@ -38,7 +38,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
-__all__ = ["JOBS", "PATHS", "Job", "ensure", "estimate_s", "is_warm", "warm"]
+__all__ = ["JOBS", "PATHS", "Job", "default_workers", "ensure", "estimate_s", "is_warm", "pending", "warm"]
 
 log = logging.getLogger(__name__)
 
@@ -152,9 +152,10 @@ def _with_needs(jobs: Iterable[str]) -> list[str]:
     return out
 
 
-def ensure(path: str, *, alongside: Callable[[], object] | None = None, also: str = "",
+def ensure(path: str | Iterable[str], *, alongside: Callable[[], object] | None = None, also: str = "",
            missing_ok: bool = False) -> None:
-    """Make sure the kernels of ``path`` (:data:`PATHS`) are compiled before they are needed.
+    """Make sure the kernels of ``path`` (:data:`PATHS`; or of several paths) are compiled
+    before they are needed.
 
     A warm path returns at once. Otherwise its jobs compile in worker processes, with a notice
     on stderr of what is compiling and for how long, while this process runs ``alongside`` (the
@@ -164,17 +165,25 @@ def ensure(path: str, *, alongside: Callable[[], object] | None = None, also: st
     ``alongside`` still runs. A path of no name in :data:`PATHS` is an error, or with
     ``missing_ok`` nothing to do (a method registered by a user has no warm-up of its own).
     """
-    if path not in PATHS:
-        if missing_ok:
-            if alongside is not None:
-                alongside()
-            return
-        raise KeyError(f"unknown warm-up path {path!r}; known: {', '.join(PATHS)}")
-    if is_warm(path) or not _enabled():
+    names = [path] if isinstance(path, str) else list(path)
+    unknown = [p for p in names if p not in PATHS]
+    if unknown and not missing_ok:
+        raise KeyError(f"unknown warm-up path {unknown[0]!r}; known: {', '.join(PATHS)}")
+    if not pending([p for p in names if p in PATHS]):
         if alongside is not None:
             alongside()
         return
-    warm([path], alongside=alongside, also=also, first_use=True)
+    warm([p for p in names if p in PATHS], alongside=alongside, also=also, first_use=True)
+
+
+def pending(paths: Iterable[str]) -> list[str]:
+    """The jobs :func:`ensure` would compile for ``paths`` now: none when they are warm, or when
+    compiling up front is off (``SKYFIX_WARMUP=0``, inside a worker)."""
+    names = [p for p in paths if not is_warm(p)]
+    if not names or not _enabled():
+        return []
+    done = _done_jobs()
+    return [j for j in _with_needs(j for p in names for j in PATHS[p]) if not done.get(j)]
 
 
 def warm(paths: Iterable[str] | None = None, *, workers: int | None = None,
@@ -209,7 +218,7 @@ def warm(paths: Iterable[str] | None = None, *, workers: int | None = None,
             if alongside is not None:
                 alongside()
             return {}
-        n = workers or _cpus()
+        n = workers or default_workers()
         runner = _Runner(jobs, n, _describe(jobs, first_use, also), console)
         results = runner.run(alongside)
         done = _done_jobs()
@@ -337,7 +346,7 @@ class _Display:
         return self.console
 
     def start(self) -> None:
-        line = f"{self.title} (once; about {_duration(self.eta_s)} on {_cpus()} cores)…"
+        line = f"{self.title} (once; about {_duration(self.eta_s)} on {default_workers()} cores)…"
         log.info("%s", line)
         console = self._console()
         if not console.is_terminal:
@@ -379,7 +388,8 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 60:.0f} min"
 
 
-def _cpus() -> int:
+def default_workers() -> int:
+    """Worker processes at once by default: the CPUs this process may use."""
     try:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
@@ -395,13 +405,23 @@ def _enabled() -> bool:
 # --- the stamp ------------------------------------------------------------------------------------
 
 def _stamp_key() -> str:
-    """What the stamp holds for: these sources (skyfix._kernels.source_digest), this numba, this
-    Python."""
-    import numba
+    """What the stamp holds for: these kernels (:func:`skyfix._kernels.kernels_digest`), these
+    jobs (this file and :mod:`skyfix._warm_jobs`), this numba, this Python."""
+    global _KEY
+    if _KEY is None:
+        import hashlib
+        from importlib.metadata import version
 
-    from skyfix._kernels import source_digest
+        from skyfix._kernels import kernels_digest
 
-    return f"{source_digest()} numba {numba.__version__} python {sys.version_info[0]}.{sys.version_info[1]}"
+        here = Path(__file__)
+        jobs = hashlib.sha256(here.read_bytes() + here.with_name("_warm_jobs.py").read_bytes()).hexdigest()
+        _KEY = (f"{kernels_digest()} jobs {jobs[:16]} numba {version('numba')} "
+                f"python {sys.version_info[0]}.{sys.version_info[1]}")
+    return _KEY
+
+
+_KEY: str | None = None
 
 
 def _stamp_file() -> Path:

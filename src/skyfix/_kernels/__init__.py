@@ -31,7 +31,7 @@ import os
 import re
 from pathlib import Path
 
-__all__ = ["drop_stale_kernel_caches", "kernel_cache_folder", "source_digest"]
+__all__ = ["drop_stale_kernel_caches", "kernel_cache_folder", "kernels_digest"]
 
 _PACKAGE = Path(__file__).resolve().parent.parent
 _STAMP = "skyfix_kernels.json"
@@ -47,19 +47,21 @@ def _sources(package: Path) -> list[Path]:
     return sorted(out)
 
 
-_SOURCE_STATS: dict[Path, str] = {}  # the stat line of each package, as first seen by this process
+_DIGESTS: dict[Path, dict[str, str]] = {}  # each package's kernel digests, as this process last saw them
 
 
-def source_digest(package: Path = _PACKAGE) -> str:
-    """A digest of the package's sources as they are now (each file's name, size and
-    modification time: what :func:`drop_stale_kernel_caches` compares), taken once per process;
-    it changes when any source file does (:mod:`skyfix.warmup` keys its stamp on it)."""
-    stats = _SOURCE_STATS.get(package)
-    if stats is None:
-        stats = _SOURCE_STATS[package] = _stat_line(package, _sources(package))
+def kernels_digest(package: Path = _PACKAGE) -> str:
+    """One digest of all the package's kernels: of their :func:`kernel_digests` as
+    :func:`drop_stale_kernel_caches` last saw them (run at ``import skyfix``). It changes when a
+    kernel's code, or code a kernel depends on, changes — when cached kernels are dropped — and
+    not when a command or a report does (:mod:`skyfix.warmup` keys its stamp on it). For a
+    read-only install, whose sources do not change, the sources' names, sizes and times."""
     import hashlib
 
-    return hashlib.sha256(stats.encode()).hexdigest()[:32]
+    digests = _DIGESTS.get(package)
+    text = (json.dumps(digests, sort_keys=True) if digests is not None
+            else _stat_line(package, _sources(package)))
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
 def kernel_cache_folder(package: Path = _PACKAGE) -> Path | None:
@@ -188,15 +190,16 @@ def drop_stale_kernel_caches(package: Path = _PACKAGE) -> bool:
     cache = package / "__pycache__"
     stamp = cache / _STAMP
     try:
-        stats = _SOURCE_STATS[package] = _stat_line(package, _sources(package))
+        stats = _stat_line(package, _sources(package))
         try:
             old = json.loads(stamp.read_text())
             old_digests, old_stats = dict(old["digests"]), str(old["stats"])
         except (OSError, ValueError, KeyError, TypeError):
             old_digests, old_stats = {}, ""
         if stats == old_stats:
+            _DIGESTS[package] = old_digests
             return False
-        digests = kernel_digests(package)
+        digests = _DIGESTS[package] = kernel_digests(package)
         stale = [rel for rel, d in digests.items() if old_digests.get(rel) != d]
         for rel in stale:
             _drop(_cached_kernels_of(package, rel))

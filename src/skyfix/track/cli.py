@@ -84,7 +84,8 @@ def register(app: typer.Typer, load_camera: Callable[[str], object]) -> None:
         rates = gyro_rates(samples, times) if samples is not None else [None] * len(frames)
         if plot is not None and plot.suffix.lower() != ".png":
             fail(f"--plot {plot}: give a .png file")
-        tracker = Tracker(camera, database=load_database(database_file), predictor=predictor, epoch=epoch,
+        database = load_database(database_file, ("track",))
+        tracker = Tracker(camera, database=database, predictor=predictor, epoch=epoch,
                           n_windows=windows, streak_windows=streak_windows, exposure_s=exposure,
                           line_time_s=line_time)
         from skyfix.io import read_image
