@@ -231,15 +231,20 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
                       centers_y=cy, centers_x=cx, tile=t)
 
 
-def frame_f32(image: np.ndarray) -> np.ndarray:
+def frame_f32(image: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """A frame as the extraction's kernels take it: C-contiguous float32, whatever it was.
 
     One pixel type keeps each kernel to one compiled signature (8- and 16-bit frames given as
-    they are compiled every kernel twice more: ~25 s of first use each, against a 0.4 ms
+    they are compiled every kernel twice more: ~25 s of first use each, against a 0.15 ms
     conversion of a 1280 × 960 frame). Both integer types are exact in float32, and
-    :func:`is_integer_valued` still sees their whole numbers.
+    :func:`is_integer_valued` still sees their whole numbers. ``out``, a C-contiguous float32
+    array of the frame's shape, receives the conversion if one is needed (the values
+    ``astype`` gives).
     """
-    return np.ascontiguousarray(image, dtype=np.float32)
+    if out is None or (image.dtype == np.float32 and image.flags.c_contiguous):
+        return np.ascontiguousarray(image, dtype=np.float32)
+    np.copyto(out, image, casting="unsafe")
+    return out
 
 
 def is_integer_valued(image: np.ndarray) -> bool:
