@@ -266,14 +266,15 @@ def _count_runs(mask, blocks):
     """
     n = np.int64(0)  # typed (skyfix.detect._stats)
     ones = np.uint64(0x0101010101010101)
+    words = mask.view(np.uint64)
     for y in range(mask.shape[0]):
-        words = mask[y].view(np.uint64)
+        prev = np.uint64(0)  # the word left of the block (0 if its block is empty)
         for c in range(blocks.shape[1]):
             if blocks[y, c] == 0:
+                prev = np.uint64(0)
                 continue
-            prev = words[8 * c - 1] if c > 0 else np.uint64(0)
             for wi in range(8 * c, 8 * c + 8):
-                cur = words[wi]
+                cur = words[y, wi]
                 starts = cur & ~((cur << np.uint64(8)) | (prev >> np.uint64(56)))
                 n += np.int64((starts * ones) >> np.uint64(56))
                 prev = cur
