@@ -264,14 +264,16 @@ def _read_index(fh: BinaryIO, size: int) -> dict[str, list] | None:
     end = size - _TRAILER
     if end < _INDEX_TAIL:
         return None
-    tail = os.pread(fh.fileno(), _INDEX_TAIL, end - _INDEX_TAIL)
+    fh.seek(end - _INDEX_TAIL)
+    tail = fh.read(_INDEX_TAIL)
     if not tail.startswith(_INDEX) or not tail[len(_INDEX):].isdigit():
         return None
     length = int(tail[len(_INDEX):])
     start = end - _INDEX_TAIL - length
     if start < 0:
         return None
-    return json.loads(os.pread(fh.fileno(), length, start))
+    fh.seek(start)
+    return json.loads(fh.read(length))
 
 
 def _walk_members(fh: BinaryIO) -> dict[str, list]:
