@@ -168,7 +168,9 @@ def databases(tools: dict, repeats: int, build_repeats: int = 1) -> dict:
     if built:
         # A file younger than skyfix.cache.STAMP_MIN_AGE_S is hashed at every load: wait, so that the
         # loads below are the cached loads a user meets. The first load (hash, stamp) is not counted.
-        time.sleep(2.5)
+        from skyfix.cache import STAMP_MIN_AGE_S
+
+        time.sleep(STAMP_MIN_AGE_S + 0.5)
         names = list(built)
         for r in range(repeats + 1):
             for name in (names[::-1] if r % 2 else names):

@@ -59,12 +59,21 @@ def test_extraction_kernels_have_one_signature_whatever_the_frame():
               (frame * 10).astype(np.uint16), np.asfortranarray(frame), frame[::-1],
               np.ascontiguousarray(frame[:301, :517]),
               (200 + 4 * rng.standard_normal((1000, 130))).astype(np.float32)]
-    for f in frames:
+    # Kernels other tests of the session called directly (float64 arrays) may hold other
+    # signatures already: what counts is that the first frame adds at most one a kernel and
+    # the other frames none.
+    before = _kernel_signatures()
+    extract_centroids(frames[0], max_stars=50)
+    first = _kernel_signatures()
+    added = {k: v - before.get(k, set()) for k, v in first.items()}
+    twice = {k: sorted(v) for k, v in added.items() if len(v) > 1}
+    assert not twice, f"one extraction compiled two signatures of a kernel: {twice}"
+    for f in frames[1:]:
         extract_centroids(f, max_stars=50)
     sigs = _kernel_signatures()
     detect = {k: v for k, v in sigs.items() if k.startswith("skyfix.detect.") and v}
     assert detect, "no detection kernel ran"
-    several = {k: sorted(v) for k, v in detect.items() if len(v) > 1}
+    several = {k: sorted(v - first.get(k, set())) for k, v in detect.items() if v - first.get(k, set())}
     assert not several, f"kernels compiled for more than one signature: {several}"
 
 

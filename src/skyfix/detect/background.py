@@ -26,7 +26,6 @@ noise (JPEG, Bayer interpolation), where σ_raw·√(Σw²) would be wrong.
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -234,15 +233,20 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
                       centers_y=cy, centers_x=cx, tile=t)
 
 
-def frame_f32(image: np.ndarray) -> np.ndarray:
+def frame_f32(image: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """A frame as the extraction's kernels take it: C-contiguous float32, whatever it was.
 
     One pixel type keeps each kernel to one compiled signature (8- and 16-bit frames given as
-    they are compiled every kernel twice more: ~25 s of first use each, against a 0.4 ms
+    they are compiled every kernel twice more: ~25 s of first use each, against a 0.15 ms
     conversion of a 1280 × 960 frame). Both integer types are exact in float32, and
-    :func:`is_integer_valued` still sees their whole numbers.
+    :func:`is_integer_valued` still sees their whole numbers. ``out``, a C-contiguous float32
+    array of the frame's shape, receives the conversion if one is needed (the values
+    ``astype`` gives).
     """
-    return np.ascontiguousarray(image, dtype=np.float32)
+    if out is None or (image.dtype == np.float32 and image.flags.c_contiguous):
+        return np.ascontiguousarray(image, dtype=np.float32)
+    np.copyto(out, image, casting="unsafe")
+    return out
 
 
 def is_integer_valued(image: np.ndarray) -> bool:
@@ -302,12 +306,19 @@ def median_of(values: np.ndarray) -> float:
 
 @njit(cache=True)
 def _whole_on_lattice(a, sy, sx):
-    """Whether every ``a[::sy, ::sx]`` is a whole number (as ``np.floor(v) == v``: False on NaN)."""
+    """Whether every ``a[::sy, ::sx]`` is a whole number (False on NaN and ±inf).
+
+    A row at a time, with no exit inside a row, so the test runs without a branch a sample:
+    0.12 → 0.025 ms on an integer-valued 1280 × 960 frame (which every sample is).
+    """
     for y in range(0, a.shape[0], sy):
+        row = a[y]
+        whole = True
         for x in range(0, a.shape[1], sx):
-            v = a[y, x]
-            if not (math.floor(v) == v):
-                return False
+            v = row[x]
+            whole &= (np.floor(v) == v) & (np.abs(v) < np.inf)
+        if not whole:
+            return False
     return True
 
 
