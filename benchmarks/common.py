@@ -20,7 +20,10 @@ BENCH_DIR = Path(__file__).resolve().parent
 REPO_ROOT = BENCH_DIR.parent
 CACHE_DIR = BENCH_DIR / ".cache"
 RESULTS_DIR = BENCH_DIR / "results"
-REAL_DIR = REPO_ROOT.parent / "shared" / "data" / "real"
+# shared/data/real beside the checkout (a worktree may sit a level or two deeper, e.g. wt/<name>)
+REAL_DIR = next((p / "shared" / "data" / "real" for p in REPO_ROOT.parents
+                 if (p / "shared" / "data" / "real" / "solutions.jsonl").is_file()),
+                REPO_ROOT.parent / "shared" / "data" / "real")
 
 ARCSEC_PER_RAD = 180.0 / np.pi * 3600.0
 
@@ -120,13 +123,29 @@ def median(values) -> float:
     return pct(values, 50.0)
 
 
+def call_many(tool, method: str, calls: list[tuple[tuple, dict]]) -> list:
+    """``getattr(tool, method)(*args, **kwargs)`` for each call, in order: the value, or the
+    exception it raised. A worker-backed tool (``remote.RemoteSkyfix``) takes the whole batch in
+    one round trip (``tool.many``)."""
+    many = getattr(tool, "many", None)
+    if many is not None:
+        return many(method, calls)
+    fn, out = getattr(tool, method), []
+    for args, kwargs in calls:
+        try:
+            out.append(fn(*args, **kwargs))
+        except Exception as exc:  # noqa: BLE001 - recorded in its place, as the suites report it
+            out.append(exc)
+    return out
+
+
 def ratio(a: float, b: float) -> float:
     return a / b if (np.isfinite(a) and np.isfinite(b) and b > 0) else float("nan")
 
 
 def write_json(name: str, payload: dict) -> Path:
-    RESULTS_DIR.mkdir(parents=True, exist_ok=True)
     path = RESULTS_DIR / f"{name}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(_jsonable(payload), indent=1))
     return path
 

@@ -1,9 +1,11 @@
 """The one place where the benchmarks call skyfix (so an API change is a change here only).
 
 Calls: ``skyfix.pipeline.solve`` (image file or array → Solution), ``skyfix.pipeline.solve_centroids``
-(centroids → Solution), ``skyfix.detect.extract_centroids`` and ``skyfix.identify``'s
-``PatternDatabase`` / ``default_database``. Timings are wall clock around each call, measured
-exactly as for the peers.
+(centroids → Solution), ``skyfix.detect.extract_centroids``, ``skyfix.io.read_image``,
+``skyfix.identify``'s ``PatternDatabase`` / ``default_database`` / ``default_database_path`` /
+``identify`` and ``skyfix.final_fit.final_fit`` — all of them as they are at 1a5d56b, since
+``benchmarks/run --against REF`` runs this adapter on an older skyfix too (in a worker process,
+``worker.py``). Timings are wall clock around each call, measured exactly as for the peers.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from common import CACHE_DIR, Attempt, now_ms
 
 class Skyfix:
     name = "skyfix"
+    is_skyfix = True  # a side of --against, and the tool suite b also runs with no FOV
 
     def __init__(self, min_fov_deg: float | None = None, max_fov_deg: float | None = None):
         import skyfix
@@ -70,6 +73,48 @@ class Skyfix:
         db = PatternDatabase.load(path)
         return db, now_ms() - t0
 
+    def describe(self) -> dict:
+        return {"version": self.version, "load_ms": self.load_ms, "build_ms": self.build_ms,
+                "note": self.note}
+
+    @staticmethod
+    def database_build(folder: str | Path, min_fov: float = 10.0, max_fov: float = 30.0) -> dict:
+        """Build a database from scratch and save it in ``folder``: build ms, its path and bytes."""
+        ms, db = Skyfix.build(min_fov, max_fov)
+        path = Path(folder) / "skyfix_db.npz"
+        db.save(path)
+        size = sum(f.stat().st_size for f in Path(folder).glob("skyfix_db*"))
+        return {"build_ms": ms, "path": str(path), "bytes": size}
+
+    @staticmethod
+    def database_load(path: str | Path) -> float:
+        """One load of a saved database, ms."""
+        return Skyfix.load(path)[1]
+
+    @staticmethod
+    def default_database_load() -> float:
+        """One load of the default (10–30°) database from the user cache, ms: what a solve loads."""
+        from skyfix.identify import default_database_path
+
+        return Skyfix.load(default_database_path())[1]
+
+    def final_fit_ms(self, xy: np.ndarray, width: int, height: int, fov_deg: float, repeats: int = 5
+                     ) -> list[float]:
+        """The final fit of one identified frame (FOV given, no camera file), ms per repeat;
+        empty when the frame is not identified."""
+        from skyfix.final_fit import final_fit
+        from skyfix.identify import identify
+
+        ident = identify(xy, width, height, fov_deg=fov_deg, database=self.db)
+        if not ident.success:
+            return []
+        out = []
+        for _ in range(repeats):
+            t0 = now_ms()
+            final_fit(xy, ident, camera_given=False, database=self.db)
+            out.append(now_ms() - t0)
+        return out
+
     # --- solving ---------------------------------------------------------------------------------
     @staticmethod
     def _attempt(sol, dt: float) -> Attempt:
@@ -102,11 +147,11 @@ class Skyfix:
     solve_image = solve_file
 
     @staticmethod
-    def extract(image: np.ndarray) -> tuple[np.ndarray, float]:
+    def extract(image: np.ndarray, max_stars: int | None = None) -> tuple[np.ndarray, float]:
         from skyfix.detect import extract_centroids
 
         t0 = now_ms()
-        c = extract_centroids(image)
+        c = extract_centroids(image) if max_stars is None else extract_centroids(image, max_stars=max_stars)
         dt = now_ms() - t0
         return np.asarray(c.xy, float).reshape(-1, 2), dt
 

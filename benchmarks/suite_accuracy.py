@@ -16,7 +16,9 @@ from render import RenderSpec, StarSky, random_attitudes, render
 from report import print_table, say
 
 
-def run(tools: dict, n_images: int = 20, fovs=(8.0, 15.0, 30.0), seed: int = 7) -> dict:
+def run(tools: dict, n_images: int = 20, fovs=(8.0, 15.0, 30.0), seed: int = 7, alternate: bool = False
+        ) -> dict:
+    """``alternate`` reverses the tools' order every other frame (``--against``)."""
     sky = StarSky(mag_limit=9.0)
     out = {}
     for fov in fovs:
@@ -25,13 +27,13 @@ def run(tools: dict, n_images: int = 20, fovs=(8.0, 15.0, 30.0), seed: int = 7) 
         attitudes = random_attitudes(n_images, rng)
         # skyfix also runs without the FOV (its default use), as "skyfix (no FOV)".
         jobs = [(name, tool, fov) for name, tool in tools.items()]
-        if "skyfix" in tools:
-            jobs.append(("skyfix (no FOV)", tools["skyfix"], None))
+        jobs += [(f"{name} (no FOV)", tool, None) for name, tool in tools.items()
+                 if getattr(tool, "is_skyfix", False)]
         runs = {name: [] for name, _, _ in jobs}
         t0 = now_ms()
-        for A in attitudes:
+        for k, A in enumerate(attitudes):
             img = render(A, sky, spec, rng)
-            for name, tool, hint in jobs:
+            for name, tool, hint in (jobs[::-1] if alternate and k % 2 else jobs):
                 if name == "cedar-solve" and not (tool.min_fov <= fov <= tool.max_fov):
                     continue
                 try:
@@ -47,6 +49,28 @@ def run(tools: dict, n_images: int = 20, fovs=(8.0, 15.0, 30.0), seed: int = 7) 
         summary = {name: _summary(rs) for name, rs in runs.items() if rs}
         out[f"{fov:g}deg"] = {"spec": spec.__dict__, "summary": summary, "wall_s": (now_ms() - t0) / 1e3}
         _print(fov, spec, summary)
+    return out
+
+
+def against_measures(results: dict, tree: str, ref: str) -> list:
+    """Tree vs REF per field, with and without the FOV (``against.Measure`` rows)."""
+    from against import Measure
+
+    out = []
+    for key, v in results.items():
+        summ = v["summary"]
+        for suffix in ("", " (no FOV)"):
+            a, b = summ.get(tree + suffix), summ.get(ref + suffix)
+            if not (a and b):
+                continue
+            where = f"{key.replace('deg', '°')}{suffix}"
+            out += [Measure("c", f"{where}: median boresight ″", a["median_bore_arcsec"],
+                            b["median_bore_arcsec"]),
+                    Measure("c", f"{where}: p90 boresight ″", a["p90_bore_arcsec"], b["p90_bore_arcsec"],
+                            "info"),
+                    Measure("c", f"{where}: median roll ″", a["median_roll_arcsec"], b["median_roll_arcsec"]),
+                    Measure("c", f"{where}: solved", a["solved"], b["solved"], "count", "higher"),
+                    Measure("c", f"{where}: median ms", a["median_ms"], b["median_ms"])]
     return out
 
 

@@ -28,8 +28,8 @@ def references() -> list[dict]:
     return [json.loads(line) for line in (REAL_DIR / "solutions.jsonl").read_text().splitlines() if line]
 
 
-def _fov_hint(tool_name: str, ref: dict, mode: str) -> float | None:
-    if tool_name == "skyfix":
+def _fov_hint(tool_name: str, ref: dict, mode: str, is_skyfix: bool = False) -> float | None:
+    if is_skyfix or tool_name == "skyfix":
         return None
     if mode == "hint":
         return float(ref["fov_w_deg"])
@@ -43,15 +43,17 @@ def _errors(A: np.ndarray, ref: dict) -> tuple[float, float]:
     return bore, roll
 
 
-def run(tools: dict, repeats: int = 3, peer_fov: str = "hint") -> dict:
+def run(tools: dict, repeats: int = 3, peer_fov: str = "hint", alternate: bool = False) -> dict:
+    """``alternate`` reverses the tools' order every other image (``--against``)."""
     refs = references()
     per_image = []
-    for ref in refs:
+    order = list(tools.items())
+    for k, ref in enumerate(refs):
         path = REAL_DIR / ref["image"]
         limit = 20.0 if ref["image"].startswith("esa-tetra3/") else 60.0
         row = {"image": ref["image"], "limit_arcsec": limit, "tools": {}}
-        for name, tool in tools.items():
-            hint = _fov_hint(name, ref, peer_fov)
+        for name, tool in (order[::-1] if alternate and k % 2 else order):
+            hint = _fov_hint(name, ref, peer_fov, getattr(tool, "is_skyfix", False))
             times, first = [], None
             for _ in range(repeats):
                 try:
@@ -77,6 +79,19 @@ def run(tools: dict, repeats: int = 3, peer_fov: str = "hint") -> dict:
     summary = _summarise(per_image, list(tools))
     _print(per_image, summary, list(tools))
     return {"peer_fov": peer_fov, "repeats": repeats, "images": per_image, "summary": summary}
+
+
+def against_measures(results: dict, tree: str, ref: str) -> list:
+    """Tree vs REF on the real images (``against.Measure`` rows)."""
+    from against import Measure
+
+    a, b = results["summary"].get(tree), results["summary"].get(ref)
+    if not (a and b):
+        return []
+    return [Measure("a", "median ms (all)", a["median_time_ms"], b["median_time_ms"]),
+            Measure("a", "median ms (1280×960)", a["median_time_ms_1280x960"], b["median_time_ms_1280x960"]),
+            Measure("a", "median boresight ″", a["median_bore_arcsec"], b["median_bore_arcsec"]),
+            Measure("a", "within limits", a["within_limits"], b["within_limits"], "count", "higher")]
 
 
 def _summarise(per_image: list[dict], names: list[str]) -> dict:

@@ -9,6 +9,16 @@ import pytest
 REAL_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _kernels_compiled_up_front():
+    """The solve path's kernels compiled once, in parallel, before any test (skyfix.warmup): a
+    fresh checkout's first solve would otherwise print its compile notice into whichever test
+    solves first (and that test's stderr is checked)."""
+    from skyfix import warmup
+
+    warmup.ensure("solve")
+
+
 @pytest.fixture(scope="session")
 def real_dir() -> Path:
     if not REAL_DIR.is_dir():

@@ -5,10 +5,12 @@ parsed and a one-band database (FOV 20°, a few seconds) is built there.
 """
 
 import dataclasses
+import hashlib
 import os
 import subprocess
 import sys
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +20,7 @@ import skyfix.cache
 import skyfix.catalog
 import skyfix.identify.bands as bands_module
 import skyfix.identify.database as database_module
-from skyfix.cache import CorruptFileError, verify, write_npz
+from skyfix.cache import CorruptFileError, has_index, map_npz, verify, write_npz
 from skyfix.catalog import load_hipparcos
 from skyfix.errors import DatabaseError
 from skyfix.identify import PatternDatabase, default_database, default_database_path
@@ -88,6 +90,55 @@ def test_verify_detects_damage(tmp_path, damage):
         np.savez(path, x=np.arange(100_000))  # numpy's own writer: no checksum
     with open(path, "rb") as fh, pytest.raises(CorruptFileError):
         verify(fh, remember=False)
+
+
+def _legacy_npz(path: Path, arrays: dict) -> None:
+    """A file as write_npz wrote it before the member index: members at no particular offset, the
+    zip comment only the checksum trailer."""
+    with open(path, "wb+") as fh:
+        with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+            for name, value in arrays.items():
+                with zf.open(f"{name}.npy", "w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+            zf.comment = b"skyfix-sha256:" + b"0" * 64
+        fh.seek(0)
+        body = fh.read()[:-64]
+        fh.seek(len(body))
+        fh.write(hashlib.sha256(body).hexdigest().encode())
+
+
+def test_members_are_mapped_from_the_index_aligned_without_copies(tmp_path):
+    arrays = {"meta": np.array('{"a": 1}'), "x": np.arange(1001, dtype=np.int64),
+              "y": np.arange(12.0).reshape(3, 4), "f": np.asfortranarray(np.arange(6.0).reshape(2, 3)),
+              "odd": np.arange(7, dtype=np.int8), "empty": np.zeros((0, 3), np.float32)}
+    path = tmp_path / "a.npz"
+    write_npz(path, arrays)
+    assert has_index(path)
+    with open(path, "rb") as fh:
+        verify(fh, remember=False)
+        mapped = map_npz(fh)
+        walked = skyfix.cache._walk_members(fh)
+        assert skyfix.cache._read_index(fh, path.stat().st_size) == {
+            k: [off, np.dtype(dt).str, shape, fortran] for k, (off, dt, shape, fortran) in walked.items()}
+    assert list(mapped) == list(arrays)
+    for name, value in arrays.items():
+        got = mapped[name]
+        assert got.dtype == value.dtype and got.shape == value.shape and np.array_equal(got, value), name
+        assert not got.flags.writeable and got.ctypes.data % 64 == 0, name
+        assert got.base is mapped["x"].base  # one memory map of the file, no copies
+    assert mapped["f"].flags.f_contiguous and not mapped["f"].flags.c_contiguous
+    with np.load(path) as npz:  # still an ordinary .npz
+        assert all(np.array_equal(npz[k], v) for k, v in arrays.items())
+
+
+def test_a_file_without_the_index_is_read_through_the_zip_directory(tmp_path):
+    path = tmp_path / "old.npz"
+    _legacy_npz(path, {"x": np.arange(100), "y": np.eye(3)})
+    assert not has_index(path)
+    with open(path, "rb") as fh:
+        verify(fh, remember=False)
+        mapped = map_npz(fh)
+    assert np.array_equal(mapped["x"], np.arange(100)) and np.array_equal(mapped["y"], np.eye(3))
 
 
 def test_temporary_names_are_unique_per_writer(tmp_path, monkeypatch):
@@ -184,6 +235,23 @@ def test_damaged_catalogue_cache_is_rebuilt(cold_cache, monkeypatch, damage):
 def cached_db(cold_cache) -> tuple[PatternDatabase, Path]:
     db = default_database(FOV, FOV, progress=False)
     return db, default_database_path(FOV, FOV)
+
+
+def test_cached_database_without_the_index_is_saved_again_not_rebuilt(cached_db, monkeypatch):
+    db, path = cached_db
+    assert has_index(path)
+    fresh = {k: v.copy() for k, v in _arrays(db).items()}
+    with np.load(path) as npz:
+        _legacy_npz(path, {k: npz[k] for k in npz.files})
+    del db
+    assert not has_index(path)
+    monkeypatch.setattr(bands_module, "_LOADED", {})
+    monkeypatch.setattr(bands_module, "_build", lambda *a: pytest.fail("rebuilt"))
+    again = default_database(FOV, FOV, progress=False)
+    assert has_index(path)
+    for name, value in fresh.items():
+        assert np.array_equal(np.asarray(getattr(again, name)), value), name
+    _no_temporaries(path.parent)
 
 
 @pytest.mark.parametrize("damage", [_corrupt_middle, _truncate])

@@ -64,7 +64,7 @@ def test_compile_notice_shows_only_while_numba_compiles():
     fresh = numba.njit(lambda x: x + 1)  # never compiled: cache=False
     with compile_notice(console=console):
         assert fresh(1) == 2
-    assert "compiling numba kernels (first run only, ~1–3 min)" in out.getvalue()
+    assert "compiling numba kernels (first use)" in out.getvalue()
 
 
 def test_first_run_database_notice(tmp_path, monkeypatch):
@@ -79,7 +79,7 @@ def test_first_run_database_notice(tmp_path, monkeypatch):
     monkeypatch.setattr(skyfix.identify, "default_database", fake_default_database)
     result = runner.invoke(app, ["solve", str(EXAMPLE)])
     assert result.stderr.splitlines() == [
-        "skyfix: first run: building the pattern database (once; about a minute)…",
+        "skyfix: first run: building the pattern database (once; about 10 s)…",
         "skyfix: error: stop here"]
 
 

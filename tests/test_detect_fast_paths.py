@@ -154,3 +154,52 @@ def test_run_labelling_matches_scipy(density):
             excess = float(sm[ys, xs].astype(np.float64).sum())
             assert comp["excess"] == pytest.approx(excess, rel=1e-9, abs=1e-9)
             assert comp["peak"] == img[ys, xs].max()
+
+
+def test_converted_frames_go_to_one_reused_buffer():
+    """8/16-bit and float64 frames are converted into the thread's one float32 buffer (a fresh
+    multi-megabyte array a call faulted its pages in every time), with astype's values, and
+    give the stars their float32 copies give."""
+    from skyfix.detect.components import float32_frame
+
+    u16, _ = _star_field()
+    a = float32_frame(u16)
+    b = float32_frame((u16 // 2).astype(np.float64))
+    assert a is b and a.dtype == np.float32 and a.flags.c_contiguous
+    np.testing.assert_array_equal(b, (u16 // 2).astype(np.float32))
+    f32 = u16.astype(np.float32)
+    assert float32_frame(f32) is f32  # already float32: as it is
+    ref = extract_centroids(f32)
+    for frame in (u16, u16.astype(np.float64), np.asfortranarray(u16)):
+        c = extract_centroids(frame)
+        assert len(c) == len(ref) > 10
+        for col in ("x", "y", "flux", "snr"):
+            np.testing.assert_array_equal(getattr(c, col), getattr(ref, col))
+
+
+def test_run_count_is_exact():
+    """The labelling sizes its run tables by counting the runs of set pixels (words of 8 mask
+    bytes): the count equals the number of 0 → 1 steps along the rows."""
+    from skyfix.detect.labelling import _count_runs
+
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        h, w = int(rng.integers(1, 12)), int(rng.integers(1, 200))
+        mask = np.zeros((h, (w + 63) // 64 * 64), np.uint8)
+        mask[:, :w] = rng.random((h, w)) < rng.random()
+        blocks = mask.reshape(h, -1, 64).any(axis=2).astype(np.uint8)
+        steps = np.diff(mask[:, :w].astype(np.int8), axis=1, prepend=0) == 1
+        assert _count_runs(mask, blocks) == int(steps.sum())
+
+
+@pytest.mark.parametrize("bad", [0.5, np.nan, np.inf, -np.inf])
+def test_whole_number_test_on_the_sample_lattice(bad):
+    """A frame is integer-valued when every sample of its 7 × 5 lattice is a whole number; one
+    fractional, NaN or infinite sample says no, one off the lattice is not seen."""
+    frame = np.round(np.random.default_rng(2).normal(500, 30, (50, 61))).astype(np.float32)
+    assert is_integer_valued(frame)
+    on, off = frame.copy(), frame.copy()
+    on[42, 55] = bad  # row 42 = 6·7, column 55 = 11·5
+    off[43, 55] = bad
+    assert not is_integer_valued(on)
+    assert is_integer_valued(off)

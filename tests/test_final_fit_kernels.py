@@ -340,7 +340,7 @@ def test_solution_numbers_equal_numpy():
     idx = rng.permutation(60)[:40]
     mag = rng.uniform(2, 8, 40)
     A = Rotation.random(random_state=rng).as_matrix()
-    pointing, table, rmse = pipeline._solution_numbers(A, xy, idx, v, mag, resid)
+    pointing, table, rmse = pipeline.solution_numbers(A, xy, idx, v, mag, resid)
     ref = rotation.pointing(A)
     np.testing.assert_array_equal(pointing, np.r_[np.degrees(ref[:3]), ref[3:]])
     ra_ref = np.arctan2(v[:, 1], v[:, 0]) % (2 * np.pi)

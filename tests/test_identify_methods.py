@@ -28,6 +28,18 @@ def test_registry_holds_the_quad_method_as_default():
         get_method("nope")
 
 
+def test_registry_names_are_the_methods_own():
+    """Each name of the registry is the ``METHOD`` of the module its function comes from (the
+    registry imports a method's module when its name is first looked up)."""
+    import sys
+
+    for name in METHODS:
+        method = METHODS[name]
+        assert method is get_method(name) and method.__name__ == "identify"
+        assert sys.modules[method.__module__].METHOD == ("quad-hash" if name == "hash" else name)
+    assert len(METHODS) == len(list(METHODS)) == 10
+
+
 def test_method_options_are_the_method_keywords_beyond_the_interface():
     options = method_options("quad-hash")
     assert "max_patterns" in options and "prob_threshold" in options

@@ -8,14 +8,16 @@ wrong neighbours (:func:`equidistant_consensus`).
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numba
 import numpy as np
-from scipy.spatial import cKDTree
 
 from skyfix._kernels import lens, rotation
 from skyfix.identify.verify import cell_band
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 __all__ = ["CONE_MARGIN", "CatalogueCone", "Matches", "Rematched", "chord", "cone_stars",
            "equidistant_consensus", "match_catalogue", "rotated", "star_tree", "within"]
@@ -51,6 +53,8 @@ class Rematched(NamedTuple):
 
 def star_tree(database) -> cKDTree:
     """The database's stars as a k-d tree of their unit vectors (built once, kept on it)."""
+    from scipy.spatial import cKDTree
+
     tree = database.__dict__.get("_star_tree")
     if tree is None:
         tree = cKDTree(np.asarray(database.star_vectors, dtype=np.float64))
@@ -217,6 +221,8 @@ def match_catalogue(xy: np.ndarray, fit, stars: CatalogueCone, max_radius_px: fl
         near, v, uv, radius = near[look], v[look], uv[look], radius[look]
         if len(near) == 0:
             return empty._replace(complete=False)
+    from scipy.spatial import cKDTree
+
     dist, j = cKDTree(xy).query(uv, distance_upper_bound=float(radius.max()))
     hit = dist <= radius
     star, cen = np.flatnonzero(hit), j[hit]

@@ -440,6 +440,10 @@ def solve_attitude(b_cam: np.ndarray, r_icrs: np.ndarray, weights: np.ndarray | 
         solver = METHODS[method.lower()]
     except (KeyError, AttributeError):
         raise ValueError(f"unknown attitude method {method!r}; known: {', '.join(METHODS)}") from None
+    if solver is not svd_attitude:  # the other solvers' kernels, compiled up front on first use
+        from skyfix import warmup
+
+        warmup.ensure("attitude")
     return solver(b_cam, r_icrs, weights)
 
 

@@ -24,13 +24,16 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from skyfix.cache import CorruptFileError, cache_dir, exclusive_lock, notice, verify, write_npz
 from skyfix.errors import CatalogError
 from skyfix.geometry import normalize, radec_to_vector, vector_to_radec
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 __all__ = ["Catalog", "load_hipparcos", "load_gaia", "cache_dir", "epoch_now", "fibonacci_sphere",
            "hip2_path", "gaia_path", "crossmatch_hipparcos", "g_to_hp", "hp_to_g", "BANDS",
@@ -103,6 +106,8 @@ class Catalog:
     @cached_property
     def tree(self) -> cKDTree:
         """k-d tree on the unit vectors (chord distances)."""
+        from scipy.spatial import cKDTree
+
         return cKDTree(self.vectors)
 
     def _with(self, index, vectors: np.ndarray | None = None, epoch: float | None = None) -> Catalog:
@@ -133,6 +138,8 @@ class Catalog:
     def thinned(self, n_cells: int, per_cell: int) -> Catalog:
         """An even-density subset: the ``per_cell`` brightest stars in each of ``n_cells`` equal
         cells of the sphere (cells are Voronoi regions of a Fibonacci lattice)."""
+        from scipy.spatial import cKDTree
+
         centres = fibonacci_sphere(n_cells)
         _, cell = cKDTree(centres).query(self.vectors)
         order = np.lexsort((self.mag, cell))  # by cell, then brightness
@@ -430,6 +437,8 @@ def crossmatch_hipparcos(vectors: np.ndarray, g: np.ndarray, bp_rp: np.ndarray,
     if len(vectors) == 0 or len(hip_vectors) == 0:
         return out
     k = 4
+    from scipy.spatial import cKDTree
+
     chord = 2.0 * np.sin(radius_arcsec * _ARCSEC_TO_RAD / 2.0)
     dist, idx = cKDTree(vectors).query(hip_vectors, k=k, distance_upper_bound=chord)
     found = np.isfinite(dist)

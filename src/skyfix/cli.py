@@ -8,6 +8,7 @@ traceback unless asked with ``-vv`` (:mod:`skyfix.cli_support`).
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
 from pathlib import Path
@@ -128,7 +129,7 @@ def solve(
         camera = _load_camera(camera_file) if camera_file is not None else None
     except SkyfixError as exc:
         fail(error_line(exc, camera_file))
-    database = load_database(database_file)
+    database = load_database(database_file, _solve_paths(identify_method, method, hint is not None))
     if hint is not None and camera is None and fov is None:
         typer.echo("skyfix: note: --attitude-hint needs the image scale (--camera or --fov); "
                    "solving lost in space", err=True)
@@ -162,6 +163,19 @@ def solve(
     if progress is not None:
         progress.stop()
     raise typer.Exit(2 if any_error else 1 if any_failed else 0)
+
+
+def _solve_paths(identify_method: str, attitude_method: str, hint: bool) -> list[str]:
+    """The warm-up paths (:mod:`skyfix.warmup`) a solve with these options runs: the default
+    solve's, and the method's, solver's and hint's when they are not the defaults."""
+    paths = ["solve"]
+    if identify_method.lower() not in ("quad-hash", "hash"):
+        paths.append(f"method-{identify_method.lower()}")
+    if attitude_method.lower() != "svd":
+        paths.append("attitude")
+    if hint:
+        paths.append("hint")
+    return paths
 
 
 def _attitude_hint(text: str | None):
@@ -668,6 +682,44 @@ def _simulate_progress(n: int):
     progress.add_task("rendering", total=n)
     progress.start()
     return progress
+
+
+@app.command("warmup")
+@guarded
+def warmup_command(
+    paths: list[str] = typer.Argument(None, metavar="PATH",
+                                      help="What to compile (default: everything): see --list."),
+    list_paths: bool = typer.Option(False, "--list", help="List the paths, whether each is compiled; exit."),
+    workers: int = typer.Option(None, "--workers", help="Processes at once (default: every CPU)."),
+    verbose: int = VERBOSE,
+) -> None:
+    """Compile skyfix's kernels now, on every core, instead of on each feature's first use (once)."""
+    add_verbosity(verbose)
+    from skyfix import warmup
+
+    names = list(paths) if paths else list(warmup.PATHS)
+    unknown = [p for p in names if p not in warmup.PATHS]
+    if unknown:
+        fail(f"unknown warm-up path {unknown[0]!r}; choose from {', '.join(warmup.PATHS)}")
+    if workers is not None:
+        workers = check_count(workers, "--workers")
+    if list_paths:
+        n = workers or warmup.default_workers()
+        for name in names:
+            state = ("compiled" if warmup.is_warm(name) else
+                     f"to compile: about {warmup.estimate_s(warmup.pending([name]), n):.0f} s on {n} cores")
+            typer.echo(f"{name:28s} {state}")
+        raise typer.Exit(0)
+    from skyfix.identify import default_database, default_database_path
+
+    building = not default_database_path().exists()
+    alongside = functools.partial(default_database, progress=False) if building else None
+    done = warmup.warm(names, workers=workers, alongside=alongside,
+                       also="building the pattern database" if building else "")
+    left = [p for p in names if not warmup.is_warm(p)]
+    if left:
+        fail(f"could not compile {', '.join(left)} ahead of use (see -v); they compile on first use", code=1)
+    typer.echo(f"skyfix: {len(names)} path(s) compiled" + ("" if done else " already"))
 
 
 def _register_track() -> None:

@@ -14,7 +14,6 @@ All angles are radians unless a name says otherwise.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from skyfix._kernels import rotation
 
@@ -96,6 +95,8 @@ def quaternion_from_attitude(A_icrs_to_cam: np.ndarray) -> np.ndarray:
 
 def attitude_from_quaternion(quaternion_xyzw: np.ndarray) -> np.ndarray:
     """Attitude matrix of a scalar-last quaternion (inverse of :func:`quaternion_from_attitude`)."""
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_quat(np.asarray(quaternion_xyzw, dtype=np.float64)).as_matrix()
 
 
@@ -110,5 +111,7 @@ def angle_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def rotation_angle_between(A1: np.ndarray, A2: np.ndarray) -> float:
     """Angle of the rotation that takes attitude ``A1`` to ``A2``, radians."""
+    from scipy.spatial.transform import Rotation
+
     dA = np.asarray(A2) @ np.asarray(A1).T
     return float(np.linalg.norm(Rotation.from_matrix(dA).as_rotvec()))

@@ -7,6 +7,7 @@ of its own module; this one only composes them, times them and fills in the Solu
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 import os
@@ -29,7 +30,7 @@ from skyfix.validate import (
     check_xy,
 )
 
-__all__ = ["solve", "solve_centroids"]
+__all__ = ["solution_numbers", "solve", "solve_centroids"]
 
 log = logging.getLogger("skyfix")
 
@@ -118,6 +119,7 @@ def solve(
         from skyfix.detect.smear import smear_offsets
 
         smear_offsets(smear_px)  # checked before any work
+    _warm(database, fov_deg, camera)
     t0 = time.perf_counter()
     label = name if name is not None else (str(image) if isinstance(image, (str, Path)) else "<array>")
     data = raw = read_image(image)
@@ -180,6 +182,7 @@ def solve_centroids(
     _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_method,
                    identify_options)
     hint = _checked_hint(attitude_hint)
+    _warm(database, fov_deg, camera)
     sol = Solution(image=name, n_detected=len(xy))
     if camera is not None and (camera.width, camera.height) != (width, height):
         raise CameraError(f"camera is {camera.width}×{camera.height} but the image is {width}×{height}")
@@ -247,6 +250,25 @@ def solve_centroids(
     elif hint_failure:
         sol.reason += f"; attitude hint: {hint_failure}"
     return sol
+
+
+def _warm(database, fov_deg: float | None, camera: Camera | None) -> None:
+    """A first solve's kernels compiled up front, in parallel (:func:`skyfix.warmup.ensure`),
+    while the pattern database it will search first is built, if that is not cached yet."""
+    from skyfix import warmup
+
+    if warmup.is_warm("solve"):
+        return
+    alongside, also = None, ""
+    if database is None:
+        from skyfix.identify import bands
+
+        fov = camera.fov_deg if camera is not None else fov_deg
+        band = (bands.bands_for(fov, fov) or bands.BANDS)[0] if fov is not None else bands.STANDARD
+        if not band.path.exists():
+            alongside = functools.partial(bands.band_database, band, progress=False)
+            also = "building the pattern database"
+    warmup.ensure("solve", alongside=alongside, also=also)
 
 
 SPARSE_FIELD_STARS = 8
@@ -445,11 +467,8 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
         sol.reason = imprecise
         log.info("%s: %s", sol.image, imprecise)
         return
-    f64 = np.float64
-    pointing, table, rmse = _solution_numbers(
-        np.ascontiguousarray(A, dtype=f64), np.ascontiguousarray(xy, dtype=f64),
-        np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(fit.catalog_vectors, dtype=f64),
-        np.ascontiguousarray(fit.catalog_mag, dtype=f64), np.ascontiguousarray(fit.residuals_rad, dtype=f64))
+    pointing, table, rmse = solution_numbers(A, xy, idx, fit.catalog_vectors, fit.catalog_mag,
+                                             fit.residuals_rad)
     pointing = pointing.tolist()
     sol.status = "solved"
     sol.reason = ""
@@ -471,12 +490,22 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     sol.matches = list(map(Match, x, y, np.asarray(fit.catalog_ids).tolist(), ra, dec, mag, resid))
 
 
+def solution_numbers(A: np.ndarray, xy: np.ndarray, idx: np.ndarray, v: np.ndarray, mag: np.ndarray,
+                     resid: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The numbers of a solved Solution in one call: RA, Dec, roll in degrees and the quaternion
+    ``[x, y, z, w]`` (7,) (:func:`skyfix._kernels.rotation.pointing`) of the attitude ``A``; the
+    table (6, M) of the matches' x, y (``xy[idx]``), RA and Dec (degrees) of their catalogue
+    vectors ``v``, magnitude ``mag`` and residual (``resid``, rad → arcsec); the residuals' RMS
+    (radians)."""
+    f64 = np.float64
+    return _solution_numbers(np.ascontiguousarray(A, dtype=f64), np.ascontiguousarray(xy, dtype=f64),
+                             np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(v, dtype=f64),
+                             np.ascontiguousarray(mag, dtype=f64), np.ascontiguousarray(resid, dtype=f64))
+
+
 @numba.njit(cache=True)
 def _solution_numbers(A, xy, idx, v, mag, resid):
-    """The numbers of a solved Solution in one call: RA, Dec, roll in degrees and the quaternion
-    ``[x, y, z, w]`` (7,) (:func:`skyfix._kernels.rotation.pointing`); the matches' table
-    (6, M) of x, y, RA and Dec (degrees), magnitude and residual (arcsec); the residuals' RMS
-    (radians)."""
+    """:func:`solution_numbers`, compiled (its arguments contiguous, float64 but ``idx``)."""
     n = v.shape[0]
     table = np.empty((6, n))
     ss = 0.0

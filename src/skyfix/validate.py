@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import math
 import numbers
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from skyfix.errors import InputError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = [
     "check_solve_options",
@@ -121,6 +123,8 @@ def check_frame_size(width: object, height: object) -> tuple[int, int]:
 
 def check_xy(xy: object) -> np.ndarray:
     """Centroids as a float64 (N, 2) array (a flat array of pairs is accepted)."""
+    import numpy as np
+
     try:
         a = np.asarray(xy, dtype=np.float64)
     except (TypeError, ValueError):

@@ -26,14 +26,12 @@ editing ``_kernels/lens.py`` drops every kernel that inlines it
 
 from __future__ import annotations
 
-import ast
-import hashlib
 import json
 import os
 import re
 from pathlib import Path
 
-__all__ = ["drop_stale_kernel_caches"]
+__all__ = ["drop_stale_kernel_caches", "kernel_cache_folder", "kernels_digest"]
 
 _PACKAGE = Path(__file__).resolve().parent.parent
 _STAMP = "skyfix_kernels.json"
@@ -42,7 +40,39 @@ _NAMED_TUPLE = re.compile(rb"\(\s*(typing\.)?NamedTuple\s*\)")
 
 
 def _sources(package: Path) -> list[Path]:
-    return sorted(p for p in package.rglob("*.py") if "__pycache__" not in p.parts)
+    out = []
+    for root, dirs, files in os.walk(package):
+        dirs[:] = [d for d in dirs if d != "__pycache__"]  # numba's cached kernels: hundreds of files
+        out += [Path(root, f) for f in files if f.endswith(".py")]
+    return sorted(out)
+
+
+_DIGESTS: dict[Path, dict[str, str]] = {}  # each package's kernel digests, as this process last saw them
+
+
+def kernels_digest(package: Path = _PACKAGE) -> str:
+    """One digest of all the package's kernels: of their :func:`kernel_digests` as
+    :func:`drop_stale_kernel_caches` last saw them (run at ``import skyfix``). It changes when a
+    kernel's code, or code a kernel depends on, changes — when cached kernels are dropped — and
+    not when a command or a report does (:mod:`skyfix.warmup` keys its stamp on it). For a
+    read-only install, whose sources do not change, the sources' names, sizes and times."""
+    import hashlib
+
+    digests = _DIGESTS.get(package)
+    text = (json.dumps(digests, sort_keys=True) if digests is not None
+            else _stat_line(package, _sources(package)))
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def kernel_cache_folder(package: Path = _PACKAGE) -> Path | None:
+    """The folder beside the package's sources where its kernel-cache stamps live (and numba's
+    cache, for a writable install); None for a read-only install."""
+    folder = package / "__pycache__"
+    try:
+        folder.mkdir(exist_ok=True)
+    except OSError:
+        return None
+    return folder if os.access(folder, os.W_OK) else None
 
 
 def _stat_line(package: Path, paths: list[Path]) -> str:
@@ -66,6 +96,8 @@ def _module_file(package: Path, dotted: str) -> Path | None:
 def _imports(package: Path, path: Path, text: bytes) -> set[Path]:
     """The package's source files that ``path`` imports (``import skyfix.x``, ``from skyfix.x
     import y`` — ``y`` too when it is a module — and relative imports)."""
+    import ast  # here, not at the top: only a changed source needs it (``import skyfix`` stays cheap)
+
     name = package.name
     try:
         tree = ast.parse(text)
@@ -109,6 +141,8 @@ def _closure(start: Path, graph: dict[Path, set[Path]]) -> set[Path]:
 def kernel_digests(package: Path = _PACKAGE) -> dict[str, str]:
     """For each source file holding numba kernels, the digest of what its kernels depend on
     (the module docstring says what that is)."""
+    import hashlib
+
     paths = _sources(package)
     text = {p: p.read_bytes() for p in paths}
     graph = {p: _imports(package, p, text[p]) for p in paths}
@@ -163,8 +197,9 @@ def drop_stale_kernel_caches(package: Path = _PACKAGE) -> bool:
         except (OSError, ValueError, KeyError, TypeError):
             old_digests, old_stats = {}, ""
         if stats == old_stats:
+            _DIGESTS[package] = old_digests
             return False
-        digests = kernel_digests(package)
+        digests = _DIGESTS[package] = kernel_digests(package)
         stale = [rel for rel, d in digests.items() if old_digests.get(rel) != d]
         for rel in stale:
             _drop(_cached_kernels_of(package, rel))

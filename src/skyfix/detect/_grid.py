@@ -64,9 +64,14 @@ def grid_weights(centers_y: np.ndarray, centers_x: np.ndarray, shape: tuple[int,
 
 
 def sky_grid(bg, shape: tuple[int, int]) -> SkyGrid:
-    """The :class:`SkyGrid` of a Background ``bg`` on a frame of ``shape`` (H, W)."""
-    return SkyGrid(bg.level, bg.noise, bg.level_smooth, bg.noise_smooth, bg.centers_y, bg.centers_x,
-                   grid_weights(bg.centers_y, bg.centers_x, shape))
+    """The :class:`SkyGrid` of a Background ``bg`` on a frame of ``shape`` (H, W): every array
+    C-contiguous float64, whatever the background held (a background's grids may be views: one
+    layout keeps the kernels to one compiled signature)."""
+    def c64(a: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(a, dtype=np.float64)
+
+    return SkyGrid(c64(bg.level), c64(bg.noise), c64(bg.level_smooth), c64(bg.noise_smooth),
+                   c64(bg.centers_y), c64(bg.centers_x), grid_weights(bg.centers_y, bg.centers_x, shape))
 
 
 @njit(cache=True)

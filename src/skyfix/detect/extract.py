@@ -29,7 +29,7 @@ from skyfix.detect._grid import sky_grid, values_near
 from skyfix.detect.background import Background, estimate_background
 from skyfix.detect.centroid import CENTROIDERS, GAUSSIAN, Refined, refine_centroids
 from skyfix.detect.centroids import Centroids, background_snr
-from skyfix.detect.components import Options
+from skyfix.detect.components import Options, float32_frame
 from skyfix.detect.components import run as run_components
 from skyfix.detect.hillclimb import extract_hillclimb
 from skyfix.detect.region_grow import extract_region_grow
@@ -47,8 +47,7 @@ class Method(NamedTuple):
 
     #: ``extract(frame, options) -> Centroids``, ``options`` the :class:`Options`
     extract: Callable[[np.ndarray, Options], Centroids]
-    #: takes frames with non-finite pixels (it finds them itself) and 8/16-bit frames as they
-    #: are; the others get a finite float32 frame
+    #: takes frames with non-finite pixels (it finds them itself); the others get them replaced
     raw_frames: bool = False
 
 
@@ -180,15 +179,21 @@ def extract_centroids(
     sigma = check_positive(sigma, "sigma")
     max_stars = check_count(max_stars, "max_stars")
     detector = METHODS[method]
+    if method != "components" or centroid != "com":  # their kernels, compiled up front (skyfix.warmup)
+        from skyfix import warmup
+
+        if method != "components":
+            warmup.ensure(f"detector-{method}", missing_ok=True)
+        if centroid != "com":
+            warmup.ensure("centroiders")
+    frame, check = image, not detector.raw_frames
+    if isinstance(image, np.ndarray) and image.ndim == 2 and image.size and image.dtype.kind in "biuf":
+        # float32 for every kernel, converted into a reused buffer (components.float32_frame);
+        # only float data can hold non-finite pixels
+        frame, check = float32_frame(image), check and image.dtype.kind == "f"
     try:
-        raw = np.asarray(image)
-        if detector.raw_frames and centroid == "com" and raw.ndim == 2 and raw.size and raw.dtype in (
-                np.uint8, np.uint16):
-            # 8/16-bit frames go to the kernels as they are (no float32 copy; same numbers)
-            img = np.ascontiguousarray(raw)
-        else:
-            # a method that finds non-finite pixels itself (while smoothing) saves a pass
-            img = as_image(image, name="image", replace_nonfinite=not detector.raw_frames)
+        # a method that finds non-finite pixels itself (while smoothing) saves a pass
+        img = as_image(frame, name="image", replace_nonfinite=check)
     except ImageReadError:
         return Centroids.empty((0, 0) if np.ndim(image) != 2 else np.shape(image), reason="unusable")
     h, w = img.shape

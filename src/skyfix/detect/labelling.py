@@ -66,14 +66,14 @@ CANDIDATE = np.dtype([("id", np.int32), ("y0", np.int64), ("y1", np.int64), ("x0
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
-def smooth_threshold(img, bits, float_bits, thr_grid, sky, frames):
+def smooth_threshold(img, bits, thr_grid, sky, frames):
     """One pass: the frame smoothed into ``frames.smooth``, above threshold into ``frames.mask``.
 
     The smoothing is :func:`~skyfix.detect.background.smooth3`'s; ``frames.blocks`` flags the
     64-pixel blocks of each mask row that hold a set pixel (the labelling skips the others).
 
-    ``bits`` is a float32 ``img`` viewed as int32 (``float_bits``), or an unsigned integer
-    ``img`` itself (its values are their own order). ``thr_grid`` is the threshold on the tile
+    ``img`` is float32 (:func:`~skyfix.detect.background.frame_f32`) and ``bits`` the same
+    pixels viewed as int32 (for the maximum). ``thr_grid`` is the threshold on the tile
     grid of ``sky`` (a :class:`~skyfix.detect._grid.SkyGrid`), interpolated bilinearly (raised
     on the border, :func:`_threshold_at`).
     Returns the sum of the raw frame (non-finite if any pixel is) and its maximum.
@@ -120,8 +120,6 @@ def smooth_threshold(img, bits, float_bits, thr_grid, sky, frames):
             for wi in range(8 * c, 8 * c + 8):
                 any_set |= words[wi]
             blocks[y, c] = any_set != 0
-    if not float_bits:
-        return total, float(top)
     top ^= (top >> 31) & np.int32(0x7FFFFFFF)
     return total, float(np.array([top], np.int32).view(np.float32)[0])
 
@@ -160,11 +158,7 @@ def label_components(img, frames, sky, max_components):
     h, w = sm.shape
     b0, db = grid_rows(sky.level_smooth, sky.weights)
     q0, dq = grid_rows(sky.level, sky.weights)
-    n_blocks = 0
-    for y in range(h):
-        for c in range(blocks.shape[1]):
-            n_blocks += blocks[y, c] != 0
-    cap = 32 * n_blocks + 1  # a 64-pixel block holds at most 32 runs
+    cap = _count_runs(mask, blocks) + 1  # the run tables, exactly (a bound of 32 a block was 5 MB)
     run_y = np.empty(cap, np.int64)
     run_x0 = np.empty(cap, np.int64)
     run_x1 = np.empty(cap, np.int64)
@@ -258,6 +252,33 @@ def label_components(img, frames, sky, max_components):
         for x in range(x0, x1 + 1):
             labels[y, x] = c + 1
     return comps
+
+
+@njit(cache=True)
+def _count_runs(mask, blocks):
+    """How many runs of set pixels the rows of ``mask`` hold (in the blocks ``blocks`` flags).
+
+    A mask word holds 8 pixels, a byte each (0 or 1): a run starts at a set byte whose left
+    neighbour (the byte below it, or the previous word's top byte) is clear, and the starts of
+    a word are counted by summing its bytes (a multiply by 0x0101…01, the sum in the top byte).
+    Freeing tables sized by a bound of 32 runs a block (5 MB on a dense 1280 × 960 frame) let
+    the allocator hand the heap back and fault it in again on every call.
+    """
+    n = np.int64(0)  # typed (skyfix.detect._stats)
+    ones = np.uint64(0x0101010101010101)
+    words = mask.view(np.uint64)
+    for y in range(mask.shape[0]):
+        prev = np.uint64(0)  # the word left of the block (0 if its block is empty)
+        for c in range(blocks.shape[1]):
+            if blocks[y, c] == 0:
+                prev = np.uint64(0)
+                continue
+            for wi in range(8 * c, 8 * c + 8):
+                cur = words[y, wi]
+                starts = cur & ~((cur << np.uint64(8)) | (prev >> np.uint64(56)))
+                n += np.int64((starts * ones) >> np.uint64(56))
+                prev = cur
+    return n
 
 
 @njit(cache=True)

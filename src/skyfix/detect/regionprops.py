@@ -23,7 +23,6 @@ All per-spot sums are vectorised with ``scipy.ndimage`` over the label image.
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from skyfix.detect._stats import sum_sq_dev
 from skyfix.detect.background import smooth3
@@ -93,6 +92,8 @@ def extract_regionprops(image: np.ndarray, *, sigma: float = 3.0, max_stars: int
     level, noise = global_background(img)
     if not noise > 0:
         return Centroids.empty((h, w), level, noise, reason="flat frame")
+    from scipy import ndimage
+
     labels, n = ndimage.label(work > level + sigma * noise, structure=np.ones((3, 3), bool))
     if n == 0:
         return Centroids.empty((h, w), level, noise)

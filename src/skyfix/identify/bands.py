@@ -23,7 +23,8 @@ as the standard band's).
 falls in; with none, all of them, the standard band first (the common case stays as fast as it
 was). :func:`band_database` loads a band's database from the user cache, building it (with a
 progress bar) the first time it is needed; a cached file that is corrupt, truncated, of another
-version or built with other settings is rebuilt, never used.
+version or built with other settings is rebuilt, never used (one written before files carried a
+member index is saved again with one: :mod:`skyfix.cache`).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ import os
 from pathlib import Path
 from typing import NamedTuple
 
-from skyfix.cache import cache_dir, exclusive_lock, notice
+from skyfix.cache import cache_dir, exclusive_lock, has_index, notice
 from skyfix.errors import DatabaseError
 from skyfix.identify.database import DATABASE_VERSION, PatternDatabase, ProgressCallback
 
@@ -209,6 +210,18 @@ def _tell(progress: bool | ProgressCallback, message: str) -> None:
         log.info("%s", message)
 
 
+def _with_index(db: PatternDatabase, path: Path) -> PatternDatabase:
+    """``db``, loaded from ``path``, a file written before databases carried a member index: saved
+    again (the same arrays: a copy, not a rebuild), so later loads skip the zip directory walk."""
+    log.info("adding a member index to the cached pattern database %s", path)
+    try:
+        db.save(path)
+        return PatternDatabase.load(path)
+    except (OSError, DatabaseError) as exc:  # a read-only cache: it loads as it is
+        log.warning("cannot rewrite the pattern database %s: %s", path, exc)
+        return db
+
+
 def _load_cached(path: Path, band: Band, *, remove_bad: bool) -> PatternDatabase | None:
     """The database cached at ``path``, or None if absent, unusable or built with settings other than
     ``band``'s (then removed if ``remove_bad``)."""
@@ -219,7 +232,7 @@ def _load_cached(path: Path, band: Band, *, remove_bad: bool) -> PatternDatabase
         stale = _settings_differ(db, band)
         if stale:
             raise DatabaseError(f"pattern database {path} was {stale}")
-        return db
+        return db if has_index(path) else _with_index(db, path)
     except DatabaseError as exc:
         if remove_bad:
             log.warning("rebuilding the cached pattern database: %s", exc)

@@ -8,8 +8,9 @@ a camera of that FOV points, some lattice field nearly coincides with its view, 
 image's brightest stars form patterns that are in the database. Close doubles (which a
 detector merges) are dropped per band. Patterns found by several fields or bands are kept once.
 
-The file is an uncompressed ``.npz`` whose members are memory-mapped on load, written atomically
-with a checksum that is checked on load (:mod:`skyfix.cache`).
+The file is an uncompressed ``.npz`` whose members are memory-mapped on load (one map of the file,
+found from an index in the zip comment), written atomically with a checksum that is checked on
+load (:mod:`skyfix.cache`).
 """
 
 from __future__ import annotations
@@ -23,13 +24,12 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
-from typing import BinaryIO, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from skyfix._kernels.rotation import chord_angle
-from skyfix.cache import CorruptFileError, verify, write_npz
+from skyfix.cache import CorruptFileError, map_npz, verify, write_npz
 from skyfix.catalog import Catalog, epoch_now, fibonacci_sphere, load_hipparcos
 from skyfix.errors import DatabaseError
 from skyfix.identify.hashing import build_table, edge_ratios, key_codes
@@ -339,12 +339,11 @@ class PatternDatabase:
         try:
             with open(path, "rb") as fh:
                 verify(fh)
-                arrays, meta = _mmap_npz(fh, path)
+                arrays = map_npz(fh)
+            meta = json.loads(str(arrays.pop("meta")[()])) if "meta" in arrays else {}
         except CorruptFileError as exc:
             raise DatabaseError(f"pattern database {path} is unusable: {exc}; rebuild it "
                                 "(skyfix database build)") from None
-        except DatabaseError:
-            raise
         except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError, json.JSONDecodeError) as exc:
             raise DatabaseError(f"cannot read pattern database {path}: {exc.__class__.__name__}: "
                                 f"{str(exc).splitlines()[0] if str(exc) else ''}".rstrip(": ")) from None
@@ -391,6 +390,8 @@ def readonly_view(a: np.ndarray) -> np.ndarray:
 
 def _cell_index(vectors: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Stars grouped by nearest Fibonacci-lattice cell: centres, start offsets, stars, radius."""
+    from scipy.spatial import cKDTree
+
     centres = fibonacci_sphere(n_cells)
     dist, cell = cKDTree(centres).query(vectors)
     order = np.lexsort((np.arange(len(vectors)), cell))  # by cell, then brightness
@@ -415,6 +416,8 @@ def brightest_per_field(vectors: np.ndarray, radius: float, lattice_step: float,
     stars. The pattern database (4-combinations of each row) and the pair table
     (:mod:`skyfix.identify.pairs`) choose their stars this way.
     """
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(vectors)
     # Drop the fainter member of close pairs (vectors are brightest first).
     pairs = tree.query_pairs(2 * math.sin(double_sep / 2), output_type="ndarray")
@@ -536,39 +539,3 @@ def _reporter(progress: bool | ProgressCallback, title: str) -> Iterator[Progres
     task = bar.add_task("starting", total=1.0)
     with bar:
         yield lambda what, fraction: bar.update(task, description=what, completed=fraction)
-
-
-def _mmap_npz(fh: BinaryIO, path: Path) -> tuple[dict[str, np.ndarray], dict]:
-    """Memory-map the members of the uncompressed ``.npz`` open as ``fh``; returns (arrays, meta)."""
-    arrays: dict[str, np.ndarray] = {}
-    meta: dict = {}
-    size = fh.seek(0, 2)
-    with zipfile.ZipFile(fh) as zf:
-        for info in zf.infolist():
-            name = info.filename.removesuffix(".npy")
-            if info.compress_type != zipfile.ZIP_STORED:
-                raise DatabaseError(f"pattern database {path} is compressed; rebuild it")
-            fh.seek(info.header_offset)
-            local = fh.read(30)
-            if len(local) < 30 or local[:4] != b"PK\x03\x04":
-                raise DatabaseError(f"pattern database {path} is corrupt (bad zip member {name})")
-            n_name = int.from_bytes(local[26:28], "little")
-            n_extra = int.from_bytes(local[28:30], "little")
-            fh.seek(info.header_offset + 30 + n_name + n_extra)
-            version = np.lib.format.read_magic(fh)
-            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                           else np.lib.format.read_array_header_2_0)
-            shape, fortran, dtype = read_header(fh)
-            offset = fh.tell()
-            nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
-            if offset + nbytes > size:
-                raise DatabaseError(f"pattern database {path} is truncated")
-            if name == "meta":
-                meta = json.loads(str(np.load(zf.open(info.filename))))
-                continue
-            if dtype.hasobject:
-                raise DatabaseError(f"pattern database {path} holds object arrays")
-            arrays[name] = (np.memmap(fh, dtype=dtype, mode="r", offset=offset, shape=shape,
-                                      order="F" if fortran else "C") if nbytes else
-                            np.zeros(shape, dtype))
-    return arrays, meta

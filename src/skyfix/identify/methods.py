@@ -60,14 +60,16 @@ True
 from __future__ import annotations
 
 import functools
+import importlib
 import inspect
+from collections.abc import Iterator, MutableMapping
 from typing import Protocol
 
 import numpy as np
 
 from skyfix.camera import Camera
 from skyfix.errors import InputError
-from skyfix.identify import area_moment, grid, liebe, match_groups, planar, pyramid, quad, triangle, voting
+from skyfix.identify import quad
 from skyfix.identify.database import PatternDatabase
 from skyfix.identify.result import Identification
 
@@ -84,18 +86,50 @@ class IdentifyMethod(Protocol):
                  **options) -> Identification: ...
 
 
-METHODS: dict[str, IdentifyMethod] = {
-    quad.METHOD: quad.identify,
-    "hash": quad.identify,
-    triangle.METHOD: triangle.identify,
-    liebe.METHOD: liebe.identify,
-    planar.METHOD: planar.identify,
-    area_moment.METHOD: area_moment.identify,
-    pyramid.METHOD: pyramid.identify,
-    grid.METHOD: grid.identify,
-    voting.METHOD: voting.identify,
-    match_groups.METHOD: match_groups.identify,
-}
+class _Registry(MutableMapping):
+    """``name → method``, each method's module imported the first time its name is looked up: a
+    solve imports the methods it runs, not every one (their kernels' set-up costs a process
+    start ~0.1 s). Iterating gives the names without importing anything; a method can be
+    registered (or replaced) as in a dict, ``METHODS[name] = function``."""
+
+    def __init__(self, modules: dict[str, str]) -> None:
+        self._entries: dict[str, str | IdentifyMethod] = dict(modules)  # a str: the module, not yet imported
+
+    def __getitem__(self, name: str) -> IdentifyMethod:
+        entry = self._entries[name]
+        if isinstance(entry, str):
+            entry = self._entries[name] = importlib.import_module(entry).identify
+        return entry
+
+    def __setitem__(self, name: str, method: IdentifyMethod) -> None:
+        self._entries[name] = method
+
+    def __delitem__(self, name: str) -> None:
+        del self._entries[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._entries)
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __repr__(self) -> str:
+        return f"METHODS({', '.join(self._entries)})"
+
+
+#: The methods by name (each name is its module's ``METHOD``; ``"hash"`` is the 4-star hash too).
+METHODS: MutableMapping[str, IdentifyMethod] = _Registry({
+    quad.METHOD: "skyfix.identify.quad",
+    "hash": "skyfix.identify.quad",
+    "triangle": "skyfix.identify.triangle",
+    "liebe": "skyfix.identify.liebe",
+    "planar": "skyfix.identify.planar",
+    "area-moment": "skyfix.identify.area_moment",
+    "pyramid": "skyfix.identify.pyramid",
+    "grid": "skyfix.identify.grid",
+    "voting": "skyfix.identify.voting",
+    "van-bezooijen": "skyfix.identify.match_groups",
+})
 DEFAULT_METHOD = quad.METHOD
 
 # The keywords every method takes (the interface); the rest of a method's keywords are its options.
@@ -136,5 +170,10 @@ def identify(xy: np.ndarray, width: int, height: int, *, method: str = DEFAULT_M
     skyfix.errors.InputError
         An unknown method.
     """
-    return get_method(method)(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
-                              camera=camera, database=database, epoch=epoch, **options)
+    found = get_method(method)
+    if found is not METHODS[DEFAULT_METHOD]:
+        from skyfix import warmup
+
+        warmup.ensure(f"method-{method.lower()}", missing_ok=True)  # its kernels, compiled up front
+    return found(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg, camera=camera,
+                 database=database, epoch=epoch, **options)

@@ -27,7 +27,6 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-from scipy.spatial import cKDTree
 
 from skyfix._kernels.rotation import chord_angle
 from skyfix.identify.database import PatternDatabase, brightest_per_field
@@ -88,6 +87,8 @@ def rounded_fov_deg(fov_deg: float) -> float:
 
 def build_pair_table(vectors: np.ndarray, stars: np.ndarray, max_angle_rad: float) -> PairTable:
     """Every pair of ``stars`` (rows of ``vectors``) at most ``max_angle_rad`` apart, sorted by angle."""
+    from scipy.spatial import cKDTree
+
     stars = np.asarray(stars, np.int32)
     v = np.asarray(vectors, np.float64)
     local = cKDTree(v[stars]).query_pairs(2.0 * math.sin(max_angle_rad / 2.0), output_type="ndarray")

@@ -53,7 +53,7 @@ from skyfix.identify.refine import refine_entry
 from skyfix.identify.result import Identification, finite_centroids
 from skyfix.identify.search import breadth_first_combinations, centre_first_combinations, search_entry
 
-__all__ = ["METHOD", "REFUSED_HIT_COST_S", "SEARCH_COST_S", "identify", "search_work"]
+__all__ = ["METHOD", "REFUSED_HIT_COST_S", "SEARCH_COST_S", "identify", "search_work", "warm_kernels"]
 
 METHOD = "quad-hash"
 
@@ -69,8 +69,11 @@ def _accepted(res: Identification | None, focal: tuple[float, float, float]) -> 
 
 
 _COMPILED = False
-def _compile_kernels() -> None:
-    """Load (or compile) the numba kernels by running them once on a tiny dummy input."""
+
+
+def warm_kernels() -> None:
+    """Load (or compile) the search's and the refit's kernels by running them once on a tiny
+    dummy input (:mod:`skyfix.warmup` compiles them this way ahead of a first solve)."""
     global _COMPILED
     if _COMPILED:
         return
@@ -175,7 +178,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     -------
     Identification
     """
-    _compile_kernels()  # once per process; not counted against the time limit
+    warm_kernels()  # once per process; not counted against the time limit
     t0 = time.perf_counter()
     xy, kept = finite_centroids(xy)  # kept maps back to the caller's indices
     n = len(xy)

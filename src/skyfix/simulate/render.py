@@ -203,6 +203,9 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
     """
     A = _check_attitude(A_icrs_to_cam)
     camera, sensor, optics, exposure_s = resolve_setup(camera, sensor, optics, exposure_s)
+    from skyfix import warmup
+
+    warmup.ensure("simulate")  # its kernels, compiled up front on first use
     switches = noise_switches(noise)
     epoch_jy, time_iso = parse_time(epoch)
     rate = None if rate_rad_s is None else np.asarray(rate_rad_s, dtype=np.float64).reshape(3)

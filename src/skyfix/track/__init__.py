@@ -12,9 +12,37 @@
   extrapolators of thesis 004).
 - :mod:`skyfix.track.rate`, :mod:`skyfix.track.relative` — rates from star motion, and
   frame-to-frame star IDs without a catalogue (thesis 002 §2.4–2.5).
+
+The names below load their modules on first use, so that ``skyfix.track.cli`` (the ``skyfix
+track`` command, registered with every other command) costs nothing until the command runs.
 """
 
-from skyfix.track.predictors import PREDICTORS, Prediction, make_predictor
-from skyfix.track.tracker import MODES, Tracker, TrackSettings
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from skyfix.track.predictors import PREDICTORS, Prediction, make_predictor
+    from skyfix.track.tracker import MODES, Tracker, TrackSettings
 
 __all__ = ["MODES", "PREDICTORS", "Prediction", "TrackSettings", "Tracker", "make_predictor"]
+
+_LAZY = {
+    "MODES": "skyfix.track.tracker",
+    "PREDICTORS": "skyfix.track.predictors",
+    "Prediction": "skyfix.track.predictors",
+    "TrackSettings": "skyfix.track.tracker",
+    "Tracker": "skyfix.track.tracker",
+    "make_predictor": "skyfix.track.predictors",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'skyfix.track' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

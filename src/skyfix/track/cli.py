@@ -17,8 +17,8 @@ import time
 from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
 import typer
 
 from skyfix.cli_support import (
@@ -31,6 +31,9 @@ from skyfix.cli_support import (
     load_database,
 )
 from skyfix.errors import InputError, SkyfixError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["frame_times", "gyro_rates", "read_gyro", "register"]
 
@@ -81,7 +84,8 @@ def register(app: typer.Typer, load_camera: Callable[[str], object]) -> None:
         rates = gyro_rates(samples, times) if samples is not None else [None] * len(frames)
         if plot is not None and plot.suffix.lower() != ".png":
             fail(f"--plot {plot}: give a .png file")
-        tracker = Tracker(camera, database=load_database(database_file), predictor=predictor, epoch=epoch,
+        database = load_database(database_file, ("track",))
+        tracker = Tracker(camera, database=database, predictor=predictor, epoch=epoch,
                           n_windows=windows, streak_windows=streak_windows, exposure_s=exposure,
                           line_time_s=line_time)
         from skyfix.io import read_image
@@ -146,6 +150,8 @@ def _date_obs(path: Path) -> datetime | None:
 def read_gyro(path: Path) -> np.ndarray:
     """Gyro samples (N, 4): ``t_s, x, y, z`` (rad/s), from a CSV file (a header line allowed),
     sorted by time."""
+    import numpy as np
+
     try:
         lines = Path(path).read_text().splitlines()
     except OSError as exc:
@@ -216,6 +222,7 @@ def plot_track(sols: list, path: Path) -> None:
     """A PNG of the sequence against the frame time: the attitude's 1-σ error bars (x, y, roll),
     the rate with its σ, and the stars in each fit coloured by mode."""
     import matplotlib
+    import numpy as np
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -238,6 +238,9 @@ class Tracker:
         self.camera = camera
         self.database = database_for_fov(camera.fov_deg) if database is None else database
         self.epoch = check_epoch(epoch)
+        from skyfix import warmup
+
+        warmup.ensure("track")  # the tracker's kernels (and a solve's), compiled up front on first use
         self.predictor_name = predictor
         self._predictor_options = dict(predictor_options or {})
         self._predictor_options.setdefault("rate_sigma_rad_s", self.settings.max_rate_dps * _DEG / 3.0)
