@@ -9,6 +9,12 @@ import pytest
 REAL_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
 
+def pytest_xdist_auto_num_workers(config) -> int:
+    """``-n auto``: a worker a core, at most 4 (each worker loads its own catalogue, databases and
+    kernels)."""
+    return max(1, min(os.cpu_count() or 1, 4))
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _kernels_compiled_up_front():
     """The solve path's kernels compiled once, in parallel, before any test (skyfix.warmup): a

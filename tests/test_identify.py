@@ -1,5 +1,7 @@
 """Lost-in-space identification on synthetic centroids with known truth (issue 2, item 5)."""
 
+import mmap
+
 import numpy as np
 import pytest
 
@@ -136,7 +138,10 @@ def small_db(tmp_path_factory):
 def test_database_round_trip_is_memory_mapped(small_db):
     db, path = small_db
     loaded = PatternDatabase.load(path)
-    assert isinstance(loaded.table, np.memmap)
+    # every array a read-only view of one mmap of the file (skyfix.cache.map_npz), not a copy
+    for name in ("table", "pattern_stars", "star_vectors"):
+        arr = getattr(loaded, name)
+        assert isinstance(arr.base, mmap.mmap) and not arr.flags.writeable, name
     assert np.array_equal(loaded.table, db.table)
     assert np.array_equal(loaded.pattern_stars, db.pattern_stars)
     assert loaded.meta == db.meta
