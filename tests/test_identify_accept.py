@@ -123,3 +123,20 @@ def test_chance_rule_is_the_binomial_tail():
     paid = accept.chance_log_probability(12, 80, 200, 3.0, W * H, n_extra=3.0)  # two matches discounted
     assert math.exp(paid) == pytest.approx(binom.sf(9, 80, p), rel=1e-9)
     assert np.isfinite(got) and paid > got
+
+
+def test_student_t_tail_is_scipy_s_and_the_closed_forms():
+    # wrong_probability's roll tail, written out (scipy.special's import cost a solve 0.06 s):
+    # ν = 1 (Cauchy) and ν = 2 have closed forms, the rest is scipy.special.stdtr.
+    from scipy.special import stdtr
+
+    for t in np.concatenate([np.logspace(-6, 3, 200), [0.5, 1.0, 3.0, 5.0]]):
+        assert accept.student_t_two_sided(t, 1.0) == pytest.approx(1 - 2 / math.pi * math.atan(t), rel=1e-13)
+        s = math.sqrt(2 + t * t)  # 1 − t/s, without the cancellation
+        assert accept.student_t_two_sided(-t, 2.0) == pytest.approx(2 / (s * (s + t)), rel=1e-12)
+        for nu in (1.5, 3.0, 4.5, 7.0, 12.0, 40.0, 150.0, 1000.0):
+            ref = 2 * stdtr(nu, -t)
+            if ref > 1e-290:
+                assert accept.student_t_two_sided(t, nu) == pytest.approx(ref, rel=1e-9), (t, nu)
+    assert accept.student_t_two_sided(0.0, 3.0) == 1.0
+    assert accept.student_t_two_sided(1e200, 3.0) == 0.0
