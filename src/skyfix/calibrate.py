@@ -499,7 +499,8 @@ _PRINCIPAL_POINT_MODES = {"hold": kernels.PP_HOLD, "auto": kernels.PP_AUTO, "fit
 def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_icrs_to_cam: np.ndarray,
                           prior: CameraPrior, *, robust: bool = False, iterations: int = 12,
                           sigma_floor_px: float = 0.05, principal_point: str = "auto",
-                          model: str = "evidence", drop_outliers: bool = False) -> PriorFit:
+                          model: str = "evidence", drop_outliers: bool = False,
+                          weights: np.ndarray | None = None) -> PriorFit:
     """Fit attitude, focal length, aspect, principal point and the distortion to matched stars,
     each camera parameter but the focal length held by its ``prior`` (maximum a posteriori):
     :attr:`CameraPrior.parameters` — a pinhole's k1, k2 (its k3 held) and, with a tangential σ
@@ -550,6 +551,8 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     principal_point : str — ``"auto"``, ``"fit"`` or ``"hold"`` (above).
     model : str — ``"evidence"`` or ``"all"`` (above).
     drop_outliers : bool — drop outliers as the fit goes (above).
+    weights : (N,), optional — each star's inverse variance, relative (σ, :attr:`PriorFit.sigma_px`,
+        is then that of a star of weight 1): stars whose centroids are better (brighter) count more.
     """
     if principal_point not in _PRINCIPAL_POINT_MODES:
         raise ValueError(f"principal_point must be 'auto', 'fit' or 'hold', not {principal_point!r}")
@@ -562,10 +565,12 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
                                       _PRINCIPAL_POINT_MODES[principal_point], model == "evidence",
                                       bool(drop_outliers))
     half_diag = float(math.hypot(camera.width, camera.height) / 2.0)
-    gn = kernels.prior_gauss_newton(np.ascontiguousarray(xy, dtype=np.float64),
-                                    np.ascontiguousarray(r_icrs, dtype=np.float64),
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
+    weights = np.ones(len(xy)) if weights is None else np.ascontiguousarray(weights, dtype=np.float64)
+    gn = kernels.prior_gauss_newton(xy, np.ascontiguousarray(r_icrs, dtype=np.float64),
                                     np.ascontiguousarray(A_icrs_to_cam, dtype=np.float64),
-                                    lens.camera_numbers(camera), half_diag, _prior_numbers(prior), options)
+                                    lens.camera_numbers(camera), half_diag, _prior_numbers(prior), options,
+                                    weights)
     camera = camera.replace(**dict(zip(lens.CAMERA_NUMBERS, gn.cam.tolist(), strict=True)))
     parameters = prior.parameters
     fitted = tuple(name for name, free in zip(parameters, gn.fitted.tolist(), strict=True) if free)

@@ -375,14 +375,81 @@ def _grow_from_start(xy: np.ndarray, verified: _Matches, camera: Camera, A: np.n
     return _grow(xy[:rematch.n_use], fit, cur, rematch, math.inf)
 
 
+# A centroid noise that grows with the stars' magnitude (:func:`_magnitude_noise`) is believed when
+# its likelihood ratio against one noise for every star is beyond this (χ², the 1e-3 tail of 2 dof),
+# on at least this many stars.
+_NOISE_MODEL_CHI2 = 13.8
+_NOISE_MODEL_MIN_STARS = 20
+
+
 def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> FinalFit:
     """The attitude by the chosen Wahba solver through the fitted camera, and the fit's
-    covariance."""
+    covariance. Where the stars' centroid noise grows with their magnitude (a faint star's
+    centroid is worse; :func:`_magnitude_noise` on the fit's residuals and the stars' catalogue
+    magnitudes), the camera is fitted again with each star weighted by its inverse variance
+    (outliers against it dropped), and Wahba's problem is solved with the same weights: on
+    rendered 8° / 15° frames the boresight's median error 0.25 → 0.11″ / 0.19 → 0.11″
+    (``benchmarks/bench_final_fit.py --kinds r8,r15``)."""
+    weights = None
+    if len(cur.idx) >= _NOISE_MODEL_MIN_STARS and len(fit.residuals_px) == len(cur.idx):
+        variance, ratio = _magnitude_noise(np.sum(fit.residuals_px**2, axis=1),
+                                           np.ascontiguousarray(cur.mag, dtype=np.float64),
+                                           CENTROID_NOISE_FLOOR_PX**2)
+        if ratio > _NOISE_MODEL_CHI2:
+            cam = fit.camera
+            prior = CameraPrior.uncalibrated(cam.width, cam.height, cam.projection)
+            fit = fit_camera_with_prior(xy[cur.idx], cur.r, cam, fit.A_icrs_to_cam, prior,
+                                        weights=variance.mean() / variance, drop_outliers=True)
+            weights = (variance.mean() / variance)[fit.kept]
+            cur = cur if fit.kept.all() else cur.take(fit.kept)
     b = lens.pixel_rays(np.ascontiguousarray(xy[cur.idx], dtype=np.float64), lens.camera_numbers(fit.camera))
-    A = solve_attitude(b, cur.r, method=method)
+    A = solve_attitude(b, cur.r, weights=weights, method=method)
     resid = rotation.angles(b, cur.r, np.ascontiguousarray(A))
     return FinalFit(A, fit.camera, cur.idx, cur.ids, cur.r, cur.mag, resid, fit.covariance_rad2,
                     fit.fitted, log_p, residual_dof=2 * len(cur.idx) - fit.n_effective)
+
+
+@numba.njit(cache=True)
+def _magnitude_noise(d2, mag, floor2):
+    """The centroid noise of each star from its squared residual ``d2`` (N,) px² and catalogue
+    magnitude ``mag`` (N,): the per-axis variance ``v = a + b·10^(0.4 (m − m_faintest))``, a, b ≥ 0
+    (a floor — pixel phase, the PSF model — and a term that grows as the flux falls), floored at
+    ``floor2``; fitted by maximum likelihood (iteratively reweighted least squares: ``d²/2`` is
+    ``v`` times an exponential variable), and the likelihood ratio (``2 Δ log L``) against one
+    variance for every star. Returns (v (N,), ratio)."""
+    n = d2.shape[0]
+    faint = mag.max()
+    f = np.empty(n)
+    y = np.empty(n)
+    mean = 0.0
+    for i in range(n):
+        f[i] = 10.0 ** (0.4 * (mag[i] - faint))
+        y[i] = d2[i] / 2.0
+        mean += y[i] / n
+    v0 = max(mean, floor2)
+    v = np.full(n, v0)
+    for _ in range(8):
+        s00 = s01 = s11 = t0 = t1 = 0.0
+        for i in range(n):
+            wi = 1.0 / (v[i] * v[i])
+            s00 += wi
+            s01 += wi * f[i]
+            s11 += wi * f[i] * f[i]
+            t0 += wi * y[i]
+            t1 += wi * f[i] * y[i]
+        det = s00 * s11 - s01 * s01
+        a = (s11 * t0 - s01 * t1) / det if det > 0.0 else t0 / s00
+        b = (s00 * t1 - s01 * t0) / det if det > 0.0 else 0.0
+        if a < 0.0:
+            a, b = 0.0, max(t1 / s11, 0.0)
+        elif b < 0.0:
+            a, b = t0 / s00, 0.0
+        for i in range(n):
+            v[i] = max(a + b * f[i], floor2)
+    ratio = 0.0
+    for i in range(n):
+        ratio += 2.0 * (math.log(v0 / v[i]) + y[i] / v0 - y[i] / v[i])
+    return v, ratio
 
 
 def _grow(xy: np.ndarray, fit, cur: _Matches, rematch: _Rematch, log_p: float):

@@ -451,20 +451,22 @@ def free_columns(codes, free):
 
 
 @numba.njit(cache=True)
-def _noise(res, n_eff, robust, sigma_floor, w):
-    """σ² (px²) from the residuals (N, 2): their sum of squares over ``2N − n_eff``, or with
-    ``robust`` from their lengths' median (a 2-D Gaussian's has median 1.1774 σ), the Cauchy
-    weights ``1 / (1 + (d / 3σ)²)`` then written into ``w`` (2N,); floored at ``sigma_floor``."""
+def _noise(res, n_eff, robust, sigma_floor, w, vw):
+    """σ² (px², of a star of weight 1) from the residuals (N, 2) and the stars' inverse variances
+    ``vw`` (N,): their weighted sum of squares over ``2N − n_eff``, or with ``robust`` from their
+    lengths' median (a 2-D Gaussian's has median 1.1774 σ), the Cauchy weights
+    ``1 / (1 + (d / 3σ)²)`` then written into ``w`` (2N,) (times ``vw``); floored at
+    ``sigma_floor``."""
     n = res.shape[0]
     d = np.empty(n)
     ss = 0.0
     for i in range(n):
         d[i] = np.sqrt(res[i, 0] ** 2 + res[i, 1] ** 2)
-        ss += d[i] * d[i]
+        ss += vw[i] * d[i] * d[i]
     if robust:
         sigma2 = max((np.median(d) / 1.1774) ** 2, sigma_floor**2)
         for i in range(n):
-            w[2 * i] = w[2 * i + 1] = 1.0 / (1.0 + d[i] * d[i] / (9.0 * sigma2))
+            w[2 * i] = w[2 * i + 1] = vw[i] / (1.0 + d[i] * d[i] / (9.0 * sigma2))
         return sigma2
     return max(ss / max(2 * n - n_eff, 1.0), sigma_floor**2)
 
@@ -517,19 +519,19 @@ def _posterior(JtJ, g, sigma2, lam, dev):
 
 
 @numba.njit(cache=True)
-def _studentised(J, res, inv, cols, w, sigma2, n_eff, robust, sigma_floor):
-    """Each star's residual against what the others predict for it (N,): ``rᵀ (σ² (I − H))⁻¹ r``
+def _studentised(J, res, inv, cols, w, vw, sigma2, n_eff, robust, sigma_floor):
+    """Each star's residual against what the others predict for it (N,): ``v rᵀ (σ² (I − H))⁻¹ r``
     with ``H`` its 2×2 block of the hat matrix ``J (JᵀWJ/σ² + Λ)⁻¹ JᵀW / σ²`` of the model
-    whose columns of ``J`` are ``cols`` and posterior ``inv``; without ``robust`` externally
-    studentised: σ re-estimated without the star (a wrong star inflates σ and so hides itself
-    from the internal statistic)."""
+    whose columns of ``J`` are ``cols`` and posterior ``inv``, ``v`` the star's inverse variance
+    (``vw``); without ``robust`` externally studentised: σ re-estimated without the star (a wrong
+    star inflates σ and so hides itself from the internal statistic)."""
     n = res.shape[0]
     P = cols.shape[0]
     n_obs = 2 * n
     chi2 = np.empty(n)
     rss = 0.0
     for i in range(n):
-        rss += res[i, 0] ** 2 + res[i, 1] ** 2
+        rss += vw[i] * (res[i, 0] ** 2 + res[i, 1] ** 2)
     H = np.empty((2, 2))
     t = np.empty((2, P))
     Ji = np.empty((2, P))
@@ -552,7 +554,7 @@ def _studentised(J, res, inv, cols, w, sigma2, n_eff, robust, sigma_floor):
         m00, m01 = sigma2 * (1.0 - H[0, 0]), -sigma2 * H[0, 1]
         m10, m11 = -sigma2 * H[1, 0], sigma2 * (1.0 - H[1, 1])
         det = max(m00 * m11 - m01 * m10, 1e-12 * sigma2 * sigma2)  # a star the fit rests on alone
-        q = (m11 * res[i, 0] ** 2 - (m01 + m10) * res[i, 0] * res[i, 1] + m00 * res[i, 1] ** 2) / det
+        q = vw[i] * (m11 * res[i, 0] ** 2 - (m01 + m10) * res[i, 0] * res[i, 1] + m00 * res[i, 1] ** 2) / det
         if not robust:
             rss_without = max(rss - q * sigma2, 1e-12 * sigma2)
             q = q * sigma2 / max(rss_without / max(n_obs - n_eff - 2.0, 1.0), sigma_floor**2)
@@ -719,11 +721,13 @@ def _rotated(r, A):
 
 
 @numba.njit(cache=True)
-def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options):
+def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options, weights):
     """The fit of :func:`skyfix.calibrate.fit_camera_with_prior`: attitude and the camera's
     :func:`prior_codes` (a pinhole's :data:`PRIOR_CODES`, with p1, p2 when ``prior``'s tangential
     σ is positive, a Kannala–Brandt camera's :data:`KB_PRIOR_CODES`) under ``prior``
-    (:data:`PRIOR_NUMBERS`), as :class:`PriorFitOptions` say. Returns a :class:`GaussNewtonResult`.
+    (:data:`PRIOR_NUMBERS`), as :class:`PriorFitOptions` say, each star weighted by its inverse
+    variance ``weights`` (N,; relative, σ² is the weight-1 star's). Returns a
+    :class:`GaussNewtonResult`.
 
     Rounds of Gauss–Newton, each on the parameters fitted so far (the others held at the prior's
     values), until a step moves the stars by ~2e-3 px. With ``options.drop_outliers``, at each
@@ -769,7 +773,10 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options):
         if not free[k]:
             hold_at_prior(cam, prior, codes[k])
     n_eff = 4.0
-    w = np.ones(2 * n)
+    vw = weights.copy()
+    w = np.empty(2 * n)
+    for i in range(n):
+        w[2 * i] = w[2 * i + 1] = vw[i]
     changes = 0
     drops = 0
     max_drops = max(n // 2, 1)
@@ -786,7 +793,7 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options):
                 # follow the stars may fit them by a focal length near 0), and its step.
                 start = False
                 J, res = jacobian_rows(xs, _rotated(rs, A), cam, rmax, codes)
-                sigma2 = _noise(res, n_eff, options.robust, options.sigma_floor, w)
+                sigma2 = _noise(res, n_eff, options.robust, options.sigma_floor, w, vw)
                 JtJ, g = _normal_equations(J, res, w)
                 lam, dev = prior_terms(cam, rmax, prior, codes)
                 _, n_eff_all, step = _posterior(JtJ, g, sigma2, lam, dev)
@@ -800,7 +807,7 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options):
                 cam = apply_step(cam, rmax, codes_f, step)
                 continue
             J, res = jacobian_rows(xs, _rotated(rs, A), cam, rmax, codes_f)
-            sigma2 = _noise(res, n_eff, options.robust, options.sigma_floor, w)
+            sigma2 = _noise(res, n_eff, options.robust, options.sigma_floor, w, vw)
             JtJ, g = _normal_equations(J, res, w)
             lam, dev = prior_terms(cam, rmax, prior, codes_f)
             inv, n_eff, step = _posterior(JtJ, g, sigma2, lam, dev)
@@ -812,8 +819,8 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options):
             checked = converged and options.drop_outliers
             if checked:
                 # the worst star against the others, at this linearisation (the step is tiny)
-                chi2 = _studentised(J, res, inv, np.arange(step.shape[0]), w, sigma2, n_eff, options.robust,
-                                    options.sigma_floor)
+                chi2 = _studentised(J, res, inv, np.arange(step.shape[0]), w, vw, sigma2, n_eff,
+                                    options.robust, options.sigma_floor)
                 worst = int(np.argmax(chi2))
                 if (drops < max_drops and xs.shape[0] > 3
                         and chi2[worst] > outlier_limit(2.0 * xs.shape[0] - n_eff)):
@@ -831,8 +838,8 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options):
                     cam = apply_step(cam, rmax, codes_f, step)
                     keep = np.ones(xs.shape[0], dtype=np.bool_)
                     keep[worst] = False
-                    xs, rs, index, res0 = xs[keep], rs[keep], index[keep], res0[keep]
-                    w = w[:2 * xs.shape[0]]
+                    xs, rs, index, res0, vw = xs[keep], rs[keep], index[keep], res0[keep], vw[keep]
+                    w = np.repeat(vw, 2)
                     drops += 1
                     it = 0
                     continue
@@ -843,7 +850,7 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options):
         # The posterior with every prior parameter free, at the fit.
         rmax = half_diag_px / cam[FX]
         J, res = jacobian_rows(xs, _rotated(rs, A), cam, rmax, codes)
-        sigma2 = _noise(res, n_eff, options.robust, options.sigma_floor, w)
+        sigma2 = _noise(res, n_eff, options.robust, options.sigma_floor, w, vw)
         JtJ, g = _normal_equations(J, res, w)
         lam, dev = prior_terms(cam, rmax, prior, codes)
         inv, n_eff_all, step = _posterior(JtJ, g, sigma2, lam, dev)
@@ -860,14 +867,15 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options):
                     sub[a, b] = JtJ[cols[a], cols[b]]
             inv_f, n_eff, _ = _posterior(sub, np.zeros(k), sigma2, sub_lam, np.zeros(k))
         if not checked:  # (else the converged step's are the model's: it moved no star by 2e-3 px)
-            chi2 = _studentised(J, res, inv_f, cols, w, sigma2, n_eff, options.robust, options.sigma_floor)
+            chi2 = _studentised(J, res, inv_f, cols, w, vw, sigma2, n_eff, options.robust,
+                                options.sigma_floor)
             if options.drop_outliers and drops < max_drops and xs.shape[0] > 3:
                 worst = int(np.argmax(chi2))
                 if chi2[worst] > outlier_limit(2.0 * xs.shape[0] - n_eff):
                     keep = np.ones(xs.shape[0], dtype=np.bool_)
                     keep[worst] = False
-                    xs, rs, index, res0 = xs[keep], rs[keep], index[keep], res0[keep]
-                    w = w[:2 * xs.shape[0]]
+                    xs, rs, index, res0, vw = xs[keep], rs[keep], index[keep], res0[keep], vw[keep]
+                    w = np.repeat(vw, 2)
                     drops += 1
                     continue
         if pp >= 0 and options.principal_point == PP_AUTO and not free[pp]:
