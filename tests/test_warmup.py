@@ -139,15 +139,16 @@ assert warmup.warm(["solve"]) == {{}}
 
 
 def test_needs_compile_first_and_are_part_of_the_path():
-    assert warmup._with_needs(["track", "hint"]) == ["extract", "identify", "final-fit", "track", "hint"]
+    assert warmup._with_needs(["track", "hint"]) == ["extract", "identify", "final-fit", "centroiders",
+                                                     "streaks", "track", "hint"]
     for job in warmup.JOBS.values():
         assert all(n in warmup.JOBS for n in job.needs)
         assert callable(getattr(_warm_jobs, job.name.replace("-", "_")))
-    # the tracker waits for the solve's jobs: it starts when the longest of them is done
-    solve = warmup._with_needs(warmup.PATHS["solve"])
-    longest = max(warmup.JOBS[j].cpu_s for j in solve) + 1.0
-    track = warmup.JOBS["track"].cpu_s + 1.0
-    assert warmup.estimate_s(warmup._with_needs(["track"]), 8) == pytest.approx(longest + track)
+    # with a worker for each, the tracker starts when the last of its needs is done (the
+    # centroiders' job after the extraction's, which it needs), each worker taking a second to start
+    cost = {name: job.cpu_s + 1.0 for name, job in warmup.JOBS.items()}
+    start = max(cost["identify"], cost["final-fit"], cost["streaks"], cost["extract"] + cost["centroiders"])
+    assert warmup.estimate_s(warmup._with_needs(["track"]), 8) == pytest.approx(start + cost["track"])
 
 
 # What a first use of each path does, to check that its warm-up job compiled what that use needs.
@@ -163,6 +164,8 @@ _SLOW_USES = {
        for m in ("liebe", "planar", "area-moment", "pyramid", "grid", "voting", "van-bezooijen")},
     "detector-threshold_hillclimb": "extract_centroids(IMG, method='threshold_hillclimb')",
     "detector-regionprops": "extract_centroids(IMG, method='regionprops')",
+    "streaks": "from skyfix.detect.streak import centroid_streaks; "
+               "centroid_streaks(IMG, [(m.x, m.y) for m in sol.matches[:30]], (5.0, -3.0))",
 }
 
 

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["Scene", "attitude", "centroiders", "database", "extract", "final_fit", "hint", "identify",
-           "scene", "simulate", "track"]
+           "scene", "simulate", "streaks", "track"]
 
 
 class Scene(NamedTuple):
@@ -114,6 +114,7 @@ def identify() -> None:
 def final_fit() -> None:
     """The final fit of an identification, with the camera fitted and given, the default attitude
     solver (SVD), and the Solution's numbers."""
+    from skyfix.attitude import svd_attitude
     from skyfix.final_fit import final_fit as fit
     from skyfix.identify.accept import chance_log_probability
     from skyfix.identify.result import Identification
@@ -133,6 +134,8 @@ def final_fit() -> None:
                          result.catalog_mag, result.residuals_rad)
     n = len(s.rows)
     chance_log_probability(n, 2 * n, n, 3.0, 640.0 * 480.0, 2.0)  # a re-match's test
+    # two stars: the SVD solver's own branch (a sparse or degenerate field)
+    svd_attitude(s.camera.pixel_to_ray(s.xy[:2]), cat.vectors[s.rows[:2]])
 
 
 def attitude() -> None:
@@ -162,6 +165,15 @@ def centroiders() -> None:
     for name in CENTROIDERS:
         if name != "com":
             extract_centroids(scene().frame, centroid=name, max_stars=50)
+
+
+def streaks() -> None:
+    """The streak fit (:func:`skyfix.detect.streak.fit_streaks`) of stars smeared by a turn, which
+    the tracker runs after a lost frame and on a fast turn."""
+    from skyfix.detect.streak import centroid_streaks
+
+    s = scene()
+    centroid_streaks(s.frame, s.xy[:20], np.array([6.0, 2.0]), prediction_sigma=2.0)
 
 
 def _detector(name: str) -> None:

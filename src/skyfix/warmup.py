@@ -62,7 +62,7 @@ JOBS: dict[str, Job] = {job.name: job for job in (
     Job("final-fit", "the final fit", 16.0),
     Job("attitude", "the attitude solvers", 3.5),
     Job("hint", "identification near an attitude hint", 18.0, ("identify", "final-fit")),
-    Job("centroiders", "the windowed centroiders", 19.0, ("extract",)),
+    Job("centroiders", "the windowed centroiders", 13.0, ("extract",)),
     Job("detector-threshold_hillclimb", "the threshold_hillclimb detector", 3.2, ("extract",)),
     Job("detector-region_grow", "the region_grow detector", 3.2, ("extract",)),
     Job("detector-regionprops", "the regionprops detector", 1.7, ("extract",)),
@@ -74,7 +74,8 @@ JOBS: dict[str, Job] = {job.name: job for job in (
     Job("method-grid", "the grid method", 20.2, ("identify",)),
     Job("method-voting", "the voting method", 8.4, ("identify",)),
     Job("method-van-bezooijen", "the van-bezooijen method", 16.2, ("identify",)),
-    Job("track", "the tracker", 88.0, ("extract", "identify", "final-fit")),
+    Job("streaks", "the streak fit", 28.0),
+    Job("track", "the tracker", 35.0, ("extract", "identify", "final-fit", "centroiders", "streaks")),
     Job("simulate", "the simulator", 5.6),
 )}
 
@@ -88,6 +89,7 @@ PATHS: dict[str, tuple[str, ...]] = {
     **{f"detector-{d}": (f"detector-{d}",) for d in ("threshold_hillclimb", "region_grow", "regionprops")},
     **{f"method-{m}": (f"method-{m}",) for m in ("triangle", "liebe", "planar", "area-moment", "pyramid",
                                                    "grid", "voting", "van-bezooijen")},
+    "streaks": ("streaks",),
     "track": ("track",),
     "simulate": ("simulate",),
 }

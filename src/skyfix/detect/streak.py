@@ -211,6 +211,9 @@ def centroid_streaks(
         streak's long over short axis, ``angle`` the direction of the predicted motion; NaN
         where no centroid was found (a window off the frame, no light, or a fit that left it).
     """
+    from skyfix import warmup
+
+    warmup.ensure("streaks")  # the streak fit's kernels, compiled up front
     xy = np.asarray(xy_pred, dtype=np.float64).reshape(-1, 2)
     motion = np.asarray(motion_px, dtype=np.float64)
     try:
