@@ -57,9 +57,9 @@ class Job(NamedTuple):
 
 #: Every job by name (:mod:`skyfix._warm_jobs` defines a function of each name, ``-`` as ``_``).
 JOBS: dict[str, Job] = {job.name: job for job in (
-    Job("extract", "star extraction", 38.0),
+    Job("extract", "star extraction", 41.0),
     Job("identify", "lost-in-space identification", 42.0),
-    Job("final-fit", "the final fit", 16.0),
+    Job("final-fit", "the final fit", 50.0),
     Job("attitude", "the attitude solvers", 3.5),
     Job("hint", "identification near an attitude hint", 18.0, ("identify", "final-fit")),
     Job("centroiders", "the windowed centroiders", 13.0, ("extract",)),
