@@ -25,7 +25,7 @@ from skyfix.cli_support import (
 )
 from skyfix.validate import check_count, check_epoch, check_fov, check_positive
 
-analyze_app = typer.Typer(no_args_is_help=True, pretty_exceptions_enable=False,
+analyze_app = typer.Typer(no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
                           help="Analyses: centroid accuracy vs. the Cramér–Rao bound, PSF over the field, "
                                "photometry against the catalogue, tracking against lost in space, the seed "
                                "presets solved lost in space.")
