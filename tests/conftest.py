@@ -9,6 +9,7 @@ import pytest
 REAL_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
 
+@pytest.hookimpl(optionalhook=True)  # xdist's hook
 def pytest_xdist_auto_num_workers(config) -> int:
     """``-n auto``: a worker a core, at most 4 (each worker loads its own catalogue, databases and
     kernels)."""
