@@ -1,16 +1,16 @@
 """Photometry: zero point, aperture flux, and catalogue consistency on the 8 ESA frames."""
 
-import glob
 import json
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from conftest import REAL_DIR
 from skyfix.analysis import photometry as ph
 from skyfix.simulate.psf import add_gaussians
 
-ESA = sorted(glob.glob("/work/shared/data/real/esa-tetra3/*.tiff"))
+ESA = sorted(str(p) for p in (REAL_DIR / "esa-tetra3").glob("*.tiff"))  # beside the repository
 EPOCH = 2019.58  # capture 2019-07-29
 
 

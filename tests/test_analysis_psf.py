@@ -1,12 +1,12 @@
 """PSF over the field: FWHM and ellipticity against simulated truth, and on a real ESA frame."""
 
-import glob
 import math
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from conftest import REAL_DIR
 from skyfix.analysis.psf_field import adaptive_moments, fit_elliptical_gaussians, measure_psf_field
 from skyfix.camera import Camera
 from skyfix.catalog import Catalog
@@ -17,7 +17,7 @@ from skyfix.simulate.psf import pixel_integrated_stamps
 A0 = attitude_from_radec_roll(math.radians(40.0), math.radians(20.0), math.radians(30.0))
 CAM = Camera.from_fov(800, 600, 10.0)
 SENSOR = Sensor(qe=0.6, full_well_e=1e6, gain_e_per_adu=1.0, bit_depth=16, bias_adu=100.0, read_noise_e=5.0)
-ESA = sorted(glob.glob("/work/shared/data/real/esa-tetra3/*.tiff"))
+ESA = sorted(str(p) for p in (REAL_DIR / "esa-tetra3").glob("*.tiff"))  # beside the repository
 
 
 def _grid_catalog(mag: float) -> tuple[Catalog, np.ndarray]:
