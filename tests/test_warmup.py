@@ -164,6 +164,9 @@ _SLOW_USES = {
        for m in ("liebe", "planar", "area-moment", "pyramid", "grid", "voting", "van-bezooijen")},
     "detector-threshold_hillclimb": "extract_centroids(IMG, method='threshold_hillclimb')",
     "detector-regionprops": "extract_centroids(IMG, method='regionprops')",
+    "track": "from skyfix.track import Tracker; "
+             "[[tr.update(f, 0.1 * k).mode for k in range(4)] "
+             "for f, tr in ((IMG, Tracker(CAM)), (IMG.astype('uint16'), Tracker(CAM)))]",
     "streaks": "from skyfix.detect.streak import centroid_streaks; "
                "centroid_streaks(IMG, [(m.x, m.y) for m in sol.matches[:30]], (5.0, -3.0))",
 }

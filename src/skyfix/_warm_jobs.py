@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["Scene", "attitude", "centroiders", "database", "extract", "final_fit", "hint", "identify",
-           "scene", "simulate", "streaks", "track"]
+           "loaded_database", "scene", "simulate", "streaks", "track"]
 
 
 class Scene(NamedTuple):
@@ -81,6 +81,24 @@ def database():
     from skyfix.identify.database import PatternDatabase
 
     return PatternDatabase.build(10.0, 30.0, catalog=scene().catalog)
+
+
+@functools.cache
+def loaded_database():
+    """:func:`database` saved and loaded again, as a cached database reaches the kernels: its
+    arrays read-only views of the file's mmap (:func:`skyfix.cache.map_npz`)."""
+    import tempfile
+    from pathlib import Path
+
+    from skyfix.identify.database import PatternDatabase
+
+    path = Path(tempfile.mkdtemp(prefix="skyfix-warm-")) / "database.npz"
+    database().save(path)
+    loaded = PatternDatabase.load(path)
+    for f in path.parent.iterdir():  # the mmap keeps the data; nothing is left behind
+        f.unlink()
+    path.parent.rmdir()
+    return loaded
 
 
 def extract() -> None:
@@ -242,23 +260,29 @@ def method_van_bezooijen() -> None:
 
 
 def track() -> None:
-    """The tracker over a few frames turning at 0.5°/s: lost in space, acquiring, tracking."""
+    """The tracker over a few frames turning at 0.5°/s (lost in space, acquiring, tracking): float32
+    frames (what :func:`skyfix.io.read_image` gives) with a database built in memory, and 16-bit
+    frames (a camera's, the simulator's) with one loaded from a file, at another epoch."""
     from scipy.spatial.transform import Rotation
 
     from skyfix.track import Tracker
 
     s = scene()
-    tracker = Tracker(s.camera, database=database())
-    rng = np.random.default_rng(5)
     axis = np.array([0.3, -0.2, 0.93])
     axis /= np.linalg.norm(axis)
-    for k in range(6):
-        t = 0.1 * k
-        A = Rotation.from_rotvec(axis * math.radians(0.5) * t).as_matrix() @ s.A_icrs_to_cam
-        xy, front = s.camera.ray_to_pixel(s.catalog.vectors @ A.T)
-        inside = front & (xy[:, 0] > 2) & (xy[:, 0] < 637) & (xy[:, 1] > 2) & (xy[:, 1] < 477)
-        rows = np.flatnonzero(inside)
-        tracker.update(_render(xy[rows], s.catalog.mag[rows], s.camera.height, s.camera.width, rng), t)
+    # (a loaded database's star vectors moved to another epoch are a fresh array beside its
+    # read-only ones: a tracker's catalogue at the frames' time)
+    for db, dtype, epoch in ((database(), np.float32, None), (loaded_database(), np.uint16, 2030.0)):
+        tracker = Tracker(s.camera, database=db, epoch=epoch)
+        rng = np.random.default_rng(5)
+        for k in range(6):
+            t = 0.1 * k
+            A = Rotation.from_rotvec(axis * math.radians(0.5) * t).as_matrix() @ s.A_icrs_to_cam
+            xy, front = s.camera.ray_to_pixel(s.catalog.vectors @ A.T)
+            inside = front & (xy[:, 0] > 2) & (xy[:, 0] < 637) & (xy[:, 1] > 2) & (xy[:, 1] < 477)
+            rows = np.flatnonzero(inside)
+            frame = _render(xy[rows], s.catalog.mag[rows], s.camera.height, s.camera.width, rng)
+            tracker.update(np.clip(frame, 0, 65535).astype(dtype), t)
 
 
 def simulate() -> None:

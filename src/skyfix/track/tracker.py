@@ -60,6 +60,7 @@ from skyfix.camera import Camera
 from skyfix.detect.centroid import centroider
 from skyfix.detect.streak import streak_model_sigma
 from skyfix.errors import CameraError, InputError
+from skyfix.identify.database import readonly_view
 from skyfix.identify.kernel_data import StarIndex
 from skyfix.solution import Match, Solution
 from skyfix.track import windows as win
@@ -285,7 +286,8 @@ class Tracker:
         ids, mags, _ = db.star_arrays()
         index = db.star_index()
         if self.epoch is not None and abs(self.epoch - db.epoch) > 1e-3:
-            moved = np.ascontiguousarray(db.vectors_at(np.arange(len(ids)), self.epoch))
+            # read-only like the database's own (one kernel signature for either epoch)
+            moved = readonly_view(np.ascontiguousarray(db.vectors_at(np.arange(len(ids)), self.epoch)))
             shift = float(np.max(np.linalg.norm(moved - index.vectors, axis=1)))  # stars leave their cells
             index = StarIndex(moved, *index[1:4], index.cell_radius_rad + shift)
         self._stars = index
