@@ -75,7 +75,7 @@ JOBS: dict[str, Job] = {job.name: job for job in (
     Job("method-voting", "the voting method", 8.4, ("identify",)),
     Job("method-van-bezooijen", "the van-bezooijen method", 16.2, ("identify",)),
     Job("streaks", "the streak fit", 28.0),
-    Job("track", "the tracker", 35.0, ("extract", "identify", "final-fit", "centroiders", "streaks")),
+    Job("track", "the tracker", 46.0, ("extract", "identify", "final-fit", "centroiders", "streaks")),
     Job("simulate", "the simulator", 5.6),
 )}
 
