@@ -17,6 +17,7 @@ import math
 import numpy as np
 import pytest
 
+from skyfix.analysis import tracking_report
 from skyfix.analysis import tracking_study as ts
 from skyfix.geometry import normalize
 
@@ -110,7 +111,7 @@ def test_write_study(slew, tmp_path):
     study = ts.TrackingStudy(sequences=[slew], timing=timing,
                              settings=dict(ts.QUICK._asdict(), camera="1280×960, 15°", epoch=ts.EPOCH,
                                            cpu_count=2))
-    paths = ts.write_study(study, tmp_path, command="test")
+    paths = tracking_report.write_study(study, tmp_path, command="test")
     assert [p.name for p in paths[:2]] == ["tracking_study.json", "tracking_study.md"]
     assert len(paths) == 7 and all(p.stat().st_size > 0 for p in paths)
     data = json.loads(paths[0].read_text())  # strict JSON: NaN written as null

@@ -95,6 +95,7 @@ def tracking(
 ) -> None:
     """Tracking against lost in space and its own error bars, and thesis 002's findings (prediction
     error vs. rate and acceleration, windowed vs. full-frame time) with skyfix's numbers beside."""
+    from skyfix.analysis import tracking_report
     from skyfix.analysis import tracking_study as ts
 
     add_verbosity(verbose)
@@ -108,7 +109,7 @@ def tracking(
     with _progress(n_steps, False) as bar, compile_notice(bar):
         task = bar.add_task("tracking study", total=n_steps)
         study = ts.run_study(settings, progress=lambda what: bar.update(task, advance=1, description=what))
-    paths = ts.write_study(study, out, command=command)
+    paths = tracking_report.write_study(study, out, command=command)
     typer.echo(paths[1].read_text())
     for p in paths:
         typer.echo(f"wrote {p}")

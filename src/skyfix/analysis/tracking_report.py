@@ -1,8 +1,10 @@
 """Tables and plots of the tracking study (:mod:`skyfix.analysis.tracking_study`), with thesis
-002's numbers beside skyfix's (docs/tracking-study.md reads a full run)."""
+002's numbers beside skyfix's, and the files they go to (:func:`write_study`; docs/tracking-study.md
+reads a full run). The study does not import its report: the command composes the two."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -25,7 +27,7 @@ from skyfix.analysis.tracking_study import (
     time_error_slope,
 )
 
-__all__ = ["markdown", "plots"]
+__all__ = ["markdown", "plots", "write_study"]
 
 _ARCSEC = math.pi / (180 * 3600)
 
@@ -386,3 +388,30 @@ def plots(study: TrackingStudy, out: Path) -> list[Path]:
     """Write the five PNG plots to ``out``; returns their paths."""
     return [_plot_rate(study, out), _plot_accel(study, out), _plot_timing(study, out), _plot_nees(study, out),
             _plot_errors(study, out)]
+
+
+def write_study(study: TrackingStudy, out_dir: str | Path, command: str = "skyfix analyze tracking"
+                ) -> list[Path]:
+    """Write ``tracking_study.json``, ``tracking_study.md`` and the PNG plots to ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    pj = out / "tracking_study.json"
+    pj.write_text(json.dumps(_clean({"settings": study.settings,
+                                     "sequences": [s.to_json() for s in study.sequences],
+                                     "timing": [t._asdict() for t in study.timing]}), indent=None))
+    pm = out / "tracking_study.md"
+    pm.write_text(markdown(study, command))
+    return [pj, pm, *plots(study, out)]
+
+
+def _clean(v):
+    """NaN → None, tuples → lists, so the file is strict JSON."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {str(k): _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    if isinstance(v, (np.floating, np.integer, np.bool_)):
+        return _clean(v.item())
+    return v

@@ -1,7 +1,8 @@
 """Tracking mode measured: against lost in space, against its own error bars, against thesis 002.
 
-``skyfix analyze tracking`` runs these studies and :func:`write_study` writes their tables and
-plots; docs/tracking-study.md holds the numbers of a full run and reads them.
+``skyfix analyze tracking`` runs these studies and
+:func:`skyfix.analysis.tracking_report.write_study` writes their tables and plots;
+docs/tracking-study.md holds the numbers of a full run and reads them.
 
 **Sequences** (:func:`run_sequence`). Frames of :data:`CAMERA` (1280 × 960, 15°) at 10 Hz with
 the generic sensor's noise (:func:`skyfix.simulate.render_sequence`), the camera turning at a
@@ -37,13 +38,11 @@ it times an idle machine.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -62,7 +61,7 @@ __all__ = [
     "SlopeFit", "TimingRow", "TrackingStudy", "sequence_specs", "run_sequence", "accuracy_summary",
     "binned_fits", "error_correlations", "time_error_slope", "normalised_errors", "recovery_frames",
     "accel_terms", "accel_slopes", "rate_slopes",
-    "constant_rate_slopes", "timing_frame", "run_timing", "run_study", "write_study",
+    "constant_rate_slopes", "timing_frame", "run_timing", "run_study",
 ]
 
 CAMERA = Camera.from_fov(1280, 960, 15.0)
@@ -637,32 +636,3 @@ def _cost(spec: SequenceSpec) -> float:
     p = spec.params
     rate = float(np.linalg.norm(p["rate_rad_s"])) if "rate_rad_s" in p else p.get("max_rate_rad_s", 0.0)
     return spec.n_frames * (1.0 + rate / _DEG)
-
-
-def write_study(study: TrackingStudy, out_dir: str | Path, command: str = "skyfix analyze tracking"
-                ) -> list[Path]:
-    """Write ``tracking_study.json``, ``tracking_study.md`` and the PNG plots to ``out_dir``."""
-    from skyfix.analysis import tracking_report
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    pj = out / "tracking_study.json"
-    pj.write_text(json.dumps(_clean({"settings": study.settings,
-                                     "sequences": [s.to_json() for s in study.sequences],
-                                     "timing": [t._asdict() for t in study.timing]}), indent=None))
-    pm = out / "tracking_study.md"
-    pm.write_text(tracking_report.markdown(study, command))
-    return [pj, pm, *tracking_report.plots(study, out)]
-
-
-def _clean(v):
-    """NaN → None, tuples → lists, so the file is strict JSON."""
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, dict):
-        return {str(k): _clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_clean(x) for x in v]
-    if isinstance(v, (np.floating, np.integer, np.bool_)):
-        return _clean(v.item())
-    return v
