@@ -58,6 +58,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from skyfix.analysis._json import strict_json
 from skyfix.analysis.blind_campaign import attitude_error_rad, is_wrong
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
 from skyfix.camera import Camera
@@ -415,21 +416,6 @@ def plots(study: dict, summary: dict, out: Path) -> list[Path]:
     return [p1, p2]
 
 
-def _clean(v):
-    """NaN → None, NamedTuples → dicts, numpy scalars → Python, so the file is strict JSON."""
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, tuple) and hasattr(v, "_asdict"):
-        return _clean(v._asdict())
-    if isinstance(v, dict):
-        return {str(k): _clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_clean(x) for x in v]
-    if isinstance(v, (np.floating, np.integer, np.bool_)):
-        return _clean(v.item())
-    return v
-
-
 def write_study(study: dict, out_dir: str | Path, command: str = "skyfix analyze identification"
                 ) -> list[Path]:
     """Write ``identification_study.json`` (every trial), ``identification_study.md`` and the plots
@@ -447,7 +433,7 @@ def write_study(study: dict, out_dir: str | Path, command: str = "skyfix analyze
         text += "\n" + safety_markdown(study["safety"], safe, command)
         extra.append(safety_plot(safe, out))
     pj = out / "identification_study.json"
-    pj.write_text(json.dumps(_clean(doc)))
+    pj.write_text(json.dumps(strict_json(doc)))
     pm = out / "identification_study.md"
     pm.write_text(text)
     return [pj, pm, *plots(study, summary, out), *extra]
@@ -1007,7 +993,7 @@ def run_safety(settings: SafetySettings = SAFETY_FULL, progress: Callable[[str],
 
         def done(part: list[SafetyTrial]) -> None:
             with path.open("a") as fh:
-                fh.writelines(json.dumps(_clean(r._asdict())) + "\n" for r in part)
+                fh.writelines(json.dumps(strict_json(r._asdict())) + "\n" for r in part)
 
     parts = _pool(_safety_jobs(settings, methods), settings.workers, methods, settings.mix.fovs_deg, progress,
                   _job_label, done)
@@ -1152,7 +1138,7 @@ def write_safety(safety: dict, out_dir: str | Path, command: str = "") -> list[P
     out.mkdir(parents=True, exist_ok=True)
     summary = safety_summary(safety["records"])
     pj = out / "identification_safety.json"
-    pj.write_text(json.dumps(_clean(safety_json(safety, summary))))
+    pj.write_text(json.dumps(strict_json(safety_json(safety, summary))))
     pm = out / "identification_safety.md"
     pm.write_text(safety_markdown(safety, summary, command))
     return [pj, pm, safety_plot(summary, out)]

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from skyfix.analysis._json import strict_json
 from skyfix.analysis.blind_campaign import attitude_error_rad, is_wrong
 from skyfix.analysis.preset_check import THESIS_FIGURES, detection_snr
 
@@ -334,20 +335,6 @@ def plot_campaign(campaign: Campaign, path: str | Path) -> Path:
     return out
 
 
-def _json_ready(v):
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, dict):
-        return {str(k): _json_ready(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_json_ready(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return _json_ready(v.tolist())
-    if isinstance(v, (np.floating, np.integer, np.bool_)):
-        return _json_ready(v.item())
-    return v
-
-
 def _frame_json(frame: FrameResult) -> dict:
     solves = {k: dict(o._asdict(), boresight_arcsec=o.boresight_arcsec, roll_arcsec=o.roll_arcsec)
               for k, o in frame.solves.items()}
@@ -366,7 +353,7 @@ def write_campaign(campaign: Campaign, out_dir: str | Path, command: str = "skyf
         rows.append(dict(preset=row.preset, exposure_s=row.exposure_s, note=row.note, databases=dbs,
                          summary=summary, frames=[_frame_json(f) for f in frames]))
     pj = out / "presets.json"
-    pj.write_text(json.dumps(_json_ready({"settings": campaign.settings, "command": command, "rows": rows})))
+    pj.write_text(json.dumps(strict_json({"settings": campaign.settings, "command": command, "rows": rows})))
     pm = out / "presets.md"
     pm.write_text(markdown(campaign, command))
     return [pj, pm, plot_campaign(campaign, out / "presets.png")]

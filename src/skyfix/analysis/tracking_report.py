@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skyfix.analysis._json import strict_json
 from skyfix.analysis.tracking_study import (
     CAMERA,
     PREDICTOR_NAMES,
@@ -396,22 +397,9 @@ def write_study(study: TrackingStudy, out_dir: str | Path, command: str = "skyfi
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     pj = out / "tracking_study.json"
-    pj.write_text(json.dumps(_clean({"settings": study.settings,
+    pj.write_text(json.dumps(strict_json({"settings": study.settings,
                                      "sequences": [s.to_json() for s in study.sequences],
                                      "timing": [t._asdict() for t in study.timing]}), indent=None))
     pm = out / "tracking_study.md"
     pm.write_text(markdown(study, command))
     return [pj, pm, *plots(study, out)]
-
-
-def _clean(v):
-    """NaN → None, tuples → lists, so the file is strict JSON."""
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, dict):
-        return {str(k): _clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_clean(x) for x in v]
-    if isinstance(v, (np.floating, np.integer, np.bool_)):
-        return _clean(v.item())
-    return v
