@@ -89,8 +89,8 @@ def run_kind(key: str, n_frames: int, repeat: int, seed: int, count: bool) -> di
     import skyfix.final_fit as ff
     from skyfix import _rematch
     from skyfix._kernels import camera_fit
-    from skyfix.analysis.blind_campaign import attitude_error_rad
     from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+    from skyfix.analysis.truth import attitude_error_rad
     from skyfix.calibrate import frame_rotation_at_pixel
     from skyfix.catalog import load_gaia, load_hipparcos
     from skyfix.identify import identify

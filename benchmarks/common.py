@@ -27,9 +27,6 @@ REAL_DIR = next((p / "shared" / "data" / "real" for p in REPO_ROOT.parents
 
 ARCSEC_PER_RAD = 180.0 / np.pi * 3600.0
 
-# A solution farther than this from the truth is a *wrong attitude* (issue 2).
-WRONG_BORESIGHT_ARCSEC = 60.0
-WRONG_ROLL_DEG = 0.5
 
 
 @dataclass
@@ -108,8 +105,12 @@ def roll_diff_deg(a_deg: float, b_deg: float) -> float:
     return float(abs((a_deg - b_deg + 180.0) % 360.0 - 180.0))
 
 
-def is_wrong(bore_arcsec: float, roll_deg: float) -> bool:
-    return bore_arcsec > WRONG_BORESIGHT_ARCSEC or roll_deg > WRONG_ROLL_DEG
+def is_wrong(bore_arcsec: float, roll_deg: float, plate_scale_arcsec: float = 0.0) -> bool:
+    """A *wrong attitude*: skyfix's one definition (:func:`skyfix.analysis.truth.is_wrong`,
+    boresight beyond max(60″, 1 px) or roll beyond 0.5°), applied to the errors measured here."""
+    from skyfix.analysis.truth import is_wrong as one_definition
+
+    return one_definition(bore_arcsec, roll_deg, plate_scale_arcsec)
 
 
 # --- statistics --------------------------------------------------------------------------------

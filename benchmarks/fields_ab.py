@@ -20,9 +20,10 @@ import numpy as np
 
 
 def run(cases: list[int], n: int, seed: int) -> dict:
-    from skyfix.analysis.blind_campaign import is_wrong, trial_result
+    from skyfix.analysis.blind_campaign import trial_result
     from skyfix.analysis.field_campaign import CASES, case_camera, field_trials
     from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+    from skyfix.analysis.truth import judge_error
     from skyfix.catalog import load_gaia
     from skyfix.pipeline import solve_centroids
 
@@ -47,8 +48,8 @@ def run(cases: list[int], n: int, seed: int) -> dict:
             sol = solve_centroids(xy, case.width, case.height, epoch=2025.0)
             cpu, wall = time.process_time() - c0, time.perf_counter() - w0
             trial = trial_result(sol, A, camera, n_stars)
-            rows.append(dict(cpu_ms=1e3 * cpu, wall_ms=1e3 * wall, solved=bool(sol.solved),
-                             wrong=bool(sol.solved and is_wrong(trial.error_rad, trial.plate_scale_arcsec)),
+            wrong = bool(sol.solved and judge_error(trial.error_rad, trial.plate_scale_arcsec).wrong)
+            rows.append(dict(cpu_ms=1e3 * cpu, wall_ms=1e3 * wall, solved=bool(sol.solved), wrong=wrong,
                              n_matched=int(sol.n_matched or 0),
                              A=None if sol.A_icrs_to_cam is None else np.asarray(sol.A_icrs_to_cam).tolist(),
                              error_rad=np.asarray(trial.error_rad).tolist(),

@@ -15,7 +15,6 @@ the median's ratio to the default's (target: ≤ 10×; the default's p99 ≤ 5 m
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
@@ -42,10 +41,10 @@ def _fields(n: int) -> list:
 
 
 def _wrong(A_true: np.ndarray, A: np.ndarray) -> bool:
+    from skyfix.analysis.truth import judge_error
     from skyfix.attitude import attitude_error
 
-    e = attitude_error(A_true, A)
-    return math.degrees(math.hypot(e[0], e[1])) * 3600 > 60.0 or abs(math.degrees(e[2])) > 0.5
+    return judge_error(attitude_error(A_true, A)).wrong
 
 
 def run(n_fields: int = 40, methods: list[str] | None = None) -> dict:

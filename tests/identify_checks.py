@@ -3,13 +3,14 @@ triangle-feature method (liebe, planar, area-moment) must pass, which
 tests/test_identify_<name>.py run on their method, and the helpers other method tests use
 (:func:`wrong`, :func:`pointing_at`).
 
-A wrong attitude is a boresight error over 60" or a roll error over 0.5°.
+A wrong attitude is the one definition, skyfix.analysis.truth.is_wrong.
 """
 
 import numpy as np
 import pytest
 
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+from skyfix.analysis.truth import judge_error
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
@@ -30,8 +31,7 @@ def catalog_for(database):
 
 
 def wrong(A_true, A_est) -> bool:
-    err = attitude_error(A_true, A_est)
-    return bool(np.hypot(err[0], err[1]) > 60 * ARCSEC or abs(err[2]) > np.radians(0.5))
+    return judge_error(attitude_error(A_true, A_est)).wrong
 
 
 def pointing_at(v: np.ndarray) -> np.ndarray:

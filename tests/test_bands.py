@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import skyfix.identify.bands as bands_module
-from skyfix.analysis.blind_campaign import attitude_error_rad, is_wrong
 from skyfix.analysis.field_campaign import CASES, case_camera, field_trials, summarize_case
+from skyfix.analysis.truth import attitude_error_rad, judge_error
 from skyfix.errors import DatabaseError
 from skyfix.identify import PatternDatabase
 from skyfix.identify.bands import BANDS, Band, band_database, bands_for, database_for_fov
@@ -83,7 +83,7 @@ def test_a_60_degree_barrel_lens_solves_with_no_camera_file():
     solved = [t.trial for t in trials if t.trial.solved]
     assert len(solved) >= 5
     for t in solved:
-        assert not is_wrong(t.error_rad, t.plate_scale_arcsec)
+        assert not judge_error(t.error_rad, t.plate_scale_arcsec).wrong
         assert math.hypot(*t.error_rad[:2]) / ARCSEC < 40.0  # 200″ pixels
     assert camera.k1 == -0.3
 

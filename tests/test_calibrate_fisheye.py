@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from skyfix._kernels import camera_fit, lens
-from skyfix.analysis.blind_campaign import attitude_error_rad
+from skyfix.analysis.truth import attitude_error_rad
 from skyfix.calibrate import (
     CameraPrior,
     fit_camera,

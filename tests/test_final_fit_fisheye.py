@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from skyfix._rematch import equidistant_consensus
-from skyfix.analysis.blind_campaign import attitude_error_rad, is_wrong
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+from skyfix.analysis.truth import attitude_error_rad, judge_error
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
 from skyfix.final_fit import final_fit
@@ -56,7 +56,7 @@ def test_fisheye_frames_solve_with_a_fisheye_camera_and_honest_error_bars(stars)
         assert sol.n_matched >= 0.85 * n_real
         assert abs(sol.camera.fx / FISHEYE.fx - 1) < 0.003
         err, sigma = _judged(sol, A)
-        assert not is_wrong(err, math.degrees(FISHEYE.plate_scale_rad) * 3600)
+        assert not judge_error(err, math.degrees(FISHEYE.plate_scale_rad) * 3600).wrong
         assert math.hypot(*err[:2]) < 60 * ARCSEC  # a quarter pixel
         z.append(err / sigma)
     z = np.array(z)

@@ -11,9 +11,9 @@ import math
 import numpy as np
 import pytest
 
-from skyfix.analysis.blind_campaign import attitude_error_rad
 from skyfix.analysis.field_campaign import CASES, case_camera
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+from skyfix.analysis.truth import attitude_error_rad
 from skyfix.catalog import load_gaia
 from skyfix.identify import identify
 from skyfix.identify.bands import WIDE, band_database

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from skyfix.analysis import identification_study as st
+from skyfix.analysis import identification_jobs as jobs
+from skyfix.analysis import identification_safety as sf
 from skyfix.solution import Solution
 
 _ARCSEC = math.pi / (180 * 3600)
@@ -20,13 +21,13 @@ _ARCSEC = math.pi / (180 * 3600)
 def catalog():
     from skyfix.catalog import load_hipparcos
 
-    return load_hipparcos(epoch=st.EPOCH, mag_limit=st.MAG_LIMIT + 1.0)
+    return load_hipparcos(epoch=jobs.EPOCH, mag_limit=jobs.MAG_LIMIT + 1.0)
 
 
 def test_draws_cover_the_axes_and_replay():
-    draws = [st.safety_draw(t, seed=3) for t in range(3000)]
-    assert st.safety_draw(17, seed=3) == draws[17]  # a function of (seed, trial) alone
-    assert st.safety_draw(17, seed=4) != draws[17]
+    draws = [sf.safety_draw(t, seed=3) for t in range(3000)]
+    assert sf.safety_draw(17, seed=3) == draws[17]  # a function of (seed, trial) alone
+    assert sf.safety_draw(17, seed=4) != draws[17]
     kinds = np.array([d.bright_stars for d in draws])
     assert abs(np.mean(kinds == 3) - 0.2) < 0.03 and abs(np.mean((kinds == 4) | (kinds == 5)) - 0.2) < 0.03
     assert {d.fov_deg for d in draws} == {8.0, 15.0, 30.0}
@@ -37,10 +38,10 @@ def test_draws_cover_the_axes_and_replay():
 
 
 def test_sparse_frame_holds_its_brightest_stars(catalog):
-    draw = st.SafetyDraw(5, 30.0, 0.0, 2, 0.0, 0.0, True, 3)
-    camera, field = st.safety_field(draw, catalog)
+    draw = sf.SafetyDraw(5, 30.0, 0.0, 2, 0.0, 0.0, True, 3)
+    camera, field = sf.safety_field(draw, catalog)
     assert np.sum(field.star_id > 0) == 3 and np.sum(field.star_id == 0) == 2
-    again = st.safety_field(draw, catalog)[1]
+    again = sf.safety_field(draw, catalog)[1]
     assert np.array_equal(field.xy, again.xy)  # the same frame, to the bit
 
 
@@ -57,31 +58,37 @@ def _fake_solve(rotvec_arcsec):
     return solve
 
 
-@pytest.mark.parametrize("rotvec, wrong", [((30.0, 20.0, 0.0), False), ((50.0, 40.0, 0.0), True),
-                                           ((0.0, 0.0, 0.6 * 3600), True), ((0.0, 0.0, 0.4 * 3600), False)])
-def test_judge_counts_a_wrong_attitude(monkeypatch, catalog, rotvec, wrong):
-    draw = st.safety_draw(11)
-    camera, field = st.safety_field(draw, catalog)
+@pytest.mark.parametrize("trial", [6, 11])  # a 15° and a 30° frame: one pixel 42″ and 84″
+@pytest.mark.parametrize("bore, roll, wrong", [(0.9, 0.0, False), (1.1, 0.0, True), (0.0, 0.6, True),
+                                               (0.0, 0.4, False)])
+def test_judge_counts_a_wrong_attitude(monkeypatch, catalog, trial, bore, roll, wrong):
+    """The one definition (skyfix.analysis.truth.is_wrong): boresight beyond max(60″, 1 px) — here
+    0.9 and 1.1 of that bar, split 3:4 over x and y — or roll beyond 0.5°."""
+    draw = sf.safety_draw(trial)
+    camera, field = sf.safety_field(draw, catalog)
+    bar = max(60.0, math.degrees(camera.plate_scale_rad) * 3600.0)
+    assert {6: 15.0, 11: 30.0}[trial] == draw.fov_deg
+    rotvec = (0.6 * bore * bar, 0.8 * bore * bar, roll * 3600.0)
     fake = _fake_solve(rotvec)
     fake.field = field
     monkeypatch.setattr("skyfix.pipeline.solve_centroids", fake)
-    r = st.safety_trial("quad-hash", draw, camera, field)
+    r = sf.safety_trial("quad-hash", draw, camera, field)
     assert r.solved and r.wrong is wrong
     assert r.boresight_arcsec == pytest.approx(math.hypot(rotvec[0], rotvec[1]), abs=0.05)
     assert r.roll_deg == pytest.approx(rotvec[2] / 3600, abs=1e-4)
     assert r.normalised == pytest.approx(math.hypot(*rotvec) / 10.0, rel=1e-3)
-    summary = st.safety_summary([r, r._replace(trial=12, solved=False, wrong=False)])["quad-hash"]
+    summary = sf.safety_summary([r, r._replace(trial=12, solved=False, wrong=False)])["quad-hash"]
     assert summary["n"] == 2 and summary["solved"] == 1 and summary["wrong"] == int(wrong)
-    assert [w["trial"] for w in summary["wrong_trials"]] == ([11] if wrong else [])
-    assert summary["wrong_upper95_pct"] == pytest.approx(100 * st.upper_bound_95(int(wrong), 2))
+    assert [w["trial"] for w in summary["wrong_trials"]] == ([trial] if wrong else [])
+    assert summary["wrong_upper95_pct"] == pytest.approx(100 * jobs.upper_bound_95(int(wrong), 2))
 
 
 def test_small_run_bookkeeping_and_replay(tmp_path):
-    mix = st.SAFETY_MIX._replace(fovs_deg=(15.0, 30.0))  # the 8° frames' refusals take the time
-    settings = st.SafetySettings(trials=6, methods=("quad-hash", "grid"), block=4, mix=mix)
-    safety = st.run_safety(settings, checkpoint=tmp_path / "part.jsonl")
+    mix = sf.SAFETY_MIX._replace(fovs_deg=(15.0, 30.0))  # the 8° frames' refusals take the time
+    settings = sf.SafetySettings(trials=6, methods=("quad-hash", "grid"), block=4, mix=mix)
+    safety = sf.run_safety(settings, checkpoint=tmp_path / "part.jsonl")
     recs = safety["records"]
-    back = st.read_checkpoint(tmp_path / "part.jsonl")  # the blocks as they came, read back in order
+    back = sf.read_checkpoint(tmp_path / "part.jsonl")  # the blocks as they came, read back in order
     assert len(back) == len(recs)
     for a, b in zip(back, recs, strict=True):
         same = [x == y or (isinstance(x, float) and math.isnan(x) and math.isnan(y))
@@ -93,9 +100,21 @@ def test_small_run_bookkeeping_and_replay(tmp_path):
         assert r.solved == math.isfinite(r.boresight_arcsec)
         assert not r.wrong and (not r.solved or r.boresight_arcsec < 60.0)  # no method may be wrong here
         assert r.solved or r.reason
-    again = st.replay_safety(4, "grid", mix=mix)
+    again = sf.replay_safety(4, "grid", mix=mix)
     assert again._replace(time_ms=0.0) == recs[9]._replace(time_ms=0.0)
-    paths = st.write_safety(safety, tmp_path, command="test")
+    paths = sf.write_safety(safety, tmp_path, command="test")
     data = json.loads(paths[0].read_text())
     assert data["summary"]["grid"]["n"] == 6 and len(data["records"]["trial"]) == 12
     assert "## Safety: 6 frames per method" in paths[1].read_text()
+
+
+def test_one_definition_of_a_wrong_attitude():
+    """skyfix.analysis.truth.is_wrong: beyond max(60″, 1 px) or 0.5° of roll; NaN is wrong."""
+    from skyfix.analysis.truth import is_wrong, judge_error
+
+    assert not is_wrong(60.0, 0.5) and is_wrong(60.01, 0.0) and is_wrong(0.0, -0.51)
+    assert not is_wrong(80.0, 0.0, plate_scale_arcsec=84.0) and is_wrong(85.0, 0.0, plate_scale_arcsec=84.0)
+    assert is_wrong(math.nan, 0.0) and is_wrong(0.0, math.nan)
+    verdict = judge_error(np.array([3.0, 4.0, 0.01]) * 20.0 * _ARCSEC)  # 100″ off the boresight
+    assert verdict.wrong and verdict.boresight_arcsec == pytest.approx(100.0, rel=1e-12)
+    assert verdict.roll_deg == pytest.approx(0.2 / 3600.0, rel=1e-9)

@@ -9,29 +9,31 @@ import math
 import pytest
 from typer.testing import CliRunner
 
+from skyfix.analysis import identification_jobs as jobs
 from skyfix.analysis import identification_study as st
+from skyfix.analysis.identification_cases import quest_catalogue
 from skyfix.errors import InputError
 
 
 def test_upper_bound_is_clopper_pearson():
     # none wrong in n: 1 - 0.05**(1/n), close to the rule of three
-    assert st.upper_bound_95(0, 1000) == pytest.approx(1 - 0.05 ** (1 / 1000), rel=1e-9)
-    assert st.upper_bound_95(0, 1000) == pytest.approx(3 / 1000, rel=0.01)
+    assert jobs.upper_bound_95(0, 1000) == pytest.approx(1 - 0.05 ** (1 / 1000), rel=1e-9)
+    assert jobs.upper_bound_95(0, 1000) == pytest.approx(3 / 1000, rel=0.01)
     # one in 100: scipy's beta quantile, checked against the binomial tail it inverts
-    p = st.upper_bound_95(1, 100)
+    p = jobs.upper_bound_95(1, 100)
     assert (1 - p) ** 100 + 100 * p * (1 - p) ** 99 == pytest.approx(0.05, abs=1e-9)
-    assert st.upper_bound_95(5, 5) == 1.0
+    assert jobs.upper_bound_95(5, 5) == 1.0
 
 
 def test_methods_walked_from_the_registry():
     from skyfix.identify import METHODS
 
-    names = st.method_names()
+    names = jobs.method_names()
     assert names[0] == "quad-hash" and "hash" not in names  # an alias runs once
     assert set(names) <= set(METHODS)
     assert len(names) == len({id(f) for f in METHODS.values()})
     with pytest.raises(InputError, match="unknown"):
-        st.method_names(["no-such-method"])
+        jobs.method_names(["no-such-method"])
 
 
 def test_quick_study_quad_hash():
@@ -51,7 +53,7 @@ def test_quick_study_quad_hash():
 
 
 def test_same_fields_for_every_method():
-    recs = st.run_block(15.0, st.CONDITIONS[5], range(3), ["quad-hash", "triangle"], seed=7)
+    recs = st.run_block(15.0, jobs.CONDITIONS[5], range(3), ["quad-hash", "triangle"], seed=7)
     assert [r.method for r in recs] == ["quad-hash", "triangle"] * 3
     for a, b in zip(recs[::2], recs[1::2], strict=True):
         assert a.trial == b.trial and a.n_stars == b.n_stars
@@ -60,7 +62,7 @@ def test_same_fields_for_every_method():
 
 def test_quest_on_catalogue_clusters():
     # thesis 000: 96.7 % of its clusters; with correct pairing QUEST returns the identity always
-    res = st.quest_catalogue(n_stars=170, max_angle_deg=31.8)
+    res = quest_catalogue(n_stars=170, max_angle_deg=31.8)
     assert res["clusters"] > 4000
     assert res["identity"] == res["clusters"]
     assert res["worst_arcsec"] < 1e-3

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+from skyfix.analysis.truth import is_wrong
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
 from skyfix.errors import DatabaseError
@@ -41,7 +42,7 @@ def test_synthetic_solve_rate_and_no_wrong_attitude(database, fields, fov_deg):
         if not res.success:
             continue
         bore, roll = attitude_errors(res.A_icrs_to_cam, f.A_icrs_to_cam)
-        if bore > 60 or roll > 0.5:
+        if is_wrong(bore, roll):
             wrong += 1
             continue
         solved += 1

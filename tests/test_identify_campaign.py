@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+from skyfix.analysis.truth import is_wrong
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
 from skyfix.geometry import angle_between, radec_roll_from_attitude
@@ -37,7 +38,7 @@ def test_campaign(database, sigma_px, n_false, fov_deg):
         bore = angle_between(res.A_icrs_to_cam[2], A[2]) / ARCSEC
         roll = np.degrees(radec_roll_from_attitude(res.A_icrs_to_cam)[2] - radec_roll_from_attitude(A)[2])
         roll = abs((roll + 180) % 360 - 180)
-        if bore > 60 or roll > 0.5:
+        if is_wrong(bore, roll):
             wrong += 1
         else:
             solved += 1

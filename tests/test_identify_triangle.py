@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+from skyfix.analysis.truth import judge_error
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
@@ -27,9 +28,7 @@ def catalog():
 
 
 def _wrong(A_true: np.ndarray, A: np.ndarray, camera: Camera) -> bool:
-    e = attitude_error(A_true, A)
-    boresight = math.degrees(math.hypot(e[0], e[1])) * 3600
-    return boresight > max(60.0, math.degrees(camera.plate_scale_rad) * 3600) or abs(math.degrees(e[2])) > 0.5
+    return judge_error(attitude_error(A_true, A), math.degrees(camera.plate_scale_rad) * 3600).wrong
 
 
 def _orion(catalog, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
@@ -157,7 +156,8 @@ def test_a_false_star_in_a_verified_triangle_is_caught():
     """The study's field that came back wrong (15°, 10 false stars, field 32): a triangle of two
     true stars and a false one, verified by eight true stars around it, 240″ and 1.7° off with
     P 2.5e-9. Each triangle star must now fit the attitude of the others without it."""
-    from skyfix.analysis.identification_study import CONDITIONS, run_block
+    from skyfix.analysis.identification_jobs import CONDITIONS
+    from skyfix.analysis.identification_study import run_block
 
     (record,) = run_block(15.0, CONDITIONS[5], range(32, 33), ["triangle"], seed=0)
     assert CONDITIONS[5].n_false == 10

@@ -14,15 +14,14 @@ import math
 import numpy as np
 
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
+from skyfix.analysis.truth import judge_error
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera, camera_from_preset
 from skyfix.pipeline import solve_centroids
 
 
 def _wrong(A_true: np.ndarray, A: np.ndarray, camera: Camera) -> bool:
-    e = attitude_error(A_true, A)
-    boresight = math.degrees(math.hypot(e[0], e[1])) * 3600
-    return boresight > max(60.0, math.degrees(camera.plate_scale_rad) * 3600) or abs(math.degrees(e[2])) > 0.5
+    return judge_error(attitude_error(A_true, A), math.degrees(camera.plate_scale_rad) * 3600).wrong
 
 
 def test_rich_frames_of_a_preset_size_solve_through_its_camera(catalog):

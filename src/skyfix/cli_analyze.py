@@ -345,20 +345,23 @@ def identification(
     bound, median and p99 time, table size and build time; the safety case (≥ 10⁴ random noisy
     frames per method through the solve, every wrong attitude kept to replay); and the seeds'
     experiments. Without --case and --quick: all of them."""
+    from skyfix.analysis import identification_safety as sf
     from skyfix.analysis import identification_study as st
+    from skyfix.analysis.identification_cases import CASES
+    from skyfix.analysis.identification_jobs import method_names
 
     add_verbosity(verbose)
     names = tuple(m.strip().lower() for m in methods.split(",") if m.strip())
-    method_list = st.method_names(names)  # one line for an unknown name
+    method_list = method_names(names)  # one line for an unknown name
     cases = [c.strip().lower() for c in case.split(",") if c.strip()]
-    bad = [c for c in cases if c not in st.CASES and c != "safety"]
+    bad = [c for c in cases if c not in CASES and c != "safety"]
     if bad:
-        fail(f"unknown case {', '.join(bad)}; choose from safety, {', '.join(st.CASES)}")
+        fail(f"unknown case {', '.join(bad)}; choose from safety, {', '.join(CASES)}")
     base = st.QUICK if quick else st.FULL
     workers = check_count(workers, "--workers", minimum=1)
     settings = base._replace(methods=tuple(method_list), seed=int(seed), workers=workers,
                              trials=check_count(trials, "--trials") if trials is not None else base.trials)
-    safety_base = st.SAFETY_QUICK if quick else st.SAFETY_FULL if cases else st.SAFETY_STUDY
+    safety_base = sf.SAFETY_QUICK if quick else sf.SAFETY_FULL if cases else sf.SAFETY_STUDY
     n_safety = (check_count(safety_trials, "--safety-trials", minimum=0) if safety_trials is not None
                 else safety_base.trials)
     safety = safety_base._replace(trials=n_safety, methods=tuple(method_list), seed=int(seed),
@@ -378,9 +381,9 @@ def identification(
         with _progress(n_jobs, False) as bar, compile_notice(bar):
             task = bar.add_task("safety", total=n_jobs)
             out.mkdir(parents=True, exist_ok=True)
-            result = st.run_safety(safety, checkpoint=out / "identification_safety.partial.jsonl",
+            result = sf.run_safety(safety, checkpoint=out / "identification_safety.partial.jsonl",
                                    progress=lambda what: bar.update(task, advance=1, description=what))
-        paths = st.write_safety(result, out, command=command)
+        paths = sf.write_safety(result, out, command=command)
         typer.echo(paths[1].read_text())
         for p in paths:
             typer.echo(f"wrote {p}")
@@ -390,7 +393,7 @@ def identification(
             task = bar.add_task("seed experiments", total=len(seed_cases))
             for c in seed_cases:
                 bar.update(task, description=c)
-                results[c] = st.CASES[c]()
+                results[c] = CASES[c]()
                 bar.update(task, advance=1)
         out.mkdir(parents=True, exist_ok=True)
         path = out / "identification_cases.json"
@@ -399,7 +402,7 @@ def identification(
         typer.echo(f"wrote {path}")
     if cases:
         return
-    all_cases = () if quick else tuple(st.CASES)
+    all_cases = () if quick else tuple(CASES)
     n_jobs = (len(settings.fovs_deg) * len(settings.conditions) + len(all_cases)
               + (-(-n_safety // safety.block) if n_safety else 0))
     with _progress(n_jobs, False) as bar, compile_notice(bar):

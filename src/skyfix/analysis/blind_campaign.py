@@ -11,9 +11,10 @@ Two kinds of trial, both solved with no camera file and no FOV hint, as a new us
 Each trial's error is the rotation between the reported attitude and the true one *at the pixel
 the solution calls its boresight* (its principal point): with no camera file the optical axis
 is not known, but the sky direction of that pixel and the roll there are
-(:func:`attitude_error_rad`). A trial is **wrong** when that boresight error exceeds
-max(60″, 1 px) or the roll error 0.5°; the **normalised error** is the error divided by the
-reported σ, per axis (cross-boresight x, y and roll): honest error bars give an RMS near 1.
+(:func:`skyfix.analysis.truth.attitude_error_rad`). A trial is **wrong** when that boresight
+error exceeds max(60″, 1 px) or the roll error 0.5° (:func:`skyfix.analysis.truth.is_wrong`); the
+**normalised error** is the error divided by the reported σ, per axis (cross-boresight x, y and
+roll): honest error bars give an RMS near 1.
 
 ``benchmarks/suite_blind.py`` runs them (``benchmarks/run --suites e``); the slow test suite pins
 the results (``tests/test_blind_campaign.py``).
@@ -28,11 +29,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from skyfix.calibrate import frame_rotation_at_pixel
+from skyfix.analysis.truth import attitude_error_rad, judge_error
 from skyfix.camera import Camera
-from skyfix.identify.accept import WRONG_BORESIGHT_ARCSEC, WRONG_ROLL_DEG
 
-__all__ = ["Trial", "UncalibratedField", "attitude_error_rad", "is_wrong", "preset_image_trials",
+__all__ = ["Trial", "UncalibratedField", "preset_image_trials",
            "random_uncalibrated_camera", "summarize", "trial_result", "uncalibrated_centroid_trials",
            "uncalibrated_fields"]
 
@@ -52,22 +52,6 @@ class Trial(NamedTuple):
     error_rad: np.ndarray
     sigma_rad: np.ndarray
     plate_scale_arcsec: float
-
-
-def attitude_error_rad(A_est: np.ndarray, camera_est: Camera, A_true: np.ndarray, camera_true: Camera
-                       ) -> np.ndarray:
-    """Rotation vector (3,) rad from the true frame to the estimated one, about the estimated
-    camera's axes, both frames taken at the estimated principal point's pixel: z the sky
-    direction of that pixel, x the direction in which the column grows there
-    (:func:`skyfix.calibrate.frame_rotation_at_pixel`)."""
-    return frame_rotation_at_pixel(A_est, camera_est, A_true, camera_true, (camera_est.cx, camera_est.cy))
-
-
-def is_wrong(error_rad: np.ndarray, plate_scale_arcsec: float) -> bool:
-    """Boresight error beyond max(60″, 1 px) or roll error beyond 0.5°."""
-    bore = math.hypot(error_rad[0], error_rad[1]) / _ARCSEC
-    roll_deg = abs(math.degrees(error_rad[2]))
-    return bore > max(WRONG_BORESIGHT_ARCSEC, plate_scale_arcsec) or roll_deg > WRONG_ROLL_DEG
 
 
 def random_uncalibrated_camera(rng: np.random.Generator) -> Camera:
@@ -165,7 +149,7 @@ def summarize(trials: list[Trial]) -> dict:
     trials, and the largest boresight / roll errors."""
     solved = [t for t in trials if t.solved]
     out = {"n": len(trials), "solved": len(solved),
-           "wrong": sum(is_wrong(t.error_rad, t.plate_scale_arcsec) for t in solved)}
+           "wrong": sum(judge_error(t.error_rad, t.plate_scale_arcsec).wrong for t in solved)}
     if solved:
         err = np.array([t.error_rad for t in solved])
         z = err / np.array([t.sigma_rad for t in solved])

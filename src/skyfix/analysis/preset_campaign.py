@@ -4,9 +4,9 @@ For each seed camera preset, :func:`run_campaign` renders N frames at random att
 at the preset's ``[defaults]`` exposure, and solves each with no hint (``skyfix.solve(image)``)
 and, for reference, with the preset's camera given (``camera=``). Each solve is compared with
 the truth attitude at the pixel the solution calls its boresight
-(:func:`skyfix.analysis.blind_campaign.attitude_error_rad`); a solve is **wrong** when that
+(:func:`skyfix.analysis.truth.attitude_error_rad`); a solve is **wrong** when that
 boresight error exceeds max(60″, 1 px) or the roll error 0.5°
-(:func:`~skyfix.analysis.blind_campaign.is_wrong`).
+(:func:`skyfix.analysis.truth.is_wrong`).
 
 A frame's **detectable** stars are those of its truth whose expected detection SNR reaches
 :data:`DETECTABLE_SNR` (:func:`skyfix.analysis.preset_check.detection_snr`: the star's expected
@@ -36,8 +36,8 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from skyfix.analysis._json import strict_json
-from skyfix.analysis.blind_campaign import attitude_error_rad, is_wrong
 from skyfix.analysis.preset_check import THESIS_FIGURES, detection_snr
+from skyfix.analysis.truth import judge
 
 if TYPE_CHECKING:
     from skyfix.identify import PatternDatabase
@@ -120,10 +120,9 @@ def _outcome(sol, A_true: np.ndarray, camera_true, seconds: float) -> SolveOutco
     nan = np.full(3, np.nan)
     if not sol.solved:
         return SolveOutcome(False, sol.reason, False, nan, nan, 0, seconds)
-    err = attitude_error_rad(sol.A_icrs_to_cam, sol.camera, A_true, camera_true)
+    verdict = judge(sol.A_icrs_to_cam, sol.camera, A_true, camera_true)
     sigma = np.sqrt(np.diag(np.asarray(sol.covariance_arcsec2, dtype=np.float64))) * _ARCSEC
-    scale = camera_true.plate_scale_rad / _ARCSEC
-    return SolveOutcome(True, "", is_wrong(err, scale), err, sigma, int(sol.n_matched), seconds)
+    return SolveOutcome(True, "", verdict.wrong, verdict.error_rad, sigma, int(sol.n_matched), seconds)
 
 
 def _databases(camera, database: PatternDatabase | None, epoch: float) -> dict:
