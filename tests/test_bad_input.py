@@ -101,3 +101,54 @@ def test_cli_json_one_line_per_image(real_dir, database):
             assert key in d
         assert set(d["time_ms"]) >= {"extract", "identify", "attitude", "total"}
         assert {"x", "y", "id", "ra_deg", "dec_deg", "mag", "residual_arcsec"} <= set(d["matches"][0])
+
+
+def _registries():
+    """A call per registry with a name it does not have (cheap: each fails before any work)."""
+    from skyfix.attitude import solve_attitude
+    from skyfix.camera import Camera, camera_from_preset
+    from skyfix.detect.background import estimate_background
+    from skyfix.detect.calibrate_frames import master_frame
+    from skyfix.detect.centroid import centroider
+    from skyfix.detect.extract import extract_centroids
+    from skyfix.detect.regionprops import extract_regionprops
+    from skyfix.detect.streak import centroid_streaks
+    from skyfix.identify import get_method
+    from skyfix.io import read_image_with_header
+    from skyfix.simulate.presets import load_preset
+    from skyfix.simulate.profiles import make_profile
+    from skyfix.track.predictors import make_predictor
+    from skyfix.track.rate import three_point
+    from skyfix.warmup import ensure
+
+    img = np.zeros((32, 32), np.float32)
+    v = np.eye(3)
+    return {
+        "identification method": lambda: get_method("nope"),
+        "attitude method": lambda: solve_attitude(v, v, method="nope"),
+        "background method": lambda: estimate_background(img, method="nope"),
+        "combine": lambda: master_frame(np.zeros((2, 4, 4)), combine="nope"),
+        "centroider": lambda: centroider("nope"),
+        "detection method": lambda: extract_centroids(img, method="nope"),
+        "streak centroider": lambda: centroid_streaks(img, np.zeros((1, 2)), np.zeros(2), method="nope"),
+        "prefilter": lambda: extract_regionprops(img, prefilter="nope"),
+        "image decoder": lambda: read_image_with_header(img, decoder="nope"),
+        "camera preset": lambda: camera_from_preset("nope"),
+        "camera projection": lambda: Camera(64, 64, 100.0, 100.0, 31.5, 31.5, projection="nope"),
+        "preset": lambda: load_preset("nope"),
+        "motion profile": lambda: make_profile("nope", v),
+        "predictor": lambda: make_predictor("nope", v, 0.0, np.eye(3)),
+        "three-point weights": lambda: three_point(1.0, 2.0, 3.0, "nope"),
+        "warm-up path": lambda: ensure("nope"),
+    }
+
+
+@pytest.mark.parametrize("what", list(_registries()))
+def test_every_registry_refuses_an_unknown_name_alike(what):
+    """One error type (UnknownNameError, an InputError) and one message form for a name that no
+    registry entry has — whichever stage's registry it is."""
+    from skyfix.errors import InputError, UnknownNameError
+
+    with pytest.raises(UnknownNameError, match=f"^unknown {what} 'nope'; choose one of [^;]+$") as info:
+        _registries()[what]()
+    assert isinstance(info.value, InputError)

@@ -19,6 +19,7 @@ from skyfix.calibrate import (
 )
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
+from skyfix.errors import UnknownNameError
 from skyfix.geometry import attitude_from_radec_roll
 
 KB = ("f", "aspect", "principal_point", "k1", "k2", "k3", "k4")
@@ -135,7 +136,7 @@ def test_fisheye_parameters_and_priors_are_checked():
         score_camera_models(xy, r, fish, np.eye(3), [("f",), ("f", "tangential")])
     with pytest.raises(ValueError, match="a pinhole prior for a kannala-brandt camera"):
         fit_camera_with_prior(xy, r, fish, np.eye(3), CameraPrior.uncalibrated(640, 480))
-    with pytest.raises(ValueError, match="unknown camera projection 'fish'"):
+    with pytest.raises(UnknownNameError, match="unknown camera projection 'fish'"):
         CameraPrior.uncalibrated(640, 480, "fish")
     assert CameraPrior.uncalibrated(640, 480, "equidistant").projection == "kannala-brandt"
 

@@ -4,7 +4,7 @@ through it."""
 import numpy as np
 import pytest
 
-from skyfix.errors import InputError
+from skyfix.errors import InputError, UnknownNameError
 from skyfix.identify import (
     DEFAULT_METHOD,
     METHODS,
@@ -24,7 +24,8 @@ def test_registry_holds_the_quad_method_as_default():
     assert get_method("Quad-Hash") is quad.identify and METHODS["hash"] is quad.identify
     assert set(METHODS) >= {"hash", "triangle", "liebe", "planar", "area-moment", "pyramid", "grid",
                             "voting", "van-bezooijen"}
-    with pytest.raises(InputError, match="identification method 'nope' is unknown; choose one of quad-hash"):
+    with pytest.raises(UnknownNameError,
+                       match="unknown identification method .nope.; choose one of quad-hash"):
         get_method("nope")
 
 
@@ -92,9 +93,9 @@ def test_pipeline_refuses_an_unknown_method_or_option_before_any_work(database):
     from skyfix.pipeline import solve, solve_centroids
 
     xy = np.zeros((10, 2))
-    with pytest.raises(InputError, match="identification method 'kdtree' is unknown"):
+    with pytest.raises(UnknownNameError, match="unknown identification method 'kdtree'"):
         solve_centroids(xy, W, H, database=database, identify_method="kdtree")
-    with pytest.raises(InputError, match="identification method 'kdtree' is unknown"):
+    with pytest.raises(UnknownNameError, match="unknown identification method 'kdtree'"):
         solve(np.zeros((H, W)), database=database, identify_method="kdtree")
     with pytest.raises(InputError, match=r"unknown option max_patern; known: max_patterns, time_limit_s"):
         solve_centroids(xy, W, H, database=database, max_patern=10)

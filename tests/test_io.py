@@ -6,7 +6,7 @@ import tifffile
 from astropy.io import fits
 from PIL import Image
 
-from skyfix.errors import ImageReadError, InputError
+from skyfix.errors import ImageReadError, UnknownNameError
 from skyfix.io import DECODERS, as_image, read_image, read_image_with_header
 
 
@@ -266,7 +266,7 @@ def test_jpeg_imagecodecs_matches_pillow(tmp_path, kind):
 
 def test_unknown_decoder_name_is_an_input_error(tmp_path, frame):
     Image.fromarray(frame).save(tmp_path / "a.png")
-    with pytest.raises(InputError, match="unknown image decoder"):
+    with pytest.raises(UnknownNameError, match="unknown image decoder"):
         read_image_with_header(tmp_path / "a.png", decoder="libpng")
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from skyfix.camera import Camera, camera_from_preset
 from skyfix.catalog import Catalog
-from skyfix.errors import CameraError, SimulationError, SkyfixError
+from skyfix.errors import CameraError, SimulationError, SkyfixError, UnknownNameError
 from skyfix.geometry import angle_between, attitude_from_radec_roll
 from skyfix.simulate import Optics, Sensor, load_preset, render, render_sequence, star_electrons, write_frame
 from skyfix.simulate.psf import add_gaussians
@@ -315,7 +315,7 @@ def test_truth_positions_are_the_camera_projection():
 
 # --- bad input -----------------------------------------------------------------------------
 def test_bad_input_raises_clear_errors():
-    with pytest.raises(SimulationError, match="unknown camera preset"):
+    with pytest.raises(UnknownNameError, match="unknown camera preset"):
         render(A0, "no-such-camera")
     with pytest.raises(SimulationError, match="positive"):
         render(A0, "generic", exposure_s=-0.1)
@@ -325,7 +325,7 @@ def test_bad_input_raises_clear_errors():
         Camera.from_dict({"width": 640, "height": 480, "fov_deg": 0.0})
     with pytest.raises(SimulationError, match="rotation"):
         render(2 * A0, "generic")
-    with pytest.raises(SimulationError, match="unknown preset"):
+    with pytest.raises(UnknownNameError, match="unknown preset"):
         render(A0, "generic", sensor="nope")
     with pytest.raises(SimulationError, match="time"):
         render(A0, "generic", epoch="yesterday-ish")

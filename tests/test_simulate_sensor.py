@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from skyfix.errors import SimulationError, SkyfixError
+from skyfix.errors import SimulationError, SkyfixError, UnknownNameError
 from skyfix.simulate import NOISE_SOURCES, Sensor, conversion_gain_e_per_adu, preset_names
 from skyfix.simulate.sensor import apply_detector, fixed_pattern, poisson_image
 
@@ -164,7 +164,7 @@ def test_presets_load_and_round_trip(tmp_path):
 
 
 def test_bad_sensor_input():
-    with pytest.raises(SimulationError, match="unknown preset"):
+    with pytest.raises(UnknownNameError, match="unknown preset"):
         Sensor.from_preset("no-such-sensor")
     with pytest.raises(SkyfixError, match="read_noise_e"):
         Sensor(read_noise_e=-1.0)

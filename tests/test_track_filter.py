@@ -24,7 +24,7 @@ from scipy.stats import chi2
 from skyfix._kernels.rotation import rodrigues, rotation_vector
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
-from skyfix.errors import InputError
+from skyfix.errors import InputError, UnknownNameError
 from skyfix.geometry import attitude_from_radec_roll
 from skyfix.simulate.motion import attitude_at
 from skyfix.track.filter import NIS_GATE, AttitudeFilter, interval_model
@@ -309,7 +309,7 @@ def test_rotation_vector_inverts_rodrigues():
 
 def test_registry_and_bad_names():
     assert set(PREDICTORS) == {"mekf", "small-angle", "three-point", "three-point-thesis"}
-    with pytest.raises(InputError, match="unknown predictor"):
+    with pytest.raises(UnknownNameError, match="unknown predictor"):
         make_predictor("kalman", A0, 0.0, R_MEAS)
     with pytest.raises(InputError, match="bad option"):
         make_predictor("three-point", A0, 0.0, R_MEAS, accel_psd=1.0)

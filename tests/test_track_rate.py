@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from skyfix.camera import Camera
-from skyfix.errors import InputError
+from skyfix.errors import InputError, UnknownNameError
 from skyfix.geometry import attitude_from_radec_roll
 from skyfix.simulate.motion import attitude_at
 from skyfix.track.rate import (
@@ -128,7 +128,7 @@ def test_three_point_weights():
     np.testing.assert_array_equal(w, [0.5, -2.0, 2.5])
     w, _ = extrapolation_weights([-3.0, -2.0, -1.0], 0.0, "exact")
     np.testing.assert_array_equal(w, [1.0, -3.0, 3.0])
-    with pytest.raises(InputError, match="unknown"):
+    with pytest.raises(UnknownNameError, match="unknown three-point weights"):
         three_point(1, 2, 3, "quadratic")
 
 

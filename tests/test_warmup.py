@@ -14,6 +14,7 @@ import pytest
 
 import skyfix
 from skyfix import _warm_jobs, warmup
+from skyfix.errors import UnknownNameError
 
 ROOT = Path(__file__).resolve().parents[1]
 SKY = ROOT / "examples" / "sky.png"
@@ -88,7 +89,7 @@ def test_estimate_is_the_longest_first_schedule():
 
 
 def test_unknown_path_is_refused():
-    with pytest.raises(KeyError, match="unknown warm-up path 'bogus'"):
+    with pytest.raises(UnknownNameError, match="unknown warm-up path 'bogus'"):
         warmup.ensure("bogus")
 
 

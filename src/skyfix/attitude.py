@@ -31,6 +31,7 @@ import numpy as np
 
 from skyfix._kernels.rotation import proper_rotation, rotation_vector, triad
 from skyfix._kernels.wahba import information_matrix, profile_matrix
+from skyfix.errors import unknown_name
 from skyfix.geometry import angle_between, normalize
 
 __all__ = [
@@ -439,7 +440,7 @@ def solve_attitude(b_cam: np.ndarray, r_icrs: np.ndarray, weights: np.ndarray | 
     try:
         solver = METHODS[method.lower()]
     except (KeyError, AttributeError):
-        raise ValueError(f"unknown attitude method {method!r}; known: {', '.join(METHODS)}") from None
+        raise unknown_name("attitude method", method, METHODS) from None
     if solver is not svd_attitude:  # the other solvers' kernels, compiled up front on first use
         from skyfix import warmup
 

@@ -24,6 +24,7 @@ import numpy as np
 from skyfix._kernels import camera_fit as kernels
 from skyfix._kernels import lens, rotation
 from skyfix.camera import PROJECTION_ALIASES, Camera
+from skyfix.errors import unknown_name
 
 __all__ = ["CAMERA_PARAMETERS", "CameraFit", "CameraPrior", "ModelScore", "PriorFit", "fit_camera",
            "fit_camera_with_prior", "frame_at_pixel", "frame_rotation_at_pixel", "prior_parameters",
@@ -410,8 +411,7 @@ class CameraPrior(NamedTuple):
         about the equidistant projection."""
         name = PROJECTION_ALIASES.get(projection, projection)
         if name not in UNCALIBRATED_DISTORTION:
-            known = ", ".join(UNCALIBRATED_DISTORTION)
-            raise ValueError(f"unknown camera projection {projection!r}; known: {known}")
+            raise unknown_name("camera projection", projection, UNCALIBRATED_DISTORTION)
         return cls(cx=(width - 1) / 2.0, cy=(height - 1) / 2.0,
                    sigma_principal_point_px=0.25 * math.hypot(width, height) / 2.0, projection=name,
                    **UNCALIBRATED_DISTORTION[name])

@@ -22,7 +22,7 @@ import numpy as np
 import tomllib
 
 from skyfix._kernels import lens
-from skyfix.errors import CameraError
+from skyfix.errors import CameraError, unknown_name
 
 __all__ = ["Camera", "PRESETS", "PROJECTIONS", "PROJECTION_ALIASES", "Projection", "camera_from_preset"]
 
@@ -96,7 +96,7 @@ class Camera:
         """Resolve an alias to its projection's name; a coefficient of another projection is an error."""
         name = self.projection
         if not isinstance(name, str) or PROJECTION_ALIASES.get(name, name) not in PROJECTIONS:
-            raise CameraError(f"unknown camera projection {name!r}; known: {_KNOWN_PROJECTIONS}")
+            raise unknown_name("camera projection", name, _KNOWN_PROJECTIONS.split(", "))
         if name == "equidistant" and any(getattr(self, k) != 0.0 for k in ("k1", "k2", "k3", "k4")):
             raise CameraError("an equidistant camera has k1 = k2 = k3 = k4 = 0; give projection = "
                               '"kannala-brandt" for a θ polynomial')
@@ -332,7 +332,7 @@ def _projection_of_code(code: float) -> str:
     try:
         return _PROJECTION_OF_CODE[float(code)]
     except (KeyError, TypeError, ValueError):
-        raise CameraError(f"unknown camera projection code {code!r}") from None
+        raise unknown_name("camera projection code", code, map(str, _PROJECTION_OF_CODE)) from None
 
 
 # The seeds' cameras (docs/seeds.md#the-seed-cameras); sizes and optics as the theses state them.
@@ -371,5 +371,5 @@ def camera_from_preset(name: str) -> Camera:
     try:
         spec = dict(PRESETS[name.lower()])
     except KeyError:
-        raise CameraError(f"unknown camera preset {name!r}; known: {', '.join(PRESETS)}") from None
+        raise unknown_name("camera preset", name, PRESETS) from None
     return Camera.from_dict(spec)

@@ -613,7 +613,7 @@ _PROFILE_OPTIONS: dict[str, dict[str, object]] = {
 def _simulate_profile(name: str | None, A, given: dict):
     """The simulate command's attitude profile from ``--profile`` and its options (None: a camera
     at rest); an option of another profile, or a value that makes no sense, fails (exit 2)."""
-    from skyfix.errors import SimulationError
+    from skyfix.errors import SimulationError, UnknownNameError
     from skyfix.simulate import PROFILES, make_profile
 
     if name is None:
@@ -659,7 +659,7 @@ def _simulate_profile(name: str | None, A, given: dict):
                           period_s=check_positive(opts["--period"], "--period"),
                           damping_ratio=opts["--damping"], phase_rad=radians("--phase-deg", 3, "px,py,pz"))
         return make_profile(name, A, **params)
-    except SimulationError as exc:  # a parameter out of range, in the profile's own words
+    except (SimulationError, UnknownNameError) as exc:  # a parameter out of range, in the profile's own words
         fail(f"--profile {name}: {exc}")
 
 

@@ -1,5 +1,7 @@
 """Exceptions skyfix raises for bad input; each carries a one-line message for the user."""
 
+from collections.abc import Iterable
+
 
 class SkyfixError(Exception):
     """Base class: a problem with the user's input, reported as one line, never a traceback."""
@@ -28,3 +30,15 @@ class SimulationError(SkyfixError):
 class InputError(SkyfixError, ValueError):
     """An argument or option is out of range or of the wrong kind (a bad FOV, epoch, threshold,
     frame size, method name, ...); raised before any work is done."""
+
+
+class UnknownNameError(InputError):
+    """A name that no entry of a registry has: an identification, attitude, detection or centroid
+    method, a background, decoder, camera projection or preset, a motion profile, a predictor, a
+    warm-up path. Every registry raises this one type, with :func:`unknown_name`'s message."""
+
+
+def unknown_name(what: str, name: object, known: Iterable[str]) -> UnknownNameError:
+    """The one error for a name not in a registry: ``unknown {what} {name!r}; choose one of …``
+    (raise it ``from None``)."""
+    return UnknownNameError(f"unknown {what} {name!r}; choose one of {', '.join(map(str, known))}")

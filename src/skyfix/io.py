@@ -49,7 +49,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from skyfix.errors import ImageReadError, InputError
+from skyfix.errors import ImageReadError, unknown_name
 
 __all__ = ["read_image", "read_image_with_header", "as_image", "ImageFile", "DECODERS", "DECODER_CHAINS",
            "MAX_NONFINITE_FRACTION"]
@@ -132,7 +132,7 @@ def read_image_with_header(path: str | os.PathLike | np.ndarray, *, decoder: str
         ``decoder`` is not a name in :data:`DECODERS`.
     """
     if decoder is not None and decoder not in DECODERS:
-        raise InputError(f"unknown image decoder {decoder!r}; choose one of {', '.join(DECODERS)}")
+        raise unknown_name("image decoder", decoder, DECODERS)
     if isinstance(path, np.ndarray):
         return ImageFile(as_image(path), {}, "array", "array")
     p = Path(path)

@@ -38,6 +38,8 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
+from skyfix.errors import unknown_name
+
 __all__ = ["JOBS", "PATHS", "Job", "default_workers", "ensure", "estimate_s", "is_warm", "pending", "warm"]
 
 log = logging.getLogger(__name__)
@@ -172,7 +174,7 @@ def ensure(path: str | Iterable[str], *, alongside: Callable[[], object] | None 
     names = [path] if isinstance(path, str) else list(path)
     unknown = [p for p in names if p not in PATHS]
     if unknown and not missing_ok:
-        raise KeyError(f"unknown warm-up path {unknown[0]!r}; known: {', '.join(PATHS)}")
+        raise unknown_name("warm-up path", unknown[0], PATHS)
     if not pending([p for p in names if p in PATHS]):
         if alongside is not None:
             alongside()
@@ -205,7 +207,7 @@ def warm(paths: Iterable[str] | None = None, *, workers: int | None = None,
     names = list(PATHS) if paths is None else list(paths)
     for p in names:
         if p not in PATHS:
-            raise KeyError(f"unknown warm-up path {p!r}; known: {', '.join(PATHS)}")
+            raise unknown_name("warm-up path", p, PATHS)
     done = _done_jobs()
     jobs = [j for j in _with_needs(j for p in names if not is_warm(p) for j in PATHS[p]) if not done.get(j)]
     if not jobs:

@@ -35,6 +35,7 @@ from numba import njit
 from skyfix.detect._grid import bilinear, grid_weights
 from skyfix.detect._smooth import column_sum, smooth_at, smooth_row
 from skyfix.detect._stats import CLIP, median, median_inplace, robust_level_noise, tile_level_noise
+from skyfix.errors import unknown_name
 
 __all__ = ["METHODS", "Background", "estimate_background", "smooth3", "default_tile_size"]
 
@@ -171,7 +172,7 @@ def estimate_background(image: np.ndarray, tile: int | None = None, grid_filter:
     Background
     """
     if not isinstance(method, str) or method not in METHODS:
-        raise ValueError(f"unknown background method {method!r}; choose {', '.join(METHODS)}")
+        raise unknown_name("background method", method, METHODS)
     img = frame_f32(image)
     h, w = img.shape
     t, ny, nx, sy, sx, per_row = METHODS[method](h, w, tile)

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from skyfix.detect._stats import robust_level_noise
-from skyfix.errors import ImageReadError
+from skyfix.errors import ImageReadError, unknown_name
 
 __all__ = [
     "COMBINES", "master_frame", "master_dark", "master_flat", "hot_pixel_map", "dead_pixel_map",
@@ -75,7 +75,7 @@ def master_frame(frames: Iterable[np.ndarray | str | Path] | np.ndarray, *, comb
     ndarray of float32, shape (H, W)
     """
     if not isinstance(combine, str) or combine not in COMBINES:
-        raise ValueError(f"unknown combine {combine!r}; choose {', '.join(COMBINES)}")
+        raise unknown_name("combine", combine, COMBINES)
     return COMBINES[combine](_stack(frames), clip_sigma)
 
 

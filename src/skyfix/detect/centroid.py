@@ -40,6 +40,7 @@ from numba import njit
 
 from skyfix.detect._stats import robust_level_noise
 from skyfix.detect.centroids import Centroids, background_snr
+from skyfix.errors import unknown_name
 
 __all__ = ["CENTROIDERS", "COM", "IWCOG", "GAUSSIAN", "Centroider", "Refined", "centroid_windows",
            "centroider", "refine_centroids", "refine_kernel", "refined_columns", "cramer_rao_centroid",
@@ -296,7 +297,7 @@ def centroider(method: str, sigma: float = 3.0, psf_sigma: float | None = None, 
     try:
         code = CENTROIDERS[method]
     except (KeyError, TypeError):
-        raise ValueError(f"unknown centroider {method!r}; choose one of {', '.join(CENTROIDERS)}") from None
+        raise unknown_name("centroider", method, CENTROIDERS) from None
     return Centroider(code, float(sigma), -1.0 if psf_sigma is None else float(psf_sigma), _inv_gain(gain))
 
 

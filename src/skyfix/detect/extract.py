@@ -35,7 +35,7 @@ from skyfix.detect.hillclimb import extract_hillclimb
 from skyfix.detect.region_grow import extract_region_grow
 from skyfix.detect.regionprops import extract_regionprops
 from skyfix.detect.saturation import saturation_level
-from skyfix.errors import ImageReadError, InputError
+from skyfix.errors import ImageReadError, unknown_name
 from skyfix.io import as_image
 from skyfix.validate import check_count, check_positive
 
@@ -173,9 +173,9 @@ def extract_centroids(
         whole number >= 1.
     """
     if not isinstance(method, str) or method not in METHODS:
-        raise InputError(f"unknown detection method {method!r}; choose one of {', '.join(METHODS)}")
+        raise unknown_name("detection method", method, METHODS)
     if not isinstance(centroid, str) or centroid not in CENTROIDERS:
-        raise InputError(f"unknown centroider {centroid!r}; choose one of {', '.join(CENTROIDERS)}")
+        raise unknown_name("centroider", centroid, CENTROIDERS)
     sigma = check_positive(sigma, "sigma")
     max_stars = check_count(max_stars, "max_stars")
     detector = METHODS[method]

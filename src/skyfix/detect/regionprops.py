@@ -29,6 +29,7 @@ from skyfix.detect.background import smooth3
 from skyfix.detect.centroids import Centroids, background_snr
 from skyfix.detect.hillclimb import global_background
 from skyfix.detect.saturation import saturation_level
+from skyfix.errors import unknown_name
 
 __all__ = ["PREFILTERS", "extract_regionprops", "perona_malik"]
 
@@ -84,7 +85,7 @@ def extract_regionprops(image: np.ndarray, *, sigma: float = 3.0, max_stars: int
         Saturation level for the flag (default: :func:`skyfix.detect.saturation_level`).
     """
     if prefilter is not None and (not isinstance(prefilter, str) or prefilter not in PREFILTERS):
-        raise ValueError(f"unknown prefilter {prefilter!r}; choose None, 'smooth' or 'diffusion'")
+        raise unknown_name("prefilter", prefilter, ["None", *PREFILTERS])
     img = np.ascontiguousarray(image, dtype=np.float32)
     h, w = img.shape
     work = img if prefilter is None else PREFILTERS[prefilter](img)

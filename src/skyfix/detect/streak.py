@@ -52,7 +52,7 @@ from skyfix._kernels.rotation import rodrigues
 from skyfix.detect._stats import robust_level_noise
 from skyfix.detect.centroid import CENTROIDERS, centroid_windows
 from skyfix.detect.centroids import Centroids, background_snr
-from skyfix.errors import InputError
+from skyfix.errors import InputError, unknown_name
 
 __all__ = ["START_SIGMA_PX", "STREAK_CENTROIDERS", "StreakFit", "centroid_streaks", "fit_streaks",
            "row_time_offset", "star_times", "streak_model_sigma", "streak_motion", "streak_half_sizes"]
@@ -228,8 +228,7 @@ def centroid_streaks(
     if not (float(half_size) == int(half_size) and int(half_size) >= 2):
         raise InputError(f"half_size must be a whole number of pixels >= 2, got {half_size!r}")
     if method not in STREAK_CENTROIDERS:
-        known = ", ".join(STREAK_CENTROIDERS)
-        raise InputError(f"unknown streak centroider {method!r}; choose one of {known}")
+        raise unknown_name("streak centroider", method, STREAK_CENTROIDERS)
     img = np.asarray(image)
     if img.ndim != 2:
         raise InputError(f"image must be 2-D, got shape {img.shape}")

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from skyfix.cache import cache_dir, exclusive_lock, has_index, notice
-from skyfix.errors import DatabaseError
+from skyfix.errors import DatabaseError, unknown_name
 from skyfix.identify.database import DATABASE_VERSION, PatternDatabase, ProgressCallback
 
 __all__ = ["BANDS", "Band", "FOV_MARGIN", "band_database", "bands_for", "database_for_fov",
@@ -177,7 +177,7 @@ def _build(band: Band, progress: bool | ProgressCallback) -> PatternDatabase:
 
         catalog = load_gaia(epoch=epoch_now())
     elif band.catalog != "hipparcos":
-        raise DatabaseError(f"unknown catalogue {band.catalog!r} for the {band.name} band")
+        raise unknown_name("catalogue", band.catalog, ("hipparcos", "gaia"))
     return PatternDatabase.build(band.fov_min_deg, band.fov_max_deg, catalog=catalog,
                                  band_ratio=band.band_ratio, stars_per_field=band.stars_per_field,
                                  lattice_step=band.lattice_step, pattern_mag_limit=band.pattern_mag_limit,

@@ -68,7 +68,7 @@ from typing import Protocol
 import numpy as np
 
 from skyfix.camera import Camera
-from skyfix.errors import InputError
+from skyfix.errors import unknown_name
 from skyfix.identify import quad
 from skyfix.identify.database import PatternDatabase
 from skyfix.identify.result import Identification
@@ -146,7 +146,7 @@ def get_method(name: str) -> IdentifyMethod:
     """
     method = METHODS.get(name.lower()) if isinstance(name, str) else None
     if method is None:
-        raise InputError(f"identification method {name!r} is unknown; choose one of {', '.join(METHODS)}")
+        raise unknown_name("identification method", name, METHODS)
     return method
 
 

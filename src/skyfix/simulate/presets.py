@@ -8,7 +8,7 @@ from importlib import resources
 
 import tomllib
 
-from skyfix.errors import SimulationError
+from skyfix.errors import unknown_name
 
 __all__ = ["preset_names", "load_preset"]
 
@@ -29,5 +29,5 @@ def load_preset(name: str) -> dict:
     """The tables of preset ``name`` (case-insensitive) as a new dict of dicts."""
     key = str(name).lower().strip()
     if key not in preset_names():
-        raise SimulationError(f"unknown preset {name!r}; known: {', '.join(preset_names())}")
+        raise unknown_name("preset", name, preset_names())
     return {k: dict(v) for k, v in _read(key).items()}

@@ -55,7 +55,7 @@ from typing import ClassVar
 import numpy as np
 
 from skyfix._kernels.rotation import rotation_vector
-from skyfix.errors import SimulationError
+from skyfix.errors import SimulationError, unknown_name
 from skyfix.simulate.motion import attitude_at, turn
 
 __all__ = ["PROFILES", "Profile", "ConstantRate", "InertialAxis", "Slew", "Pendulum", "make_profile",
@@ -215,7 +215,7 @@ class Slew(Profile):
         self.accel_rad_s2 = _number(accel_rad_s2, "accel_rad_s2", positive=True)
         self.start_s = _number(start_s, "start_s")
         if shape not in SLEW_SHAPES:
-            raise SimulationError(f"unknown slew shape {shape!r}; choose one of {', '.join(SLEW_SHAPES)}")
+            raise unknown_name("slew shape", shape, SLEW_SHAPES)
         self.shape = shape
         # A ramp from rest to the rate v takes T = k·v/a (k = 1, or π/2 for the half cosine whose
         # peak acceleration is a) and turns v·T/2; two ramps must fit in the angle.
@@ -304,8 +304,7 @@ def make_profile(name: str, A0: np.ndarray, **params) -> Profile:
     try:
         cls = PROFILES[name]
     except (KeyError, TypeError):
-        known = ", ".join(PROFILES)
-        raise SimulationError(f"unknown motion profile {name!r}; choose one of {known}") from None
+        raise unknown_name("motion profile", name, PROFILES) from None
     try:
         return cls(A0, **params)
     except TypeError as exc:  # a missing or unknown parameter

@@ -14,14 +14,15 @@ from pathlib import Path
 
 import numpy as np
 
+from skyfix.camera import PRESETS as CAMERA_PRESETS
 from skyfix.camera import Camera, camera_from_preset
 from skyfix.catalog import Catalog
-from skyfix.errors import SimulationError, SkyfixError
+from skyfix.errors import SimulationError, UnknownNameError, unknown_name
 from skyfix.geometry import quaternion_from_attitude, radec_roll_from_attitude, rotation_angle_between
 from skyfix.simulate.motion import star_tracks
 from skyfix.simulate.optics import Optics
 from skyfix.simulate.photometry import sky_electrons_per_pixel, star_electrons
-from skyfix.simulate.presets import load_preset
+from skyfix.simulate.presets import load_preset, preset_names
 from skyfix.simulate.psf import add_gaussians
 from skyfix.simulate.scene import (
     aberrate,
@@ -89,11 +90,11 @@ def resolve_setup(camera: Camera | str | Path, sensor: Sensor | str | None, opti
         try:
             tables = load_preset(preset)
             camera = Camera.from_dict(tables["camera"])
-        except SimulationError:
+        except UnknownNameError:
             try:
                 camera = camera_from_preset(preset)  # a camera.py preset without sensor data
-            except SkyfixError:
-                raise SimulationError(f"unknown camera preset {preset!r}") from None
+            except UnknownNameError:
+                raise unknown_name("camera preset", preset, [*preset_names(), *CAMERA_PRESETS]) from None
             preset = "generic"
     elif not isinstance(camera, Camera):
         raise SimulationError(f"camera must be a Camera or a preset name, got {type(camera).__name__}")

@@ -50,7 +50,7 @@ from typing import NamedTuple
 import numpy as np
 
 from skyfix._kernels.rotation import rodrigues, rotation_vector
-from skyfix.errors import InputError
+from skyfix.errors import InputError, unknown_name
 from skyfix.track.filter import (
     DEFAULT_ACCEL_PSD,
     DEFAULT_BIAS_SIGMA_RAD_S,
@@ -312,7 +312,7 @@ def make_predictor(name: str, A_icrs_to_cam: np.ndarray, t_s: float, attitude_co
     try:
         cls = PREDICTORS[name.lower()]
     except (KeyError, AttributeError):
-        raise InputError(f"unknown predictor {name!r}; known: {', '.join(PREDICTORS)}") from None
+        raise unknown_name("predictor", name, PREDICTORS) from None
     try:
         return cls(A_icrs_to_cam, t_s, attitude_cov_rad2, **options)
     except TypeError as exc:

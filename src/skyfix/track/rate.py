@@ -39,7 +39,7 @@ from typing import NamedTuple
 import numpy as np
 
 from skyfix._kernels.rotation import spd_inverse
-from skyfix.errors import InputError
+from skyfix.errors import InputError, unknown_name
 
 __all__ = [
     "RateEstimate",
@@ -171,7 +171,7 @@ def extrapolation_weights(times_s: np.ndarray, t_s: float, kind: str = "exact"
     and ``Δ = T`` give the weights (1, −3, 3) and (0.5, −2, 2.5), oldest first.
     """
     if kind not in THREE_POINT_KINDS:
-        raise InputError(f"unknown three-point weights {kind!r}; known: {', '.join(THREE_POINT_KINDS)}")
+        raise unknown_name("three-point weights", kind, THREE_POINT_KINDS)
     t = [float(x) for x in np.asarray(times_s, dtype=np.float64).reshape(-1)]
     k = len(t)
     target = float(t_s)
