@@ -22,7 +22,7 @@ from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_cent
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
-from skyfix.identify.bands import database_for_fov
+from skyfix.identify.catalogue.bands import database_for_fov
 from skyfix.pipeline import solve_centroids
 
 W, H = 1280, 960

@@ -19,7 +19,7 @@ from skyfix.analysis.blind_campaign import summarize, trial_result
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
-from skyfix.identify.bands import database_for_fov
+from skyfix.identify.catalogue.bands import database_for_fov
 from skyfix.pipeline import solve_centroids
 
 W, H, FOV = 1280, 960, 30.0

@@ -39,7 +39,7 @@ from report import print_table, say  # noqa: E402
 _BUILD = """
 import json, os, time, sys
 from pathlib import Path
-from skyfix.identify.bands import BANDS, band_database
+from skyfix.identify.catalogue.bands import BANDS, band_database
 out = {}
 for band in BANDS:
     t = time.perf_counter()
@@ -52,8 +52,8 @@ print(json.dumps(out))
 
 _LOAD = """
 import json, time
-from skyfix.identify.bands import BANDS
-from skyfix.identify.database import PatternDatabase
+from skyfix.identify.catalogue.bands import BANDS
+from skyfix.identify.catalogue.database import PatternDatabase
 out = {}
 for band in BANDS:
     t = time.perf_counter()

@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 
-import skyfix.identify.bands as bands_module
+import skyfix.identify.catalogue.bands as bands_module
 from skyfix.analysis.field_campaign import CASES, case_camera, field_trials, summarize_case
 from skyfix.analysis.truth import attitude_error_rad, judge_error
 from skyfix.errors import DatabaseError
 from skyfix.identify import PatternDatabase
-from skyfix.identify.bands import BANDS, Band, band_database, bands_for, database_for_fov
+from skyfix.identify.catalogue.bands import BANDS, Band, band_database, bands_for, database_for_fov
 from skyfix.pipeline import solve_centroids
 
 ARCSEC = math.pi / (180 * 3600)

@@ -18,8 +18,8 @@ import pytest
 
 import skyfix.cache
 import skyfix.catalog
-import skyfix.identify.bands as bands_module
-import skyfix.identify.database as database_module
+import skyfix.identify.catalogue.bands as bands_module
+import skyfix.identify.catalogue.database as database_module
 from skyfix.cache import CorruptFileError, has_index, map_npz, verify, write_npz
 from skyfix.catalog import load_hipparcos
 from skyfix.errors import DatabaseError

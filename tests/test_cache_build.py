@@ -6,7 +6,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-import skyfix.identify.database as database_module
+import skyfix.identify.catalogue.database as database_module
 from skyfix.catalog import load_hipparcos
 from skyfix.identify import PatternDatabase
 

@@ -13,7 +13,7 @@ SRC = ROOT / "src" / "skyfix"
 
 
 def map_entries(text: str) -> set[str]:
-    """The paths (``identify/quad.py``, ``identify/``) the layout tree of design.md names."""
+    """The paths (``identify/methods/quad.py``, ``identify/``) the layout tree of design.md names."""
     section = text.split("## Package layout", 1)[1]
     block = section.split("```", 2)[1]
     entries: set[str] = set()

@@ -17,7 +17,7 @@ from skyfix.final_fit import final_fit
 from skyfix.geometry import attitude_from_radec_roll
 from skyfix.identify import Identification
 from skyfix.identify.accept import precision_failure
-from skyfix.identify.bands import WIDE, band_database
+from skyfix.identify.catalogue.bands import WIDE, band_database
 from skyfix.pipeline import solve_centroids
 
 FISHEYE = Camera.from_fov(1280, 960, 90.0, projection="equidistant")  # 815 px: corners 56° off axis

@@ -1,4 +1,4 @@
-"""Wide searches with no camera (:mod:`skyfix.identify.quad`): the equidistant hypothesis and the
+"""Wide searches with no camera (:mod:`skyfix.identify.methods.quad`): the equidistant hypothesis and the
 central stars' patterns first. Frames of the field campaign that the searches found only after
 1400–3400 image patterns, or not in 4000 (the 90° fisheye's under the cubic distortion
 hypotheses; 45° and 60° frames of k1 −0.3 in brightness order), are found within 300, with the
@@ -16,8 +16,8 @@ from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_cent
 from skyfix.analysis.truth import attitude_error_rad
 from skyfix.catalog import load_gaia
 from skyfix.identify import identify
-from skyfix.identify.bands import WIDE, band_database
-from skyfix.identify.search import breadth_first_combinations, centre_first_combinations
+from skyfix.identify.catalogue.bands import WIDE, band_database
+from skyfix.identify.common.search import breadth_first_combinations, centre_first_combinations
 
 # (case name, frame) of the field campaign (seed 1, 100 attitudes a case) -> the image patterns a
 # search had looked up when it found the frame before (None: not found in 4000).

@@ -12,7 +12,7 @@ from skyfix.catalog import load_hipparcos
 from skyfix.errors import DatabaseError
 from skyfix.geometry import angle_between, radec_roll_from_attitude
 from skyfix.identify import Identification, PatternDatabase, identify
-from skyfix.identify.hashing import key_codes, lookup_run
+from skyfix.identify.catalogue.hashing import key_codes, lookup_run
 
 W, H, FOV = 1280, 960, 15.0
 ARCSEC = np.pi / 180 / 3600
@@ -266,7 +266,7 @@ def test_catalog_vectors_at_the_requested_epoch(database, fields):
 
 
 def test_radix_sort_matches_numpy():
-    from skyfix.identify.verify import sorted_indices
+    from skyfix.identify.common.verify import sorted_indices
 
     rng = np.random.default_rng(3)
     for n, top in ((0, 10), (1, 10), (7, 3), (1000, 120_000), (3000, 5_000_000), (937, 117954)):
@@ -276,7 +276,7 @@ def test_radix_sort_matches_numpy():
 
 @pytest.mark.parametrize("cone_deg", [1.0, 12.0, 40.0, 200.0])
 def test_cell_band_holds_every_cell_within_the_cone(database, cone_deg):
-    from skyfix.identify.verify import cell_band
+    from skyfix.identify.common.verify import cell_band
 
     centres = np.asarray(database.cell_centres)
     cone = np.radians(cone_deg)

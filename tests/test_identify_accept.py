@@ -30,7 +30,7 @@ def test_rule_helpers_are_the_kernel_arithmetic():
 def test_ratio_tolerance_covers_the_centroid_noise():
     """Rule 1 lets through the true patterns of centroids with noise σ (99.9 %), and is not much
     looser than that noise needs (fewer than 90 % pass with 2σ)."""
-    from skyfix.identify.hashing import edge_ratios
+    from skyfix.identify.catalogue.hashing import edge_ratios
 
     rng = np.random.default_rng(2)
     f = (W / 2) / math.tan(math.radians(7.5))
@@ -77,7 +77,8 @@ def test_refit_focal_range_rule(database, monkeypatch):
     from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
     from skyfix.camera import Camera
     from skyfix.catalog import load_hipparcos
-    from skyfix.identify import identify, quad
+    from skyfix.identify import identify
+    from skyfix.identify.methods import quad
 
     catalog = load_hipparcos(epoch=database.epoch, mag_limit=8.0)
     f = synthetic_centroids(Camera.from_fov(W, H, 15.0), random_attitudes(1, rng=21)[0], catalog,

@@ -1,4 +1,4 @@
-"""The grid method (skyfix.identify.grid, Padgett & Kreutz-Delgado; thesis 000 §2.6.5): patterns
+"""The grid method (skyfix.identify.methods.grid, Padgett & Kreutz-Delgado; thesis 000 §2.6.5): patterns
 that survive any rotation but not a mirror, a known field identified star by star, bad input in
 one line, and the solved / wrong rates against truth."""
 
@@ -12,9 +12,9 @@ from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_cent
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
 from skyfix.errors import InputError
-from skyfix.identify import grid
-from skyfix.identify import hypothesis as hyp
-from skyfix.identify.match_groups import frame_table
+from skyfix.identify.common import hypothesis as hyp
+from skyfix.identify.methods import grid
+from skyfix.identify.methods.match_groups import frame_table
 
 W, H, FOV = 1024, 1024, 15.0
 ARCSEC = np.pi / 180 / 3600

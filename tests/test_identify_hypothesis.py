@@ -1,4 +1,4 @@
-"""The shared judge of correspondence hypotheses (skyfix.identify.hypothesis): a true
+"""The shared judge of correspondence hypotheses (skyfix.identify.common.hypothesis): a true
 correspondence verifies and refits to the true attitude; a wrong or mirrored one does not."""
 
 import numpy as np
@@ -8,8 +8,8 @@ from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_cent
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
-from skyfix.identify import hypothesis as hyp
 from skyfix.identify.accept import is_verified, log_prob_false
+from skyfix.identify.common import hypothesis as hyp
 
 W, H, FOV = 1024, 1024, 15.0
 ARCSEC = np.pi / 180 / 3600

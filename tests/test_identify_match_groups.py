@@ -1,4 +1,4 @@
-"""van Bezooijen's match groups (skyfix.identify.match_groups, thesis 004 ch. 3): a known field
+"""van Bezooijen's match groups (skyfix.identify.methods.match_groups, thesis 004 ch. 3): a known field
 identified star by star, its pieces (pair matches, groups, the geometry test), mirrors refused,
 bad input in one line, and the solved / wrong rates against truth."""
 
@@ -10,8 +10,8 @@ from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_cent
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
 from skyfix.errors import InputError
-from skyfix.identify import hypothesis as hyp
-from skyfix.identify import match_groups as mg
+from skyfix.identify.common import hypothesis as hyp
+from skyfix.identify.methods import match_groups as mg
 
 W, H, FOV = 1024, 1024, 15.0
 ARCSEC = np.pi / 180 / 3600
@@ -157,7 +157,7 @@ def test_sparse_noise_free_fields_are_solved(database, camera, catalog):
     # Noise-free 15° fields of 5–7 stars (V 5.5; random_attitudes(1200, rng=100)[t], field rng
     # 100 + t; camera given on odd trials, the FOV on even ones) that the method refused before
     # sparse frames were judged by the triangle method's sparse-frame rules
-    # (skyfix.identify.angle_match.sparse_identification): too few stars beyond a group.
+    # (skyfix.identify.common.angle_match.sparse_identification): too few stars beyond a group.
     attitudes = random_attitudes(1200, rng=100)
     for t in (53, 110, 287, 294, 442, 621):
         field = synthetic_centroids(camera, attitudes[t], catalog, mag_limit=5.5, sigma_px=0.0, rng=100 + t)

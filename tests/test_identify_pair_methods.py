@@ -1,5 +1,5 @@
-"""The pair-angle methods ``pyramid`` (skyfix.identify.pyramid, Mortari's Pyramid) and ``voting``
-(skyfix.identify.voting, geometric voting), each on the same checks: Orion's bright stars named,
+"""The pair-angle methods ``pyramid`` (skyfix.identify.methods.pyramid, Mortari's Pyramid) and ``voting``
+(skyfix.identify.methods.voting, geometric voting), each on the same checks: Orion's bright stars named,
 a mirrored field rejected, bad input one line, noise-free 15° fields all solved and noisy
 fields with false stars never solved wrong."""
 

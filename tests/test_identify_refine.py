@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from skyfix.camera import Camera
-from skyfix.identify.kernel_data import StarIndex, ViewBuffers
-from skyfix.identify.verify import gather_stars, grid_index, match_greedy, match_grid, project_stars
+from skyfix.identify.catalogue.kernel_data import StarIndex, ViewBuffers
+from skyfix.identify.common.verify import gather_stars, grid_index, match_greedy, match_grid, project_stars
 
 
 @pytest.fixture(scope="module")

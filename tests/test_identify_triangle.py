@@ -1,4 +1,4 @@
-"""The triangle method (skyfix.identify.triangle) and the default solve's fallback to it on
+"""The triangle method (skyfix.identify.methods.triangle) and the default solve's fallback to it on
 sparse frames: three stars identified when their triangle is unique, refused when not."""
 
 from __future__ import annotations

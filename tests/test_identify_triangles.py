@@ -1,4 +1,4 @@
-"""The triangle-feature formulas and tables (skyfix.identify.triangles): each formula against
+"""The triangle-feature formulas and tables (skyfix.identify.catalogue.triangles): each formula against
 an independent computation, the noise model against a Monte Carlo, the tables' contents."""
 
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from skyfix.geometry import radec_to_vector
-from skyfix.identify.triangles import (
+from skyfix.identify.catalogue.triangles import (
     ANGLES,
     AREA,
     BY_AREA,

@@ -68,6 +68,6 @@ def test_sparse_noisy_fields_stated_noise_never_wrong(database, catalog, factor)
     print(factor, s)
     assert s["wrong"] == 0, s
     # 4 (stated right) and 20 (stated 0.15 px: tighter triangle tolerances) of 60 measured; a
-    # lone noisy triangle at 30° is rarely unique (skyfix.identify.triangle). The error bars'
+    # lone noisy triangle at 30° is rarely unique (skyfix.identify.methods.triangle). The error bars'
     # honesty is measured on 300 fields by benchmarks/sparse_noise_prior.py.
     assert s["solved"] >= (3 if factor == 1.0 else 15), s

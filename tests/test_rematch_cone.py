@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from skyfix._rematch import CatalogueCone, star_tree
-from skyfix.identify.bands import NARROW, STANDARD, band_database
+from skyfix.identify.catalogue.bands import NARROW, STANDARD, band_database
 
 
 @pytest.mark.parametrize("band", [NARROW, STANDARD], ids=lambda b: b.name)

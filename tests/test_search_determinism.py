@@ -1,7 +1,7 @@
 """A frame's no-hint solution does not depend on how fast the machine runs.
 
 The FOV bands take turns in the 4-star search by the work each has done
-(``skyfix.identify.quad.search_work``), not by the clock: with the clock, the same 45° frames gave
+(``skyfix.identify.methods.quad.search_work``), not by the clock: with the clock, the same 45° frames gave
 another attitude in 12 of 100 when run beside other work. Here the search's clock runs erratically
 (0–3 ms a reading, far more than the searches' real pace); the solutions must stay equal to the bit.
 """
@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-import skyfix.identify.quad as quad
+import skyfix.identify.methods.quad as quad
 from skyfix.analysis.field_campaign import CASES, case_camera
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
 from skyfix.catalog import load_gaia

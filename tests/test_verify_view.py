@@ -1,4 +1,4 @@
-"""identify.verify.stars_in_view reads only the sky cells that can hold a star in the frame (the
+"""identify.common.verify.stars_in_view reads only the sky cells that can hold a star in the frame (the
 frame's cone and edge planes, with identification's k1 = 0): it must still return exactly the stars
 a brute-force projection of the whole catalogue puts in the frame."""
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from skyfix.analysis.synthetic_centroids import random_attitudes
-from skyfix.identify.kernel_data import ViewBuffers
-from skyfix.identify.verify import star_limit, stars_in_view
+from skyfix.identify.catalogue.kernel_data import ViewBuffers
+from skyfix.identify.common.verify import star_limit, stars_in_view
 
 # (horizontal FOV deg, width, height, frame offset px): 2-90 deg, the principal point off centre
 FRAMES = [(2.0, 1280, 960, 0.0), (4.0, 640, 480, 100.0), (15.0, 1280, 960, -200.0), (30.0, 1024, 1024, 0.0),

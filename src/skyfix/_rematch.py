@@ -14,7 +14,7 @@ import numba
 import numpy as np
 
 from skyfix._kernels import lens, rotation
-from skyfix.identify.verify import cell_band
+from skyfix.identify.common.verify import cell_band
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
@@ -148,8 +148,8 @@ def cone_stars(vectors, cell_centres, cell_start, cell_stars, cell_radius, axis,
     """Indices (ascending: brightest first) of the stars ``vectors`` (S, 3) whose squared distance
     to ``axis`` is at most ``chord2`` (the squared chord of ``half_angle``, rad), read from the sky
     cells whose cap of ``cell_radius`` about their centre reaches the cone: those of
-    :func:`skyfix.identify.verify.cell_band`'s z band within ``half_angle + cell_radius`` of the
-    axis. The first five arguments are a :class:`~skyfix.identify.kernel_data.StarIndex`'s."""
+    :func:`skyfix.identify.common.verify.cell_band`'s z band within ``half_angle + cell_radius`` of the
+    axis. The first five arguments are a :class:`~skyfix.identify.catalogue.kernel_data.StarIndex`'s."""
     reach = min(half_angle + cell_radius, np.pi)
     cos_reach = np.cos(reach) - 1e-9
     lo, hi = cell_band(cell_centres, axis, reach)

@@ -78,7 +78,7 @@ def _render(xy: np.ndarray, mag: np.ndarray, h: int, w: int, rng: np.random.Gene
 @functools.cache
 def database():
     """A pattern database (10–30°) of the scene's stars alone."""
-    from skyfix.identify.database import PatternDatabase
+    from skyfix.identify.catalogue.database import PatternDatabase
 
     return PatternDatabase.build(10.0, 30.0, catalog=scene().catalog)
 
@@ -90,7 +90,7 @@ def loaded_database():
     import tempfile
     from pathlib import Path
 
-    from skyfix.identify.database import PatternDatabase
+    from skyfix.identify.catalogue.database import PatternDatabase
 
     path = Path(tempfile.mkdtemp(prefix="skyfix-warm-")) / "database.npz"
     database().save(path)
@@ -121,9 +121,9 @@ def extract() -> None:
 
 
 def identify() -> None:
-    """The 4-star search and its refit (:func:`skyfix.identify.quad.warm_kernels`), and the
+    """The 4-star search and its refit (:func:`skyfix.identify.methods.quad.warm_kernels`), and the
     undistortion a search through a given camera starts with."""
-    from skyfix.identify.quad import warm_kernels
+    from skyfix.identify.methods.quad import warm_kernels
 
     warm_kernels()
     scene().camera.pixel_to_normalized(scene().xy)
@@ -135,7 +135,7 @@ def final_fit() -> None:
     from skyfix.attitude import svd_attitude
     from skyfix.final_fit import final_fit as fit
     from skyfix.identify.accept import chance_log_probability
-    from skyfix.identify.result import Identification
+    from skyfix.identify.common.result import Identification
     from skyfix.pipeline import solution_numbers
 
     s = scene()

@@ -202,7 +202,7 @@ def prepare_outputs(outputs: dict[str, Sequence[Path | None]], inputs: Sequence[
 # --- the first run: building the database, numba compiling kernels ---------------------------------
 def load_database(path: Path | None, warm: Sequence[str] = ("solve",)) -> Any:
     """The pattern database in ``path``; with none, None (the solver then picks the default FOV
-    bands, :mod:`skyfix.identify.bands`) after loading the standard band.
+    bands, :mod:`skyfix.identify.catalogue.bands`) after loading the standard band.
 
     Meanwhile the kernels of the paths ``warm`` (:mod:`skyfix.warmup`) are compiled if they are
     not yet. The first run on a machine does both — builds the standard band's database and

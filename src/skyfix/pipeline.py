@@ -261,7 +261,7 @@ def _warm(database, fov_deg: float | None, camera: Camera | None) -> None:
         return
     alongside, also = None, ""
     if database is None:
-        from skyfix.identify import bands
+        from skyfix.identify.catalogue import bands
 
         fov = camera.fov_deg if camera is not None else fov_deg
         band = (bands.bands_for(fov, fov) or bands.BANDS)[0] if fov is not None else bands.STANDARD
@@ -320,7 +320,7 @@ def _identify_sparse(failed, xy: np.ndarray, width: int, height: int, fov_deg, f
     camera of that size is then a random triangle to them, and the final fit's precision rule
     still judges the attitude through the camera assumed."""
     from skyfix.identify import identify
-    from skyfix.identify.angle_match import LONE_PROB_THRESHOLD
+    from skyfix.identify.common.angle_match import LONE_PROB_THRESHOLD
 
     options = {k: identify_options[k] for k in _SPARSE_OPTIONS if k in identify_options}
     if camera is not None or fov_deg is not None:
@@ -409,7 +409,7 @@ def _solve_near(sol: Solution, xy: np.ndarray, width: int, height: int, hint, fo
     t0 = time.perf_counter()
     cam = camera if camera is not None else Camera.from_fov(width, height, fov_deg)
     if database is None:
-        from skyfix.identify.bands import database_for_fov
+        from skyfix.identify.catalogue.bands import database_for_fov
 
         database = database_for_fov(cam.fov_deg)
     near = identify_near(xy, cam, hint.A_icrs_to_cam, hint.uncertainty_rad, database=database, epoch=epoch,

@@ -7,7 +7,7 @@ sub-catalogues from an attitude envelope (thesis 004 ch. 5, thesis 000 §1.3.3).
   (pointing, star) pair within the half-diagonal cone found by one tree-to-tree search, then the
   rectangle test in camera coordinates (``|x/z| <= tan(W/2)``, ``|y/z| <= tan(H/2)``).
 - :func:`distance_table` — 004 §5.3's ``DistTab.mod``: every catalogue pair between 0.25° and
-  the FOV diagonal, sorted by angle (built by :func:`skyfix.identify.pairs.build_pair_table`).
+  the FOV diagonal, sorted by angle (built by :func:`skyfix.identify.catalogue.pairs.build_pair_table`).
 - :func:`sub_catalogue` — 004 §5.2's ``MakeCat.mod``: the stars that can appear in view over a
   set of attitudes (:func:`sunsat_attitudes` samples 004's orbit/roll/pitch/yaw envelope,
   :func:`cone_attitudes` a boresight cone at any roll), optionally through 004's 1° × 1° RA/Dec
@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 from skyfix.catalog import Catalog, fibonacci_sphere, load_hipparcos
 from skyfix.errors import InputError
 from skyfix.geometry import radec_to_vector, vector_to_radec
-from skyfix.identify.pairs import build_pair_table
+from skyfix.identify.catalogue.pairs import build_pair_table
 from skyfix.validate import check_count, check_fov
 
 __all__ = ["CATALOG_EPOCH", "DistanceTable", "StarCounts", "SunsatEnvelope", "TABLE_3_5", "TABLE_5_2",

@@ -37,7 +37,7 @@ _ARCSEC = math.pi / (180.0 * 3600.0)
 def _clusters(vectors: np.ndarray, max_angle_rad: float) -> np.ndarray:
     """Every triangle (i < j < k) of ``vectors`` whose three sides are at most ``max_angle_rad``,
     from the pair table's neighbour lists."""
-    from skyfix.identify.pairs import build_pair_table
+    from skyfix.identify.catalogue.pairs import build_pair_table
 
     table = build_pair_table(vectors, np.arange(len(vectors), dtype=np.int32), max_angle_rad)
     i, j = table.first.astype(np.int64), table.second.astype(np.int64)
@@ -218,7 +218,7 @@ def table_3_7(trials: int = 1000, method: str = "van-bezooijen", seed: int = 0,
     from skyfix.camera import camera_from_preset
     from skyfix.catalog import load_hipparcos
     from skyfix.identify import PatternDatabase, identify
-    from skyfix.identify.hypothesis import chance_log_probability, frame_for, hypothesis
+    from skyfix.identify.common.hypothesis import chance_log_probability, frame_for, hypothesis
 
     camera = camera_from_preset("sunsat")
     f = math.sqrt(camera.fx * camera.fy)

@@ -13,9 +13,9 @@ A frame's **detectable** stars are those of its truth whose expected detection S
 peak in the extractor's smoothed frame over that frame's noise). Issue 10's bar: of the frames
 with at least 4 detectable stars, ≥ 95% solve and none is wrong.
 
-By default the solves use skyfix's own databases (the FOV bands, :mod:`skyfix.identify.bands`).
+By default the solves use skyfix's own databases (the FOV bands, :mod:`skyfix.identify.catalogue.bands`).
 Given a ``database``, they use it instead, and the presets whose field it does not serve
-(:func:`~skyfix.identify.bands.served_fov_deg`) are also solved with a database built for their
+(:func:`~skyfix.identify.catalogue.bands.served_fov_deg`) are also solved with a database built for their
 field (:meth:`PatternDatabase.build` over ``FOV / 1.1 … FOV · 1.1``): the rest of the path tested
 apart from the database's range. :data:`CAMPAIGN_ROWS` adds configurations beyond the presets'
 own exposures (the Droid X2 at its sensor's 1 s).
@@ -129,7 +129,7 @@ def _databases(camera, database: PatternDatabase | None, epoch: float) -> dict:
     """The databases a preset is solved with: {label: database or None (skyfix's bands)}. With
     ``database`` given, it, and one built for the preset's field when it does not serve it."""
     from skyfix.identify import PatternDatabase
-    from skyfix.identify.bands import served_fov_deg
+    from skyfix.identify.catalogue.bands import served_fov_deg
 
     if database is None:
         return {"bands": None}

@@ -8,16 +8,22 @@
   (memory-mapped ``.npz``); :func:`default_database` caches one in the user cache directory.
 - :func:`identify` — identifies a frame with a method chosen by name from :data:`METHODS`
   (:mod:`skyfix.identify.methods` defines the interface a method implements); the default,
-  ``"quad-hash"`` (:mod:`skyfix.identify.quad`), is 4-star edge-ratio hashing with or without a
+  ``"quad-hash"`` (:mod:`skyfix.identify.methods.quad`), is 4-star edge-ratio hashing with or without a
   FOV (or a calibrated camera), binomial false-match probability, mirror images rejected, work
   bounded. Every method returns an :class:`Identification`.
 - :mod:`skyfix.identify.accept` — the rules that decide that a match is an identification.
 """
 
-from skyfix.identify.bands import BANDS, Band, band_database, default_database, default_database_path
-from skyfix.identify.database import PatternDatabase
+from skyfix.identify.catalogue.bands import (
+           BANDS,
+           Band,
+           band_database,
+           default_database,
+           default_database_path,
+)
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.common.result import Identification
 from skyfix.identify.methods import DEFAULT_METHOD, METHODS, get_method, identify, method_options
-from skyfix.identify.result import Identification
 
 __all__ = ["BANDS", "Band", "DEFAULT_METHOD", "METHODS", "Identification", "PatternDatabase", "band_database",
            "default_database", "default_database_path", "get_method", "identify", "method_options"]

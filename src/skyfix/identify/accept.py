@@ -1,7 +1,7 @@
 """When a match of image stars to catalogue stars counts as an identification.
 
 A match is accepted only when chance cannot explain it. The test is the same wherever a set of
-matches is judged — after a pattern's refit (:mod:`skyfix.identify.quad`) and after the final
+matches is judged — after a pattern's refit (:mod:`skyfix.identify.methods.quad`) and after the final
 fit with a camera model fitted to the same stars (:mod:`skyfix.final_fit`):
 
 *Chance.* ``n_cat`` catalogue stars are predicted in the frame; each lands within ``radius``
@@ -40,8 +40,8 @@ Each rule has a function or a constant of its own; a rule that runs inside a com
 is a small ``@njit(inline="always")`` helper here that the kernel calls (as fast as the
 arithmetic written out). The tests named pin them.
 
-Identification by the 4-star method (:func:`skyfix.identify.quad.identify`). Rules 1–5 run for
-each candidate pattern inside the compiled search (:func:`skyfix.identify.search.search`):
+Identification by the 4-star method (:func:`skyfix.identify.methods.quad.identify`). Rules 1–5 run for
+each candidate pattern inside the compiled search (:func:`skyfix.identify.common.search.search`):
 
 1. :func:`ratio_tolerance` — the candidate's five edge ratios agree with the image pattern's.
 2. :func:`focal_allowed` — the focal length the candidate implies is in the allowed range.
@@ -193,7 +193,7 @@ def quick_check_fails(n_catalog: int, log_p: float) -> bool:
 @numba.njit(cache=True, inline="always")
 def log_prob_false(log_p_match: float, n_trials: int) -> float:
     """Rule 5, the number: log P(a wrong candidate matches as well), ``log_p_match`` from
-    :func:`skyfix.identify.verify.verify_attitude` (the best of five match radii, binomial
+    :func:`skyfix.identify.common.verify.verify_attitude` (the best of five match radii, binomial
     tails of the catalogue stars in view landing on centroids, the pattern's own stars not
     counted), times ``n_trials``, the candidates examined so far (the look-elsewhere effect: a
     search that tries many candidates meets a good chance match sooner)."""
@@ -215,7 +215,7 @@ def is_verified(log_prob: float, log_threshold: float) -> bool:
     return log_prob <= log_threshold
 
 
-# --- 6–7: the refit of an accepted candidate (skyfix.identify.quad) ---------------------------
+# --- 6–7: the refit of an accepted candidate (skyfix.identify.methods.quad) ---------------------------
 MIN_REFIT_PAIRS = 4  # a refit on fewer stars than a pattern's proves nothing
 
 

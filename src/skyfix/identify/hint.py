@@ -11,7 +11,7 @@ with the hint's uncertainty (``docs/seeds.md``). :func:`identify_near` does it:
 1. *Catalogue stars near the hint.* The stars of the default database's star index
    (:meth:`skyfix.identify.PatternDatabase.star_index`: the same catalogue, epoch handling and
    projection as lost in space) within the field plus the uncertainty of the hint's boresight,
-   projected at the hint (:func:`skyfix.identify.verify.project_stars`) into the frame grown by
+   projected at the hint (:func:`skyfix.identify.common.verify.project_stars`) into the frame grown by
    the gate.
 2. *The gate.* A rotation by at most ``θ`` (the hint's uncertainty) moves a star at angle
    ``α`` from the boresight by at most ``f·θ·sec²(α + θ)`` pixels in the undistorted image
@@ -26,15 +26,15 @@ with the hint's uncertainty (``docs/seeds.md``). :func:`identify_near` does it:
    unmodelled distortion; the focal length the pair implies must be in the allowed range:
    accept rule 2) gives an attitude by TRIAD (``_kernels.rotation.triad``, thesis 004 §4.5),
    kept only when it is within the uncertainty of the hint. It is scored by how many of the brightest
-   catalogue stars it puts on the brightest centroids (:func:`skyfix.identify.verify.match_grid`);
+   catalogue stars it puts on the brightest centroids (:func:`skyfix.identify.common.verify.match_grid`);
    the best-scoring attitude wins. Pairings that the best attitude already matches are not
    scored again (a good hint scores one or two attitudes).
 4. *Verification* — the rules of lost in space (:mod:`skyfix.identify.accept`): the best
    attitude's match, its own two stars not counted, must be beyond chance at the same radii
-   (:func:`skyfix.identify.verify.verify_attitude`) with every pairing the gate let compete
+   (:func:`skyfix.identify.common.verify.verify_attitude`) with every pairing the gate let compete
    counted as a trial (the look-elsewhere effect; rule 5). A wider gate lets more catalogue
    stars and centroids compete, so it must be beaten by a better match.
-5. *Refit* on all stars (:func:`skyfix.identify.refine.refine`: the attitude, and with the
+5. *Refit* on all stars (:func:`skyfix.identify.common.refine.refine`: the attitude, and with the
    field of view only guessed the focal length and k1; two fit-and-rematch passes, not lost
    in space's three: the pinned attitude starts closer, and the final fit refits anyway), which
    must itself be beyond chance (rule 6) with its focal length in the allowed range (rule 7).
@@ -78,12 +78,12 @@ from skyfix.identify.accept import (
     refit_accepted,
     refit_focal_allowed,
 )
-from skyfix.identify.bands import database_for_fov
-from skyfix.identify.database import PatternDatabase
-from skyfix.identify.kernel_data import ImageStars, RefineSettings, Refit, StarIndex, ViewBuffers
-from skyfix.identify.refine import refine
-from skyfix.identify.result import Identification, finite_centroids
-from skyfix.identify.verify import (
+from skyfix.identify.catalogue.bands import database_for_fov
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.catalogue.kernel_data import ImageStars, RefineSettings, Refit, StarIndex, ViewBuffers
+from skyfix.identify.common.refine import refine
+from skyfix.identify.common.result import Identification, finite_centroids
+from skyfix.identify.common.verify import (
     gather_stars,
     grid_index,
     match_grid,
@@ -212,7 +212,7 @@ def _is_rotation(M, tol):
 # --- the kernels ------------------------------------------------------------------------------
 class HintSettings(NamedTuple):
     """How :func:`search_near` pins and verifies; lengths in the offset space of
-    :class:`~skyfix.identify.kernel_data.ImageStars` (``x_n · f_px``).
+    :class:`~skyfix.identify.catalogue.kernel_data.ImageStars` (``x_n · f_px``).
 
     f_px : float — the focal length the offsets were scaled by (the camera's or the FOV's).
     f_lo_px, f_hi_px : float — the allowed focal lengths (both ``f_px`` for a calibrated camera).
@@ -405,9 +405,9 @@ def search_near(image, A_hint, settings, stars):
 @numba.njit(cache=True)
 def near_entry(image, A_hint, settings, refine_settings, stars):
     """:func:`search_near` and, when it verified an attitude, the refit on all stars
-    (:func:`skyfix.identify.refine.refine`): ``(HintSearch, Refit)``. The NamedTuple arguments
-    come as plain tuples (``tuple(nt)``), as :func:`skyfix.identify.refine.refine_entry`'s
-    (:mod:`skyfix.identify.kernel_data` says why)."""
+    (:func:`skyfix.identify.common.refine.refine`): ``(HintSearch, Refit)``. The NamedTuple arguments
+    come as plain tuples (``tuple(nt)``), as :func:`skyfix.identify.common.refine.refine_entry`'s
+    (:mod:`skyfix.identify.catalogue.kernel_data` says why)."""
     image = ImageStars(*image)
     stars = StarIndex(*stars)
     hit = search_near(image, A_hint, HintSettings(*settings), stars)
@@ -484,7 +484,7 @@ def _frame_px(camera: Camera) -> np.ndarray:
 
 # Over ten parameters: the interface the spec names (xy, camera, hint, uncertainty, database,
 # epoch, mag_limit) and the options lost in space shares (thresholds and star counts, the
-# names of skyfix.identify.quad.identify's), all keywords with a documented default.
+# names of skyfix.identify.methods.quad.identify's), all keywords with a documented default.
 def identify_near(xy: np.ndarray, camera: Camera, A_hint: np.ndarray, uncertainty_rad: float, *,
                   database: PatternDatabase | None = None, epoch: float | None = None,
                   mag_limit: float | None = None, fit_camera: bool = False,
@@ -509,7 +509,7 @@ def identify_near(xy: np.ndarray, camera: Camera, A_hint: np.ndarray, uncertaint
         with it.
     database : PatternDatabase, optional
         Whose star index is matched (default: the default FOV band's that serves the camera,
-        :func:`~skyfix.identify.bands.database_for_fov`).
+        :func:`~skyfix.identify.catalogue.bands.database_for_fov`).
     epoch : float, optional
         Julian year of the catalogue positions returned (default: the database's).
     mag_limit : float, optional
@@ -522,7 +522,7 @@ def identify_near(xy: np.ndarray, camera: Camera, A_hint: np.ndarray, uncertaint
     pin_stars : int
         Brightest centroids paired with catalogue stars to pin the attitude.
     verify_stars, refine_stars, match_radius, centroid_sigma_px
-        As :func:`skyfix.identify.quad.identify`'s: centroids in verification and in the refit,
+        As :func:`skyfix.identify.methods.quad.identify`'s: centroids in verification and in the refit,
         the match radius (fraction of the frame's larger side), the centroid noise (px).
 
     Returns

@@ -60,8 +60,8 @@ from skyfix.camera import Camera
 from skyfix.detect.centroid import centroider
 from skyfix.detect.streak import streak_model_sigma
 from skyfix.errors import CameraError, InputError
-from skyfix.identify.database import readonly_view
-from skyfix.identify.kernel_data import StarIndex
+from skyfix.identify.catalogue.database import readonly_view
+from skyfix.identify.catalogue.kernel_data import StarIndex
 from skyfix.solution import Match, Solution
 from skyfix.track import windows as win
 from skyfix.track.filter import innovation
@@ -147,7 +147,7 @@ class Tracker:
         The camera model (frames must be its size).
     database : PatternDatabase, optional
         Catalogue and star index for lost-in-space and the windows (default: the default FOV
-        band's that serves the camera, :func:`skyfix.identify.bands.database_for_fov`).
+        band's that serves the camera, :func:`skyfix.identify.catalogue.bands.database_for_fov`).
     predictor : str
         A name of :data:`skyfix.track.predictors.PREDICTORS` (``"mekf"``: the Kalman filter).
     epoch : float, optional
@@ -208,7 +208,7 @@ class Tracker:
                  solve_options: dict | None = None) -> None:
         from skyfix.detect import CENTROIDERS
         from skyfix.identify import PatternDatabase
-        from skyfix.identify.bands import database_for_fov
+        from skyfix.identify.catalogue.bands import database_for_fov
         from skyfix.track.predictors import make_predictor
         from skyfix.validate import check_count, check_epoch, check_positive
 

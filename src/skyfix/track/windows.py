@@ -5,7 +5,7 @@ One tracking update runs these steps, each a compiled kernel over preallocated b
 frame is never copied or converted whole: a 1-megapixel frame costs what its windows cost):
 
 1. :func:`project_view` — the catalogue stars in the frame at the predicted attitude: the
-   database's sky cells near the boresight (:func:`skyfix.identify.verify.gather_stars`, the
+   database's sky cells near the boresight (:func:`skyfix.identify.common.verify.gather_stars`, the
    same star index as verification) projected through the full camera model
    (:mod:`skyfix._kernels.lens`), brightest first.
 2. :func:`select_windows` — up to ``n_max`` of them, brightest first but at most
@@ -48,7 +48,7 @@ from skyfix._kernels.lens import CX, CY, FX, FY, SKEW, distort, distort_jacobian
 from skyfix._kernels.probability import log_binom_sf
 from skyfix._kernels.rotation import angles, pointing, vector_radec
 from skyfix.detect._stats import robust_level_noise
-from skyfix.identify.verify import gather_stars
+from skyfix.identify.common.verify import gather_stars
 from skyfix.track.fit import fit_attitude
 
 __all__ = ["Local", "MatchSettings", "Plan", "Selection", "View", "WindowFit", "WindowSettings", "crowding",
@@ -259,9 +259,10 @@ def _propagate(J, P):
 
 @numba.njit(cache=True)
 def local_catalog(z, cone, limit, stars, mags):
-    """The stars ``< limit`` (a brightness rank) of the :class:`~skyfix.identify.kernel_data.StarIndex`
-    ``stars`` within ``cone`` radians of ``z`` (:func:`~skyfix.identify.verify.gather_stars`,
-    verification's own search), copied into a :class:`Local`."""
+    """The stars ``< limit`` (a brightness rank) of the
+    :class:`~skyfix.identify.catalogue.kernel_data.StarIndex` ``stars`` within ``cone`` radians of
+    ``z`` (:func:`~skyfix.identify.common.verify.gather_stars`, verification's own search), copied
+    into a :class:`Local`."""
     near = gather_stars(z, cone, limit, stars)
     m = near.size
     vectors = np.empty((m, 3))

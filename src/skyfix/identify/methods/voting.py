@@ -3,8 +3,8 @@
 trackers", IEEE Trans. Aerospace and Electronic Systems 44(2), 2008).
 
 1. **Votes.** Every pair of the ``vote_stars`` brightest centroids votes for every catalogue
-   pair of the pair table (:mod:`skyfix.identify.pairs`) whose angle is within the pair's
-   tolerance (:func:`~skyfix.identify.pairs.pairs_in_range`): each of the two centroids gets a
+   pair of the pair table (:mod:`skyfix.identify.catalogue.pairs`) whose angle is within the pair's
+   tolerance (:func:`~skyfix.identify.catalogue.pairs.pairs_in_range`): each of the two centroids gets a
    vote for each of the two catalogue stars (both assignments). One compiled kernel
    (:func:`cast_votes`) adds them into a (centroid, catalogue star) table.
 2. **Candidates.** Each of the ``n`` centroids keeps its ``candidate_nodes // n`` most-voted
@@ -17,7 +17,7 @@ trackers", IEEE Trans. Aerospace and Electronic Systems 44(2), 2008).
    centroid, adding the next best-validated ones whose candidates agree with every member's
    (:func:`consistent_set`).
 4. **Proposal.** The set, best-validated first, goes to
-   :func:`skyfix.identify.hypothesis.first_accepted` (one proper rotation — a mirror image has
+   :func:`skyfix.identify.common.hypothesis.first_accepted` (one proper rotation — a mirror image has
    none — the chance of a wrong match with every proposal counted, the refit on all stars);
    while it fails, the sets grown from the next best-validated centroids not yet used follow
    (``sets_per_scale`` at most). On a rich frame whose sets all fail, a second pass with twice
@@ -43,7 +43,9 @@ import numpy as np
 
 from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
-from skyfix.identify.angle_match import (
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.catalogue.pairs import PairTable, pairs_in_range
+from skyfix.identify.common.angle_match import (
     LONE_PROB_THRESHOLD,
     AngleSettings,
     angle_range,
@@ -52,11 +54,9 @@ from skyfix.identify.angle_match import (
     judged,
     star_chord2,
 )
-from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import Frame, failure, frame_for
-from skyfix.identify.pairs import PairTable, pairs_in_range
-from skyfix.identify.result import Identification
-from skyfix.identify.triangle import LONE_MAX_STARS
+from skyfix.identify.common.hypothesis import Frame, failure, frame_for
+from skyfix.identify.common.result import Identification
+from skyfix.identify.methods.triangle import LONE_MAX_STARS
 
 __all__ = ["METHOD", "cast_votes", "consistent_set", "focal_steps", "identify", "top_voted", "validate"]
 
@@ -155,7 +155,7 @@ def validate(s, vectors, nodes, f_a, f_b, candidate, agree):
     """The validation (module text, step 3) of centroids' candidates ``nodes`` (n, K) at a focal
     length in ``[f_a, f_b]``: each centroid's ``candidate`` (n,) is the one whose angles agree
     with the most other centroids' candidates (each pair's angle within its centroids' range,
-    :func:`~skyfix.identify.angle_match.angle_range`); ``agree`` (n, n) whether two centroids'
+    :func:`~skyfix.identify.common.angle_match.angle_range`); ``agree`` (n, n) whether two centroids'
     candidates agree."""
     p = s.offsets_px
     n, k = nodes.shape
@@ -292,13 +292,13 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Work bound: wall time of the search, seconds (checked between focal intervals; the
         kernels' first load or compilation in a process not counted).
     per_field : int
-        Catalogue stars per field of the pair table (:func:`skyfix.identify.pairs.pair_table`).
+        Catalogue stars per field of the pair table (:func:`skyfix.identify.catalogue.pairs.pair_table`).
     prob_threshold : float
         Largest accepted probability that the match is chance.
     lone_prob_threshold : float
         The same for a sparse frame (at most 8 centroids) whose proposals ``prob_threshold``
         refused: each proposal's triangle judged by the ``triangle`` method's sparse-frame rules
-        (:func:`skyfix.identify.angle_match.sparse_identification`).
+        (:func:`skyfix.identify.common.angle_match.sparse_identification`).
 
     Returns
     -------

@@ -7,13 +7,13 @@ they do not depend on the focal length (to second order in the field angle), so 
 with a FOV only. skyfix:
 
 1. forms the triangles of the ``triangle_stars`` brightest centroids, breadth-first
-   (:func:`skyfix.identify.triangles.image_triangles`), vertices ordered by the sides opposite
+   (:func:`skyfix.identify.catalogue.triangles.image_triangles`), vertices ordered by the sides opposite
    them (so the angles are ascending too);
-2. finds the catalogue triangles (:func:`skyfix.identify.triangles.triangle_table`) whose two
+2. finds the catalogue triangles (:func:`skyfix.identify.catalogue.triangles.triangle_table`) whose two
    smaller interior angles are the image's within ``n_sigma`` times their noise — an angle's
    error from centroid noise σ is about ``σ√2 (1/b + 1/c)`` for the sides ``b, c`` that meet at
    it — plus, with a FOV only, ``ε·a²`` for a wrong focal length (ε:
-   :attr:`~skyfix.identify.hypothesis.Frame.scale_tolerance`), by a binary search on the smallest
+   :attr:`~skyfix.identify.common.hypothesis.Frame.scale_tolerance`), by a binary search on the smallest
    angle and a filter on the next; and whose longest side fits the focal range (the catalogue's
    side over the image's within ``1 ± ε``, plus the noise) — a filter the thesis does not have:
    it costs nothing and a triangle of the wrong size cannot be the one seen;
@@ -25,7 +25,7 @@ with a FOV only. skyfix:
    additional stars", which the thesis's review of this method does not spell out: without it a
    FOV-only frame with false stars sends ~10× more triangles to verification);
 5. proposes each correspondence, image triangles breadth-first and each one's catalogue triangles
-   by closeness, to :func:`skyfix.identify.hypothesis.first_accepted`, which applies every
+   by closeness, to :func:`skyfix.identify.common.hypothesis.first_accepted`, which applies every
    acceptance rule (the chance of a wrong match with every proposal counted; the stars beyond
    the triangle verify it).
 
@@ -39,10 +39,8 @@ import math
 import numpy as np
 
 from skyfix.camera import Camera
-from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
-from skyfix.identify.result import Identification
-from skyfix.identify.triangles import (
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.catalogue.triangles import (
     BY_ANGLE,
     SIDES,
     ImageTriangles,
@@ -52,6 +50,8 @@ from skyfix.identify.triangles import (
     image_triangles,
     triangle_proposals,
 )
+from skyfix.identify.common.hypothesis import Frame, failure, first_accepted, frame_for
+from skyfix.identify.common.result import Identification
 
 __all__ = ["METHOD", "angle_tolerances", "identify"]
 
@@ -59,7 +59,7 @@ METHOD = "planar"
 
 
 def angle_tolerances(frame: Frame, image: ImageTriangles, n_sigma: float) -> np.ndarray:
-    """Each image triangle's allowed errors (M, 3) of :data:`~skyfix.identify.triangles.BY_ANGLE`'s
+    """Each image triangle's allowed errors (M, 3) of :data:`~skyfix.identify.catalogue.triangles.BY_ANGLE`'s
     columns: the two smaller interior angles and the longest side (module text, step 2)."""
     s = image.features[:, SIDES:SIDES + 3]
     noise = n_sigma * math.sqrt(2.0) * image.sigma_rad
@@ -100,7 +100,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         The brightest centroids tried as the fourth star.
     per_field : int
         The triangle table's brightest stars per lattice field
-        (:func:`~skyfix.identify.triangles.triangle_table`).
+        (:func:`~skyfix.identify.catalogue.triangles.triangle_table`).
     max_candidates : int
         Work bound: correspondences verified.
     max_matches : int

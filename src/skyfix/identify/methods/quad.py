@@ -13,12 +13,12 @@
    and is rejected), then verification: the brightest catalogue stars in the frame are matched
    to the brightest centroids and the binomial probability of so many chance matches, times
    the number of candidates examined, must be below ``prob_threshold``
-   (:mod:`skyfix.identify.verify`). Steps 2–3 are one compiled kernel
-   (:mod:`skyfix.identify.search`).
+   (:mod:`skyfix.identify.common.verify`). Steps 2–3 are one compiled kernel
+   (:mod:`skyfix.identify.common.search`).
 4. The accepted attitude is refitted on all matched stars — with the focal length and, where
-   significant, radial distortion k1 when no camera was given (:mod:`skyfix.identify.refine`).
+   significant, radial distortion k1 when no camera was given (:mod:`skyfix.identify.common.refine`).
 
-The kernels take and return the named tuples of :mod:`skyfix.identify.kernel_data`; the rules
+The kernels take and return the named tuples of :mod:`skyfix.identify.catalogue.kernel_data`; the rules
 that accept a candidate and its refit are those of :mod:`skyfix.identify.accept` (rules 1–7).
 """
 
@@ -36,10 +36,9 @@ from skyfix._kernels import lens
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
 from skyfix.identify.accept import refit_accepted, refit_focal_allowed
-from skyfix.identify.bands import BANDS, band_database, bands_for, served_fov_deg
-from skyfix.identify.database import PatternDatabase, readonly_view
-from skyfix.identify.hypothesis import failure
-from skyfix.identify.kernel_data import (
+from skyfix.identify.catalogue.bands import BANDS, band_database, bands_for, served_fov_deg
+from skyfix.identify.catalogue.database import PatternDatabase, readonly_view
+from skyfix.identify.catalogue.kernel_data import (
     FocalRange,
     ImageStars,
     PatternTable,
@@ -49,9 +48,10 @@ from skyfix.identify.kernel_data import (
     Tolerances,
     VerifySettings,
 )
-from skyfix.identify.refine import refine_entry
-from skyfix.identify.result import Identification, finite_centroids
-from skyfix.identify.search import breadth_first_combinations, centre_first_combinations, search_entry
+from skyfix.identify.common.hypothesis import failure
+from skyfix.identify.common.refine import refine_entry
+from skyfix.identify.common.result import Identification, finite_centroids
+from skyfix.identify.common.search import breadth_first_combinations, centre_first_combinations, search_entry
 
 __all__ = ["METHOD", "REFUSED_HIT_COST_S", "SEARCH_COST_S", "identify", "search_work", "warm_kernels"]
 
@@ -144,7 +144,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     camera : Camera, optional
         Calibrated camera (intrinsics and distortion used as given; overrides ``fov_deg``).
     database : PatternDatabase, optional
-        Default: the default FOV bands' databases (:mod:`skyfix.identify.bands`): those that serve
+        Default: the default FOV bands' databases (:mod:`skyfix.identify.catalogue.bands`): those that serve
         the FOV hint or the camera; with neither, all of them, the standard band first. Each is
         built the first time a search reaches it.
     max_patterns : int
@@ -445,14 +445,14 @@ def _composed_distortion(k1: float, distortion: _Distortion, f_px: float, half_d
 
 # A wide search with no camera looks up the patterns of the stars within this share of the
 # half-diagonal of the principal point as early as the brightest stars' (interleaved:
-# :func:`skyfix.identify.search.centre_first_combinations`). In the field campaign's 45°, 60° and
+# :func:`skyfix.identify.common.search.centre_first_combinations`). In the field campaign's 45°, 60° and
 # 90° frames (seed 1, 100 each), the image pattern a search found the frame at went from median
 # 12 / 7 / 8 and at most 1435 / 1440 / 296 to median 3 / 3 / 3 and at most 185 / 87 / 126.
 _CENTRE_SHARE = 0.5
 
 
 class _CentreFirst:
-    """The wide searches' image patterns (:func:`~skyfix.identify.search.centre_first_combinations`
+    """The wide searches' image patterns (:func:`~skyfix.identify.common.search.centre_first_combinations`
     of the pattern stars ``xy`` (N, 2) within :data:`_CENTRE_SHARE` of the half-diagonal of the
     principal point), computed as far as a search asks (``self(stop)``: at least the first
     ``stop``), twice that each time: most frames are found within the first hundred."""

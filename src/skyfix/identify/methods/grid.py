@@ -12,7 +12,7 @@ A star is recognised by the picture of its neighbourhood:
    so the orienting neighbour, at y = 0, sits in the middle of a cell, not on an edge); the
    pattern is the set of cells. :func:`pattern_cells` computes it, for catalogue and image alike.
 2. **Catalogue patterns**: one per star of the shared pair table
-   (:func:`skyfix.identify.pairs.pair_table`, its per-field brightest stars), from the table's
+   (:func:`skyfix.identify.catalogue.pairs.pair_table`, its per-field brightest stars), from the table's
    neighbour lists, built once and kept with the database, as a sparse cell → stars inverted
    index (:func:`catalogue_patterns`, :class:`GridPatterns`).
 3. **Matching** (:func:`image_candidates`): the image's patterns are made of its
@@ -27,7 +27,7 @@ A star is recognised by the picture of its neighbourhood:
 4. **Agreement**: candidates of different references whose catalogue angle is the references'
    measured angle (within the tolerance and the focal range) agree; each candidate with those
    that agree with it and with each other (greedily, by score) is a proposal, the largest and
-   best scoring first, to :func:`skyfix.identify.hypothesis.first_accepted`, which accepts only
+   best scoring first, to :func:`skyfix.identify.common.hypothesis.first_accepted`, which accepts only
    what every method must pass.
 
 Differences from the paper: its pattern holds every catalogue star within the pattern radius to
@@ -51,12 +51,12 @@ import numpy as np
 from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
 from skyfix.errors import InputError
-from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
-from skyfix.identify.match_groups import frame_table
-from skyfix.identify.pairs import PairTable, neighbours_in_range
-from skyfix.identify.result import Identification
-from skyfix.identify.voting import consistent_set
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.catalogue.pairs import PairTable, neighbours_in_range
+from skyfix.identify.common.hypothesis import Frame, failure, first_accepted, frame_for
+from skyfix.identify.common.result import Identification
+from skyfix.identify.methods.match_groups import frame_table
+from skyfix.identify.methods.voting import consistent_set
 
 __all__ = ["METHOD", "GridPatterns", "GridSettings", "catalogue_patterns", "identify", "image_candidates",
            "pattern_cells"]
@@ -256,7 +256,7 @@ def image_candidates(frame: Frame, table: PairTable, patterns: GridPatterns, set
 @numba.njit(cache=True)
 def _agreeing_sets(agree, order):
     """For each candidate ``u``: ``u`` and, greedily in ``order``, every candidate that agrees
-    with all those taken so far (voting's :func:`~skyfix.identify.voting.consistent_set`, seeded
+    with all those taken so far (voting's :func:`~skyfix.identify.methods.voting.consistent_set`, seeded
     at each candidate in turn). Row ``u`` of the result marks its set."""
     n = agree.shape[0]
     member = np.zeros((n, n), np.bool_)

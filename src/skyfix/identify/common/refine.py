@@ -4,8 +4,9 @@ After a pattern is verified, :func:`refine` matches the brightest centroids to t
 stars in view, fits the attitude (and, without a calibrated camera, the focal length and
 radial distortion k1) by robust Gauss–Newton on the pixel residuals, and repeats with a
 match radius that shrinks to the fit's own scatter. It takes and returns the named data of
-:mod:`skyfix.identify.kernel_data` (:class:`~skyfix.identify.kernel_data.RefineSettings` in,
-:class:`~skyfix.identify.kernel_data.Refit` out).
+:mod:`skyfix.identify.catalogue.kernel_data`
+(:class:`~skyfix.identify.catalogue.kernel_data.RefineSettings` in,
+:class:`~skyfix.identify.catalogue.kernel_data.Refit` out).
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ import numpy as np
 
 from skyfix._kernels.lens import k1_offset
 from skyfix._kernels.rotation import rodrigues
-from skyfix.identify.kernel_data import ImageStars, RefineSettings, Refit, StarIndex, ViewBuffers
-from skyfix.identify.verify import gather_stars, grid_index, match_grid, project_stars, star_limit
+from skyfix.identify.catalogue.kernel_data import ImageStars, RefineSettings, Refit, StarIndex, ViewBuffers
+from skyfix.identify.common.verify import gather_stars, grid_index, match_grid, project_stars, star_limit
 
 __all__ = ["refine", "refine_entry"]
 
@@ -168,7 +169,7 @@ def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
 @numba.njit(cache=True)
 def refine_entry(image, A, f, settings, stars):
     """:func:`refine` with its NamedTuple arguments as plain tuples (``tuple(nt)``): the entry
-    for Python callers (:mod:`skyfix.identify.kernel_data` says why)."""
+    for Python callers (:mod:`skyfix.identify.catalogue.kernel_data` says why)."""
     return refine(ImageStars(*image), A, f, RefineSettings(*settings), StarIndex(*stars))
 
 

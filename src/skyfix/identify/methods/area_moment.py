@@ -6,14 +6,14 @@ its Heron area ``A`` and polar moment ``J = A·(a² + b² + c²)/36`` are the sa
 in the sky. skyfix:
 
 1. forms the triangles of the ``triangle_stars`` brightest centroids, breadth-first
-   (:func:`skyfix.identify.triangles.image_triangles`), and gives each the tolerances of its own
+   (:func:`skyfix.identify.catalogue.triangles.image_triangles`), and gives each the tolerances of its own
    noise: ``n_sigma`` × Cole & Crassidis's σ_A, σ_J for a centroid noise of
-   ``centroid_sigma_px`` (:func:`skyfix.identify.triangles.area_moment_sigma`, derived with the
+   ``centroid_sigma_px`` (:func:`skyfix.identify.catalogue.triangles.area_moment_sigma`, derived with the
    chord sides);
-2. finds the catalogue triangles (:func:`skyfix.identify.triangles.triangle_table`) within them:
+2. finds the catalogue triangles (:func:`skyfix.identify.catalogue.triangles.triangle_table`) within them:
    with a calibrated camera a range of areas by binary search, moments filtered; with a FOV only
    the focal length is free, so ``A`` and ``J`` may be off by ``(1 ± ε)²`` and ``(1 ± ε)⁴``
-   (ε: :attr:`~skyfix.identify.hypothesis.Frame.scale_tolerance`) and the search runs on the
+   (ε: :attr:`~skyfix.identify.common.hypothesis.Frame.scale_tolerance`) and the search runs on the
    scale-free ``K = J/A²`` instead (its own σ_K, same derivation), area and moment filtered
    within their widened ranges — the thesis scans the whole catalogue linearly, with no tolerance;
 3. assigns the vertices explicitly — each vertex by the side opposite it, sorted, in both
@@ -23,11 +23,11 @@ in the sky. skyfix:
 4. confirms with a fourth star (Cole & Crassidis's "pivoting"): one of the ``confirm_stars``
    brightest other centroids whose angles to the three, at the scale the triangle implies, are
    a catalogue star's angles to theirs within the noise
-   (:func:`skyfix.identify.triangles.confirm_fourth`, among the first vertex's neighbours in the
+   (:func:`skyfix.identify.catalogue.triangles.confirm_fourth`, among the first vertex's neighbours in the
    pair table). A frame of three stars has no fourth: this method fails it (the ``triangle``
    method judges lone triangles);
 5. proposes each confirmed 4-star correspondence, image triangles breadth-first and each one's
-   catalogue triangles by closeness, to :func:`skyfix.identify.hypothesis.first_accepted`, which
+   catalogue triangles by closeness, to :func:`skyfix.identify.common.hypothesis.first_accepted`, which
    applies every acceptance rule (the chance of a wrong match with every proposal counted).
 
 Measured success and speed: docs/identification-methods.md#area-moment.
@@ -38,10 +38,8 @@ from __future__ import annotations
 import numpy as np
 
 from skyfix.camera import Camera
-from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
-from skyfix.identify.result import Identification
-from skyfix.identify.triangles import (
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.catalogue.triangles import (
     AREA,
     BY_AREA,
     BY_SHAPE,
@@ -53,6 +51,8 @@ from skyfix.identify.triangles import (
     image_triangles,
     triangle_proposals,
 )
+from skyfix.identify.common.hypothesis import Frame, failure, first_accepted, frame_for
+from skyfix.identify.common.result import Identification
 
 __all__ = ["METHOD", "identify"]
 
@@ -98,7 +98,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         The brightest centroids tried as the fourth star.
     per_field : int
         The triangle table's brightest stars per lattice field
-        (:func:`~skyfix.identify.triangles.triangle_table`).
+        (:func:`~skyfix.identify.catalogue.triangles.triangle_table`).
     max_candidates : int
         Work bound: confirmed correspondences verified.
     max_matches : int

@@ -38,7 +38,7 @@ from typing import NamedTuple
 
 from skyfix.cache import cache_dir, exclusive_lock, has_index, notice
 from skyfix.errors import DatabaseError, unknown_name
-from skyfix.identify.database import DATABASE_VERSION, PatternDatabase, ProgressCallback
+from skyfix.identify.catalogue.database import DATABASE_VERSION, PatternDatabase, ProgressCallback
 
 __all__ = ["BANDS", "Band", "FOV_MARGIN", "band_database", "bands_for", "database_for_fov",
            "default_database", "default_database_path", "served_fov_deg"]

@@ -11,8 +11,8 @@ cache as usual):
   principal point, and the frame's extent in the same coordinates.
 - :class:`FocalRange`, :class:`Tolerances`, :class:`VerifySettings`, :class:`RefineSettings` —
   the settings of one search or refit.
-- :class:`SearchResult`, :class:`Refit` — what :func:`skyfix.identify.search.search` and
-  :func:`skyfix.identify.refine.refine` return.
+- :class:`SearchResult`, :class:`Refit` — what :func:`skyfix.identify.common.search.search` and
+  :func:`skyfix.identify.common.refine.refine` return.
 - :class:`ViewBuffers`, :class:`CentroidGrid` — work arrays the verification kernels share.
 
 *Calling a kernel from Python.* numba types a plain tuple argument in its C dispatcher but a
@@ -45,7 +45,7 @@ class StarIndex(NamedTuple):
     vectors : (S, 3) float64 — ICRS unit vectors at the database epoch, brightest first (a
         star's index is its brightness rank).
     cell_centres : (M, 3) float64 — centres of the sky cells, ordered by decreasing z (a
-        Fibonacci lattice; :func:`skyfix.identify.verify.cell_band` relies on the order).
+        Fibonacci lattice; :func:`skyfix.identify.common.verify.cell_band` relies on the order).
     cell_start : (M + 1,) int64 — cell ``i``'s stars are ``cell_stars[cell_start[i]:cell_start[i + 1]]``.
     cell_stars : (S,) int32 — star indices grouped by cell, brightest first within a cell.
     cell_radius_rad : float — the largest angle between a star and its cell's centre.
@@ -60,7 +60,7 @@ class StarIndex(NamedTuple):
 
 class PatternTable(NamedTuple):
     """The 4-star patterns sorted by key code and the open-addressed hash table over the codes
-    (:mod:`skyfix.identify.hashing`).
+    (:mod:`skyfix.identify.catalogue.hashing`).
 
     n_bins : int — quantisation bins per edge ratio (a key code has five base-``n_bins`` digits).
     table : (T,) int32 — slot -> index into ``key_codes`` (``-1`` empty).
@@ -136,7 +136,7 @@ class VerifySettings(NamedTuple):
 
 
 class SearchResult(NamedTuple):
-    """What one call of :func:`skyfix.identify.search.search` found.
+    """What one call of :func:`skyfix.identify.common.search.search` found.
 
     found : bool — a candidate was accepted (the fields below describe it).
     n_done : int — image combinations processed.
@@ -147,7 +147,8 @@ class SearchResult(NamedTuple):
     combo_index, pattern_index : int — the image combination and the catalogue pattern.
     n_matched, n_catalog : int — verification matches and catalogue stars tried.
     n_compared : int — catalogue patterns whose ratios were compared (the key runs walked): with
-        ``n_done`` and ``n_candidates``, the work the call did (:func:`skyfix.identify.quad.search_work`).
+        ``n_done`` and ``n_candidates``, the work the call did
+        (:func:`skyfix.identify.methods.quad.search_work`).
     """
 
     found: bool
@@ -164,7 +165,7 @@ class SearchResult(NamedTuple):
 
 
 class RefineSettings(NamedTuple):
-    """What :func:`skyfix.identify.refine.refine` fits and matches.
+    """What :func:`skyfix.identify.common.refine.refine` fits and matches.
 
     fit_focal : bool — fit the focal length (and k1 where significant): no camera was given.
     fit_k1_min : int — fewest matched stars for which k1 may be freed.
@@ -185,7 +186,7 @@ class RefineSettings(NamedTuple):
 
 
 class Refit(NamedTuple):
-    """What :func:`skyfix.identify.refine.refine` returns.
+    """What :func:`skyfix.identify.common.refine.refine` returns.
 
     n_pairs : int — matched pairs.
     star_index : (n_pairs,) int64 — their centroids (indices into :attr:`ImageStars.offsets_px`).
@@ -226,7 +227,7 @@ class ViewBuffers(NamedTuple):
 
 
 class CentroidGrid(NamedTuple):
-    """Centroids bucketed into square cells (:func:`skyfix.identify.verify.grid_index`).
+    """Centroids bucketed into square cells (:func:`skyfix.identify.common.verify.grid_index`).
 
     x0_px, y0_px : float — the grid's corner (the frame's ``x_lo``, ``y_lo``).
     cell_px : float — cell side.

@@ -7,17 +7,17 @@ Technique", Navigation 51(3), 2004).
    and ``k = j + dk`` — consecutive triangles share few stars, so a false star is not tried
    over and over.
 2. The triangle's three angles are matched through the pair table
-   (:mod:`skyfix.identify.pairs`): the shortest side, labelled ``(i, j)``, by
-   :func:`~skyfix.identify.pairs.pairs_in_range`
+   (:mod:`skyfix.identify.catalogue.pairs`): the shortest side, labelled ``(i, j)``, by
+   :func:`~skyfix.identify.catalogue.pairs.pairs_in_range`
    (both orientations of each catalogue pair); with only a FOV known that pair fixes the focal
-   length (:func:`~skyfix.identify.angle_match.focal_for_angle`); ``(i, k)`` by
-   :func:`~skyfix.identify.pairs.neighbours_in_range` of ``i``'s candidate; ``(j, k)`` and the
+   length (:func:`~skyfix.identify.common.angle_match.focal_for_angle`); ``(i, k)`` by
+   :func:`~skyfix.identify.catalogue.pairs.neighbours_in_range` of ``i``'s candidate; ``(j, k)`` and the
    handedness — the sign of the triple product, which a rotation keeps and a mirror flips —
    checked directly. A triangle with more than one catalogue match is skipped, as in the paper;
    so is one too thin for its handedness to be measured.
 3. A unique triangle gets its apex: the next centroid ``r`` (brightest first) whose three
    angles to the triangle match exactly one catalogue star. The pyramid (4 stars) is the
-   proposal, judged by :func:`skyfix.identify.hypothesis.first_accepted` (one proper rotation,
+   proposal, judged by :func:`skyfix.identify.common.hypothesis.first_accepted` (one proper rotation,
    the chance of a wrong match with every proposal counted, the refit on all stars — which
    identifies the remaining stars, the paper's last step).
 
@@ -36,7 +36,9 @@ import numba
 import numpy as np
 
 from skyfix.camera import Camera
-from skyfix.identify.angle_match import (
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.catalogue.pairs import neighbours_in_range, pairs_in_range
+from skyfix.identify.common.angle_match import (
     LONE_PROB_THRESHOLD,
     angle_range,
     angle_settings,
@@ -48,10 +50,8 @@ from skyfix.identify.angle_match import (
     star_angle,
     triple_product,
 )
-from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import failure, frame_for
-from skyfix.identify.pairs import neighbours_in_range, pairs_in_range
-from skyfix.identify.result import Identification
+from skyfix.identify.common.hypothesis import failure, frame_for
+from skyfix.identify.common.result import Identification
 
 __all__ = ["METHOD", "identify", "pyramid_search", "triangle_order"]
 
@@ -144,9 +144,9 @@ def pyramid_search(s, table, vectors, triangles, start, stop, n, min_pairs, max_
     Parameters
     ----------
     s : AngleSettings
-        The frame's angles (:func:`skyfix.identify.angle_match.angle_settings`).
+        The frame's angles (:func:`skyfix.identify.common.angle_match.angle_settings`).
     table : PairTable
-        The pair table (:func:`skyfix.identify.angle_match.frame_pair_table`).
+        The pair table (:func:`skyfix.identify.common.angle_match.frame_pair_table`).
     vectors : (S, 3) float64
         The catalogue unit vectors the table's rows index.
     min_pairs, max_pairs : int
@@ -293,13 +293,13 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Work bound: wall time of the search, seconds (checked every 64 triangles; the kernel's
         first load or compilation in a process not counted).
     per_field : int
-        Catalogue stars per field of the pair table (:func:`skyfix.identify.pairs.pair_table`).
+        Catalogue stars per field of the pair table (:func:`skyfix.identify.catalogue.pairs.pair_table`).
     prob_threshold : float
         Largest accepted probability that the match is chance.
     lone_prob_threshold : float
         The same for a sparse frame (at most 8 centroids) whose proposals ``prob_threshold``
         refused: each proposal's triangle judged by the ``triangle`` method's sparse-frame rules
-        (:func:`skyfix.identify.angle_match.sparse_identification`).
+        (:func:`skyfix.identify.common.angle_match.sparse_identification`).
 
     Returns
     -------

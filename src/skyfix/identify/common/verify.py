@@ -8,10 +8,11 @@ match circles) / (frame area), so the number of chance matches is binomial; the 
 four stars, matched by construction, are left out of both counts.
 
 All positions are in the undistorted pixel-offset space ``p = x_n · f`` of the search (see
-:mod:`skyfix.identify.search`), so a calibrated camera's distortion never enters the kernels.
-The data the kernels share are named in :mod:`skyfix.identify.kernel_data`: the catalogue's
-:class:`~skyfix.identify.kernel_data.StarIndex`, the :class:`~skyfix.identify.kernel_data.ViewBuffers`
-the projections and matches fill, and the :class:`~skyfix.identify.kernel_data.CentroidGrid`.
+:mod:`skyfix.identify.common.search`), so a calibrated camera's distortion never enters the kernels.
+The data the kernels share are named in :mod:`skyfix.identify.catalogue.kernel_data`: the catalogue's
+:class:`~skyfix.identify.catalogue.kernel_data.StarIndex`, the
+:class:`~skyfix.identify.catalogue.kernel_data.ViewBuffers` the projections and matches fill, and
+the :class:`~skyfix.identify.catalogue.kernel_data.CentroidGrid`.
 Whether the match counted here is beyond chance is decided in :mod:`skyfix.identify.accept`.
 """
 
@@ -22,7 +23,7 @@ import numpy as np
 
 from skyfix._kernels.lens import k1_offset
 from skyfix._kernels.probability import log_binom_sf
-from skyfix.identify.kernel_data import CentroidGrid
+from skyfix.identify.catalogue.kernel_data import CentroidGrid
 
 _N_RADII = 5  # verification radii R, R/2, ..., R/16
 _PLANES_MAX_CELLS = 4.0  # stars_in_view tests edge planes when the frame's cone is < this many cell radii

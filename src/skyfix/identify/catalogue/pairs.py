@@ -7,7 +7,7 @@ run found by two binary searches (:func:`pairs_in_range`; a k-vector would find 
 with one multiply each, at no gain measurable here). Thesis 004 calls this the sorted distance
 table (288,464 pairs for its 5,026-star catalogue).
 
-Which stars: the :func:`~skyfix.identify.database.brightest_per_field` ``per_field``
+Which stars: the :func:`~skyfix.identify.catalogue.database.brightest_per_field` ``per_field``
 brightest stars of every field of the frame's size on a lattice over the sky — as the pattern
 database chooses them — so that a field in any direction has its brightest stars in the table,
 and no more (a magnitude limit would give the galactic plane ten times the stars of the poles).
@@ -29,7 +29,7 @@ import numba
 import numpy as np
 
 from skyfix._kernels.rotation import chord_angle
-from skyfix.identify.database import PatternDatabase, brightest_per_field
+from skyfix.identify.catalogue.database import PatternDatabase, brightest_per_field
 
 __all__ = ["DOUBLE_SEP", "LATTICE_STEP", "PairTable", "build_pair_table", "field_members",
            "neighbours_in_range", "pair_table", "pairs_in_range", "rounded_fov_deg", "table_stars"]
@@ -46,7 +46,8 @@ class PairTable(NamedTuple):
 
     angle_rad : (P,) float64 — the pairs' angles, ascending.
     first, second : (P,) int32 — the pairs' stars (rows of
-        :attr:`~skyfix.identify.kernel_data.StarIndex.vectors`, brightest first), ``first < second``.
+        :attr:`~skyfix.identify.catalogue.kernel_data.StarIndex.vectors`, brightest first),
+        ``first < second``.
     neighbour_start : (S + 1,) int64 — star ``s``'s neighbours are
         ``neighbour[neighbour_start[s]:neighbour_start[s + 1]]`` (S: every star of the index).
     neighbour : (2P,) int32 — each star's neighbours, by increasing angle.
@@ -67,7 +68,7 @@ class PairTable(NamedTuple):
 
 def field_members(vectors: np.ndarray, fov_rad: float, per_field: int):
     """The ``per_field`` brightest stars of every field of radius ``fov_rad / 2`` on the tables'
-    lattice (:func:`~skyfix.identify.database.brightest_per_field` with :data:`LATTICE_STEP`
+    lattice (:func:`~skyfix.identify.catalogue.database.brightest_per_field` with :data:`LATTICE_STEP`
     and :data:`DOUBLE_SEP`), a chunk of fields at a time."""
     return brightest_per_field(vectors, fov_rad / 2.0, LATTICE_STEP, fov_rad * DOUBLE_SEP, per_field)
 

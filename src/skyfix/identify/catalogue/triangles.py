@@ -1,9 +1,9 @@
 """Star triangles and their features: the one table the triangle-feature methods share.
 
 Thesis 000 reviews three ways to recognise a star triangle (§2.6.1–2.6.3): Liebe's two
-inter-star angles and the angle between them at the first star (:mod:`skyfix.identify.liebe`),
-the interior angles of the planar triangle (:mod:`skyfix.identify.planar`) and the area and
-polar moment of the planar triangle (Cole & Crassidis; :mod:`skyfix.identify.area_moment`). Each
+inter-star angles and the angle between them at the first star (:mod:`skyfix.identify.methods.liebe`),
+the interior angles of the planar triangle (:mod:`skyfix.identify.methods.planar`) and the area and
+polar moment of the planar triangle (Cole & Crassidis; :mod:`skyfix.identify.methods.area_moment`). Each
 formula is written once here, as a small compiled helper, and serves both the catalogue's
 triangles (the tables) and the image's (:func:`describe_triangles`):
 
@@ -25,7 +25,7 @@ both assignments.
 
 **The field-triangle table** (:func:`triangle_table`): every triangle of the ``per_field`` (8)
 brightest stars of each field of the pair table's lattice (fields as wide as the frame's shorter
-side, :func:`skyfix.identify.pairs.pair_table`'s choice of stars), so every vertex is a pair-table
+side, :func:`skyfix.identify.catalogue.pairs.pair_table`'s choice of stars), so every vertex is a pair-table
 star. Not every triangle of the pair table's stars that fits in the frame: the count grows as
 the cube of the stars per field (15°: 1.6 M triangles of 12 per field; the per-field limit keeps
 83 k). The image forms its triangles from its brightest stars, which are the ones the table
@@ -56,9 +56,8 @@ import numpy as np
 
 from skyfix._kernels.rotation import chord_angle
 from skyfix.errors import InputError
-from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import Frame
-from skyfix.identify.pairs import (
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.catalogue.pairs import (
     PairTable,
     field_members,
     neighbours_in_range,
@@ -66,6 +65,7 @@ from skyfix.identify.pairs import (
     pairs_in_range,
     rounded_fov_deg,
 )
+from skyfix.identify.common.hypothesis import Frame
 
 __all__ = ["ANGLES", "AREA", "BY_ANGLE", "BY_AREA", "BY_SHAPE", "MOMENT",
            "ORDER_PARITY", "SHAPE", "SIDES", "VERTEX_ORDERS", "FeatureIndex", "FeatureMatches",
@@ -90,7 +90,7 @@ BY_SHAPE = (SHAPE, AREA, MOMENT)  # area-moment with the scale free
 BY_ANGLE = (ANGLES, ANGLES + 1, SIDES + 2)  # planar: two interior angles, the longest side
 
 # The lattice of fields whose brightest stars the triangles join: the pair table's
-# (skyfix.identify.pairs), so that every triangle star is a pair-table star.
+# (skyfix.identify.catalogue.pairs), so that every triangle star is a pair-table star.
 
 
 # ---- each formula once ---------------------------------------------------------------------
@@ -728,7 +728,7 @@ def triangle_proposals(frame: Frame, table: TriangleTable, image: ImageTriangles
                        centre: np.ndarray, tolerance: np.ndarray, *, n_sigma: float, confirm_stars: int,
                        max_matches: int, stats: SearchStats, confirm: bool = True):
     """Correspondences of image triangles with catalogue triangles, in rank order, for
-    :func:`~skyfix.identify.hypothesis.first_accepted`: the image triangles a batch at a time
+    :func:`~skyfix.identify.common.hypothesis.first_accepted`: the image triangles a batch at a time
     (those each new star adds, :func:`triangle_batches`), each batch's matches in ``index``
     (:func:`feature_matches` with ``centre`` ± ``tolerance`` in its columns, handedness
     :func:`image_hand_filter`) ranked (:func:`ranked`), each in the vertex orders

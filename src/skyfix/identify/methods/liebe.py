@@ -6,7 +6,7 @@ between the great circles towards them). The catalogue holds each star's pattern
 pattern, measured the same way, is looked up within the noise and confirmed with further stars.
 skyfix:
 
-1. holds, for each star of the pair table (:func:`skyfix.identify.pairs.pair_table`, the
+1. holds, for each star of the pair table (:func:`skyfix.identify.catalogue.pairs.pair_table`, the
    brightest stars of every field of the frame's size — as many per field as the frame's
    centroids suggest, :func:`per_field_for`: the catalogue's nearest neighbours must be the
    image's, and a sparse frame lost ~6 % of its fields against a 12-per-field table), the
@@ -14,21 +14,21 @@ skyfix:
    only the two nearest: a neighbour
    missing from the image (too faint, off the edge, merged) or an extra one in it (a false star,
    a star fainter than the table's) would otherwise lose the star
-   (:func:`skyfix.identify.triangles.star_triangle_table`, indexed by θ1);
+   (:func:`skyfix.identify.catalogue.triangles.star_triangle_table`, indexed by θ1);
 2. measures, for each of the brightest image stars as pivot (brightest first), every pair among
    its ``k_nearest`` nearest neighbours among the ``neighbour_stars`` brightest centroids (as many
    as the table holds in a frame, half as many again, by default), nearest pairs first;
 3. finds the catalogue patterns within ``n_sigma`` times the noise — θ: ``σ√2`` plus ``ε·θ`` with
-   a FOV only (ε: :attr:`~skyfix.identify.hypothesis.Frame.scale_tolerance`); φ: ``σ√2 (1/θ1 +
+   a FOV only (ε: :attr:`~skyfix.identify.common.hypothesis.Frame.scale_tolerance`); φ: ``σ√2 (1/θ1 +
    1/θ2)`` plus ``ε·θ2²`` — by a binary search on θ1 (on φ with a FOV only: θ is then known to
    ±ε only, φ does not depend on the scale), the other two filtered
-   (:func:`skyfix.identify.triangles.feature_matches`). φ is signed (the sign of the triple
+   (:func:`skyfix.identify.catalogue.triangles.feature_matches`). φ is signed (the sign of the triple
    product), so a mirror image's patterns do not match: the paper's φ is unsigned;
 4. confirms each with a fourth star, as Liebe does with additional stars: a bright centroid
    whose angles to the three match a catalogue star's
-   (:func:`skyfix.identify.triangles.confirmed_matches`);
+   (:func:`skyfix.identify.catalogue.triangles.confirmed_matches`);
 5. proposes each confirmed 4-star correspondence, pivots by brightness and each one's patterns
-   by closeness, to :func:`skyfix.identify.hypothesis.first_accepted`, which applies every
+   by closeness, to :func:`skyfix.identify.common.hypothesis.first_accepted`, which applies every
    acceptance rule (the chance of a wrong match with every proposal counted).
 
 Measured success and speed: docs/identification-methods.md#liebe.
@@ -44,10 +44,8 @@ import numpy as np
 from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
 from skyfix.errors import InputError
-from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import Frame, failure, first_accepted, frame_for
-from skyfix.identify.result import Identification
-from skyfix.identify.triangles import (
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.catalogue.triangles import (
     SIDES,
     SearchStats,
     StarTriangleTable,
@@ -60,6 +58,8 @@ from skyfix.identify.triangles import (
     ranked,
     star_triangle_table,
 )
+from skyfix.identify.common.hypothesis import Frame, failure, first_accepted, frame_for
+from skyfix.identify.common.result import Identification
 
 __all__ = ["METHOD", "PER_FIELD_STEPS", "StarPatterns", "identify", "per_field_for", "star_patterns"]
 
@@ -198,7 +198,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     confirm_stars : int
         The brightest centroids tried as the confirming fourth star.
     per_field : int, optional
-        The pair table's brightest stars per lattice field (:func:`~skyfix.identify.pairs.pair_table`).
+        The pair table's brightest stars per lattice field
+        (:func:`~skyfix.identify.catalogue.pairs.pair_table`).
         Default: as many as the frame's centroids would put in a field (:data:`PER_FIELD_STEPS`,
         :func:`per_field_for`): a star's nearest neighbours in the catalogue must be the ones the
         image shows, so a sparse frame needs a sparse table.

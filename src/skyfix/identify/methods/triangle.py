@@ -2,14 +2,14 @@
 
 Thesis 000's camera was designed around three stars per 30° frame (§1, §2.6.7); the 4-star
 hash cannot see such a frame. This method matches triangles of the brightest centroids to
-catalogue triangles through the pair table (:mod:`skyfix.identify.pairs`: the longest side by a
+catalogue triangles through the pair table (:mod:`skyfix.identify.catalogue.pairs`: the longest side by a
 range search over pair angles, the third vertex among the first vertex's neighbours, the last
 side checked), and judges what it finds in one of two ways:
 
 *Rich frames* (the usual case with five or more stars): a catalogue triangle that fits counts
 only when a fourth image star confirms it (a catalogue neighbour at the right three angles,
 checked in the compiled search), and the four stars are a proposal judged by the common rules
-(:func:`skyfix.identify.hypothesis.first_accepted`), exactly as any other method's.
+(:func:`skyfix.identify.common.hypothesis.first_accepted`), exactly as any other method's.
 
 *Sparse frames* (three or four stars, or up to :data:`LONE_MAX_STARS` that the first way did not
 settle): a lone triangle has nothing else to verify it against, so its own chance is computed,
@@ -64,8 +64,9 @@ from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
 from skyfix.errors import InputError
 from skyfix.identify.accept import chance_log_probability as binomial_log_probability
-from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import (
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.catalogue.pairs import PairTable, neighbours_in_range, pair_table, pairs_in_range
+from skyfix.identify.common.hypothesis import (
     Frame,
     Hypothesis,
     failure,
@@ -75,9 +76,8 @@ from skyfix.identify.hypothesis import (
     hypothesis,
     rays_at,
 )
-from skyfix.identify.pairs import PairTable, neighbours_in_range, pair_table, pairs_in_range
-from skyfix.identify.result import Identification
-from skyfix.identify.verify import stars_in_view
+from skyfix.identify.common.result import Identification
+from skyfix.identify.common.verify import stars_in_view
 
 __all__ = ["AMBIGUITY_RATIO", "LONE_MAX_STARS", "METHOD", "LoneJudgement", "identify", "judge_lone",
            "triangle_matches", "unless_mirrored", "window_rad"]
@@ -483,7 +483,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     max_candidates : int — catalogue triangles judged at most.
     max_per_triangle : int — on rich frames, an image triangle that more catalogue triangles
         match (with a fourth star confirming) than this is skipped: it cannot tell them apart.
-    per_field : int — catalogue stars per field in the pair table (:func:`skyfix.identify.pairs.pair_table`).
+    per_field : int — catalogue stars per field in the pair table
+        (:func:`skyfix.identify.catalogue.pairs.pair_table`).
     """
     options = {"fov_deg": fov_deg, "fov_tolerance_deg": fov_tolerance_deg, "camera": camera,
                "database": database, "epoch": epoch, "max_stars": max_stars,

@@ -38,15 +38,15 @@ method's result as they take the 4-star method's.
 Registered methods (:data:`METHODS`; docs/identification-methods.md describes each):
 
 - ``"quad-hash"`` (the default; also ``"hash"``) — 4-star edge-ratio hashing with binomial
-  verification, :func:`skyfix.identify.quad.identify`.
+  verification, :func:`skyfix.identify.methods.quad.identify`.
 - ``"triangle"`` — triangles of the brightest stars through the pair table, with an honest
-  chance test for frames of three or four stars, :func:`skyfix.identify.triangle.identify`.
-- The seeds' methods (theses 000 §2.6 and 004 ch. 3): ``"liebe"`` (:mod:`skyfix.identify.liebe`),
-  ``"planar"`` (:mod:`skyfix.identify.planar`), ``"area-moment"``
-  (:mod:`skyfix.identify.area_moment`), ``"pyramid"`` (:mod:`skyfix.identify.pyramid`), ``"grid"``
-  (:mod:`skyfix.identify.grid`),
-  ``"voting"`` (:mod:`skyfix.identify.voting`), ``"van-bezooijen"``
-  (:mod:`skyfix.identify.match_groups`).
+  chance test for frames of three or four stars, :func:`skyfix.identify.methods.triangle.identify`.
+- The seeds' methods (theses 000 §2.6 and 004 ch. 3): ``"liebe"`` (:mod:`skyfix.identify.methods.liebe`),
+  ``"planar"`` (:mod:`skyfix.identify.methods.planar`), ``"area-moment"``
+  (:mod:`skyfix.identify.methods.area_moment`), ``"pyramid"`` (:mod:`skyfix.identify.methods.pyramid`),
+  ``"grid"`` (:mod:`skyfix.identify.methods.grid`),
+  ``"voting"`` (:mod:`skyfix.identify.methods.voting`), ``"van-bezooijen"``
+  (:mod:`skyfix.identify.methods.match_groups`).
 
 Examples
 --------
@@ -69,9 +69,9 @@ import numpy as np
 
 from skyfix.camera import Camera
 from skyfix.errors import unknown_name
-from skyfix.identify import quad
-from skyfix.identify.database import PatternDatabase
-from skyfix.identify.result import Identification
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.common.result import Identification
+from skyfix.identify.methods import quad
 
 __all__ = ["DEFAULT_METHOD", "INTERFACE_KEYWORDS", "METHODS", "IdentifyMethod", "get_method", "identify",
            "method_options"]
@@ -119,16 +119,16 @@ class _Registry(MutableMapping):
 
 #: The methods by name (each name is its module's ``METHOD``; ``"hash"`` is the 4-star hash too).
 METHODS: MutableMapping[str, IdentifyMethod] = _Registry({
-    quad.METHOD: "skyfix.identify.quad",
-    "hash": "skyfix.identify.quad",
-    "triangle": "skyfix.identify.triangle",
-    "liebe": "skyfix.identify.liebe",
-    "planar": "skyfix.identify.planar",
-    "area-moment": "skyfix.identify.area_moment",
-    "pyramid": "skyfix.identify.pyramid",
-    "grid": "skyfix.identify.grid",
-    "voting": "skyfix.identify.voting",
-    "van-bezooijen": "skyfix.identify.match_groups",
+    quad.METHOD: "skyfix.identify.methods.quad",
+    "hash": "skyfix.identify.methods.quad",
+    "triangle": "skyfix.identify.methods.triangle",
+    "liebe": "skyfix.identify.methods.liebe",
+    "planar": "skyfix.identify.methods.planar",
+    "area-moment": "skyfix.identify.methods.area_moment",
+    "pyramid": "skyfix.identify.methods.pyramid",
+    "grid": "skyfix.identify.methods.grid",
+    "voting": "skyfix.identify.methods.voting",
+    "van-bezooijen": "skyfix.identify.methods.match_groups",
 })
 DEFAULT_METHOD = quad.METHOD
 

@@ -9,7 +9,7 @@ rules of :mod:`skyfix.identify.accept`, so that no method can be less safe than 
    finite centroids, brightest first; the camera (the calibrated one given, else a pinhole of
    the FOV given, its focal length free within the FOV's tolerance: a method needs a scale);
    each centroid's ray; the database whose catalogue stars are matched (the one given, else
-   the default band serving the field: :func:`skyfix.identify.bands.database_for_fov`).
+   the default band serving the field: :func:`skyfix.identify.catalogue.bands.database_for_fov`).
 2. :func:`hypothesis` — what a correspondence implies (a :class:`Hypothesis`): with a FOV only,
    the focal length that makes the stars' angles the catalogue's (rule 2: within the allowed
    range); the proper rotation (SVD) that best brings the catalogue vectors onto the rays, and
@@ -17,16 +17,16 @@ rules of :mod:`skyfix.identify.accept`, so that no method can be less safe than 
    large and :func:`fits` rejects it (rule 3, :func:`skyfix.identify.accept.pattern_fits`).
 3. :func:`chance_log_probability` — the verification (rule 5): the catalogue stars in view at
    that attitude, the hypothesis's own stars not counted, land on centroids; log P(a wrong
-   attitude does as well) is their binomial tail (:func:`skyfix.identify.verify.verify_attitude`),
+   attitude does as well) is their binomial tail (:func:`skyfix.identify.common.verify.verify_attitude`),
    and :func:`skyfix.identify.accept.log_prob_false` multiplies it by every hypothesis examined
    so far (the look-elsewhere effect: the method must count each one it verifies).
-4. :func:`finish` — the refit on all matched stars (:func:`skyfix.identify.refine.refine`),
+4. :func:`finish` — the refit on all matched stars (:func:`skyfix.identify.common.refine.refine`),
    itself beyond chance (rule 6) with its focal length in the allowed range (rule 7), packaged
    as an :class:`~skyfix.identify.Identification` the final fit takes as it takes the hash's.
 
 A hypothesis of exactly three stars in a frame of three has nothing else to verify it against;
 how much a lone triangle can prove is the triangle method's to say
-(:mod:`skyfix.identify.triangle`).
+(:mod:`skyfix.identify.methods.triangle`).
 """
 
 from __future__ import annotations
@@ -50,12 +50,12 @@ from skyfix.identify.accept import (
     refit_accepted,
     refit_focal_allowed,
 )
-from skyfix.identify.bands import database_for_fov
-from skyfix.identify.database import PatternDatabase
-from skyfix.identify.kernel_data import ImageStars, RefineSettings, StarIndex, ViewBuffers
-from skyfix.identify.refine import refine_entry
-from skyfix.identify.result import Identification, finite_centroids
-from skyfix.identify.verify import verify_attitude
+from skyfix.identify.catalogue.bands import database_for_fov
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.catalogue.kernel_data import ImageStars, RefineSettings, StarIndex, ViewBuffers
+from skyfix.identify.common.refine import refine_entry
+from skyfix.identify.common.result import Identification, finite_centroids
+from skyfix.identify.common.verify import verify_attitude
 from skyfix.validate import check_positive
 
 __all__ = ["CORE_STARS", "Frame", "Hypothesis", "chance_log_probability", "failure", "finish",
@@ -133,7 +133,7 @@ def frame_for(method: str, xy: np.ndarray, width: int, height: int, *, fov_deg: 
               match_radius: float = 0.01, prob_threshold: float = 1e-9,
               centroid_sigma_px: float = 1.0) -> Frame | Identification:
     """The :class:`Frame` of one identification by ``method`` (the interface's arguments, see
-    :mod:`skyfix.identify.methods`; the rest as :func:`skyfix.identify.quad.identify`'s), or a
+    :mod:`skyfix.identify.methods`; the rest as :func:`skyfix.identify.methods.quad.identify`'s), or a
     failed Identification saying why it cannot be tried: fewer than ``min_stars`` centroids, or
     neither a camera nor a FOV (a correspondence method measures angles: it needs the scale).
 

@@ -32,8 +32,8 @@ from skyfix._kernels.rotation import chord_angle
 from skyfix.cache import CorruptFileError, map_npz, verify, write_npz
 from skyfix.catalog import Catalog, epoch_now, fibonacci_sphere, load_hipparcos
 from skyfix.errors import DatabaseError
-from skyfix.identify.hashing import build_table, edge_ratios, key_codes
-from skyfix.identify.kernel_data import PatternTable, StarIndex
+from skyfix.identify.catalogue.hashing import build_table, edge_ratios, key_codes
+from skyfix.identify.catalogue.kernel_data import PatternTable, StarIndex
 
 __all__ = ["PatternDatabase", "DATABASE_VERSION", "ProgressCallback", "brightest_per_field", "readonly_view"]
 
@@ -228,7 +228,7 @@ class PatternDatabase:
             a callable: called as ``progress(what, fraction_done)``.
         catalog_source : str
             What ``catalog`` is, recorded in ``meta`` (``"hipparcos"``, ``"gaia"``): a cached
-            database built from another is rebuilt (:mod:`skyfix.identify.bands`).
+            database built from another is rebuilt (:mod:`skyfix.identify.catalogue.bands`).
         """
         from skyfix.validate import check_fov_range  # the range solve and the CLI accept too
 
@@ -414,7 +414,7 @@ def brightest_per_field(vectors: np.ndarray, radius: float, lattice_step: float,
     lose their fainter member first. Yields (F, per_field) int32 rows of indices into
     ``vectors`` (brightest first, so each row is ascending), ``-1`` where a field has fewer
     stars. The pattern database (4-combinations of each row) and the pair table
-    (:mod:`skyfix.identify.pairs`) choose their stars this way.
+    (:mod:`skyfix.identify.catalogue.pairs`) choose their stars this way.
     """
     from scipy.spatial import cKDTree
 

@@ -5,7 +5,7 @@ computes the edge ratios from camera rays at an assumed focal length, probes eve
 within the tolerance, walks the hash table, keeps catalogue patterns whose ratios agree, then
 estimates the focal length from the ratio of largest edges, recomputes the image ratios at that
 focal length and keeps the pattern only if they agree tightly and the focal length is allowed.
-The data it reads and returns are the named tuples of :mod:`skyfix.identify.kernel_data`; the
+The data it reads and returns are the named tuples of :mod:`skyfix.identify.catalogue.kernel_data`; the
 rules that accept or reject a candidate are the helpers of :mod:`skyfix.identify.accept` it calls
 (rules 1–5 there).
 """
@@ -31,8 +31,8 @@ from skyfix.identify.accept import (
     quick_check_fails,
     ratio_tolerance,
 )
-from skyfix.identify.hashing import lookup_run
-from skyfix.identify.kernel_data import (
+from skyfix.identify.catalogue.hashing import lookup_run
+from skyfix.identify.catalogue.kernel_data import (
     FocalRange,
     ImageStars,
     PatternTable,
@@ -42,7 +42,7 @@ from skyfix.identify.kernel_data import (
     VerifySettings,
     ViewBuffers,
 )
-from skyfix.identify.verify import verify_attitude
+from skyfix.identify.common.verify import verify_attitude
 
 __all__ = ["breadth_first_combinations", "centre_first_combinations", "search", "search_entry"]
 
@@ -172,7 +172,7 @@ def _angle_matrix(v: np.ndarray, out: np.ndarray) -> None:
 @numba.njit(cache=True)
 def search_entry(image, combos, start, stop, focal, tolerances, patterns, stars, verification, cand_before):
     """:func:`search` with its NamedTuple arguments as plain tuples (``tuple(nt)``): the entry
-    for Python callers (:mod:`skyfix.identify.kernel_data` says why)."""
+    for Python callers (:mod:`skyfix.identify.catalogue.kernel_data` says why)."""
     return search(ImageStars(*image), combos, start, stop, FocalRange(*focal), Tolerances(*tolerances),
                   PatternTable(*patterns), StarIndex(*stars), VerifySettings(*verification), cand_before)
 

@@ -3,11 +3,11 @@
 The Sunsat star sensor identified up to eight observed stars by the *largest group of mutually
 consistent matches* — the one method of its time robust to false stars (meteors, planets,
 satellites). skyfix follows its five steps on the shared pair table
-(:func:`skyfix.identify.pairs.pair_table`, the thesis's sorted distance table):
+(:func:`skyfix.identify.catalogue.pairs.pair_table`, the thesis's sorted distance table):
 
 1. **Star-pair matching** (§3.3.1). Every pair of the ``max_stars`` brightest centroids (at most
    28 for eight) finds the catalogue pairs whose angle is its own ± the distance tolerance
-   (:func:`~skyfix.identify.pairs.pairs_in_range`), each in both orientations that pass the
+   (:func:`~skyfix.identify.catalogue.pairs.pairs_in_range`), each in both orientations that pass the
    magnitude test: ``|m_obs − m_cat| ≤ magnitude_tolerance`` for each star when ``magnitudes``
    are given (the thesis's (3.1)), else the brightness order standing in for them (the brighter
    centroid's star may be at most ``magnitude_tolerance`` fainter than the other's).
@@ -32,7 +32,7 @@ satellites). skyfix follows its five steps on the shared pair table
 4. **Redundancy removal** (§3.3.4). Subgroups holding the same set of matches are one.
 5. **The largest group** (§3.3.5). Subgroups of at least ``min_group`` stars, largest first,
    equal sizes by the smallest sum of |angle measured − angle catalogued| (the thesis's
-   tie-break), are proposed in that order to :func:`skyfix.identify.hypothesis.first_accepted`
+   tie-break), are proposed in that order to :func:`skyfix.identify.common.hypothesis.first_accepted`
    — the thesis takes the largest group as correct; skyfix accepts it only when it passes the
    rules every method passes (a proper rotation fits, the chance of a wrong match with every
    proposal counted, the refit). When none does, ``ICLim`` is decremented and the groups it
@@ -66,11 +66,11 @@ import numpy as np
 from skyfix._kernels.rotation import chord_angle, det3
 from skyfix.camera import Camera
 from skyfix.errors import InputError
-from skyfix.identify.angle_match import LONE_PROB_THRESHOLD, judged
-from skyfix.identify.database import PatternDatabase
-from skyfix.identify.hypothesis import Frame, failure, frame_for
-from skyfix.identify.pairs import PairTable, pair_table, pairs_in_range
-from skyfix.identify.result import Identification
+from skyfix.identify.catalogue.database import PatternDatabase
+from skyfix.identify.catalogue.pairs import PairTable, pair_table, pairs_in_range
+from skyfix.identify.common.angle_match import LONE_PROB_THRESHOLD, judged
+from skyfix.identify.common.hypothesis import Frame, failure, frame_for
+from skyfix.identify.common.result import Identification
 
 __all__ = ["METHOD", "MatchGroups", "MatchSetup", "PairMatches", "Subgroups", "TableRows", "estimated_level",
            "frame_table", "geometry_test", "identify", "match_groups", "match_setup", "pair_matches",
@@ -107,7 +107,7 @@ class MatchSetup(NamedTuple):
 
 class MatchGroups(NamedTuple):
     """Match groups after elimination (steps 1–2); star numbers are rows of the pair table's
-    :attr:`~skyfix.identify.pairs.PairTable.stars` (``catalogue_rows`` maps them to the star index).
+    :attr:`~skyfix.identify.catalogue.pairs.PairTable.stars` (``catalogue_rows`` maps them to the star index).
 
     kernel_star, kernel_local : (K,) int64 — each group's kernel: centroid row and its star.
     start : (K + 1,) int64 — group ``i``'s associated matches are rows ``start[i]:start[i + 1]``
@@ -602,7 +602,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         A sparse frame (at most 8 centroids) whose groups the common rules refused (too few
         stars beyond a group to verify it at 1e-9): the largest chance of a wrong match accepted
         when each group's triangle is judged by the ``triangle`` method's sparse-frame rules
-        (:func:`skyfix.identify.angle_match.sparse_identification`).
+        (:func:`skyfix.identify.common.angle_match.sparse_identification`).
 
     Returns
     -------

@@ -1,8 +1,8 @@
 """Inter-star angles of a frame as the pair-table methods match them (``pyramid``, ``voting``).
 
 A centroid's ray at focal length ``f`` is its undistorted offset from the principal point
-``p = (x, y)`` (pixels, :attr:`~skyfix.identify.kernel_data.ImageStars.offsets_px`) over it:
-``(x, y, f) / |(x, y, f)|`` — the ray of :func:`skyfix.identify.hypothesis.rays_at`. The angle
+``p = (x, y)`` (pixels, :attr:`~skyfix.identify.catalogue.kernel_data.ImageStars.offsets_px`) over it:
+``(x, y, f) / |(x, y, f)|`` — the ray of :func:`skyfix.identify.common.hypothesis.rays_at`. The angle
 between two rays (:func:`ray_angle`) shrinks as ``f`` grows, so over the focal range a frame
 allows ``[f_lo, f_hi]`` a measured angle spans ``[θ(f_hi), θ(f_lo)]``, widened by the centroid
 noise (:func:`angle_range`). The noise term of one angle is ``n_sigma · σ_px · √2 / f`` rad (two
@@ -27,10 +27,10 @@ from skyfix._kernels.rotation import chord_angle
 from skyfix.attitude import attitude_covariance
 from skyfix.geometry import rotation_angle_between
 from skyfix.identify.accept import noise_posterior, precision_failure
-from skyfix.identify.hypothesis import Frame, finish, first_accepted, fits, hypothesis, rays_at
-from skyfix.identify.pairs import PairTable, pair_table
-from skyfix.identify.result import Identification
-from skyfix.identify.triangle import AMBIGUITY_RATIO, LONE_MAX_STARS, judge_lone
+from skyfix.identify.catalogue.pairs import PairTable, pair_table
+from skyfix.identify.common.hypothesis import Frame, finish, first_accepted, fits, hypothesis, rays_at
+from skyfix.identify.common.result import Identification
+from skyfix.identify.methods.triangle import AMBIGUITY_RATIO, LONE_MAX_STARS, judge_lone
 
 __all__ = ["LONE_PROB_THRESHOLD", "AngleSettings", "angle_range", "angle_settings", "angle_tolerance",
            "focal_for_angle", "frame_pair_table", "longest_side_first", "ray_angle", "recorded",
@@ -47,7 +47,7 @@ class AngleSettings(NamedTuple):
     """What the angle-matching kernels need of a frame (:func:`angle_settings`).
 
     offsets_px : (N, 2) float64 — the centroids' undistorted offsets from the principal point.
-    rays : (N, 3) float64 — their unit rays at ``f0`` (:attr:`~skyfix.identify.hypothesis.Frame.rays`).
+    rays : (N, 3) float64 — their unit rays at ``f0`` (:attr:`~skyfix.identify.common.hypothesis.Frame.rays`).
     f0 : float — the nominal focal length, pixels.
     f_lo, f_hi : float — the focal lengths allowed (equal to ``f0`` for a calibrated camera).
     calibrated : bool — the focal length is known (else it is fitted per correspondence).
@@ -115,7 +115,7 @@ def angle_tolerance(theta, theta_pair, f, noise_px, calibrated):
 
 
 def frame_pair_table(frame: Frame, per_field: int = 12) -> PairTable:
-    """The pair table (:func:`skyfix.identify.pairs.pair_table`) of ``frame``'s database that
+    """The pair table (:func:`skyfix.identify.catalogue.pairs.pair_table`) of ``frame``'s database that
     holds every angle the frame can measure: fields of the camera's FOV, pairs up to the frame's
     diagonal at the shortest focal length allowed."""
     p = frame.image.frame_px
@@ -164,8 +164,8 @@ def judged(frame: Frame, table: PairTable, proposals: Iterator[tuple[np.ndarray,
            max_candidates: int, n_stars: int, tolerance_rad: float, centroid_sigma_px: float,
            work: Callable[[], int], threshold: float = LONE_PROB_THRESHOLD) -> tuple[Identification, str]:
     """A correspondence method's ``proposals`` judged: by the common rules
-    (:func:`skyfix.identify.hypothesis.first_accepted`, at most ``max_candidates``) and, on a
-    sparse frame (at most :data:`~skyfix.identify.triangle.LONE_MAX_STARS` centroids) that they
+    (:func:`skyfix.identify.common.hypothesis.first_accepted`, at most ``max_candidates``) and, on a
+    sparse frame (at most :data:`~skyfix.identify.methods.triangle.LONE_MAX_STARS` centroids) that they
     refuse, by :func:`sparse_identification` over the same proposals (``work()``: the method's
     count of what it searched, read once the proposals are spent). Returns the identification —
     successful from either, else the common rules' failure — and the sparse rules' reason to
@@ -185,7 +185,7 @@ def judged(frame: Frame, table: PairTable, proposals: Iterator[tuple[np.ndarray,
 def longest_side_first(frame: Frame, stars: np.ndarray, catalog: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Three matched centroid rows ``stars`` (and their ``catalog`` rows) in the vertex order of
-    :func:`skyfix.identify.triangle.judge_lone` — the longest image side θ01 first — and the
+    :func:`skyfix.identify.methods.triangle.judge_lone` — the longest image side θ01 first — and the
     image sides (θ01, θ02, θ12) at the nominal focal length."""
     v = frame.rays[stars]
     sides = chord_angle(np.linalg.norm(v[[0, 0, 1]] - v[[1, 2, 2]], axis=1))  # 01, 02, 12
@@ -201,16 +201,16 @@ def sparse_identification(frame: Frame, table: PairTable, proposals: list[tuple[
                           missing_margin: float = 0.75, min_error_px: float = 0.05) -> Identification | str:
     """A sparse frame's identification from proposals the common rules refused, or why not.
 
-    A frame of at most :data:`~skyfix.identify.triangle.LONE_MAX_STARS` centroids has too few
+    A frame of at most :data:`~skyfix.identify.methods.triangle.LONE_MAX_STARS` centroids has too few
     stars beyond a 4-star proposal to verify it at 1e-9. Each proposal's first three stars are
     judged as the ``triangle`` method judges a sparse frame's triangle
-    (:func:`skyfix.identify.triangle.judge_lone`: how unusual a catalogue triangle this close is,
+    (:func:`skyfix.identify.methods.triangle.judge_lone`: how unusual a catalogue triangle this close is,
     every one of the ``C(n_stars, 3)`` image triangles counted as a look, every other star —
     the proposal's fourth included — verifying it as a binomial tail, a bright catalogue star in
     view on no centroid refuting it). The best is accepted when its chance is at most
     ``threshold`` and no proposal that puts the camera elsewhere comes within
-    :data:`~skyfix.identify.triangle.AMBIGUITY_RATIO` of it; the refit on every matched star
-    (:func:`skyfix.identify.hypothesis.finish`) must then pass as always, and the attitude of so
+    :data:`~skyfix.identify.methods.triangle.AMBIGUITY_RATIO` of it; the refit on every matched star
+    (:func:`skyfix.identify.common.hypothesis.finish`) must then pass as always, and the attitude of so
     few stars be precise enough to be right (:func:`skyfix.identify.accept.precision_failure`,
     the solve's rule, with the stated ``centroid_sigma_px`` and the matched stars' residuals:
     a few stars at σ 1 px leave the boresight tens of arcseconds uncertain).
