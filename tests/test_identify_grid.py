@@ -13,8 +13,8 @@ from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
 from skyfix.errors import InputError
 from skyfix.identify.common import hypothesis as hyp
+from skyfix.identify.common.angle_match import frame_table
 from skyfix.identify.methods import grid
-from skyfix.identify.methods.match_groups import frame_table
 
 W, H, FOV = 1024, 1024, 15.0
 ARCSEC = np.pi / 180 / 3600

@@ -11,6 +11,7 @@ from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
 from skyfix.errors import InputError
 from skyfix.identify.common import hypothesis as hyp
+from skyfix.identify.common.angle_match import frame_table
 from skyfix.identify.methods import match_groups as mg
 
 W, H, FOV = 1024, 1024, 15.0
@@ -42,7 +43,7 @@ def test_the_pieces_find_the_true_constellation(database, camera, orion):
     frame = hyp.frame_for(mg.METHOD, orion.xy, W, H, fov_deg=None, fov_tolerance_deg=None, camera=camera,
                           database=database, epoch=None)
     setup = mg.match_setup(frame)
-    table, rows = mg.frame_table(frame)
+    table, rows = frame_table(frame)
     matches = mg.pair_matches(setup, table, rows)
     ids = database.star_arrays()[0]
     truth = np.array([np.flatnonzero(ids == s)[0] if s else -1 for s in orion.star_id[:8]])
@@ -78,7 +79,7 @@ def test_a_mirrored_field_is_rejected(database, camera, catalog):
         frame = hyp.frame_for(mg.METHOD, mirrored, W, H, fov_deg=None, fov_tolerance_deg=None, camera=camera,
                               database=database, epoch=None)
         setup = mg.match_setup(frame)
-        table, rows = mg.frame_table(frame)
+        table, rows = frame_table(frame)
         sub = mg.geometry_test(frame, setup, table, mg.match_groups(mg.pair_matches(setup, table, rows)))
         assert len(sub.size) == 0 or sub.size[0] <= 4
 

@@ -29,12 +29,13 @@ from skyfix.geometry import rotation_angle_between
 from skyfix.identify.accept import noise_posterior, precision_failure
 from skyfix.identify.catalogue.pairs import PairTable, pair_table
 from skyfix.identify.common.hypothesis import Frame, finish, first_accepted, fits, hypothesis, rays_at
+from skyfix.identify.common.lone import AMBIGUITY_RATIO, LONE_MAX_STARS, judge_lone
 from skyfix.identify.common.result import Identification
-from skyfix.identify.methods.triangle import AMBIGUITY_RATIO, LONE_MAX_STARS, judge_lone
 
-__all__ = ["LONE_PROB_THRESHOLD", "AngleSettings", "angle_range", "angle_settings", "angle_tolerance",
-           "focal_for_angle", "frame_pair_table", "longest_side_first", "ray_angle", "recorded",
-           "sparse_identification", "star_angle", "star_chord2", "triple_product"]
+__all__ = ["LONE_PROB_THRESHOLD", "AngleSettings", "TableRows", "angle_range", "angle_settings",
+           "angle_tolerance", "consistent_set", "focal_for_angle", "frame_pair_table", "frame_table",
+           "longest_side_first", "ray_angle", "recorded", "sparse_identification", "star_angle",
+           "star_chord2", "triple_product"]
 
 _MAX_ANGLE_MARGIN = 1.02  # the pair table holds pairs a little wider than the frame's diagonal
 LONE_PROB_THRESHOLD = 1e-4
@@ -165,7 +166,7 @@ def judged(frame: Frame, table: PairTable, proposals: Iterator[tuple[np.ndarray,
            work: Callable[[], int], threshold: float = LONE_PROB_THRESHOLD) -> tuple[Identification, str]:
     """A correspondence method's ``proposals`` judged: by the common rules
     (:func:`skyfix.identify.common.hypothesis.first_accepted`, at most ``max_candidates``) and, on a
-    sparse frame (at most :data:`~skyfix.identify.methods.triangle.LONE_MAX_STARS` centroids) that they
+    sparse frame (at most :data:`~skyfix.identify.common.lone.LONE_MAX_STARS` centroids) that they
     refuse, by :func:`sparse_identification` over the same proposals (``work()``: the method's
     count of what it searched, read once the proposals are spent). Returns the identification —
     successful from either, else the common rules' failure — and the sparse rules' reason to
@@ -185,7 +186,7 @@ def judged(frame: Frame, table: PairTable, proposals: Iterator[tuple[np.ndarray,
 def longest_side_first(frame: Frame, stars: np.ndarray, catalog: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Three matched centroid rows ``stars`` (and their ``catalog`` rows) in the vertex order of
-    :func:`skyfix.identify.methods.triangle.judge_lone` — the longest image side θ01 first — and the
+    :func:`skyfix.identify.common.lone.judge_lone` — the longest image side θ01 first — and the
     image sides (θ01, θ02, θ12) at the nominal focal length."""
     v = frame.rays[stars]
     sides = chord_angle(np.linalg.norm(v[[0, 0, 1]] - v[[1, 2, 2]], axis=1))  # 01, 02, 12
@@ -201,15 +202,15 @@ def sparse_identification(frame: Frame, table: PairTable, proposals: list[tuple[
                           missing_margin: float = 0.75, min_error_px: float = 0.05) -> Identification | str:
     """A sparse frame's identification from proposals the common rules refused, or why not.
 
-    A frame of at most :data:`~skyfix.identify.methods.triangle.LONE_MAX_STARS` centroids has too few
+    A frame of at most :data:`~skyfix.identify.common.lone.LONE_MAX_STARS` centroids has too few
     stars beyond a 4-star proposal to verify it at 1e-9. Each proposal's first three stars are
     judged as the ``triangle`` method judges a sparse frame's triangle
-    (:func:`skyfix.identify.methods.triangle.judge_lone`: how unusual a catalogue triangle this close is,
+    (:func:`skyfix.identify.common.lone.judge_lone`: how unusual a catalogue triangle this close is,
     every one of the ``C(n_stars, 3)`` image triangles counted as a look, every other star —
     the proposal's fourth included — verifying it as a binomial tail, a bright catalogue star in
     view on no centroid refuting it). The best is accepted when its chance is at most
     ``threshold`` and no proposal that puts the camera elsewhere comes within
-    :data:`~skyfix.identify.methods.triangle.AMBIGUITY_RATIO` of it; the refit on every matched star
+    :data:`~skyfix.identify.common.lone.AMBIGUITY_RATIO` of it; the refit on every matched star
     (:func:`skyfix.identify.common.hypothesis.finish`) must then pass as always, and the attitude of so
     few stars be precise enough to be right (:func:`skyfix.identify.accept.precision_failure`,
     the solve's rule, with the stated ``centroid_sigma_px`` and the matched stars' residuals:
@@ -269,3 +270,62 @@ def sparse_identification(frame: Frame, table: PairTable, proposals: list[tuple[
         return f"sparse frame: {imprecise}"
     result = finish(frame, full, best_log, n_tried, len(proposals))
     return result if result is not None else "sparse frame: the refit is not beyond chance"
+
+
+class TableRows(NamedTuple):
+    """The pair table in its own rows (kept with the database): what step 1 reads in order.
+
+    local : (S,) int64 — star-index row -> table row (-1: not in the table).
+    first, second : (P,) int32 — each pair's stars as table rows.
+    magnitude : (T,) float64 — the table stars' catalogue magnitudes.
+    """
+
+    local: np.ndarray
+    first: np.ndarray
+    second: np.ndarray
+    magnitude: np.ndarray
+
+
+def frame_table(frame: Frame) -> tuple[PairTable, TableRows]:
+    """The pair table for ``frame`` (pairs up to its diagonal at the widest focal range) and its
+    :class:`TableRows`, both kept with the database."""
+    x_lo, x_hi, y_lo, y_hi = frame.image.frame_px
+    f = float(frame.camera.fx)
+    corners = np.array([[x_lo, y_lo, f], [x_hi, y_hi, f], [x_hi, y_lo, f], [x_lo, y_hi, f]])
+    corners /= np.sqrt((corners * corners).sum(axis=1))[:, None]
+    chord = max(np.linalg.norm(corners[0] - corners[1]), np.linalg.norm(corners[2] - corners[3]))
+    diag = float(chord_angle(chord))
+    max_deg = math.degrees(diag) * (1.0 + frame.scale_tolerance) * 1.01
+    db = frame.database
+    table = pair_table(db, float(frame.camera.fov_deg), max_deg)
+
+    def make() -> TableRows:
+        local = np.full(len(frame.stars.vectors), -1, np.int64)
+        local[table.stars] = np.arange(len(table.stars))
+        mag = np.asarray(db.star_arrays()[1], np.float64)[table.stars]
+        first, second = local[table.first].astype(np.int32), local[table.second].astype(np.int32)
+        return TableRows(local, first, second, mag)
+
+    # A table lives as long as its database, so its id names it there.
+    return table, db.derived(("table-rows", id(table)), make)
+
+
+@numba.njit(cache=True)
+def consistent_set(agree, order, seed, out):
+    """Grow a set from centroid ``seed``: each centroid of ``order`` (best-validated first) whose
+    row of ``agree`` (n, n) bool is true for every member joins. The members, in joining
+    order, go to ``out``; returns their number."""
+    out[0] = seed
+    m = 1
+    for b in order:
+        if b == seed:
+            continue
+        ok = True
+        for e in range(m):
+            if not agree[b, out[e]]:
+                ok = False
+                break
+        if ok:
+            out[m] = b
+            m += 1
+    return m

@@ -44,6 +44,9 @@ from skyfix.identify.catalogue.triangles import (
     BY_AREA,
     BY_SHAPE,
     MOMENT,
+)
+from skyfix.identify.common.hypothesis import Frame, failure, first_accepted, frame_for
+from skyfix.identify.common.image_triangles import (
     ImageTriangles,
     SearchStats,
     check_options,
@@ -51,7 +54,6 @@ from skyfix.identify.catalogue.triangles import (
     image_triangles,
     triangle_proposals,
 )
-from skyfix.identify.common.hypothesis import Frame, failure, first_accepted, frame_for
 from skyfix.identify.common.result import Identification
 
 __all__ = ["METHOD", "identify"]

@@ -53,10 +53,9 @@ from skyfix.camera import Camera
 from skyfix.errors import InputError
 from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.catalogue.pairs import PairTable, neighbours_in_range
+from skyfix.identify.common.angle_match import consistent_set, frame_table
 from skyfix.identify.common.hypothesis import Frame, failure, first_accepted, frame_for
 from skyfix.identify.common.result import Identification
-from skyfix.identify.methods.match_groups import frame_table
-from skyfix.identify.methods.voting import consistent_set
 
 __all__ = ["METHOD", "GridPatterns", "GridSettings", "catalogue_patterns", "identify", "image_candidates",
            "pattern_cells"]
@@ -256,7 +255,7 @@ def image_candidates(frame: Frame, table: PairTable, patterns: GridPatterns, set
 @numba.njit(cache=True)
 def _agreeing_sets(agree, order):
     """For each candidate ``u``: ``u`` and, greedily in ``order``, every candidate that agrees
-    with all those taken so far (voting's :func:`~skyfix.identify.methods.voting.consistent_set`, seeded
+    with all those taken so far (:func:`~skyfix.identify.common.angle_match.consistent_set`, seeded
     at each candidate in turn). Row ``u`` of the result marks its set."""
     n = agree.shape[0]
     member = np.zeros((n, n), np.bool_)

@@ -47,18 +47,20 @@ from skyfix.errors import InputError
 from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.catalogue.triangles import (
     SIDES,
-    SearchStats,
     StarTriangleTable,
-    check_options,
-    confirmed_matches,
     describe_star_triangles,
     describe_triangles,
     feature_matches,
-    frame_angles_deg,
-    ranked,
     star_triangle_table,
 )
 from skyfix.identify.common.hypothesis import Frame, failure, first_accepted, frame_for
+from skyfix.identify.common.image_triangles import (
+    SearchStats,
+    check_options,
+    confirmed_matches,
+    frame_angles_deg,
+    ranked,
+)
 from skyfix.identify.common.result import Identification
 
 __all__ = ["METHOD", "PER_FIELD_STEPS", "StarPatterns", "identify", "per_field_for", "star_patterns"]

@@ -67,13 +67,13 @@ from skyfix._kernels.rotation import chord_angle, det3
 from skyfix.camera import Camera
 from skyfix.errors import InputError
 from skyfix.identify.catalogue.database import PatternDatabase
-from skyfix.identify.catalogue.pairs import PairTable, pair_table, pairs_in_range
-from skyfix.identify.common.angle_match import LONE_PROB_THRESHOLD, judged
+from skyfix.identify.catalogue.pairs import PairTable, pairs_in_range
+from skyfix.identify.common.angle_match import LONE_PROB_THRESHOLD, TableRows, frame_table, judged
 from skyfix.identify.common.hypothesis import Frame, failure, frame_for
 from skyfix.identify.common.result import Identification
 
-__all__ = ["METHOD", "MatchGroups", "MatchSetup", "PairMatches", "Subgroups", "TableRows", "estimated_level",
-           "frame_table", "geometry_test", "identify", "match_groups", "match_setup", "pair_matches",
+__all__ = ["METHOD", "MatchGroups", "MatchSetup", "PairMatches", "Subgroups", "estimated_level",
+           "geometry_test", "identify", "match_groups", "match_setup", "pair_matches",
            "scale_ranges"]
 
 METHOD = "van-bezooijen"
@@ -166,20 +166,6 @@ def match_setup(frame: Frame, *, max_stars: int = 8, centroid_sigma_px: float = 
                       float(magnitude_tolerance), by_order)
 
 
-class TableRows(NamedTuple):
-    """The pair table in its own rows (kept with the database): what step 1 reads in order.
-
-    local : (S,) int64 — star-index row -> table row (-1: not in the table).
-    first, second : (P,) int32 — each pair's stars as table rows.
-    magnitude : (T,) float64 — the table stars' catalogue magnitudes.
-    """
-
-    local: np.ndarray
-    first: np.ndarray
-    second: np.ndarray
-    magnitude: np.ndarray
-
-
 def scale_ranges(scale_lo: float, scale_hi: float, step: float) -> list[tuple[float, float]]:
     """The range of scales [``scale_lo``, ``scale_hi``] (catalogue angle / measured angle) cut
     into pieces at most ``step`` wide (relative), overlapping by a tenth, the one holding 1 (the
@@ -191,30 +177,6 @@ def scale_ranges(scale_lo: float, scale_hi: float, step: float) -> list[tuple[fl
     first = int(np.clip(np.searchsorted(edges, 1.0) - 1, 0, n - 1))
     order = sorted(range(n), key=lambda i: (abs(i - first), i < first))
     return [pieces[i] for i in order]
-
-
-def frame_table(frame: Frame) -> tuple[PairTable, TableRows]:
-    """The pair table for ``frame`` (pairs up to its diagonal at the widest focal range) and its
-    :class:`TableRows`, both kept with the database."""
-    x_lo, x_hi, y_lo, y_hi = frame.image.frame_px
-    f = float(frame.camera.fx)
-    corners = np.array([[x_lo, y_lo, f], [x_hi, y_hi, f], [x_hi, y_lo, f], [x_lo, y_hi, f]])
-    corners /= np.sqrt((corners * corners).sum(axis=1))[:, None]
-    chord = max(np.linalg.norm(corners[0] - corners[1]), np.linalg.norm(corners[2] - corners[3]))
-    diag = float(chord_angle(chord))
-    max_deg = math.degrees(diag) * (1.0 + frame.scale_tolerance) * 1.01
-    db = frame.database
-    table = pair_table(db, float(frame.camera.fov_deg), max_deg)
-
-    def make() -> TableRows:
-        local = np.full(len(frame.stars.vectors), -1, np.int64)
-        local[table.stars] = np.arange(len(table.stars))
-        mag = np.asarray(db.star_arrays()[1], np.float64)[table.stars]
-        first, second = local[table.first].astype(np.int32), local[table.second].astype(np.int32)
-        return TableRows(local, first, second, mag)
-
-    # A table lives as long as its database, so its id names it there.
-    return table, db.derived(("table-rows", id(table)), make)
 
 
 @numba.njit(cache=True, inline="always")

@@ -43,6 +43,9 @@ from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.catalogue.triangles import (
     BY_ANGLE,
     SIDES,
+)
+from skyfix.identify.common.hypothesis import Frame, failure, first_accepted, frame_for
+from skyfix.identify.common.image_triangles import (
     ImageTriangles,
     SearchStats,
     check_options,
@@ -50,7 +53,6 @@ from skyfix.identify.catalogue.triangles import (
     image_triangles,
     triangle_proposals,
 )
-from skyfix.identify.common.hypothesis import Frame, failure, first_accepted, frame_for
 from skyfix.identify.common.result import Identification
 
 __all__ = ["METHOD", "angle_tolerances", "identify"]

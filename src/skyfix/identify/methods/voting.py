@@ -50,15 +50,16 @@ from skyfix.identify.common.angle_match import (
     AngleSettings,
     angle_range,
     angle_settings,
+    consistent_set,
     frame_pair_table,
     judged,
     star_chord2,
 )
 from skyfix.identify.common.hypothesis import Frame, failure, frame_for
+from skyfix.identify.common.lone import LONE_MAX_STARS
 from skyfix.identify.common.result import Identification
-from skyfix.identify.methods.triangle import LONE_MAX_STARS
 
-__all__ = ["METHOD", "cast_votes", "consistent_set", "focal_steps", "identify", "top_voted", "validate"]
+__all__ = ["METHOD", "cast_votes", "focal_steps", "identify", "top_voted", "validate"]
 
 METHOD = "voting"
 
@@ -83,27 +84,6 @@ def cast_votes(s, table, local, n, f_a, f_b, votes):
                 votes[b, w] += 1
             cast += 4 * (q1 - q0)
     return cast
-
-
-@numba.njit(cache=True)
-def consistent_set(agree, order, seed, out):
-    """Grow a set from centroid ``seed``: each centroid of ``order`` (best-validated first) whose
-    row of ``agree`` (n, n) bool is true for every member joins. The members, in joining
-    order, go to ``out``; returns their number."""
-    out[0] = seed
-    m = 1
-    for b in order:
-        if b == seed:
-            continue
-        ok = True
-        for e in range(m):
-            if not agree[b, out[e]]:
-                ok = False
-                break
-        if ok:
-            out[m] = b
-            m += 1
-    return m
 
 
 def focal_steps(s: AngleSettings, n: int) -> np.ndarray:
