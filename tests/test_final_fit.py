@@ -280,7 +280,7 @@ def test_fit_camera_needs_enough_stars() -> None:
 
 
 def test_outlier_cut_drops_a_star_off_the_fitted_camera_and_only_it(stars):
-    """Rule 9 of identify/accept.py, by itself: among 40 stars fitted with a free camera, one
+    """Rule 17 of identify/accept.py, by itself: among 40 stars fitted with a free camera, one
     centroid 3 px off (a blend) is dropped by its externally studentised residual, and no good
     star is."""
     from skyfix.calibrate import CameraPrior

@@ -1,5 +1,5 @@
 """Robust selection of stars by their residuals, once: the final fit's outlier cut (accept rule
-8, :func:`skyfix.final_fit.inliers`) and the triangle method's check that a sparse frame's
+16, :func:`skyfix.final_fit.inliers`) and the triangle method's check that a sparse frame's
 triangle holds among the stars that verify it (:mod:`skyfix.identify.methods.triangle`)."""
 
 from __future__ import annotations

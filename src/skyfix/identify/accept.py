@@ -54,22 +54,46 @@ each candidate pattern inside the compiled search (:func:`skyfix.identify.common
    above, :func:`is_beyond_chance`).
 7. :func:`refit_focal_allowed` — the refit's focal length stays near the allowed range.
 
+A sparse frame (three to :data:`~skyfix.identify.common.lone.LONE_MAX_STARS` centroids) that
+rules 1–7 cannot settle is judged as a lone triangle on its own chance
+(:func:`skyfix.identify.common.lone.judge_lone` holds 8–11, for the ``triangle`` method and the
+pair-table methods' sparse frames; docs/identification-methods.md#triangle):
+
+8. How unusual a match this close is: λ, the catalogue triangles within the window around the
+   measured one (:func:`~skyfix.identify.common.lone.window_rad`) not refuted by rule 11 where
+   they stand, scaled to the box the match falls in.
+9. Every look counted: λ times the image triangles tried.
+10. Every other star counted: times the binomial tail of the other catalogue stars in view that
+    land on centroids (:func:`chance_log_probability`).
+11. Nothing bright missing: a catalogue star in the frame brighter than the triangle's faintest
+    by ``missing_margin`` on no centroid refutes the hypothesis.
+12. The triangle holds: with five or more stars matched, each of its three fits the attitude the
+    others give (``methods.triangle._triangle_holds``, a Rayleigh cut as rule 16's).
+13. Unique: two hypotheses that put the camera in different places within
+    :data:`~skyfix.identify.common.lone.AMBIGUITY_RATIO` of the best chance fail "ambiguous".
+14. Not mirrored: the frame flipped left-right matching more surely refuses the match
+    (:func:`skyfix.identify.methods.triangle.unless_mirrored`).
+15. The product of 8–10 is at most ``lone_prob_threshold`` (1e-4 by default), reported as
+    ``prob_false``.
+
 The final fit (:func:`skyfix.final_fit.final_fit`), whose rules live beside the fits they judge:
 
-8. A calibrated camera: a star more than 4 σ (median-based, floored at 0.1 px) from the fitted
-   attitude is dropped, at least half and three kept — :func:`skyfix.final_fit.inliers`
-   (``tests/test_final_fit_kernels.py::test_inliers_drop_outliers_keep_half``).
-9. No camera: while the worst star's externally studentised χ² is beyond
-   ``skyfix._kernels.camera_fit.outlier_limit`` (a good star's chance 3.4e-4, ``OUTLIER_CHI2``)
-   it is dropped and the camera refitted (``fit_camera_with_prior(..., drop_outliers=True)``;
-   ``tests/test_final_fit.py::test_outlier_cut_drops_a_star_off_the_fitted_camera_and_only_it``).
-10. No camera: the stars re-matched through the fitted camera must be beyond chance with the
+16. A calibrated camera: a star more than 4 σ (median-based, floored at 0.1 px) from the fitted
+    attitude is dropped, at least half and three kept — :func:`skyfix.final_fit.inliers`
+    (``tests/test_final_fit_kernels.py::test_inliers_drop_outliers_keep_half``).
+17. No camera: while the worst star's externally studentised χ² is beyond
+    ``skyfix._kernels.camera_fit.outlier_limit`` (a good star's chance 3.4e-4, ``OUTLIER_CHI2``)
+    it is dropped and the camera refitted (``fit_camera_with_prior(..., drop_outliers=True)``;
+    ``tests/test_final_fit.py::test_outlier_cut_drops_a_star_off_the_fitted_camera_and_only_it``).
+18. No camera: the stars re-matched through the fitted camera must be beyond chance with the
     camera's freedom paid for (*Freedom paid for* above, :func:`chance_log_probability`);
     otherwise the verified stars are kept.
 
 The solution (:func:`skyfix.pipeline.solve_centroids`):
 
-11. :func:`precision_failure` — precise enough to be right (above).
+19. :func:`precision_failure` — precise enough to be right (above).
+
+Every "rule N" in skyfix's code, tests and docs is this list's.
 """
 
 from __future__ import annotations

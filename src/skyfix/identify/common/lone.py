@@ -5,12 +5,12 @@ method (:mod:`skyfix.identify.methods.triangle`) and the pair-table methods' spa
 
 *Sparse frames* (three or four stars, or up to :data:`LONE_MAX_STARS` that the 4-star
 confirmation did not settle): a lone triangle has nothing else to verify it against, so its own
-chance is computed, honestly:
+chance is computed, honestly (numbered as :mod:`skyfix.identify.accept`'s rules):
 
-1. **How unusual a match this close is.** The catalogue triangles near the measured one — all
+8. **How unusual a match this close is.** The catalogue triangles near the measured one — all
    three sides within ``W`` (:func:`window_rad`) — are counted, among stars no fainter than
    ``mag_margin`` beyond the faintest of the match (the image's three brightest stars are among
-   the sky's brightest there), and of those only the ones rule 4 would not refute where they
+   the sky's brightest there), and of those only the ones rule 11 would not refute where they
    stand (:func:`judge_lone`: a triangle with a brighter star beside it is no rival; the share
    is measured on a sample of 4096 when there are more). Their density times the volume of the
    box the match actually falls in (its largest side error ``ε``, floored at
@@ -19,20 +19,21 @@ chance is computed, honestly:
    with a calibrated camera, 2 with a FOV only (the scale is then free: only the shape counts).
    The match's own triangle is among the ``M_W``, which keeps ``λ`` from reaching 0. A false
    star turns the image triangle into a random one, so ``λ`` is the chance it matches as well.
-2. **Every look counted.** ``λ`` is multiplied by the image triangles tried (each one a fresh
+9. **Every look counted.** ``λ`` is multiplied by the image triangles tried (each one a fresh
    chance to meet a catalogue triangle by accident; every combination of false stars is one of
    them).
-3. **Every other star counted.** Stars beyond the triangle verify it as in the 4-star method: the
+10. **Every other star counted.** Stars beyond the triangle verify it as in the 4-star method: the
    catalogue stars in view (as bright as ``mag_margin`` beyond the triangle's faintest) that land
    on centroids by chance is a binomial tail (:func:`skyfix.identify.accept.chance_log_probability`),
    multiplied in.
-4. **Nothing bright missing.** A catalogue star in the frame brighter than the triangle's
+11. **Nothing bright missing.** A catalogue star in the frame brighter than the triangle's
    faintest by ``missing_margin`` magnitudes that lands on no centroid would have been detected:
    the hypothesis is rejected.
-5. **Unique.** When two hypotheses that put the camera in different places (different stars, or
-   the same stars assigned another way: an equilateral triangle's three rolls) both pass 1–4
-   within a factor of :data:`AMBIGUITY_RATIO` of the best chance, the frame fails "ambiguous" —
-   it does not guess.
+13. **Unique.** When two hypotheses that put the camera in different places (different stars,
+    or the same stars assigned another way: an equilateral triangle's three rolls) both pass
+    8–11 within a factor of :data:`AMBIGUITY_RATIO` of the best chance, the frame fails
+    "ambiguous" — it does not guess. (Rule 12, the triangle holds, and 14, not mirrored, are the
+    ``triangle`` method's: :mod:`skyfix.identify.methods.triangle`.)
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ test is for sparse frames (its cost grows with the stars; a rich frame that the 
 cannot settle has a reason to fail)."""
 AMBIGUITY_RATIO = 100.0  # a second triangle this close to the best one's chance makes the frame ambiguous
 NO_CONFIRM = np.empty((0, 3))
-_WINDOW_MAX = 4096  # catalogue triangles near a sparse frame's match tested by rule 4 (a sample beyond)
+_WINDOW_MAX = 4096  # catalogue triangles near a sparse frame's match tested by rule 11 (a sample beyond)
 
 
 
@@ -158,13 +159,13 @@ def window_rad(fov_rad: float, tolerance_rad: float) -> float:
 
 
 class LoneJudgement(NamedTuple):
-    """How a sparse frame's hypothesis fared (rules 1–4 of :mod:`skyfix.identify.methods.triangle`).
+    """How a sparse frame's hypothesis fared (accept rules 8–11).
 
     log_chance : float — log of λ × image triangles tried × the other stars' binomial tail.
     n_window : int — catalogue triangles within the window (M_W, the match's own included).
     error_rad : float — the match's largest side error ε (before the floor).
     stars, catalog : (K,) int64 — all matched centroid rows and catalogue rows (the triangle first).
-    n_missing : int — bright catalogue stars in the frame on no centroid (rule 4).
+    n_missing : int — bright catalogue stars in the frame on no centroid (rule 11).
     """
 
     log_chance: float
@@ -197,13 +198,13 @@ def in_view(frame: Frame, h: Hypothesis, limit: int) -> tuple[np.ndarray, np.nda
 def judge_lone(frame: Frame, h: Hypothesis, table: PairTable, star_mag: np.ndarray, *, sides_img: np.ndarray,
                tolerance_rad: float, n_triangles: int, mag_margin: float, missing_margin: float,
                min_error_px: float) -> LoneJudgement:
-    """Rules 1–4 of the module text for a triangle hypothesis ``h`` (its three centroid rows
+    """Accept rules 8–11 for a triangle hypothesis ``h`` (its three centroid rows
     and catalogue rows in vertex order; ``sides_img`` the image triangle's sides at the
     nominal focal length, θ01 the longest)."""
     vectors = frame.stars.vectors
     f = float(h.focal_px)
     m_faint = float(star_mag[h.catalog[:3]].max())
-    # The other stars: matched ones verify (rule 3), bright unmatched ones refute (rule 4).
+    # The other stars: matched ones verify (rule 10), bright unmatched ones refute (rule 11).
     idx, xy = in_view(frame, h, rank_limit(star_mag, m_faint + mag_margin))
     own = np.isin(idx, h.catalog)
     idx, xy = idx[~own], xy[~own]
@@ -244,7 +245,7 @@ def judge_lone(frame: Frame, h: Hypothesis, table: PairTable, star_mag: np.ndarr
     found = np.empty((_WINDOW_MAX, 5), np.int32)
     n_window = triangle_matches(table, vectors, sides_img, tol, calibrated, rank, NO_CONFIRM, found,
                                 np.empty(_WINDOW_MAX))
-    # The share of them rule 4 leaves standing, from the first _WINDOW_MAX found (in the order
+    # The share of them rule 11 leaves standing, from the first _WINDOW_MAX found (in the order
     # of one side's length, which has nothing to do with where they are on the sky), one added
     # to what survived so that a small sample never rules rivals out.
     tested = min(n_window, _WINDOW_MAX)
@@ -304,7 +305,7 @@ def _count_unrefuted(table, vectors, star_mag, tris, A, faint, f, frame_px, radi
 def _unrefuted(frame: Frame, h: Hypothesis, table: PairTable, tris: np.ndarray, star_mag: np.ndarray,
                missing_margin: float) -> int:
     """How many catalogue triangles ``tris`` (K, 3) — each put on the hypothesis's three
-    centroids — survive rule 4 (no catalogue star brighter than the triangle's faintest by
+    centroids — survive rule 11 (no catalogue star brighter than the triangle's faintest by
     ``missing_margin`` in the frame and on no centroid), the hypothesis's own among them.
 
     Only such triangles compete with the match: a triangle refuted by a bright star beside it

@@ -17,7 +17,7 @@ triangle has nothing else to verify it against, so its own chance is computed, h
 rules :mod:`skyfix.identify.common.lone` states and holds (the catalogue triangles near it, every
 look, every other star, nothing bright missing, unique).
 
-The sparse frame is accepted when the product is at most ``lone_prob_threshold`` (1e-4 by
+The sparse frame is accepted when the product is at most ``lone_prob_threshold`` (rule 15) (1e-4 by
 default: a lone triangle cannot reach the 1e-9 of a rich frame; a solution reports the chance it
 was given, ``prob_false``). A mirror image is rejected as everywhere, since no proper rotation
 fits it — and where a near-symmetric group of stars fits one all the same, by
@@ -116,7 +116,7 @@ def _image_triangles(n: int):
 
 def _triangle_holds(frame: Frame, judgement: LoneJudgement) -> bool:
     """Whether each of the hypothesis's own three stars fits the attitude the other matched
-    stars give without it (rule 8's Rayleigh cut over their residuals and its own,
+    stars give without it (accept rule 12; rule 16's Rayleigh cut over their residuals and its own,
     :func:`skyfix._kernels.robust.rayleigh_inliers`, floored at 0.1 px).
 
     A triangle of two true stars and a false one lands near the truth: the stars around it verify
@@ -182,7 +182,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         as its competitors and verifiers (the image's brightness order is not the catalogue's).
     missing_margin : float — a catalogue star this much brighter than the match's faintest, in
         the frame and on no centroid, refutes the match.
-    min_error_px : float — the floor of a match's side error in rule 1 (no centroid is exact).
+    min_error_px : float — the floor of a match's side error in rule 8 (no centroid is exact).
     lone_prob_threshold : float — the largest chance accepted for a sparse frame.
     prob_threshold : float — the largest chance accepted for a rich frame (as the 4-star method's).
     max_candidates : int — catalogue triangles judged at most.
@@ -204,7 +204,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
 
 def unless_mirrored(result: Identification, xy: np.ndarray, width: int, height: int, options: dict,
                     t0: float) -> Identification:
-    """Rule 7, the mirror image (docs/identification-methods.md#triangle): a sparse frame's
+    """Accept rule 14, the mirror image (docs/identification-methods.md#triangle): a sparse frame's
     lone triangle ``result`` is refused when the same centroids flipped left-right (about the
     principal point) are identified more surely (a smaller chance of a wrong match). A frame
     flipped by its reader (a FITS row order, a mirror in the optics) is a real input, and a
@@ -212,7 +212,7 @@ def unless_mirrored(result: Identification, xy: np.ndarray, width: int, height: 
     own within the tolerance: Orion's Rigel and belt, mirrored, were named with a chance of 8e-5
     (``tests/test_identify_every_method.py``); flipped back they match with 3e-15. A flipped
     frame is the rarer input, so a mirror that fits only about as well (within
-    :data:`AMBIGUITY_RATIO`, rule 5's margin between two hypotheses of the same frame) does not
+    :data:`AMBIGUITY_RATIO`, rule 13's margin between two hypotheses of the same frame) does not
     refuse: it would cost 2 of the 40 noise-free three-star fields of
     ``tests/test_identify_triangle.py``, whose mirrored triangles match other catalogue ones."""
     flipped = np.array(xy, dtype=np.float64)
@@ -233,7 +233,7 @@ def _identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None,
               prob_threshold: float, max_candidates: int, max_per_triangle: int,
               per_field: int) -> tuple[Identification, bool]:
     """:func:`identify` without the mirror rule: the Identification, and whether it is a sparse
-    frame's lone triangle (accepted by rules 1–5)."""
+    frame's lone triangle (accepted by rules 8–13)."""
     if not 3 <= int(max_stars) <= 12:
         raise InputError(f"max_stars must be 3–12, not {max_stars}")
     frame = frame_for(METHOD, xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
@@ -308,7 +308,7 @@ def _identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None,
         h = hypothesis(frame, verts, cat)
         if not fits(frame, h):
             continue
-        # Every image triangle counts (rule 2): the best match is chosen among all of them.
+        # Every image triangle counts (rule 9): the best match is chosen among all of them.
         j = judge_lone(frame, h, table, star_mag, sides_img=sides, tolerance_rad=tol, n_triangles=len(plan),
                        mag_margin=mag_margin, missing_margin=missing_margin, min_error_px=min_error_px)
         if j.n_missing == 0 and _triangle_holds(frame, j):
