@@ -66,3 +66,15 @@ def test_the_layer_rule_sees_a_violation():
     assert layer("skyfix.identify.catalogue.pairs") == (1, "catalogue")
     assert layer("skyfix.identify") is None
     assert "skyfix.identify.common.angle_match.frame_table" in imported(PACKAGE / "methods" / "grid.py")
+
+
+def test_a_moved_module_is_still_reached_by_its_old_name_with_a_warning():
+    import pytest
+
+    from skyfix.identify.methods import quad
+
+    with pytest.warns(DeprecationWarning, match="skyfix.identify.quad is now skyfix.identify.methods.quad"):
+        from skyfix.identify import quad as old
+    assert old is quad
+    with pytest.raises(AttributeError):
+        skyfix.identify.no_such_module  # noqa: B018

@@ -12,9 +12,8 @@ from skyfix.identify import (
     get_method,
     identify,
     method_options,
-    quad,
 )
-from skyfix.identify.methods import INTERFACE_KEYWORDS
+from skyfix.identify.methods import INTERFACE_KEYWORDS, quad
 
 W, H = 1280, 960
 

@@ -27,3 +27,22 @@ from skyfix.identify.methods import DEFAULT_METHOD, METHODS, get_method, identif
 
 __all__ = ["BANDS", "Band", "DEFAULT_METHOD", "METHODS", "Identification", "PatternDatabase", "band_database",
            "default_database", "default_database_path", "get_method", "identify", "method_options"]
+
+# Modules that moved into the layers (issue 23): ``skyfix.identify.quad`` and the like still work
+# as attributes (``from skyfix.identify import quad``), with a warning, until the next release.
+_MOVED = {**dict.fromkeys(("database", "bands", "hashing", "pairs", "kernel_data", "triangles"), "catalogue"),
+          **dict.fromkeys(("hypothesis", "verify", "refine", "angle_match", "result", "search"), "common"),
+          **dict.fromkeys(("quad", "triangle", "liebe", "planar", "area_moment", "pyramid", "grid", "voting",
+                           "match_groups"), "methods")}
+
+
+def __getattr__(name: str):
+    if name in _MOVED:
+        import importlib
+        import warnings
+
+        new = f"skyfix.identify.{_MOVED[name]}.{name}"
+        warnings.warn(f"skyfix.identify.{name} is now {new}; the old name goes in the next release",
+                      DeprecationWarning, stacklevel=2)
+        return importlib.import_module(new)
+    raise AttributeError(f"module 'skyfix.identify' has no attribute {name!r}")
