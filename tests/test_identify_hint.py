@@ -71,21 +71,21 @@ def test_identify_near_matches_the_true_stars(catalog, database):
     f = _field(catalog, 21, n_false=5)
     A_hint = _off(f.A_icrs_to_cam, 0.5, 21)
     res = identify_near(f.xy, CAMERA, A_hint, math.radians(1.0), database=database)
-    assert res.ok, res.reason
+    assert res.success, res.reason
     _assert_true_stars(res, f, catalog)
-    assert len(res.image_index) >= 0.9 * np.count_nonzero(~f.is_false)
-    assert np.all(np.diff(res.image_index) > 0)
+    assert len(res.star_index) >= 0.9 * np.count_nonzero(~f.is_false)
+    assert np.all(np.diff(res.star_index) > 0)
     assert max(_errors_arcsec(f.A_icrs_to_cam, res.A_icrs_to_cam)) < 30.0
     assert res.prob_false < 1e-9 and res.n_trials >= res.n_candidates >= 1
     ident = res.identification()
-    assert ident.success and ident.method == METHOD and np.array_equal(ident.star_index, res.image_index)
+    assert ident.success and ident.method == METHOD and np.array_equal(ident.star_index, res.star_index)
     # a magnitude limit predicts only the brighter stars; NaN rows keep the caller's indices
     bright = identify_near(f.xy, CAMERA, A_hint, math.radians(1.0), database=database, mag_limit=6.5)
-    assert bright.ok and bright.catalog_mag.max() <= 6.5 and len(bright.image_index) < len(res.image_index)
+    assert bright.success and bright.catalog_mag.max() <= 6.5 and len(bright.star_index) < len(res.star_index)
     xy = np.insert(f.xy, 3, np.nan, axis=0)
     shifted = identify_near(xy, CAMERA, A_hint, math.radians(1.0), database=database)
-    assert shifted.ok
-    assert np.array_equal(shifted.image_index - (shifted.image_index > 3), res.image_index)
+    assert shifted.success
+    assert np.array_equal(shifted.star_index - (shifted.star_index > 3), res.star_index)
 
 
 def test_hint_with_a_field_of_view_fits_the_camera(catalog, database):
@@ -114,7 +114,7 @@ def test_far_wrong_hint_falls_back_to_lost_in_space(catalog, database, seed):
     f = _field(catalog, seed)
     hint = AttitudeHint(_off(f.A_icrs_to_cam, 30.0, seed), math.radians(1.0))
     res = identify_near(f.xy, CAMERA, hint.A_icrs_to_cam, hint.uncertainty_rad, database=database)
-    assert not res.ok and res.A_icrs_to_cam is None and res.reason
+    assert not res.success and res.A_icrs_to_cam is None and res.reason
     sol = solve_centroids(f.xy, W, H, camera=CAMERA, database=database, attitude_hint=hint)
     assert sol.solved and sol.method == "quad-hash"
     assert _errors_arcsec(f.A_icrs_to_cam, sol.A_icrs_to_cam)[0] < 5.0
@@ -133,7 +133,7 @@ def _assert_true_stars(res, f, catalog):
     """Every matched centroid of a real star got that star or, in a close pair, its neighbour
     within 20″ (a blend the synthetic field keeps apart); at most one false star matched (to a
     catalogue star fainter than the field's, by chance)."""
-    ids = f.star_id[res.image_index]
+    ids = f.star_id[res.star_index]
     real = ids != 0
     row = {int(h): i for i, h in enumerate(catalog.ids)}
     true_v = catalog.vectors[[row[int(h)] for h in ids[real]]]
@@ -159,7 +159,7 @@ def test_wrong_hints_never_give_a_wrong_attitude(catalog, database):
         n_inside += kind < 2
         A_hint = _off(f.A_icrs_to_cam, off, trial)
         res = identify_near(xy, CAMERA, A_hint, math.radians(unc), database=database)
-        if res.ok:
+        if res.success:
             n_ok += 1
             assert kind != 3
             bore, roll = _errors_arcsec(f.A_icrs_to_cam, res.A_icrs_to_cam)  # not wrong (accept.py's bars)

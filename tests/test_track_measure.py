@@ -125,7 +125,7 @@ def test_compiled_measurement_is_the_steps_one_by_one(case, monkeypatch):
         if fit is None:
             assert not ok
             continue
-        assert (ok, n_found, n_gated, n_fit) == (fit.ok, fit.n_found, fit.n_gated, fit.n_fit)
+        assert (ok, n_found, n_gated, n_fit) == (fit.success, fit.n_found, fit.n_gated, fit.n_fit)
         assert np.array_equal(index[:n_fit], fit.index[:n_fit])
         assert np.isclose(zero_point, fit.zero_point, rtol=0, atol=1e-12)
         assert np.isclose(log_chance, fit.log_chance)

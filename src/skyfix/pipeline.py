@@ -417,7 +417,7 @@ def _solve_near(sol: Solution, xy: np.ndarray, width: int, height: int, hint, fo
                          **{k: identify_options[k] for k in _HINT_OPTIONS if k in identify_options})
     t1 = time.perf_counter()
     sol.time_ms = {"identify": 1e3 * (t1 - t0)}
-    if not near.ok:
+    if not near.success:
         return near.reason
     ident = dataclasses.replace(near.identification(), database=database)
     sol.method = ident.method

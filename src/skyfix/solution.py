@@ -62,6 +62,12 @@ class Solution:
     camera: object | None = field(default=None, repr=False)
 
     @property
+    def success(self) -> bool:
+        """Solved: the word every result type uses (``Identification.success``,
+        ``HintResult.success``, …); ``status`` is the same as text, ``solved`` an alias."""
+        return self.status == "solved"
+
+    @property
     def solved(self) -> bool:
         return self.status == "solved"
 

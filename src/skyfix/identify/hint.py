@@ -250,7 +250,7 @@ class HintSettings(NamedTuple):
 class HintSearch(NamedTuple):
     """What :func:`search_near` found.
 
-    found : bool — the best attitude passed verification (accept rule 5).
+    success : bool — the best attitude passed verification (accept rule 5).
     n_trials : int — pairings of two centroids with two catalogue stars that the gate let
         compete (the look-elsewhere count).
     n_candidates : int — attitudes scored.
@@ -260,7 +260,7 @@ class HintSearch(NamedTuple):
     n_matched, n_catalog : int — its verification matches and catalogue stars.
     """
 
-    found: bool
+    success: bool
     n_trials: int
     n_candidates: int
     log_prob_false: float
@@ -411,7 +411,7 @@ def near_entry(image, A_hint, settings, refine_settings, stars):
     image = ImageStars(*image)
     stars = StarIndex(*stars)
     hit = search_near(image, A_hint, HintSettings(*settings), stars)
-    if hit.found:
+    if hit.success:
         return hit, refine(image, hit.A_icrs_to_cam, hit.focal_px, RefineSettings(*refine_settings), stars)
     none = np.zeros(1, dtype=np.int64)[:0]
     return hit, Refit(0, none, none, hit.A_icrs_to_cam.copy(), hit.focal_px, 0.0, 0.0, 0.0, 0)
@@ -421,13 +421,14 @@ def near_entry(image, A_hint, settings, refine_settings, stars):
 class HintResult(NamedTuple):
     """What :func:`identify_near` returns.
 
-    ok : bool — the stars are identified near the hint (rules 2 and 5–7 of the module text).
-    reason : str — why not ("" when ``ok``).
+    success : bool — the stars are identified near the hint (accept rules 2 and 5–7).
+    reason : str — why not ("" on success).
     A_icrs_to_cam : (3, 3) or None — the refitted attitude (its precision: the final fit's)...
     camera : Camera or None — the camera given, or (``fit_camera``) one with the focal length
         and k1 fitted.
-    image_index : (M,) int — the matched centroids (indices into ``xy``), ascending.
-    star_index : (M,) int — their catalogue stars: indices into the database's star arrays
+    star_index : (M,) int — the matched centroids (indices into ``xy``: image rows, as
+        :attr:`Identification.star_index`), ascending.
+    catalog_index : (M,) int — their catalogue stars: indices into the database's star arrays
         (:meth:`~skyfix.identify.PatternDatabase.star_arrays`, brightness ranks).
     catalog_ids : (M,) int — their Hipparcos numbers.
     catalog_vectors : (M, 3) — their ICRS unit vectors at ``epoch``.
@@ -439,12 +440,12 @@ class HintResult(NamedTuple):
     time_s : float — wall time.
     """
 
-    ok: bool
+    success: bool
     reason: str
     A_icrs_to_cam: np.ndarray | None
     camera: Camera | None
-    image_index: np.ndarray
     star_index: np.ndarray
+    catalog_index: np.ndarray
     catalog_ids: np.ndarray
     catalog_vectors: np.ndarray
     catalog_mag: np.ndarray
@@ -459,7 +460,8 @@ class HintResult(NamedTuple):
     def identification(self) -> Identification:
         """The same result as an :class:`~skyfix.identify.Identification` (``method`` is
         :data:`METHOD`), for :func:`skyfix.final_fit.final_fit`."""
-        return Identification(self.ok, self.reason, self.image_index, self.catalog_ids, self.catalog_vectors,
+        return Identification(self.success, self.reason, self.star_index, self.catalog_ids,
+                              self.catalog_vectors,
                               self.catalog_mag, self.A_icrs_to_cam, self.camera, self.prob_false, 0,
                               self.n_candidates, METHOD, self.time_s, self.match_radius_px)
 
@@ -540,7 +542,7 @@ def identify_near(xy: np.ndarray, camera: Camera, A_hint: np.ndarray, uncertaint
     --------
     >>> from skyfix.identify.hint import identify_near
     >>> res = identify_near(xy, camera, A_prev, math.radians(0.5))   # doctest: +SKIP
-    >>> res.ok, res.A_icrs_to_cam, res.catalog_ids                     # doctest: +SKIP
+    >>> res.success, res.A_icrs_to_cam, res.catalog_ids                     # doctest: +SKIP
     """
     if not isinstance(camera, Camera):
         raise InputError(f"camera must be a Camera (Camera.load(path) or Camera.from_fov), "
@@ -600,7 +602,7 @@ def identify_near(xy: np.ndarray, camera: Camera, A_hint: np.ndarray, uncertaint
     if hit.n_candidates == 0:
         return _failure(f"no two of the {min(n, pin_stars)} brightest stars match catalogue stars within "
                         f"{gate:.0f} px of where the attitude hint puts them", t0, **counts)
-    if not hit.found:
+    if not hit.success:
         return _failure(f"the best match near the attitude hint is not beyond chance ({hit.n_matched} of "
                         f"{hit.n_catalog} catalogue stars matched, P(chance) {prob:.2g} with {hit.n_trials} "
                         f"pairings tried)", t0, **counts)

@@ -142,5 +142,5 @@ def measure_frame(img, A, P, rate, P_rate, exposure_s, line_time_s, local_t, sel
 @numba.njit(cache=True, inline="always")
 def _flat(plan, fit):
     """:func:`measure_frame`'s tuple."""
-    return (plan.n, plan.too_wide, plan.faintest_mag, fit.ok, fit.n_found, fit.n_gated, fit.n_fit,
+    return (plan.n, plan.too_wide, plan.faintest_mag, fit.success, fit.n_found, fit.n_gated, fit.n_fit,
             fit.A_icrs_to_cam, fit.covariance_rad2, fit.zero_point, fit.log_chance, fit.index, fit.xy, fit.b)

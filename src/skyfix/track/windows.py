@@ -178,7 +178,7 @@ class Plan(NamedTuple):
 class WindowFit(NamedTuple):
     """What :func:`fit_windows` made of one frame's windows.
 
-    ok : bool — a fit of at least ``min_stars`` stars.
+    success : bool — a fit of at least ``min_stars`` stars.
     n_found, n_gated : int — windows with a centroid above the SNR; of those, inside the gate
         and of the right brightness.
     A_icrs_to_cam, covariance_rad2 : (3, 3) — the fit and its covariance.
@@ -191,7 +191,7 @@ class WindowFit(NamedTuple):
     sigma_rad : (m,) — the rays' σ per axis.
     """
 
-    ok: bool
+    success: bool
     n_found: int
     n_gated: int
     A_icrs_to_cam: np.ndarray

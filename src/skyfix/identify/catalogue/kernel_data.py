@@ -138,7 +138,7 @@ class VerifySettings(NamedTuple):
 class SearchResult(NamedTuple):
     """What one call of :func:`skyfix.identify.common.search.search` found.
 
-    found : bool — a candidate was accepted (the fields below describe it).
+    success : bool — a candidate was accepted (the fields below describe it).
     n_done : int — image combinations processed.
     n_candidates : int — candidates verified in this call.
     A_icrs_to_cam : (3, 3) float64 — the accepted attitude (zeros when none).
@@ -151,7 +151,7 @@ class SearchResult(NamedTuple):
         (:func:`skyfix.identify.methods.quad.search_work`).
     """
 
-    found: bool
+    success: bool
     n_done: int
     n_candidates: int
     A_icrs_to_cam: np.ndarray

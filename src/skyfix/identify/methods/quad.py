@@ -297,7 +297,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 search.work_s += search_work(hit)
                 n_lookups += hit.n_done
                 n_cand += hit.n_candidates
-                if hit.found:
+                if hit.success:
                     ctx = _Context(kept, search.geometry, camera, plain.image_stars, refit, search.database(),
                                    epoch, log_threshold, t0, search.distortion)
                     n_tried = max(s.pos[0] for s in searches)
