@@ -92,8 +92,8 @@ def test_bad_input_is_one_line(database, camera):
     assert not r.success and r.reason == "too few stars (2 detected, need 3)"
     with pytest.raises(InputError, match="magnitudes must be one per centroid"):
         mg.identify(xy, W, H, camera=camera, database=database, magnitudes=[1.0, 2.0])
-    with pytest.raises(InputError, match="max_stars must be"):
-        mg.identify(xy, W, H, camera=camera, database=database, max_stars=1)
+    with pytest.raises(InputError, match="pair_stars must be"):
+        mg.identify(xy, W, H, camera=camera, database=database, pair_stars=1)
     with pytest.raises(InputError):
         mg.identify(np.zeros((4, 3)), W, H, camera=camera, database=database)
     nan = np.vstack([xy, [np.nan, 3.0]])

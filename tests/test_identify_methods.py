@@ -98,3 +98,21 @@ def test_pipeline_refuses_an_unknown_method_or_option_before_any_work(database):
         solve(np.zeros((H, W)), database=database, identify_method="kdtree")
     with pytest.raises(InputError, match=r"unknown option max_patern; known: max_patterns, time_limit_s"):
         solve_centroids(xy, W, H, database=database, max_patern=10)
+
+
+SHARED_OPTIONS = {"prob_threshold": 1e-9}  # one default for every method
+
+
+def test_every_method_takes_the_shared_options_with_one_default():
+    """Every registered method takes prob_threshold (default 1e-9) and centroid_sigma_px (its
+    default is the 4-star hash's 1.0 px and the correspondence methods' 0.5 px — left as they
+    are: changing either moves their solved counts, which needs the campaigns to judge)."""
+    import inspect
+
+    for name in METHODS:
+        params = inspect.signature(METHODS[name]).parameters
+        for option, default in SHARED_OPTIONS.items():
+            assert option in method_options(name), (name, option)
+            assert params[option].default == default, (name, option)
+        assert "centroid_sigma_px" in method_options(name), name
+        assert "max_stars" not in method_options(name), name  # 'max_stars' is solve's: centroids kept

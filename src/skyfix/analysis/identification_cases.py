@@ -273,7 +273,7 @@ def table_3_7(trials: int = 1000, method: str = "van-bezooijen", seed: int = 0,
             if method == "van-bezooijen":
                 options = dict(magnitudes=mag, magnitude_tolerance=row.mv_uncert,
                                n_sigma=row.d_uncert_urad / row.sigma_p_urad,
-                               centroid_sigma_px=row.sigma_p_urad * 1e-6 * f / math.sqrt(2.0), max_stars=8)
+                               centroid_sigma_px=row.sigma_p_urad * 1e-6 * f / math.sqrt(2.0), pair_stars=8)
             t1 = time.perf_counter()
             ident = identify(xy, camera.width, camera.height, method=method, camera=camera, database=db,
                              epoch=EPOCH, **options)

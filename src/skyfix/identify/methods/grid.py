@@ -300,7 +300,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              pattern_stars: int = 32, image_stars: int = 20, n_orient: int = 3,
              n_references: int = 8, min_score: int = 4, top: int = 3, min_agree: int = 2,
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0,
-             max_candidates: int = 100) -> Identification:
+             max_candidates: int = 100, prob_threshold: float = 1e-9) -> Identification:
     """Identify the stars of one frame by the grid method (the module text).
 
     Parameters
@@ -334,6 +334,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         focal range's share with only a FOV).
     max_candidates : int
         Work bound: proposals verified.
+    prob_threshold : float
+        The largest chance of a false match accepted (accept rule 5; every method's, default 1e-9).
 
     Returns
     -------
@@ -355,7 +357,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                          f"image_stars={image_stars} (≥ 3), n_orient={n_orient} (≥ 1)")
     frame = frame_for(METHOD, xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
                       camera=camera, database=database, epoch=epoch, min_stars=3,
-                      centroid_sigma_px=centroid_sigma_px)
+                      prob_threshold=prob_threshold, centroid_sigma_px=centroid_sigma_px)
     if isinstance(frame, Identification):
         return frame
     fov = float(frame.camera.fov_deg)

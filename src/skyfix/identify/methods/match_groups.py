@@ -5,7 +5,7 @@ consistent matches* — the one method of its time robust to false stars (meteor
 satellites). skyfix follows its five steps on the shared pair table
 (:func:`skyfix.identify.catalogue.pairs.pair_table`, the thesis's sorted distance table):
 
-1. **Star-pair matching** (§3.3.1). Every pair of the ``max_stars`` brightest centroids (at most
+1. **Star-pair matching** (§3.3.1). Every pair of the ``pair_stars`` brightest centroids (at most
    28 for eight) finds the catalogue pairs whose angle is its own ± the distance tolerance
    (:func:`~skyfix.identify.catalogue.pairs.pairs_in_range`), each in both orientations that pass the
    magnitude test: ``|m_obs − m_cat| ≤ magnitude_tolerance`` for each star when ``magnitudes``
@@ -148,11 +148,11 @@ class Subgroups(NamedTuple):
     complete: bool
 
 
-def match_setup(frame: Frame, *, max_stars: int = 8, centroid_sigma_px: float = 0.5, n_sigma: float = 3.0,
+def match_setup(frame: Frame, *, pair_stars: int = 8, centroid_sigma_px: float = 0.5, n_sigma: float = 3.0,
                 magnitudes: np.ndarray | None = None, magnitude_tolerance: float = 0.5) -> MatchSetup:
-    """The :class:`MatchSetup` of the ``max_stars`` brightest centroids of ``frame``.
+    """The :class:`MatchSetup` of the ``pair_stars`` brightest centroids of ``frame``.
     ``magnitudes`` are those of :attr:`Frame.xy`'s rows (NaN where unknown)."""
-    n = min(len(frame.xy), max_stars)
+    n = min(len(frame.xy), pair_stars)
     rays = np.ascontiguousarray(frame.rays[:n])
     angle = chord_angle(np.linalg.norm(rays[:, None, :] - rays[None, :, :], axis=2))
     f = float(frame.camera.fx)
@@ -515,19 +515,20 @@ def geometry_test(frame: Frame, setup: MatchSetup, table: PairTable, groups: Mat
 
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
-             database: PatternDatabase | None = None, epoch: float | None = None, max_stars: int = 8,
+             database: PatternDatabase | None = None, epoch: float | None = None, pair_stars: int = 8,
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, magnitudes: np.ndarray | None = None,
              magnitude_tolerance: float = 0.5, check_mirror: bool = True, min_group: int = 3,
              max_candidates: int = 200, max_pair_matches: int = 1_000_000,
              max_splits: int = 50_000, scale_step: float = 0.01, prompt_group: int = 5,
-             time_limit_s: float = 2.0, lone_prob_threshold: float = LONE_PROB_THRESHOLD) -> Identification:
+             time_limit_s: float = 2.0, lone_prob_threshold: float = LONE_PROB_THRESHOLD,
+             prob_threshold: float = 1e-9) -> Identification:
     """Identify the stars of one frame by van Bezooijen's match groups (the module text).
 
     Parameters
     ----------
     xy, width, height, fov_deg, fov_tolerance_deg, camera, database, epoch
         The interface's (:mod:`skyfix.identify.methods`); a camera or a FOV is needed.
-    max_stars : int
+    pair_stars : int
         The brightest centroids matched (thesis: 8, its optimum; at most 62).
     centroid_sigma_px : float
         Centroid noise per axis, pixels; with ``n_sigma`` it sets the distance tolerance
@@ -560,6 +561,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         With a FOV only, the focal range is searched in pieces this wide (relative), the nominal
         focal length's first: step 1 over the whole range at once would find ~1.5 M pair
         matches at 15° ± 10 %, and its groups would be mostly chance.
+    prob_threshold : float
+        The largest chance of a false match accepted (accept rule 5; every method's, default 1e-9).
     lone_prob_threshold : float
         A sparse frame (at most 8 centroids) whose groups the common rules refused (too few
         stars beyond a group to verify it at 1e-9): the largest chance of a wrong match accepted
@@ -574,16 +577,16 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     Raises
     ------
     skyfix.errors.InputError
-        ``magnitudes`` not one per centroid, or ``max_stars`` outside 2–62.
+        ``magnitudes`` not one per centroid, or ``pair_stars`` outside 2–62.
     skyfix.errors.CameraError
         An impossible ``fov_deg``.
     """
     t0 = time.perf_counter()
-    if not 2 <= int(max_stars) <= MAX_STARS:
-        raise InputError(f"max_stars must be 2–{MAX_STARS}, not {max_stars}")
+    if not 2 <= int(pair_stars) <= MAX_STARS:
+        raise InputError(f"pair_stars must be 2–{MAX_STARS}, not {pair_stars}")
     frame = frame_for(METHOD, xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
                       camera=camera, database=database, epoch=epoch, min_stars=3,
-                      centroid_sigma_px=centroid_sigma_px)
+                      prob_threshold=prob_threshold, centroid_sigma_px=centroid_sigma_px)
     if isinstance(frame, Identification):
         return frame
     if magnitudes is not None:
@@ -594,7 +597,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                              "centroids)")
         if frame.kept is not None:
             magnitudes = magnitudes[frame.kept]
-    setup = match_setup(frame, max_stars=max_stars, centroid_sigma_px=centroid_sigma_px, n_sigma=n_sigma,
+    setup = match_setup(frame, pair_stars=pair_stars, centroid_sigma_px=centroid_sigma_px, n_sigma=n_sigma,
                         magnitudes=magnitudes, magnitude_tolerance=magnitude_tolerance)
     table, rows = frame_table(frame)
     work = {"pairs": 0, "over": 0, "ranges": 0, "late": 0, "start": 0.0}

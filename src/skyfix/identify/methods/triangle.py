@@ -166,7 +166,7 @@ def _lone_identification(frame: Frame, h: Hypothesis, judgement: LoneJudgement, 
 
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
-             database: PatternDatabase | None = None, epoch: float | None = None, max_stars: int = 8,
+             database: PatternDatabase | None = None, epoch: float | None = None, triangle_stars: int = 8,
              centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, mag_margin: float = 1.0,
              missing_margin: float = 0.75, min_error_px: float = 0.05, lone_prob_threshold: float = 1e-4,
              prob_threshold: float = 1e-9, max_candidates: int = 2000, max_per_triangle: int = 64,
@@ -175,7 +175,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
 
     Parameters (beyond the interface of :mod:`skyfix.identify.methods`)
     -------------------------------------------------------------------
-    max_stars : int — the brightest centroids whose triangles are tried (3–12).
+    triangle_stars : int — the brightest centroids whose triangles are tried (3–12).
     centroid_sigma_px : float — the centroids' noise per axis; an angle's tolerance is
         ``n_sigma · √2 · centroid_sigma_px / f`` (plus the focal range's with a FOV only).
     mag_margin : float — catalogue stars this much fainter than a match's faintest still count
@@ -192,7 +192,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         (:func:`skyfix.identify.catalogue.pairs.pair_table`).
     """
     options = {"fov_deg": fov_deg, "fov_tolerance_deg": fov_tolerance_deg, "camera": camera,
-               "database": database, "epoch": epoch, "max_stars": max_stars,
+               "database": database, "epoch": epoch, "triangle_stars": triangle_stars,
                "centroid_sigma_px": centroid_sigma_px, "n_sigma": n_sigma, "mag_margin": mag_margin,
                "missing_margin": missing_margin, "min_error_px": min_error_px,
                "lone_prob_threshold": lone_prob_threshold, "prob_threshold": prob_threshold,
@@ -228,14 +228,14 @@ def unless_mirrored(result: Identification, xy: np.ndarray, width: int, height: 
 
 def _identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None,
               fov_tolerance_deg: float | None, camera: Camera | None, database: PatternDatabase | None,
-              epoch: float | None, max_stars: int, centroid_sigma_px: float, n_sigma: float,
+              epoch: float | None, triangle_stars: int, centroid_sigma_px: float, n_sigma: float,
               mag_margin: float, missing_margin: float, min_error_px: float, lone_prob_threshold: float,
               prob_threshold: float, max_candidates: int, max_per_triangle: int,
               per_field: int) -> tuple[Identification, bool]:
     """:func:`identify` without the mirror rule: the Identification, and whether it is a sparse
     frame's lone triangle (accepted by rules 8–13)."""
-    if not 3 <= int(max_stars) <= 12:
-        raise InputError(f"max_stars must be 3–12, not {max_stars}")
+    if not 3 <= int(triangle_stars) <= 12:
+        raise InputError(f"triangle_stars must be 3–12, not {triangle_stars}")
     frame = frame_for(METHOD, xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
                       camera=camera, database=database, epoch=epoch, min_stars=3,
                       prob_threshold=prob_threshold, centroid_sigma_px=centroid_sigma_px)
@@ -250,7 +250,7 @@ def _identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None,
     vectors = frame.stars.vectors
     _, star_mag, _ = frame.database.star_arrays()
     tol = n_sigma * math.sqrt(2.0) * centroid_sigma_px / f0
-    n = min(len(frame.xy), int(max_stars))
+    n = min(len(frame.xy), int(triangle_stars))
     triangles = _image_triangles(n)
     # Of the first image triangles (those of the five brightest stars), the cheapest to search
     # first: with a FOV only a long side's range holds ten thousand pairs, a short one's hundreds.
