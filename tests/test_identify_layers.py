@@ -1,5 +1,5 @@
 """skyfix.identify in layers (docs/design.md's map): accept → catalogue → common → methods →
-hint; each imports only from its own layer and those below, no method imports another method,
+hint → lost; each imports only from its own layer and those below, no method imports another method,
 and nothing in identify imports the stages above it (pipeline, final fit, the command line)."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 import skyfix.identify
 
 PACKAGE = Path(skyfix.identify.__file__).parent
-LAYERS = {"accept": 0, "catalogue": 1, "common": 2, "methods": 3, "hint": 4}
+LAYERS = {"accept": 0, "catalogue": 1, "common": 2, "methods": 3, "hint": 4, "lost": 5}
 ABOVE = ("skyfix.pipeline", "skyfix.final_fit", "skyfix._rematch", "skyfix.cli", "skyfix.track",
          "skyfix.analysis")  # (skyfix.warmup is not a stage: a method asks it to compile its kernels)
 

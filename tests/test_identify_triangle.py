@@ -170,7 +170,7 @@ def test_sparse_frame_of_a_preset_size_solves_through_its_camera(catalog):
     lens on a sensor of that size are never wrong (the preset's scale is 19 % off: a random
     triangle to it)."""
     from skyfix.camera import camera_from_preset
-    from skyfix.pipeline import preset_cameras
+    from skyfix.identify.lost import preset_cameras
 
     assert list(preset_cameras(752, 480)) == ["mt9v022"] and not preset_cameras(1000, 1000)
     preset = camera_from_preset("mt9v022")

@@ -89,7 +89,7 @@ def test_generic_solves_every_frame_to_two_arcsec(small_campaign):
 def test_mt9v022_sees_about_five_stars_and_is_never_wrong(small_campaign):
     """Thesis 000 saw at most ~4 stars a frame; the preset's frames have 3–7 detectable (median
     5). Measured: all 5 solve, with no hint as with the camera given (a sparse 752×480 frame is
-    tried through the MT9V022 preset's camera: skyfix.pipeline.preset_cameras), 0.4–23″ off
+    tried through the MT9V022 preset's camera: skyfix.identify.lost.preset_cameras), 0.4–23″ off
     (thesis 000's estimate: 11.4″); before that fallback 4 of 5 failed "no match"."""
     frames = small_campaign["mt9v022"]
     detectable = [f.n_detectable for f in frames]

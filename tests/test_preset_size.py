@@ -1,6 +1,6 @@
 """A frame the size of a seed camera's image, solved with no hint through that camera.
 
-With no camera and no FOV, a frame whose size is a seed camera's (``skyfix.pipeline.preset_cameras``)
+With no camera and no FOV, a frame whose size is a seed camera's (``skyfix.identify.lost.preset_cameras``)
 that the default method cannot identify, or identifies only too uncertainly through a camera
 fitted to its stars, is tried through the preset's camera, the chance accepted divided among the
 presets of that size. The sparse (≤ 8 centroid) case is pinned in ``test_identify_triangle.py``;

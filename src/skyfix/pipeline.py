@@ -22,6 +22,7 @@ from skyfix.camera import Camera
 from skyfix.errors import CameraError, InputError
 from skyfix.final_fit import final_fit
 from skyfix.identify.accept import noise_posterior, precision_failure
+from skyfix.identify.lost import identify_lost, retry_through_preset
 from skyfix.solution import Match, Solution
 from skyfix.validate import (
     check_count,
@@ -175,8 +176,6 @@ def solve_centroids(
     The keywords are those of :func:`solve`; ``width`` and ``height`` are the frame's size in
     pixels. Raises :class:`~skyfix.errors.InputError` for a bad argument, before any work.
     """
-    from skyfix.identify import identify
-
     xy = check_xy(xy)
     width, height = check_frame_size(width, height)
     _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_method,
@@ -205,18 +204,9 @@ def solve_centroids(
             return sol
         log.info("%s: not solved near the attitude hint (%s): solving lost in space", name, hint_failure)
         sol = Solution(image=name, n_detected=len(xy))
-    ident = identify(xy, width, height, method=identify_method, fov_deg=fov_deg,
-                     fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database, epoch=epoch,
-                     **identify_options)
-    assumed = None  # a preset camera taken from the frame's size (preset_cameras)
-    if not ident.success and sparse_fallback(identify_method, len(xy), camera, fov_deg, width, height):
-        ident, assumed = _identify_sparse(ident, xy, width, height, fov_deg, fov_tolerance_deg, camera,
-                                          database, epoch, identify_options)
-    elif not ident.success and _preset_retry(identify_method, camera, fov_deg, width, height):
-        again, assumed = _identify_by_preset(ident, xy, width, height, database, epoch, identify_method,
-                                             identify_options)
-        if assumed is not None:
-            ident = again
+    ident, assumed = identify_lost(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
+                                   camera=camera, database=database, epoch=epoch,
+                                   identify_method=identify_method, identify_options=identify_options)
     if assumed is not None:
         fit_options["camera_given"] = True
         log.info("%s: identified through the %s preset's camera (its %d×%d size)", name, assumed, width,
@@ -229,16 +219,17 @@ def solve_centroids(
         log.info("%s: identification failed: %s", name, ident.reason)
         return sol
     _fill_attitude(sol, xy, ident, attitude_method, **fit_options)
-    if not sol.solved and assumed is None and _preset_retry(identify_method, camera, fov_deg, width, height):
+    if not sol.solved and assumed is None:
         # Identified, but too uncertain through a camera fitted to a few stars: a seed camera of
         # the frame's size, if the stars confirm it, pins the attitude down.
-        again, assumed = _identify_by_preset(ident, xy, width, height, database, epoch, identify_method,
-                                             identify_options)
-        if assumed is not None:
-            retry = Solution(image=name, n_detected=len(xy), method=again.method)
-            _fill_attitude(retry, xy, again, attitude_method, **{**fit_options, "camera_given": True})
+        again = retry_through_preset(ident, xy, width, height, fov_deg=fov_deg, camera=camera,
+                                     database=database, epoch=epoch, identify_method=identify_method,
+                                     identify_options=identify_options)
+        if again is not None:
+            retry = Solution(image=name, n_detected=len(xy), method=again.ident.method)
+            _fill_attitude(retry, xy, again.ident, attitude_method, **{**fit_options, "camera_given": True})
             if retry.solved:
-                log.info("%s: solved through the %s preset's camera (its %d×%d size)", name, assumed,
+                log.info("%s: solved through the %s preset's camera (its %d×%d size)", name, again.assumed,
                          width, height)
                 retry.time_ms = sol.time_ms
                 sol = retry
@@ -269,119 +260,6 @@ def _warm(database, fov_deg: float | None, camera: Camera | None) -> None:
             alongside = functools.partial(bands.band_database, band, progress=False)
             also = "building the pattern database"
     warmup.ensure("solve", alongside=alongside, also=also)
-
-
-SPARSE_FIELD_STARS = 8
-"""A frame of at most this many centroids that the default method cannot identify is tried with
-the ``triangle`` method (:func:`sparse_fallback`)."""
-
-# The options of the default method that the triangle method shares (same names, same meaning).
-_SPARSE_OPTIONS = ("prob_threshold", "centroid_sigma_px")
-
-
-def preset_cameras(width: int, height: int) -> dict[str, Camera]:
-    """The seed cameras (:data:`skyfix.camera.PRESETS`) whose image is ``width`` × ``height``."""
-    from skyfix.camera import PRESETS, camera_from_preset
-
-    return {name: camera_from_preset(name) for name, spec in PRESETS.items()
-            if (spec["width"], spec["height"]) == (width, height)}
-
-
-def _default_method(identify_method: str) -> bool:
-    """Whether ``identify_method`` names the default method (a method named explicitly is used
-    alone, with no fallback)."""
-    from skyfix.identify import get_method
-    from skyfix.identify.methods import DEFAULT_METHOD
-
-    return get_method(identify_method) is get_method(DEFAULT_METHOD)
-
-
-def sparse_fallback(identify_method: str, n_stars: int, camera: Camera | None, fov_deg: float | None,
-                    width: int = 0, height: int = 0) -> bool:
-    """Whether a frame the default identification failed is tried again with the ``triangle``
-    method: the default method was asked for (a method named explicitly is used alone), the
-    frame is sparse (at most :data:`SPARSE_FIELD_STARS` centroids: the 4-star hash needs more to
-    verify a pattern beyond chance, thesis 000's camera sees three stars per frame), and the
-    scale is known (a camera or a FOV: a triangle's angles need it) or the frame is the size of
-    a seed camera's (:func:`preset_cameras`), whose camera is then tried."""
-    return (_default_method(identify_method) and n_stars <= SPARSE_FIELD_STARS
-            and (camera is not None or fov_deg is not None or bool(preset_cameras(width, height))))
-
-
-def _identify_sparse(failed, xy: np.ndarray, width: int, height: int, fov_deg, fov_tolerance_deg, camera,
-                     database, epoch, identify_options: dict):
-    """The triangle method's identification of a sparse frame, or the default's failure with the
-    triangle method's reason beside it; and the name of the preset camera it was identified
-    through (None: the camera or FOV given).
-
-    With neither a camera nor a FOV, each seed camera of the frame's size is tried as a
-    calibrated camera, the chance accepted divided among them (the triangle method's
-    ``lone_prob_threshold`` and ``prob_threshold`` over their number): a frame from another
-    camera of that size is then a random triangle to them, and the final fit's precision rule
-    still judges the attitude through the camera assumed."""
-    from skyfix.identify import identify
-    from skyfix.identify.common.angle_match import LONE_PROB_THRESHOLD
-
-    options = {k: identify_options[k] for k in _SPARSE_OPTIONS if k in identify_options}
-    if camera is not None or fov_deg is not None:
-        tries = {None: dict(camera=camera, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg)}
-    else:
-        presets = preset_cameras(width, height)
-        k = len(presets)
-        options["prob_threshold"] = options.get("prob_threshold", 1e-9) / k
-        options["lone_prob_threshold"] = LONE_PROB_THRESHOLD / k
-        tries = {name: dict(camera=cam) for name, cam in presets.items()}
-    reasons = []
-    for name, scale in tries.items():
-        sparse = identify(xy, width, height, method="triangle", database=database, epoch=epoch, **scale,
-                          **options)
-        if sparse.success:
-            return sparse, name
-        reasons.append(sparse.reason if name is None else f"{name} camera: {sparse.reason}")
-    return dataclasses.replace(failed, reason=f"{failed.reason}; triangle: {'; '.join(reasons)}"), None
-
-
-def _preset_retry(identify_method: str, camera: Camera | None, fov_deg: float | None, width: int,
-                  height: int) -> bool:
-    """Whether a frame the no-hint solve could not solve is tried through the seed cameras of its
-    size (:func:`preset_cameras`): the default method was asked for, and neither a camera nor a
-    FOV was given."""
-    return (camera is None and fov_deg is None and _default_method(identify_method)
-            and bool(preset_cameras(width, height)))
-
-
-def _identify_by_preset(failed, xy: np.ndarray, width: int, height: int, database, epoch,
-                        identify_method: str, identify_options: dict):
-    """A frame's identification through the seed cameras of its size: a sparse one (at most
-    :data:`SPARSE_FIELD_STARS` centroids) by the triangle method (:func:`_identify_sparse`), a
-    richer one by the default method (:func:`_identify_through_presets`); and the preset's name
-    (None: none identified it)."""
-    if len(xy) <= SPARSE_FIELD_STARS:
-        return _identify_sparse(failed, xy, width, height, None, None, None, database, epoch,
-                                identify_options)
-    return _identify_through_presets(xy, width, height, database, epoch, identify_method, identify_options)
-
-
-def _identify_through_presets(xy: np.ndarray, width: int, height: int, database, epoch, identify_method: str,
-                              identify_options: dict):
-    """The default method's identification of a frame through each seed camera of its size
-    (:func:`preset_cameras`) as a calibrated camera, the chance accepted divided among them; and
-    the name of the preset that identified it (None: none did — the first result is returned
-    failed). For a frame the default method identified with no camera but whose attitude through
-    the camera fitted to its stars is too uncertain."""
-    from skyfix.identify import identify
-
-    presets = preset_cameras(width, height)
-    options = dict(identify_options)
-    options["prob_threshold"] = options.get("prob_threshold", 1e-9) / len(presets)
-    first = None
-    for name, cam in presets.items():
-        again = identify(xy, width, height, method=identify_method, camera=cam, database=database,
-                         epoch=epoch, **options)
-        if again.success:
-            return again, name
-        first = again if first is None else first
-    return first, None
 
 
 # The options of identify_near that lost in space's default method shares (same names, same meaning).
