@@ -357,8 +357,17 @@ def detect(
 
 
 calibrate_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None,
-                            help="Calibrate the sensor (dark, flat, hot pixels).")
+                            help="Calibrate the sensor (dark, flat, hot pixels) and the camera (from stars).")
 app.add_typer(calibrate_app, name="calibrate")
+
+
+def _register_calibration() -> None:
+    from skyfix.calibration.commands import register
+
+    register(calibrate_app)  # `skyfix calibrate stars`: skyfix/calibration/commands.py
+
+
+_register_calibration()
 
 
 class _ManyFilesCommand(typer.core.TyperCommand):

@@ -27,6 +27,12 @@ class SimulationError(SkyfixError):
     """Simulator settings are invalid (unknown preset, negative exposure, bad sensor value, ...)."""
 
 
+class CalibrationError(SkyfixError):
+    """The images cannot calibrate the camera asked for: too few images or stars, images of
+    different sizes, a degenerate set, a checkerboard not found (the message names the image or
+    the parameter)."""
+
+
 class InputError(SkyfixError, ValueError):
     """An argument or option is out of range or of the wrong kind (a bad FOV, epoch, threshold,
     frame size, method name, ...); raised before any work is done."""
