@@ -23,7 +23,7 @@ from skyfix.errors import CameraError, InputError
 from skyfix.final_fit import final_fit
 from skyfix.identify.accept import noise_posterior, precision_failure
 from skyfix.identify.lost import identify_lost, retry_through_preset
-from skyfix.solution import Match, Solution
+from skyfix.solution import MatchTable, Solution
 from skyfix.validate import (
     check_count,
     check_frame_size,
@@ -364,8 +364,7 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     if db is not None:
         sol.catalog = str(db.meta.get("catalog", ""))
         sol.catalog_epoch = float(epoch if epoch is not None else db.epoch)
-    x, y, ra, dec, mag, resid = table.tolist()
-    sol.matches = list(map(Match, x, y, np.asarray(fit.catalog_ids).tolist(), ra, dec, mag, resid))
+    sol.matches = MatchTable(table, fit.catalog_ids)  # made into Match tuples when first read
 
 
 def solution_numbers(A: np.ndarray, xy: np.ndarray, idx: np.ndarray, v: np.ndarray, mag: np.ndarray,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import asdict, dataclass, field
@@ -9,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Match", "Solution"]
+__all__ = ["Match", "MatchTable", "Solution"]
 
 
 class Match(NamedTuple):
@@ -22,6 +23,43 @@ class Match(NamedTuple):
     dec_deg: float
     mag: float
     residual_arcsec: float
+
+
+class MatchTable(NamedTuple):
+    """A solve's matches as the arrays they are computed in, made into :class:`Match` tuples
+    when :attr:`Solution.matches` is first read (a solve whose matches nobody reads, as in a
+    tracker's or a benchmark's loop, never builds its hundreds of tuples)."""
+
+    table: np.ndarray  #: (6, M) float: x, y (px), ra_deg, dec_deg, mag, residual_arcsec
+    ids: np.ndarray  #: (M,) int: the catalogue numbers
+
+    def matches(self) -> list[Match]:
+        x, y, ra, dec, mag, resid = self.table.tolist()
+        ids = np.asarray(self.ids).tolist()
+        return list(map(_new_match, zip(x, y, ids, ra, dec, mag, resid, strict=True)))
+
+
+_new_match = functools.partial(tuple.__new__, Match)  # Match(*row) without the per-call signature
+
+
+class _Matches:
+    """:attr:`Solution.matches`: a list of :class:`Match`, stored as given, or a
+    :class:`MatchTable` that becomes that list when first read (a dataclass field whose
+    default, ``None``, is an empty list)."""
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.slot = "_" + name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return None  # the field's default
+        value = obj.__dict__[self.slot]
+        if isinstance(value, MatchTable):
+            value = obj.__dict__[self.slot] = value.matches()
+        return value
+
+    def __set__(self, obj, value) -> None:
+        obj.__dict__[self.slot] = [] if value is None else value
 
 
 @dataclass
@@ -56,7 +94,7 @@ class Solution:
     rate_dps: list[float] | None = None  #: body rate about camera x, y, z, degrees per second
     rate_covariance_dps2: list[list[float]] | None = None  #: its 3 × 3 covariance, (°/s)²
     time_ms: dict[str, float] = field(default_factory=dict)
-    matches: list[Match] = field(default_factory=list)
+    matches: list[Match] = _Matches()  # a MatchTable assigned is made into the list when read
     # Not part of the JSON: the full numeric results for the API.
     A_icrs_to_cam: np.ndarray | None = field(default=None, repr=False)
     camera: object | None = field(default=None, repr=False)

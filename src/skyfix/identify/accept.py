@@ -283,13 +283,12 @@ def wrong_probability(covariance_rad2: np.ndarray, plate_scale_rad: float, dof: 
     several times too small, and a three-star solution 4σ off was called solved before
     (``tests/test_identify_triangle.py::test_sparse_noisy_fields_with_false_stars_are_never_wrong``).
     NaN or negative variances give 1."""
-    c = np.asarray(covariance_rad2, dtype=np.float64)
-    if not np.all(np.isfinite(c)):
+    rows = np.asarray(covariance_rad2, dtype=np.float64).tolist()  # (3, 3): Python floats, fast
+    if not all(math.isfinite(v) for row in rows for v in row):
         return 1.0
-    a, b, d = c[0, 0], c[0, 1], c[1, 1]
+    (a, b, _), (_, d, _), (_, _, var_roll) = rows
     lam = (a + d) / 2.0 + math.sqrt(max(((a - d) / 2.0) ** 2 + b * b, 0.0))
     bound = max(WRONG_BORESIGHT_ARCSEC * _ARCSEC, plate_scale_rad)
-    var_roll = c[2, 2]
     roll = math.radians(WRONG_ROLL_DEG)
     nu = max(float(dof), 1.0)
     if math.isinf(nu):
@@ -315,11 +314,10 @@ def student_t_two_sided(t: float, nu: float) -> float:
     x, y = nu / (nu + t2), t2 / (nu + t2)  # x + y = 1, each without cancellation
     if x == 0.0:
         return 0.0
-    log_front = (math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b)
-                 + a * math.log(x) + b * math.log(y))
+    front = math.exp(math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log(y))
     if x < (a + 1.0) / (a + b + 2.0):
-        return math.exp(log_front) * _beta_fraction(a, b, x) / a
-    return 1.0 - math.exp(log_front) * _beta_fraction(b, a, y) / b
+        return front * _beta_fraction(a, b, x) / a if front > 0.0 else 0.0  # (the fraction is finite)
+    return 1.0 - front * _beta_fraction(b, a, y) / b if front > 0.0 else 1.0
 
 
 def _beta_fraction(a: float, b: float, x: float) -> float:

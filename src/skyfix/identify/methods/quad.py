@@ -458,13 +458,15 @@ class _CentreFirst:
     ``stop``), twice that each time: most frames are found within the first hundred."""
 
     def __init__(self, xy: np.ndarray, geometry: tuple[int, int, float, float]) -> None:
-        width, height, cx, cy = geometry
-        self.central = np.hypot(xy[:, 0] - cx, xy[:, 1] - cy) <= _CENTRE_SHARE * _half_diagonal(geometry)
+        self.xy, self.geometry = xy, geometry
         self.combos = np.zeros((0, 4), dtype=np.int64)
 
     def __call__(self, stop: int) -> np.ndarray:
-        if len(self.combos) < stop:
-            self.combos = centre_first_combinations(self.central, max(2 * stop, 64))
+        if len(self.combos) < stop:  # (the standard band's searches never ask)
+            width, height, cx, cy = self.geometry
+            xy = self.xy
+            central = np.hypot(xy[:, 0] - cx, xy[:, 1] - cy) <= _CENTRE_SHARE * _half_diagonal(self.geometry)
+            self.combos = centre_first_combinations(central, max(2 * stop, 64))
         return self.combos
 
 
