@@ -165,7 +165,7 @@ def _connect(workers: int, scheduler: str | None, processes: bool):
             raise CampaignError(f"cannot reach the Dask scheduler at {scheduler}: {first}") from None
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=processes,
                            dashboard_address=None, silence_logs=logging.ERROR,
-                           env=_worker_env() if processes else None)
+                           **({"env": _worker_env()} if processes else {}))
     return Client(cluster, set_as_default=False), cluster
 
 
