@@ -5,7 +5,6 @@ resumed run, bad input as one line, and the predicted error against the thesis's
 from __future__ import annotations
 
 import math
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -52,19 +51,24 @@ def test_quick_campaign_reads():
 
 
 @pytest.mark.parametrize(("changes", "error", "text"), [
-    ({"campaign": {"trails": 3}}, UnknownNameError, "unknown key of [campaign] 'trails'; choose one of name, "),
-    ({"camera": {"preset": "hasselblad"}}, UnknownNameError, "unknown camera preset 'hasselblad'; choose one of "),
+    ({"campaign": {"trails": 3}}, UnknownNameError,
+     "unknown key of [campaign] 'trails'; choose one of name, "),
+    ({"camera": {"preset": "hasselblad"}}, UnknownNameError,
+     "unknown camera preset 'hasselblad'; choose one of "),
     ({"parameters": {"sigma": 1.0}}, UnknownNameError, "unknown key of [parameters] 'sigma'; choose one of "),
     ({"sweep": {"fov_deg": []}}, InputError, "[sweep] fov_deg: an empty list of values"),
     ({"sweep": {"fov_deg": {"start": 10, "stop": 20, "num": 0}}}, InputError,
      "[sweep] fov_deg: an empty range (0 values from 10 to 20)"),
     ({"sweep": {"dropout": {"min": 0.3, "max": 0.1}}}, InputError,
      "[sweep] dropout: an empty range (min 0.3 is not below max 0.1)"),
-    ({"parameters": {"sigma_px": 0.1}}, InputError, "parameter 'sigma_px' is both fixed ([parameters]) and swept"),
+    ({"parameters": {"sigma_px": 0.1}}, InputError,
+     "parameter 'sigma_px' is both fixed ([parameters]) and swept"),
     ({"parameters": {"exposure_s": 0.1}}, InputError,
      "parameter 'exposure_s' acts at the image level, not the centroid level"),
-    ({"parameters": {"identify_method": "hashes"}}, UnknownNameError, "unknown identification method 'hashes'"),
-    ({"campaign": {"level": "pixel"}}, UnknownNameError, "unknown campaign level 'pixel'; choose one of centroid"),
+    ({"parameters": {"identify_method": "hashes"}}, UnknownNameError,
+     "unknown identification method 'hashes'"),
+    ({"campaign": {"level": "pixel"}}, UnknownNameError,
+     "unknown campaign level 'pixel'; choose one of centroid"),
     ({"campaign": {"trials": 0}}, InputError, "[campaign] trials must be an integer ≥ 1, got 0"),
     ({"attitude": {"distribution": "spiral"}}, UnknownNameError, "unknown attitude distribution 'spiral'"),
     ({"attitude": {"distribution": "profile", "profile": "slew"}}, InputError, "[attitude] profile 'slew': "),
@@ -118,7 +122,8 @@ def full_run(tmp_path_factory):
 def test_one_row_per_trial_with_the_named_columns(full_run):
     t = full_run.table
     assert t.column("trial").to_pylist() == list(range(24))
-    assert {"trial", "seed", "status", "boresight_error_arcsec", "roll_error_arcsec", "time_ms"} <= set(t.schema.names)
+    must = {"trial", "seed", "status", "boresight_error_arcsec", "roll_error_arcsec", "time_ms"}
+    assert must <= set(t.schema.names)
     assert t.column("status").to_pylist().count("solved") == 24
     assert not any(t.column("wrong").to_pylist())
     assert t.schema.metadata[b"skyfix.fingerprint"].decode() == _campaign().fingerprint
@@ -141,8 +146,8 @@ def test_interrupted_run_resumes_with_every_trial_once(full_run, tmp_path):
     from skyfix.montecarlo.results import summarize
 
     c, out = _campaign(), tmp_path / "resumed.parquet"
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster, \
-            Client(cluster, set_as_default=False) as client:
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                      dashboard_address=None) as cluster, Client(cluster, set_as_default=False) as client:
         first = run_campaign(c, out, client=client, max_batches=2)
         assert (first.complete, first.batches_run) == (False, 2)
         kept = sorted(p.name for p in parts_folder(out).glob("batch-*.parquet"))
