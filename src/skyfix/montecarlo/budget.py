@@ -37,15 +37,15 @@ def predicted_covariance_rad2(camera: Camera, b_cam: np.ndarray, sigma_px: float
     b = np.asarray(b_cam, dtype=np.float64)
     if len(b) < 2 or not sigma_px > 0:
         return np.full((3, 3), np.nan)
-    H = np.empty((len(b), 2, 3))
-    for k in range(3):
-        axis = np.zeros(3)
-        axis[k] = _STEP_RAD
-        turned = np.cross(axis, b)  # R(δθ) b ≈ b + δθ × b
-        plus, _ = camera.ray_to_pixel(b + turned)
-        minus, _ = camera.ray_to_pixel(b - turned)
-        H[:, :, k] = (plus - minus) / (2.0 * _STEP_RAD)
-    F = np.einsum("nik,nil->kl", H, H) / sigma_px**2
+    x, y, z = b.T
+    zero = np.zeros_like(x)
+    # e_k × b for the three axes (R(δθ) b ≈ b + δθ × b), stacked: one projection of 6N rays
+    axes = ((zero, -z, y), (z, zero, -x), (-y, x, zero))
+    turned = _STEP_RAD * np.stack([np.stack(c, axis=1) for c in axes])
+    pix, _ = camera.ray_to_pixel(np.concatenate([b + turned, b - turned]).reshape(-1, 3))
+    pix = pix.reshape(2, 3, len(b), 2)
+    H = (pix[0] - pix[1]) / (2.0 * _STEP_RAD)  # (axis, star, pixel axis)
+    F = np.einsum("kni,lni->kl", H, H) / sigma_px**2
     if not (np.all(np.isfinite(F)) and np.linalg.cond(F) < 1e12):
         return np.full((3, 3), np.nan)
     P = np.linalg.inv(F)
