@@ -33,7 +33,8 @@ import numpy as np
 from skyfix.camera import Camera
 from skyfix.montecarlo.campaign import Campaign
 
-__all__ = ["Setup", "run_batch", "run_trial", "setup_for", "trial_seed", "trial_values", "true_attitude"]
+__all__ = ["LEVEL_TRIALS", "Setup", "Simulated", "TrialInput", "run_batch", "run_trial", "setup_for",
+           "trial_seed", "trial_values", "true_attitude"]
 
 _ARCSEC = math.pi / (180.0 * 3600.0)
 _STREAMS = ("attitude", "parameters", "noise")  # spawn order: never reorder (it changes every draw)
@@ -181,11 +182,8 @@ def run_trial(campaign: Campaign, trial: int) -> dict[str, Any]:
     row["ra_true_deg"], row["dec_true_deg"], row["roll_true_deg"] = np.degrees(radec_roll_from_attitude(A))
     row["plate_scale_arcsec"] = camera.plate_scale_rad / _ARCSEC
     try:
-        if campaign.level == "centroid":
-            sol, t_sim, n_stars, predicted = _centroid_solve(campaign, setup, values, A, camera, rng["noise"])
-        else:
-            sol, t_sim, n_stars, predicted = _image_solve(campaign, setup, values, A, rate, camera, seed,
-                                                          rng["parameters"])
+        sol, t_sim, n_stars, predicted = LEVEL_TRIALS[campaign.level](
+            TrialInput(campaign, setup, values, A, rate, camera, seed, rng))
     except Exception as exc:  # a bug in a stage: the trial is kept, with what went wrong
         first = (str(exc).strip().splitlines() or [""])[0]
         return _failed(row, "error", f"{type(exc).__name__}: {first}")
@@ -197,7 +195,33 @@ def run_trial(campaign: Campaign, trial: int) -> dict[str, Any]:
     return _judged(row, sol, A, camera)
 
 
-def _centroid_solve(campaign, setup, values, A, camera, rng):
+class TrialInput(NamedTuple):
+    """What a level's simulate-and-solve gets: the campaign, the worker's :class:`Setup`, the
+    trial's parameter values, true attitude and rate, true camera, seed and random streams."""
+
+    campaign: Campaign
+    setup: Setup
+    values: dict[str, Any]
+    A: np.ndarray
+    rate: np.ndarray | None
+    camera: Camera
+    seed: int
+    rng: dict[str, np.random.Generator]
+
+
+class Simulated(NamedTuple):
+    """A level's simulate-and-solve: the Solution (its ``time_ms["wall"]`` the solve's), the
+    simulation's ms, the stars in the frame and the predicted σ (x, y, roll) ″ (NaN: none)."""
+
+    solution: Any
+    simulate_ms: float
+    n_stars: int
+    predicted_sigma_arcsec: tuple[float, float, float]
+
+
+def _centroid_solve(t: TrialInput) -> Simulated:
+    """Centroid level: synthetic centroids, :func:`skyfix.pipeline.solve_centroids`."""
+    campaign, setup, values, A, camera = t.campaign, t.setup, t.values, t.A, t.camera
     from skyfix.analysis.synthetic_centroids import synthetic_centroids
     from skyfix.montecarlo.budget import predicted_covariance_rad2
     from skyfix.pipeline import solve_centroids
@@ -205,7 +229,7 @@ def _centroid_solve(campaign, setup, values, A, camera, rng):
     t0 = time.perf_counter()
     field = synthetic_centroids(camera, A, setup.catalog, mag_limit=values["mag_limit"],
                                 sigma_px=values["sigma_px"], n_false=values["false_stars"],
-                                dropout=values["dropout"], mag_sigma=values["mag_sigma"], rng=rng)
+                                dropout=values["dropout"], mag_sigma=values["mag_sigma"], rng=t.rng["noise"])
     real = field.star_id > 0
     ids, rows = setup.row_of_id
     b_true = setup.catalog.vectors[rows[np.searchsorted(ids, field.star_id[real])]] @ A.T
@@ -214,26 +238,33 @@ def _centroid_solve(campaign, setup, values, A, camera, rng):
     t0 = time.perf_counter()
     sol = solve_centroids(field.xy, camera.width, camera.height, **_solver_options(campaign, values, camera))
     sol.time_ms["wall"] = 1e3 * (time.perf_counter() - t0)
-    return sol, t_sim, int(real.sum()), predicted
+    return Simulated(sol, t_sim, int(real.sum()), tuple(predicted))
 
 
-def _image_solve(campaign, setup, values, A, rate, camera, seed, rng):
+def _image_solve(t: TrialInput) -> Simulated:
+    """Image level: :func:`skyfix.simulate.render`, :func:`skyfix.pipeline.solve`."""
+    campaign, setup, values, A, rate, camera = t.campaign, t.setup, t.values, t.A, t.rate, t.camera
     from skyfix.pipeline import solve
     from skyfix.simulate import render
 
     if values["rate_dps"]:
-        axis = rng.normal(size=3)
+        axis = t.rng["parameters"].normal(size=3)
         turn = math.radians(values["rate_dps"]) * axis / np.linalg.norm(axis)
         rate = turn if rate is None else rate + turn
     t0 = time.perf_counter()
     frame = render(A, camera, sensor=setup.sensor, optics=setup.optics,
                    exposure_s=values["exposure_s"] or setup.exposure_s, epoch=campaign.epoch, rate_rad_s=rate,
-                   seed=seed, false_stars=values["false_stars"], hot_pixels=values["hot_pixels"])
+                   seed=t.seed, false_stars=values["false_stars"], hot_pixels=values["hot_pixels"])
     t_sim = 1e3 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
     sol = solve(frame.image, **_solver_options(campaign, values, camera))
     sol.time_ms["wall"] = 1e3 * (time.perf_counter() - t0)
-    return sol, t_sim, len(frame.truth["stars"]), (math.nan,) * 3
+    return Simulated(sol, t_sim, len(frame.truth["stars"]), (math.nan,) * 3)
+
+
+#: Each level's simulate-and-solve (a new level, a tracked sequence say, registers here and in
+#: :data:`skyfix.montecarlo.campaign.LEVELS`).
+LEVEL_TRIALS = {"centroid": _centroid_solve, "image": _image_solve}
 
 
 def _failed(row: dict[str, Any], status: str, reason: str) -> dict[str, Any]:
