@@ -138,6 +138,9 @@ PARAMETERS: dict[str, Parameter] = {
                                  "identification method"),
     "attitude_method": Parameter(str, "svd", _BOTH, _method_ok("attitude"), "skyfix.attitude.METHODS",
                                  "Wahba solver"),
+    "prob_threshold": Parameter(float, 1e-9, _BOTH, lambda v: 0 < v < 1, "0 < p < 1",
+                                "the largest chance of a coincidence a solution is accepted with (raise it "
+                                "to see wrong solutions and check that prob_false predicts how many)"),
     "time_limit_s": Parameter(float, 30.0, _BOTH, _positive, "> 0",
                               "identification's wall-clock limit: long, so that the search's pattern count "
                               "bounds it and a trial's result never depends on the machine's load"),

@@ -164,7 +164,7 @@ def _connect(workers: int, scheduler: str | None, processes: bool):
             first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
             raise CampaignError(f"cannot reach the Dask scheduler at {scheduler}: {first}") from None
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=processes,
-                           dashboard_address=None, silence_logs=logging.ERROR,
+                           dashboard_address=None, silence_logs=logging.CRITICAL,
                            **({"env": _worker_env()} if processes else {}))
     return Client(cluster, set_as_default=False), cluster
 

@@ -157,7 +157,7 @@ def _solver_options(campaign: Campaign, values: dict[str, Any], camera: Camera) 
     """What the solver is told (``given``, ``focal_error``) and how it searches."""
     opts: dict[str, Any] = dict(epoch=campaign.epoch, identify_method=values["identify_method"],
                                 attitude_method=values["attitude_method"],
-                                time_limit_s=values["time_limit_s"])
+                                time_limit_s=values["time_limit_s"], prob_threshold=values["prob_threshold"])
     if values["given"] == "camera":
         scale = 1.0 + values["focal_error"]
         opts["camera"] = dataclasses.replace(camera, fx=camera.fx * scale, fy=camera.fy * scale)
