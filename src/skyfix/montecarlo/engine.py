@@ -240,6 +240,12 @@ def _run_batches(client, campaign: Campaign, todo: list[int], parts: Path, max_b
                 raise CampaignError(f"batch {k}: the workers running it died again and again; the "
                                     f"{done + len(ran)} finished batches are kept in {parts} — run again to "
                                     "continue") from None
+            except RuntimeError as exc:
+                if "deserializ" not in str(exc):
+                    raise
+                raise CampaignError("the scheduler could not load the campaign's tasks: the scheduler and "
+                                    "every worker must import the same skyfix as this command (its "
+                                    "PYTHONPATH, or the same install)") from None
             table = batch_table(campaign, rows)
             _write_atomic(_part_path(parts, k), lambda p, t=table: pq.write_table(t, p))
             ran.append(k)
