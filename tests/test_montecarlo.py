@@ -270,3 +270,48 @@ def test_a_worker_killed_mid_run_loses_no_trial(full_run, tmp_path):
     assert killed and result.complete
     assert result.table.column("trial").to_pylist() == list(range(24))
     assert _rows(result.table) == _rows(full_run.table)
+
+
+@pytest.mark.slow
+def test_the_command_interrupted_and_run_again(tmp_path):
+    """``skyfix montecarlo`` given SIGINT once two batches are kept: exit 130 with the one-line
+    notice; the same command again finishes, with the rows and summary of an uninterrupted run."""
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import pyarrow.parquet as pq
+
+    from skyfix.montecarlo.engine import parts_folder
+
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
+    smoke = str(CAMPAIGNS / "smoke.toml")
+
+    def command(out: Path) -> list[str]:
+        return [sys.executable, "-m", "skyfix.cli", "montecarlo", smoke, "--workers", "1", "-o", str(out)]
+
+    out = tmp_path / "cut.parquet"
+    proc = subprocess.Popen(command(out), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 600
+    while len(list(parts_folder(out).glob("batch-*.parquet"))) < 2 and time.monotonic() < deadline:
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-2000:]
+    assert "interrupted: the finished batches are kept in" in err
+    kept = len(list(parts_folder(out).glob("batch-*.parquet")))
+    assert 2 <= kept < 10
+    again = subprocess.run(command(out), env=env, capture_output=True, text=True, timeout=900)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert f"{kept} of 10 batches were done already" in again.stderr
+    whole = tmp_path / "whole.parquet"
+    assert subprocess.run(command(whole), env=env, capture_output=True, timeout=900).returncode == 0
+    assert pq.read_table(out).column("trial").to_pylist() == list(range(200))
+    assert _rows(pq.read_table(out)) == _rows(pq.read_table(whole))
+    summaries = [json.loads(p.with_suffix(".summary.json").read_text()) for p in (out, whole)]
+    for s in summaries:
+        s.pop("timing")
+    assert summaries[0] == summaries[1]

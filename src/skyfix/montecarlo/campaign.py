@@ -35,7 +35,6 @@ line (:func:`skyfix.errors.unknown_name`), a bad value or an empty range one
 from __future__ import annotations
 
 import hashlib
-import itertools
 import json
 import math
 from collections.abc import Callable, Mapping
@@ -210,9 +209,11 @@ class Campaign:
 
     def grid_point(self, trial: int) -> dict[str, Any]:
         """The grid axes' values of trial ``trial`` (round robin over the Cartesian product)."""
-        point = itertools.islice(itertools.product(*(a.values for a in self.grid)),
-                                 trial % self.grid_size, None)
-        return dict(zip((a.name for a in self.grid), next(point), strict=True))
+        index, point = trial % self.grid_size, {}
+        for axis in reversed(self.grid):  # the last axis varies fastest, as in itertools.product
+            index, k = divmod(index, len(axis.values))
+            point[axis.name] = axis.values[k]
+        return {a.name: point[a.name] for a in self.grid}
 
     def to_dict(self) -> dict:
         """Everything that decides the trials' results, as plain JSON data."""
