@@ -107,6 +107,22 @@ def test_trial_seeds_and_values_are_fixed_numbers():
     assert v == trial_values(c, 3, _streams(trial_seed(5, 3))["parameters"])
 
 
+def test_scan_and_profile_attitudes():
+    from skyfix.geometry import radec_roll_from_attitude, rotation_angle_between
+    from skyfix.montecarlo.trials import true_attitude
+
+    scan = _campaign(attitude={"distribution": "scan", "pole_deg": [0.0, 90.0], "roll_deg": 30.0})
+    ra_dec_roll = [np.degrees(radec_roll_from_attitude(true_attitude(scan, i, None)[0])) for i in (0, 6)]
+    np.testing.assert_allclose(ra_dec_roll, [[90.0, 0.0, 30.0], [180.0, 0.0, 30.0]], atol=1e-9)
+    turn = _campaign(attitude={"distribution": "profile", "profile": "constant",
+                               "start_deg": [10.0, 20.0, 0.0], "frame_period_s": 1.0,
+                               "options": {"rate_rad_s": [0.0, math.radians(1.0), 0.0]}})
+    A0, _ = true_attitude(turn, 0, None)
+    A10, rate = true_attitude(turn, 10, None)
+    assert math.degrees(rotation_angle_between(A0, A10)) == pytest.approx(10.0, abs=1e-9)
+    np.testing.assert_allclose(rate, [0.0, math.radians(1.0), 0.0], atol=1e-12)
+
+
 # --- the engine --------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def full_run(tmp_path_factory):

@@ -215,6 +215,18 @@ class Campaign:
             point[axis.name] = axis.values[k]
         return {a.name: point[a.name] for a in self.grid}
 
+    def profile(self):
+        """The motion profile of a ``profile`` attitude distribution (skyfix.simulate.profiles),
+        from ``start_deg``; a SimulationError for a missing or unknown profile parameter."""
+        import numpy as np
+
+        from skyfix.geometry import attitude_from_radec_roll
+        from skyfix.simulate import make_profile
+
+        opts = self.attitude_options
+        A0 = attitude_from_radec_roll(*np.radians(opts["start_deg"]))
+        return make_profile(opts["profile"], A0, **opts["options"])
+
     def to_dict(self) -> dict:
         """Everything that decides the trials' results, as plain JSON data."""
         return {"name": self.name, "level": self.level, "trials": self.trials, "seed": self.seed,
@@ -413,12 +425,10 @@ def _attitude(table: Mapping[str, Any]) -> tuple[str, dict]:
         if period <= 0:
             raise InputError(f"[attitude] frame_period_s must be > 0, got {period}")
         options["options"] = dict(options.get("options", {}))
-        from skyfix.montecarlo.trials import true_attitude
-
         probe = Campaign(name="", level="centroid", trials=1, seed=0, batch_size=1, epoch=2025.0,
                          camera="generic", attitude=name, attitude_options=options, fixed={}, sweep=())
         try:
-            true_attitude(probe, 0, None)  # the profile's parameters checked now
+            probe.profile()  # the profile's parameters checked now
         except Exception as exc:  # SimulationError: a missing or unknown profile parameter
             raise InputError(f"[attitude] {exc}") from None
     return name, options

@@ -84,18 +84,9 @@ def true_attitude(campaign: Campaign, trial: int, rng: np.random.Generator | Non
         phi = 2.0 * math.pi * trial / campaign.trials
         ra, dec = vector_to_radec(math.cos(phi) * u + math.sin(phi) * np.cross(pole, u))
         return attitude_from_radec_roll(float(ra), float(dec), math.radians(opts["roll_deg"])), None
-    profile = profile or _profile(campaign)
+    profile = profile or campaign.profile()
     t = trial * opts["frame_period_s"]
     return profile.attitude(t), profile.rate(t)
-
-
-def _profile(campaign: Campaign):
-    from skyfix.geometry import attitude_from_radec_roll
-    from skyfix.simulate import make_profile
-
-    opts = campaign.attitude_options
-    A0 = attitude_from_radec_roll(*np.radians(opts["start_deg"]))
-    return make_profile(opts["profile"], A0, **opts["options"])
 
 
 class Setup(NamedTuple):
@@ -140,7 +131,7 @@ def _make_setup(campaign: Campaign) -> Setup:
         catalog = load_hipparcos(epoch=campaign.epoch, mag_limit=faintest + _CATALOG_MARGIN_MAG)
         order = np.argsort(catalog.ids, kind="stable")
         rows = (catalog.ids[order], order)
-    profile = _profile(campaign) if campaign.attitude == "profile" else None
+    profile = campaign.profile() if campaign.attitude == "profile" else None
     return Setup(camera, sensor, optics, exposure_s, catalog, rows, profile)
 
 
