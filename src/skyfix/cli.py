@@ -744,6 +744,15 @@ def _register_track() -> None:
 _register_track()
 
 
+def _register_montecarlo() -> None:
+    from skyfix.montecarlo.command import register
+
+    register(app)  # `skyfix montecarlo`: skyfix/montecarlo/command.py
+
+
+_register_montecarlo()
+
+
 def main() -> None:  # pragma: no cover - console entry point
     app()
 

@@ -48,3 +48,8 @@ def unknown_name(what: str, name: object, known: Iterable[str]) -> UnknownNameEr
     """The one error for a name not in a registry: ``unknown {what} {name!r}; choose one of …``
     (raise it ``from None``)."""
     return UnknownNameError(f"unknown {what} {name!r}; choose one of {', '.join(map(str, known))}")
+
+
+class CampaignError(SkyfixError):
+    """A Monte Carlo campaign cannot run on: its scheduler is out of reach, a batch's workers kept
+    dying, or its output folder holds another campaign's batches (skyfix.montecarlo)."""

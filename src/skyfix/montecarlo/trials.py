@@ -1,0 +1,284 @@
+"""One Monte Carlo trial: simulate → solve → compare, a pure function of (campaign, trial index).
+
+**Seeding.** Trial ``i`` of a campaign seeded ``s`` has the seed
+``SeedSequence(s, spawn_key=(i,))``'s first 63 bits (:func:`trial_seed`, the ``seed`` column),
+split into three independent streams: the true attitude, the drawn ``{min, max}`` parameters and
+the simulation's noise. Nothing else is random, so a trial's result does not depend on which
+worker runs it, in which batch or in which order; ``run_trial(campaign, i)`` replays trial ``i``.
+
+**Levels.** ``centroid``: the catalogue stars in view to ``mag_limit``, with centroid noise,
+missed stars, false stars and magnitude noise
+(:func:`skyfix.analysis.synthetic_centroids.synthetic_centroids`), solved by
+:func:`skyfix.pipeline.solve_centroids` — no image, a few ms a trial. ``image``: the frame
+rendered by :func:`skyfix.simulate.render` with the camera's sensor and optics, solved by
+:func:`skyfix.pipeline.solve`.
+
+**Judging** is the one definition of :mod:`skyfix.analysis.truth`: the error rotation at the
+solution's boresight pixel, wrong beyond max(60″, 1 px) in boresight or 0.5° in roll. The
+normalised error divides each axis by the σ the solution reports; at the centroid level the
+predicted σ is the Cramér–Rao bound of the true stars in the frame
+(:func:`skyfix.montecarlo.budget.predicted_covariance_rad2`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+import time
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from skyfix.camera import Camera
+from skyfix.montecarlo.campaign import Campaign
+
+__all__ = ["LEVEL_TRIALS", "Setup", "Simulated", "TrialInput", "run_batch", "run_trial", "setup_for",
+           "trial_seed", "trial_values", "true_attitude"]
+
+_ARCSEC = math.pi / (180.0 * 3600.0)
+_STREAMS = ("attitude", "parameters", "noise")  # spawn order: never reorder (it changes every draw)
+_CATALOG_MARGIN_MAG = 0.5
+
+
+def trial_seed(campaign_seed: int, trial: int) -> int:
+    """The seed of trial ``trial`` (0 ≤ seed < 2⁶³; see the module text)."""
+    word = np.random.SeedSequence(int(campaign_seed), spawn_key=(int(trial),)).generate_state(1, np.uint64)[0]
+    return int(word >> np.uint64(1))
+
+
+def _streams(seed: int) -> dict[str, np.random.Generator]:
+    children = np.random.SeedSequence(seed).spawn(len(_STREAMS))
+    return {name: np.random.default_rng(ss) for name, ss in zip(_STREAMS, children, strict=True)}
+
+
+def trial_values(campaign: Campaign, trial: int, rng: np.random.Generator) -> dict[str, Any]:
+    """Every parameter's value in trial ``trial``: fixed, grid point, then the drawn axes in
+    file order from ``rng`` (the trial's parameter stream)."""
+    values = dict(campaign.fixed)
+    values.update(campaign.grid_point(trial))
+    for axis in campaign.sweep:
+        if axis.drawn:
+            values[axis.name] = float(rng.uniform(axis.low, axis.high))
+    return {name: values[name] for name in campaign.parameter_names}
+
+
+def true_attitude(campaign: Campaign, trial: int, rng: np.random.Generator | None, profile=None
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
+    """The true attitude (3, 3) of trial ``trial`` and the body rate (rad/s, camera axes) a
+    motion profile has then (None otherwise). ``uniform``: uniform over SO(3) from ``rng``;
+    ``scan``: the boresight at 360°·i/trials along the great circle about ``pole_deg``, roll
+    ``roll_deg``; ``profile``: the profile of :mod:`skyfix.simulate.profiles` from ``start_deg``
+    at t = i · ``frame_period_s`` (``profile``: that profile, made already)."""
+    from skyfix.geometry import attitude_from_radec_roll, radec_to_vector, vector_to_radec
+
+    opts = campaign.attitude_options
+    if campaign.attitude == "uniform":
+        from skyfix.analysis.synthetic_centroids import random_attitudes
+
+        return random_attitudes(1, rng)[0], None
+    if campaign.attitude == "scan":
+        pole = radec_to_vector(*np.radians(opts["pole_deg"]))
+        u = np.cross(pole, [0.0, 0.0, 1.0] if abs(pole[2]) < 0.9 else [1.0, 0.0, 0.0])
+        u /= np.linalg.norm(u)
+        phi = 2.0 * math.pi * trial / campaign.trials
+        ra, dec = vector_to_radec(math.cos(phi) * u + math.sin(phi) * np.cross(pole, u))
+        return attitude_from_radec_roll(float(ra), float(dec), math.radians(opts["roll_deg"])), None
+    profile = profile or campaign.profile()
+    t = trial * opts["frame_period_s"]
+    return profile.attitude(t), profile.rate(t)
+
+
+class Setup(NamedTuple):
+    """What every trial of a campaign shares, made once per worker (:func:`setup_for`): the
+    camera, its sensor, optics and exposure, the catalogue (to the faintest ``mag_limit``), its
+    rows by star number, and the motion profile."""
+
+    camera: Camera
+    sensor: Any
+    optics: Any
+    exposure_s: float
+    catalog: Any
+    row_of_id: tuple[np.ndarray, np.ndarray]  # sorted ids, their rows
+    profile: Any
+
+
+_SETUPS: dict[str, Setup] = {}
+_SETUP_LOCK = threading.Lock()
+
+
+def setup_for(campaign: Campaign) -> Setup:
+    """The campaign's :class:`Setup`, cached per process (threads of one worker share it)."""
+    key = campaign.fingerprint
+    with _SETUP_LOCK:
+        if key not in _SETUPS:
+            _SETUPS.clear()  # one campaign at a time per worker
+            _SETUPS[key] = _make_setup(campaign)
+        return _SETUPS[key]
+
+
+def _make_setup(campaign: Campaign) -> Setup:
+    from skyfix.simulate import resolve_setup
+
+    camera, sensor, optics, exposure_s = resolve_setup(campaign.camera, None, None, None)
+    catalog, rows = None, (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    if campaign.level == "centroid":
+        from skyfix.catalog import load_hipparcos
+
+        faintest = max([campaign.fixed.get("mag_limit", 0.0)]
+                       + [v for a in campaign.sweep if a.name == "mag_limit" for v in (*a.values, a.high)
+                          if math.isfinite(v)])
+        catalog = load_hipparcos(epoch=campaign.epoch, mag_limit=faintest + _CATALOG_MARGIN_MAG)
+        order = np.argsort(catalog.ids, kind="stable")
+        rows = (catalog.ids[order], order)
+    profile = campaign.profile() if campaign.attitude == "profile" else None
+    return Setup(camera, sensor, optics, exposure_s, catalog, rows, profile)
+
+
+def trial_camera(setup: Setup, values: dict[str, Any]) -> Camera:
+    """The true camera of a trial: the campaign's, or with ``fov_deg`` set a distortion-free one
+    of that field and the same size."""
+    if values["fov_deg"]:
+        return Camera.from_fov(setup.camera.width, setup.camera.height, values["fov_deg"],
+                               projection=setup.camera.projection)
+    return setup.camera
+
+
+def _solver_options(campaign: Campaign, values: dict[str, Any], camera: Camera) -> dict[str, Any]:
+    """What the solver is told (``given``, ``focal_error``) and how it searches."""
+    opts: dict[str, Any] = dict(epoch=campaign.epoch, identify_method=values["identify_method"],
+                                attitude_method=values["attitude_method"],
+                                time_limit_s=values["time_limit_s"], prob_threshold=values["prob_threshold"])
+    if values["given"] == "camera":
+        scale = 1.0 + values["focal_error"]
+        opts["camera"] = dataclasses.replace(camera, fx=camera.fx * scale, fy=camera.fy * scale)
+    elif values["given"] == "fov":
+        opts["fov_deg"] = camera.fov_deg / (1.0 + values["focal_error"])
+    if values.get("sigma_known"):
+        opts["centroid_sigma_px"] = max(values["sigma_px"], 1e-3)
+    return opts
+
+
+def run_trial(campaign: Campaign, trial: int) -> dict[str, Any]:
+    """Trial ``trial`` of ``campaign``: one results row (:data:`skyfix.montecarlo.results.COLUMNS`)."""
+    setup = setup_for(campaign)
+    seed = trial_seed(campaign.seed, trial)
+    rng = _streams(seed)
+    values = trial_values(campaign, trial, rng["parameters"])
+    A, rate = true_attitude(campaign, trial, rng["attitude"], setup.profile)
+    camera = trial_camera(setup, values)
+    row: dict[str, Any] = {"trial": trial, "seed": seed, **values}
+    from skyfix.geometry import radec_roll_from_attitude
+
+    row["ra_true_deg"], row["dec_true_deg"], row["roll_true_deg"] = np.degrees(radec_roll_from_attitude(A))
+    row["plate_scale_arcsec"] = camera.plate_scale_rad / _ARCSEC
+    try:
+        sol, t_sim, n_stars, predicted = LEVEL_TRIALS[campaign.level](
+            TrialInput(campaign, setup, values, A, rate, camera, seed, rng))
+    except Exception as exc:  # a bug in a stage: the trial is kept, with what went wrong
+        first = (str(exc).strip().splitlines() or [""])[0]
+        return _failed(row, "error", f"{type(exc).__name__}: {first}")
+    row.update(n_stars=n_stars, n_detected=sol.n_detected, simulate_ms=t_sim, time_ms=sol.time_ms["wall"])
+    row.update(zip(("predicted_sigma_x_arcsec", "predicted_sigma_y_arcsec", "predicted_sigma_roll_arcsec"),
+                   predicted, strict=True))
+    if not sol.solved:
+        return _failed(row, "failed", sol.reason)
+    return _judged(row, sol, A, camera)
+
+
+class TrialInput(NamedTuple):
+    """What a level's simulate-and-solve gets: the campaign, the worker's :class:`Setup`, the
+    trial's parameter values, true attitude and rate, true camera, seed and random streams."""
+
+    campaign: Campaign
+    setup: Setup
+    values: dict[str, Any]
+    A: np.ndarray
+    rate: np.ndarray | None
+    camera: Camera
+    seed: int
+    rng: dict[str, np.random.Generator]
+
+
+class Simulated(NamedTuple):
+    """A level's simulate-and-solve: the Solution (its ``time_ms["wall"]`` the solve's), the
+    simulation's ms, the stars in the frame and the predicted σ (x, y, roll) ″ (NaN: none)."""
+
+    solution: Any
+    simulate_ms: float
+    n_stars: int
+    predicted_sigma_arcsec: tuple[float, float, float]
+
+
+def _centroid_solve(t: TrialInput) -> Simulated:
+    """Centroid level: synthetic centroids, :func:`skyfix.pipeline.solve_centroids`."""
+    campaign, setup, values, A, camera = t.campaign, t.setup, t.values, t.A, t.camera
+    from skyfix.analysis.synthetic_centroids import synthetic_centroids
+    from skyfix.montecarlo.budget import predicted_covariance_rad2
+    from skyfix.pipeline import solve_centroids
+
+    t0 = time.perf_counter()
+    field = synthetic_centroids(camera, A, setup.catalog, mag_limit=values["mag_limit"],
+                                sigma_px=values["sigma_px"], n_false=values["false_stars"],
+                                dropout=values["dropout"], mag_sigma=values["mag_sigma"], rng=t.rng["noise"])
+    real = field.star_id > 0
+    ids, rows = setup.row_of_id
+    b_true = setup.catalog.vectors[rows[np.searchsorted(ids, field.star_id[real])]] @ A.T
+    predicted = np.sqrt(np.diag(predicted_covariance_rad2(camera, b_true, values["sigma_px"]))) / _ARCSEC
+    t_sim = 1e3 * (time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    sol = solve_centroids(field.xy, camera.width, camera.height, **_solver_options(campaign, values, camera))
+    sol.time_ms["wall"] = 1e3 * (time.perf_counter() - t0)
+    return Simulated(sol, t_sim, int(real.sum()), tuple(predicted))
+
+
+def _image_solve(t: TrialInput) -> Simulated:
+    """Image level: :func:`skyfix.simulate.render`, :func:`skyfix.pipeline.solve`."""
+    campaign, setup, values, A, rate, camera = t.campaign, t.setup, t.values, t.A, t.rate, t.camera
+    from skyfix.pipeline import solve
+    from skyfix.simulate import render
+
+    if values["rate_dps"]:
+        axis = t.rng["parameters"].normal(size=3)
+        turn = math.radians(values["rate_dps"]) * axis / np.linalg.norm(axis)
+        rate = turn if rate is None else rate + turn
+    t0 = time.perf_counter()
+    frame = render(A, camera, sensor=setup.sensor, optics=setup.optics,
+                   exposure_s=values["exposure_s"] or setup.exposure_s, epoch=campaign.epoch, rate_rad_s=rate,
+                   seed=t.seed, false_stars=values["false_stars"], hot_pixels=values["hot_pixels"])
+    t_sim = 1e3 * (time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    sol = solve(frame.image, **_solver_options(campaign, values, camera))
+    sol.time_ms["wall"] = 1e3 * (time.perf_counter() - t0)
+    return Simulated(sol, t_sim, len(frame.truth["stars"]), (math.nan,) * 3)
+
+
+#: Each level's simulate-and-solve (a new level, a tracked sequence say, registers here and in
+#: :data:`skyfix.montecarlo.campaign.LEVELS`).
+LEVEL_TRIALS = {"centroid": _centroid_solve, "image": _image_solve}
+
+
+def _failed(row: dict[str, Any], status: str, reason: str) -> dict[str, Any]:
+    row.update(status=status, reason=reason, wrong=False)
+    return row
+
+
+def _judged(row: dict[str, Any], sol, A: np.ndarray, camera: Camera) -> dict[str, Any]:
+    from skyfix.analysis.truth import judge
+
+    j = judge(sol.A_icrs_to_cam, sol.camera, A, camera)
+    err = j.error_rad / _ARCSEC
+    sigma = np.sqrt(np.diag(np.asarray(sol.covariance_arcsec2, dtype=np.float64)))
+    row.update(status="solved", reason="", wrong=j.wrong, n_matched=sol.n_matched, prob_false=sol.prob_false,
+               ra_deg=sol.ra_deg, dec_deg=sol.dec_deg, roll_deg=sol.roll_deg,
+               boresight_error_arcsec=j.boresight_arcsec, roll_error_arcsec=j.roll_deg * 3600.0)
+    for k, axis in enumerate(("x", "y", "roll")):
+        row[f"error_{axis}_arcsec"] = err[k]
+        row[f"sigma_{axis}_arcsec"] = sigma[k]
+        row[f"normalised_{axis}"] = err[k] / sigma[k]
+    return row
+
+
+def run_batch(campaign: Campaign, batch: int) -> list[dict[str, Any]]:
+    """The rows of batch ``batch`` (trials :meth:`Campaign.batch_trials`), in trial order."""
+    return [run_trial(campaign, i) for i in campaign.batch_trials(batch)]
