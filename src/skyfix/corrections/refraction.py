@@ -13,7 +13,7 @@ Earth's and the site's velocity), rotated into the local frame, then refracted. 
    steps of ``eraAtioq``, polar motion as an exact rotation) and
    ``A_icrs_to_enu = A_cirs_to_enu · BPN``. The local frame ENU is (east, north, up); azimuth
    runs from north through east, as in ERFA and astropy.
-2. **Per star** (:func:`observed_enu`, vectorised): ``p = ab(ldsun(r))``, ``u = A_gcrs_to_enu p``
+2. **Per star** (:func:`observed_enu`, vectorised): ``p = ab(ldsun(r))``, ``u = A_icrs_to_enu p``
    — ERFA's ``atciqz`` and ``atioq`` without their spherical round trips — then refraction
    lifts ``u`` toward the zenith by ``Δ(altitude)`` in its vertical plane (:func:`refract_enu`).
 3. **Refraction models** (:data:`REFRACTION_MODELS`): ``"erfa"`` (the default) is ERFA's
@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import NamedTuple
@@ -53,8 +54,8 @@ from skyfix.validate import EPOCH_RANGE
 
 __all__ = [
     "AltAz", "BoresightPlaces", "GroundFrame", "REFRACTION_MODELS", "Refraction", "Site", "Weather",
-    "altaz_of", "bennett_refraction_arcmin", "boresight_places", "check_site_weather", "ground_frame",
-    "observed_directions", "observed_enu", "refract_enu", "unrefract_enu",
+    "altaz_of", "apparent_enu", "bennett_refraction_arcmin", "boresight_places", "check_site_weather",
+    "ground_frame", "observed_directions", "observed_enu", "refract_enu", "unrefract_enu",
 ]
 
 #: Refraction models by name: ERFA's (default), thesis 003's Bennett formula, none.
@@ -244,7 +245,7 @@ class Refraction(NamedTuple):
         return np.zeros_like(h)
 
 
-def _fixed_point(f, x0: np.ndarray) -> np.ndarray:
+def _fixed_point(f: Callable[[np.ndarray], np.ndarray], x0: np.ndarray) -> np.ndarray:
     """``x = f(x)`` by iteration from ``x0`` (a contraction: refraction's slope is below 0.25)."""
     x = x0
     for _ in range(_ITERATIONS):
@@ -338,7 +339,7 @@ def _ground_frame(site: Site, jd_utc: float, weather: Weather, model: str, dut1_
                      @ elementary_rotation(2, float(a["eral"])))
     A_icrs_to_enu = A_cirs_to_enu @ np.asarray(a["bpn"])
     eh, v = np.array(a["eh"]), np.array(a["v"])
-    for arr in (A_cirs_to_enu, A_icrs_to_enu, eh, v):
+    for arr in (astrom, A_cirs_to_enu, A_icrs_to_enu, eh, v):
         arr.setflags(write=False)
     return GroundFrame(site, weather, Refraction.for_weather(weather, model), jd_utc, dut1_s, astrom,
                        eh, float(a["em"]), v, float(a["bm1"]), float(eo), A_cirs_to_enu, A_icrs_to_enu)
