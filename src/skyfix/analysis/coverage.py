@@ -32,6 +32,12 @@ from scipy.spatial.transform import Rotation
 
 from skyfix.catalog import Catalog, fibonacci_sphere, load_hipparcos
 from skyfix.errors import InputError
+from skyfix.frames import (
+    elementary_rotation,
+    matrix_from_euler123,
+    orbit_frame_from_elements,
+    sunsat_mounting,
+)
 from skyfix.geometry import radec_to_vector, vector_to_radec
 from skyfix.identify.catalogue.pairs import build_pair_table
 from skyfix.validate import check_count, check_fov
@@ -272,19 +278,6 @@ def distance_table(catalog_subset: Catalog, max_angle_deg: float, min_angle_deg:
                          len(catalog_subset), math.radians(lo), math.radians(hi))
 
 
-def _axis_rotation(axis: int, angle_rad: np.ndarray) -> np.ndarray:
-    """004's elementary direction cosine matrices (1.10)–(1.12), vectorised: (n, 3, 3)."""
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    R = np.zeros((len(c), 3, 3))
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]  # A_x: [[1,0,0],[0,c,s],[0,-s,c]]; A_y: [[c,0,-s],[0,1,0],[s,0,c]]
-    R[:, axis, axis] = 1.0
-    R[:, i, i] = c
-    R[:, j, j] = c
-    R[:, i, j] = s
-    R[:, j, i] = -s
-    return R
-
-
 def sunsat_attitudes(envelope: SunsatEnvelope = TABLE_3_5, step_deg: float = 2.0,
                      arg_lat_step_deg: float = 5.0) -> np.ndarray:
     """Camera attitudes (n, 3, 3) ``A_icrs_to_cam`` over thesis 004's envelope, every angle
@@ -292,10 +285,11 @@ def sunsat_attitudes(envelope: SunsatEnvelope = TABLE_3_5, step_deg: float = 2.0
     axis within 11° of its boresight: a 5° step moves a corner by 0.6°, less than a 2° step of
     Ω or roll moves the field).
 
-    Thesis 004 §1.3–1.4's chain, with Appendix Z's corrections: A_c→o = A_y(−ω′)·A_x(−90°)·
-    A_y(−i)·A_z(90° + Ω); A_o→b = A_z(ψ)·A_y(θ)·A_x(φ); A_ss→b = A_z(−45°)·A_x(180°). The star
-    sensor's boresight is y_ss, its width along x_ss (u), its height along z_ss (v); skyfix's
-    camera frame is (x_ss, −z_ss, y_ss). 004's B1950 frame is taken as ICRS: the
+    Thesis 004 §1.3–1.4's chain, with Appendix Z's corrections, from :mod:`skyfix.frames`:
+    A_c→o = A_y(−ω′)·A_x(−90°)·A_y(−i)·A_z(90° + Ω) (:func:`~skyfix.frames.orbit_frame_from_elements`);
+    A_o→b = A_z(ψ)·A_y(θ)·A_x(φ) (:func:`~skyfix.frames.matrix_from_euler123`); the sensor on the
+    body, A_ss→b = A_z(−45°)·A_x(180°), with skyfix's camera frame (x_ss, −z_ss, y_ss)
+    (:func:`~skyfix.frames.sunsat_mounting`). 004's B1950 frame is taken as ICRS: the
     0.7° precession moves a sub-catalogue's edge, not its size.
     """
     if not all(math.isfinite(s) and s > 0 for s in (step_deg, arg_lat_step_deg)):
@@ -318,12 +312,8 @@ def sunsat_attitude_matrix(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray,
     radians (the chain of :func:`sunsat_attitudes`)."""
     roll, pitch, yaw, u, incl, node = (np.atleast_1d(np.asarray(a, np.float64))
                                        for a in (roll, pitch, yaw, arg_lat, incl, node))
-    A_c_o = (_axis_rotation(1, -u) @ _axis_rotation(0, np.full_like(u, -math.pi / 2))
-             @ _axis_rotation(1, -incl) @ _axis_rotation(2, math.pi / 2 + node))
-    A_o_b = _axis_rotation(2, yaw) @ _axis_rotation(1, pitch) @ _axis_rotation(0, roll)
-    A_ss_b = _axis_rotation(2, np.array([-math.pi / 4]))[0] @ _axis_rotation(0, np.array([math.pi]))[0]
-    ss_to_cam = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
-    return ss_to_cam @ A_ss_b.T @ A_o_b @ A_c_o
+    A_icrs_to_body = matrix_from_euler123(roll, pitch, yaw) @ orbit_frame_from_elements(node, incl, u)
+    return sunsat_mounting().camera_attitude(A_icrs_to_body)
 
 
 def cone_attitudes(axis: np.ndarray, radius_deg: float, step_deg: float = 1.0) -> np.ndarray:
@@ -344,7 +334,7 @@ def cone_attitudes(axis: np.ndarray, radius_deg: float, step_deg: float = 1.0) -
     x /= np.linalg.norm(x, axis=1, keepdims=True)
     y = np.cross(boresights, x)
     base = np.stack([x, y, boresights], axis=1)  # (m, 3, 3): rows are the camera axes
-    roll = _axis_rotation(2, rolls)  # (r, 3, 3)
+    roll = elementary_rotation(2, rolls)  # (r, 3, 3)
     return (roll[None] @ base[:, None]).reshape(-1, 3, 3)
 
 
