@@ -219,7 +219,7 @@ def test_catalogue_is_parsed_once_then_read_from_the_cache(cold_cache, monkeypat
 @pytest.mark.parametrize("damage", [_corrupt_middle, _truncate])
 def test_damaged_catalogue_cache_is_rebuilt(cold_cache, monkeypatch, damage):
     fresh = load_hipparcos(epoch=EPOCH)
-    cache = cold_cache / "hip2_v1.npz"
+    cache = cold_cache / f"hip2_v{skyfix.catalog._CACHE_VERSION}.npz"
     damage(cache)
     monkeypatch.setattr(skyfix.catalog, "_RAW", None)
     again = load_hipparcos(epoch=EPOCH)

@@ -17,6 +17,7 @@ import numpy as np
 from skyfix.camera import PRESETS as CAMERA_PRESETS
 from skyfix.camera import Camera, camera_from_preset
 from skyfix.catalog import Catalog
+from skyfix.corrections.aberration import aberrate
 from skyfix.errors import SimulationError, UnknownNameError, unknown_name
 from skyfix.geometry import quaternion_from_attitude, radec_roll_from_attitude, rotation_angle_between
 from skyfix.simulate.motion import star_tracks
@@ -25,7 +26,6 @@ from skyfix.simulate.photometry import sky_electrons_per_pixel, star_electrons
 from skyfix.simulate.presets import load_preset, preset_names
 from skyfix.simulate.psf import add_gaussians
 from skyfix.simulate.scene import (
-    aberrate,
     candidate_stars,
     catalog_at,
     cosmic_ray_hits,
@@ -196,7 +196,8 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
     sky_mag_arcsec2 : float or None
         Sky background surface brightness, mag arcsec⁻² (None: dark sky).
     observer_velocity_km_s : (3,) array, optional
-        Observer velocity in ICRS for stellar aberration, km/s.
+        Observer velocity in ICRS for stellar aberration, km/s (the relativistic form,
+        :func:`skyfix.corrections.aberrate`).
     noise : bool or mapping
         Detector sources on/off (see :data:`skyfix.simulate.sensor.NOISE_SOURCES`).
     frame_index : int
@@ -241,7 +242,8 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
     if catalog.epoch != epoch_jy:
         catalog = catalog.at_epoch(epoch_jy)
     idx = np.arange(len(catalog))
-    vectors = aberrate(catalog.vectors, observer_velocity_km_s)
+    vectors = (catalog.vectors if observer_velocity_km_s is None
+               else aberrate(catalog.vectors, observer_velocity_km_s))
     xy_mid, front, tracks, b_mid = star_tracks(A, rate if motion is None else motion, vectors, camera,
                                                exposure_s, sensor.line_time_s)
     margin = -(6 * sigma_max + 1)  # stars just outside still spill light in

@@ -11,21 +11,18 @@ import numpy as np
 
 from skyfix.catalog import Catalog, load_hipparcos
 from skyfix.errors import SimulationError
-from skyfix.geometry import normalize, radec_to_vector
+from skyfix.geometry import radec_to_vector
 
 __all__ = [
-    "SPEED_OF_LIGHT_KM_S",
     "parse_time",
     "catalog_at",
     "field_radius",
     "candidate_stars",
-    "aberrate",
     "stray_light_map",
     "false_star_list",
     "cosmic_ray_hits",
 ]
 
-SPEED_OF_LIGHT_KM_S = 299792.458
 UTC = timezone.utc
 _J2000 = datetime(2000, 1, 1, 12, 0, 0, tzinfo=UTC)
 
@@ -94,15 +91,6 @@ def candidate_stars(A_icrs_to_cam: np.ndarray, camera, catalog: Catalog, extra_r
     """Indices of catalogue stars within the field radius + ``extra_rad`` of the boresight."""
     radius = min(field_radius(camera) + extra_rad, math.pi)
     return catalog.cone(np.asarray(A_icrs_to_cam)[2], radius)
-
-
-def aberrate(vectors: np.ndarray, velocity_km_s: np.ndarray | None) -> np.ndarray:
-    """Apparent directions for an observer moving at ``velocity_km_s`` (ICRS, km/s):
-    ``normalize(r + v/c)`` (first order; thesis 004's correction)."""
-    if velocity_km_s is None:
-        return vectors
-    v = np.asarray(velocity_km_s, dtype=np.float64).reshape(3)
-    return normalize(vectors + v / SPEED_OF_LIGHT_KM_S)
 
 
 def stray_light_map(spec: Mapping, camera, A_icrs_to_cam: np.ndarray, exposure_s: float) -> np.ndarray:
