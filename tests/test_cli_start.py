@@ -29,7 +29,8 @@ HEAVY = ("numpy", "numba", "llvmlite", "scipy", "astropy", "matplotlib", "dask",
 #: The skyfix modules that define the command table; everything else is a command's implementation.
 COMMAND_TABLE = {"skyfix", "skyfix._kernels", "skyfix.cli", "skyfix.cli_analyze", "skyfix.cli_support",
                  "skyfix.errors", "skyfix.validate", "skyfix.track", "skyfix.track.cli",
-                 "skyfix.montecarlo", "skyfix.montecarlo.command"}
+                 "skyfix.montecarlo", "skyfix.montecarlo.command", "skyfix.calibration",
+                 "skyfix.calibration.commands"}
 
 _DRIVER = textwrap.dedent("""
     import json, sys

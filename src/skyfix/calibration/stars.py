@@ -34,6 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from skyfix.calibration.camera_file import camera_file
 from skyfix.calibration.joint import SKEW, JointFit, MatchedImage, fit_joint, numbers_of_parameters
 from skyfix.camera import Camera
 from skyfix.errors import CalibrationError, unknown_name
@@ -134,15 +135,13 @@ class StarCalibration:
         """The camera file: the ``[camera]`` table (:meth:`Camera.to_toml`, read back bit for bit)
         and a ``[calibration]`` table of how it was made — each number's 1σ, the residuals."""
         fit = self.fit
-        lines = [self.camera.to_toml().rstrip("\n"), "", "[calibration]", 'method = "stars"',
-                 f'model = "{self.model}"', f"parameters = [{', '.join(repr(p) for p in fit.params)}]",
-                 f"images = {len(fit.attitudes)}", f"stars = {fit.n_stars}", f"sigma_px = {fit.sigma_px!r}",
-                 f"rms_arcsec = {float(np.sqrt(np.nanmean(fit.rms_arcsec() ** 2)))!r}"]
+        table: dict[str, object] = {
+            "method": "stars", "model": self.model, "parameters": list(fit.params),
+            "images": len(fit.attitudes), "stars": fit.n_stars, "sigma_px": fit.sigma_px,
+            "rms_arcsec": float(np.sqrt(np.nanmean(fit.rms_arcsec() ** 2)))}
         if self.refused:
-            lines.append(f"refused = [{', '.join(repr(p) for p in self.refused)}]")
-        lines += ["", "[calibration.sigma]  # 1σ of each fitted number, from the Jacobian"]
-        lines += [f"{k} = {v!r}" for k, v in fit.sigma.items()]
-        return "\n".join(lines) + "\n"
+            table["refused"] = list(self.refused)
+        return camera_file(self.camera, table, fit.sigma)
 
 
 def _read(image: str | Path | np.ndarray, index: int) -> tuple[str, np.ndarray]:
