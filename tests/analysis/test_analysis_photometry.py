@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from conftest import REAL_DIR
 from skyfix.analysis import photometry as ph
 from skyfix.simulate.psf import add_gaussians
+from tests.conftest import REAL_DIR
 
 ESA = sorted(str(p) for p in (REAL_DIR / "esa-tetra3").glob("*.tiff"))  # beside the repository
 EPOCH = 2019.58  # capture 2019-07-29

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from conftest import REAL_DIR
 from skyfix.analysis.psf_field import adaptive_moments, fit_elliptical_gaussians, measure_psf_field
 from skyfix.camera import Camera
 from skyfix.catalog import Catalog
 from skyfix.geometry import attitude_from_radec_roll
 from skyfix.simulate import Optics, Sensor, render
 from skyfix.simulate.psf import pixel_integrated_stamps
+from tests.conftest import REAL_DIR
 
 A0 = attitude_from_radec_roll(math.radians(40.0), math.radians(20.0), math.radians(30.0))
 CAM = Camera.from_fov(800, 600, 10.0)

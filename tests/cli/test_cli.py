@@ -1,7 +1,6 @@
 """The `skyfix` command on the bundled example: solve against its truth, WCS and plot outputs."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,8 +9,9 @@ from typer.testing import CliRunner
 from skyfix.attitude import attitude_error
 from skyfix.cli import app
 from skyfix.geometry import attitude_from_quaternion, rotation_angle_between
+from tests.conftest import EXAMPLES
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "sky.png"
+EXAMPLE = EXAMPLES / "sky.png"
 runner = CliRunner()
 
 

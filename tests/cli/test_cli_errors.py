@@ -12,8 +12,9 @@ import pytest
 from typer.testing import CliRunner
 
 from skyfix.cli import app
+from tests.conftest import EXAMPLES
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "sky.png"
+EXAMPLE = EXAMPLES / "sky.png"
 runner = CliRunner()
 
 

@@ -3,7 +3,6 @@ first run), and failure reasons that say what to try."""
 
 import io
 import logging
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,8 +11,9 @@ from typer.testing import CliRunner
 import skyfix
 from skyfix.cli import app
 from skyfix.errors import DatabaseError
+from tests.conftest import EXAMPLES
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "sky.png"
+EXAMPLE = EXAMPLES / "sky.png"
 runner = CliRunner()
 
 

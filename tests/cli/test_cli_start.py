@@ -19,9 +19,10 @@ from pathlib import Path
 import pytest
 
 import skyfix
+from tests.conftest import EXAMPLES
 
 SRC = Path(skyfix.__file__).resolve().parents[1]
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "sky.png"
+EXAMPLE = EXAMPLES / "sky.png"
 
 #: Packages no version or help output needs.
 HEAVY = ("numpy", "numba", "llvmlite", "scipy", "astropy", "matplotlib", "dask", "PIL", "cv2", "pandas")

@@ -3,15 +3,15 @@ ValueError) with a one-line message, raised before any work — never a TypeErro
 ZeroDivisionError or a silently wrong result. Featureless frames fail with a reason that says
 which kind of frame it is."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from skyfix.errors import InputError, SkyfixError
 from skyfix.pipeline import solve, solve_centroids
+from tests.conftest import EXAMPLES
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "sky.png"
+EXAMPLE = EXAMPLES / "sky.png"
 XY = np.random.default_rng(0).uniform(0, 500, (30, 2))
 
 

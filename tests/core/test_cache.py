@@ -24,9 +24,10 @@ from skyfix.cache import CorruptFileError, has_index, map_npz, verify, write_npz
 from skyfix.catalog import load_hipparcos
 from skyfix.errors import DatabaseError
 from skyfix.identify import PatternDatabase, default_database, default_database_path
+from tests.conftest import EXAMPLES
 
 FOV = 20.0  # a one-band database: quick to build
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "sky.png"
+EXAMPLE = EXAMPLES / "sky.png"
 EPOCH = 2025.0
 
 

@@ -3,7 +3,6 @@ pinhole and keeps the one the stars prefer, with error bars that include the fit
 uncertainty (``docs/solving-without-a-camera.md``, "Wide fields and fisheyes")."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +18,7 @@ from skyfix.identify import Identification
 from skyfix.identify.accept import precision_failure
 from skyfix.identify.bands import WIDE, band_database
 from skyfix.pipeline import solve_centroids
+from tests.conftest import DATA_DIR
 
 FISHEYE = Camera.from_fov(1280, 960, 90.0, projection="equidistant")  # 815 px: corners 56° off axis
 ARCSEC = math.pi / (180 * 3600)
@@ -102,7 +102,7 @@ def test_consensus_finds_the_right_stars_among_wrong_neighbours(stars):
 # "90° fisheye", seeds 2026 frame 70 and 2027 frame 53) as identification handed them to the final
 # fit: 61 and 92 verified stars of which 20 and 25 are wrong neighbours 4–90 px off, focal length
 # 750 px against the true 815, attitude 1–2° off.
-BAD_IDENTIFICATIONS = Path(__file__).parent / "data" / "fisheye_bad_identifications.npz"
+BAD_IDENTIFICATIONS = DATA_DIR / "fisheye_bad_identifications.npz"
 
 
 @pytest.mark.parametrize("frame", ["s2026_70", "s2027_53"])

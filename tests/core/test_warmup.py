@@ -7,16 +7,15 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import skyfix
 from skyfix import _warm_jobs, warmup
+from tests.conftest import EXAMPLES, ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
-SKY = ROOT / "examples" / "sky.png"
+SKY = EXAMPLES / "sky.png"
 
 
 def _kernel_signatures() -> dict[str, set[str]]:
@@ -179,8 +178,8 @@ def test_a_path_s_jobs_compile_what_its_first_use_needs(path):
     use = {**_USES, **_SLOW_USES}[path]
     code = f"""
 import sys
-sys.path.insert(0, {str(Path(__file__).parent)!r})
-from test_warmup import _kernel_signatures, SKY
+sys.path.insert(0, {str(ROOT)!r})
+from tests.core.test_warmup import _kernel_signatures, SKY
 import skyfix
 from skyfix import _warm_jobs, warmup
 from skyfix.detect import extract_centroids

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from skyfix.detect import centroid_windows, cramer_rao_centroid, extract_centroids
-from test_detect import nearest, random_field, render_stars
+from tests.detect.test_detect import nearest, random_field, render_stars
 
 
 def test_cramer_rao_limits():

@@ -7,7 +7,7 @@ from skyfix.detect import METHODS, extract_centroids
 from skyfix.detect.hillclimb import extract_hillclimb
 from skyfix.detect.region_grow import extract_region_grow
 from skyfix.detect.regionprops import extract_regionprops, perona_malik
-from test_detect import nearest, random_field, render_stars
+from tests.detect.test_detect import nearest, random_field, render_stars
 
 
 @pytest.fixture(scope="module")

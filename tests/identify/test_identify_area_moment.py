@@ -1,9 +1,9 @@
 """The ``area-moment`` identification method (skyfix.identify.area_moment): a known field named right,
 mirrored fields refused, bad input one-line, noise-free and noisy 15° fields solved and never
-wrong (the checks of tests/identify_checks.py)."""
+wrong (the checks of tests/identify/identify_checks.py)."""
 
-import identify_checks as checks
 from skyfix.identify import area_moment
+from tests.identify import identify_checks as checks
 
 
 def test_known_field_and_its_mirror(database):

@@ -7,11 +7,11 @@ files pin what is particular to each; this file is where a new method's first fa
 import numpy as np
 import pytest
 
-from identify_checks import FOV, ORION_HIP, ORION_XY, H, W, catalog_for, wrong
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
 from skyfix.camera import Camera
 from skyfix.geometry import attitude_from_radec_roll
 from skyfix.identify import METHODS, identify
+from tests.identify.identify_checks import FOV, ORION_HIP, ORION_XY, H, W, catalog_for, wrong
 
 ORION_ATTITUDE = attitude_from_radec_roll(np.radians(83.0), np.radians(-2.0), 0.0)
 

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 
-from identify_checks import pointing_at, wrong
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
@@ -15,6 +14,7 @@ from skyfix.errors import InputError
 from skyfix.identify import grid
 from skyfix.identify import hypothesis as hyp
 from skyfix.identify.match_groups import frame_table
+from tests.identify.identify_checks import pointing_at, wrong
 
 W, H, FOV = 1024, 1024, 15.0
 ARCSEC = np.pi / 180 / 3600

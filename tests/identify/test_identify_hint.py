@@ -4,7 +4,6 @@ wrong hint falls back to lost in space, a wrong hint never makes a wrong attitud
 hints are one-line errors."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,10 +18,10 @@ from skyfix.errors import InputError
 from skyfix.identify.accept import WRONG_BORESIGHT_ARCSEC, WRONG_ROLL_DEG
 from skyfix.identify.hint import METHOD, AttitudeHint, check_attitude_hint, identify_near
 from skyfix.pipeline import solve, solve_centroids
+from tests.conftest import EXAMPLES
 
 W, H = 1280, 960
 CAMERA = Camera.from_fov(W, H, 15.0)
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 ARCSEC = math.pi / (180 * 3600)
 
 

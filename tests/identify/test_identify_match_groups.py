@@ -5,13 +5,13 @@ bad input in one line, and the solved / wrong rates against truth."""
 import numpy as np
 import pytest
 
-from identify_checks import pointing_at, wrong
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
 from skyfix.errors import InputError
 from skyfix.identify import hypothesis as hyp
 from skyfix.identify import match_groups as mg
+from tests.identify.identify_checks import pointing_at, wrong
 
 W, H, FOV = 1024, 1024, 15.0
 ARCSEC = np.pi / 180 / 3600

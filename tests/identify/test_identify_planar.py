@@ -1,9 +1,9 @@
 """The ``planar`` identification method (skyfix.identify.planar): a known field named right,
 mirrored fields refused, bad input one-line, noise-free and noisy 15° fields solved and never
-wrong (the checks of tests/identify_checks.py)."""
+wrong (the checks of tests/identify/identify_checks.py)."""
 
-import identify_checks as checks
 from skyfix.identify import planar
+from tests.identify import identify_checks as checks
 
 
 def test_known_field_and_its_mirror(database):

@@ -6,7 +6,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.conftest import ROOT
+
 DOCS = ROOT / "docs"
 SRC = ROOT / "src" / "skyfix"
 README = ROOT / "README.md"

@@ -1,12 +1,13 @@
 """benchmarks/same_results.py: two records of the same code compare equal; a perturbed one does not."""
 
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from tests.conftest import ROOT
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import same_results  # noqa: E402
 
