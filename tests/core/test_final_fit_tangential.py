@@ -5,6 +5,7 @@ bar includes them (``docs/solving-without-a-camera.md``). Without them thesis 00
 bars 5.5× too small."""
 
 import numpy as np
+import pytest
 
 from skyfix.analysis.preset_campaign import CampaignRow, run_campaign, summarize_row
 from skyfix.calibrate import CameraPrior, fit_camera_with_prior, prior_parameters
@@ -53,6 +54,7 @@ def test_prior_fit_recovers_p1_and_holds_it_when_asked():
     assert fit.prediction_sigma_px(r).shape == (400,)
 
 
+@pytest.mark.slow  # a campaign: 8 rendered 5-megapixel frames solved blind (50 s in a loaded default run)
 def test_mt9p031_frames_with_no_camera_have_honest_error_bars():
     """Rendered MT9P031 frames (50° field) solved with no hint: error about x over σ has RMS
     within 0.5–2 (5.5 when p1 was held at 0), none wrong."""

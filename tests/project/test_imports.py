@@ -243,6 +243,7 @@ _DRIVER = textwrap.dedent("""
 
 
 @pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs os.fork")
+@pytest.mark.slow  # ~90 fresh processes, 115 s in a loaded default run; the static checks above stay
 def test_every_module_imports_on_its_own():
     driver = _DRIVER.format(third_party=_third_party(), modules=sorted(MODULES))
     run = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True, timeout=600,
