@@ -163,8 +163,9 @@ def pattern_fits(max_residual_rad: float, f_px: float, radius_px: float) -> bool
     allowed star error, and ``no_rotation_fits`` (triple products,
     ``tests/identify/test_identify.py::test_rotation_bound_rejects_mirror_images_only``). Correctness
     does not rest on it: without it the verification (rule 5) still rejects mirror images
-    (``tests/identify/test_identify.py::test_mirror_image_fails`` passes); it saves verifications. Its
-    definition is pinned by ``tests/identify/test_identify_accept.py::test_rule_helpers_are_the_kernel_arithmetic``.
+    (``tests/identify/test_identify.py::test_mirror_image_fails`` passes); it saves verifications.
+    Its definition is pinned by
+    ``tests/identify/test_identify_accept.py::test_rule_helpers_are_the_kernel_arithmetic``.
     """
     return not (max_residual_rad * f_px > radius_px)
 
