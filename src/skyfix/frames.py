@@ -270,7 +270,7 @@ def orbit_frame(position_km: object, velocity_km_s: object) -> np.ndarray:
     Rows: ``x_o = y_o × z_o`` (roll; the velocity on a circular orbit), ``y_o = −(r × v)/|r × v|``
     (pitch, against the orbit normal), ``z_o = −r/|r|`` (yaw, nadir). 004's sign check holds: at
     the ascending node ``z_o`` is minus the node direction and ``x_o`` the velocity
-    (``tests/test_frames.py`` checks it against :func:`orbit_frame_from_elements`).
+    (``tests/core/test_frames.py`` checks it against :func:`orbit_frame_from_elements`).
     """
     r = _numbers(position_km, "position")
     v = _numbers(velocity_km_s, "velocity")

@@ -21,7 +21,7 @@ depend on, and deletes that file's cached kernels when the digest changes:
 
 Editing a file that no kernel file depends on (a command, a tracker, a report) drops nothing;
 editing ``_kernels/lens.py`` drops every kernel that inlines it
-(``tests/test_kernel_cache.py`` edits a helper in a copy of the package and sees the change).
+(``tests/_kernels/test_kernel_cache.py`` edits a helper in a copy of the package and sees the change).
 """
 
 from __future__ import annotations

@@ -213,7 +213,7 @@ def residuals_for_steps(cam, rmax, codes, ps, rays0, xy):
 def jacobian_rows(xy, rays0, cam, rmax, codes):
     """The Jacobian ``J`` (N, 2, P) and residuals (N, 2) at ``p = 0`` (the camera ``cam`` and the
     rays ``rays0``) for the parameters ``codes``, in the scaled units of the module text
-    (``tests/test_final_fit_kernels.py`` holds it to finite differences of
+    (``tests/_kernels/test_final_fit_kernels.py`` holds it to finite differences of
     :func:`residuals_for_steps`)."""
     fx, fy, cx, cy, s = cam[FX], cam[FY], cam[CX], cam[CY], cam[SKEW]
     P = 3

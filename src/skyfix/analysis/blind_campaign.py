@@ -17,7 +17,7 @@ error exceeds max(60″, 1 px) or the roll error 0.5° (:func:`skyfix.analysis.t
 roll): honest error bars give an RMS near 1.
 
 ``benchmarks/suite_blind.py`` runs them (``benchmarks/run --suites e``); the slow test suite pins
-the results (``tests/test_blind_campaign.py``).
+the results (``tests/analysis/test_blind_campaign.py``).
 """
 
 from __future__ import annotations

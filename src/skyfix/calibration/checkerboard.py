@@ -23,7 +23,7 @@ squares on every corner; Bouguet's toolbox there, OpenCV here — the same model
 
 The pixel convention is OpenCV's and skyfix's alike (docs/design.md#pixel-coordinates): an
 integer coordinate is a pixel's centre, so ``K``'s ``cx, cy`` are the Camera's as they are
-(``tests/test_calibration_checkerboard.py`` renders boards whose pixel ``(col, row)`` covers
+(``tests/calibration/test_calibration_checkerboard.py`` renders boards whose pixel ``(col, row)`` covers
 ``[col − ½, col + ½]`` and finds OpenCV's corners there with no half-pixel shift). OpenCV's
 ``K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` and distortion ``(k1, k2, p1, p2, k3)`` (Brown–Conrady)
 or ``(k1, k2, k3, k4)`` (``cv::fisheye``, whose ``alpha`` is ``s / fx``) map to the Camera's fields

@@ -10,7 +10,7 @@ becomes the direction the camera sees in three steps, ERFA's for a star (``atciq
    :mod:`skyfix.corrections.aberration`): up to 20.5″ + 5″.
 
 The result is the GCRS direction: astropy's ICRS → GCRS with the same ``obsgeoloc`` and
-``obsgeovel`` (tests/test_aberration.py: 1000 random stars, dates and velocities, within 1 µas).
+``obsgeovel`` (tests/corrections/test_aberration.py: 1000 random stars, dates and velocities, within 1 µas).
 What depends on the time and the observer alone is computed once (:func:`apparent_frame`, the
 ephemeris cached per time); applying it to a solve's few hundred stars costs ~40 µs
 (:func:`apparent_directions`).

@@ -10,7 +10,7 @@ tracker reports how far each is from its boresight and warns inside its exclusio
 - Both are seen from the observer's position when it is known (the Moon moves by up to 1° for a
   satellite in low orbit), where they were when the light left them (light time: 1.3 s for the
   Moon, in which the Earth and the Moon move 40 km together), and aberrated by the observer's
-  barycentric velocity, as astropy's ``get_body`` gives them in GCRS (tests/test_bodies.py:
+  barycentric velocity, as astropy's ``get_body`` gives them in GCRS (tests/corrections/test_bodies.py:
   within 0.1″ from the geocentre, 1″ from low orbit).
 - **Earth's limb** (with an observer position only): the Earth is a sphere of the equatorial
   radius seen from ``r``, centred on the nadir ``−r/|r|`` with angular radius ``asin(R/|r|)``;

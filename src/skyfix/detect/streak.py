@@ -77,7 +77,7 @@ _CONTRACT = {"contract"}
 _VECTOR = {"contract", "reassoc"}
 #: A prediction whose σ per axis is at most this (pixels) starts the Gauss–Newton fit itself,
 #: without the weighted centre's passes: from predictions 0.1–0.5 px σ off (up to ~2 px) the fit
-#: converges on every one of 600 synthetic streaks (``tests/test_detect_streak.py``'s) to the
+#: converges on every one of 600 synthetic streaks (``tests/detect/test_detect_streak.py``'s) to the
 #: centre it reaches from the weighted one, within its tolerance (≤ 0.006 px); from 0.7 px σ a
 #: few are lost.
 START_SIGMA_PX = 0.3

@@ -16,7 +16,7 @@ wants. The test therefore discounts ``ceil(n_extra / 2)`` matches, ``n_extra`` b
 effective number of camera numbers the fit took beyond the focal length (the trace of its hat
 matrix less the rotations and the focal length). Without this a sparse field whose model was
 chosen from the same few stars it was verified against was accepted with wrong stars
-(``tests/test_final_fit.py::test_sparse_non_square_never_wrong``).
+(``tests/core/test_final_fit.py::test_sparse_non_square_never_wrong``).
 
 *Precise enough to be right.* Identification can be sure of the stars while the attitude is
 not sure enough to be called right: a sparse field from an unknown camera (aspect, distortion
@@ -28,11 +28,11 @@ fails with the σ in the reason. A bar on 2σ (the first rule) let through solut
 chance of being wrong: on 10 000 blind uncalibrated sparse fields with honest error bars
 (normalised RMS 1.02–1.08) that bound summed to 5.3 expected wrong attitudes and one came
 70″ off at 2.6σ; at 1e-3 the bound sums to 0.24 and 667 of 8767 solutions (7.6 %) fail instead
-(``tests/test_final_fit.py::test_precision_rule_bounds_the_chance_of_a_wrong_attitude``).
+(``tests/core/test_final_fit.py::test_precision_rule_bounds_the_chance_of_a_wrong_attitude``).
 The σ behind a covariance is estimated from the fit's residuals, with Student's tails for their
 few degrees of freedom; a centroid noise stated beside a calibrated camera is combined with them
 (:func:`noise_posterior`): three stars' six residuals cannot bound their own noise
-(``tests/test_noise_prior.py``).
+(``tests/identify/test_noise_prior.py``).
 
 The rules, in the order a frame meets them
 ------------------------------------------
@@ -80,11 +80,11 @@ The final fit (:func:`skyfix.final_fit.final_fit`), whose rules live beside the 
 
 16. A calibrated camera: a star more than 4 σ (median-based, floored at 0.1 px) from the fitted
     attitude is dropped, at least half and three kept — :func:`skyfix.final_fit.inliers`
-    (``tests/test_final_fit_kernels.py::test_inliers_drop_outliers_keep_half``).
+    (``tests/_kernels/test_final_fit_kernels.py::test_inliers_drop_outliers_keep_half``).
 17. No camera: while the worst star's externally studentised χ² is beyond
     ``skyfix._kernels.camera_fit.outlier_limit`` (a good star's chance 3.4e-4, ``OUTLIER_CHI2``)
     it is dropped and the camera refitted (``fit_camera_with_prior(..., drop_outliers=True)``;
-    ``tests/test_final_fit.py::test_outlier_cut_drops_a_star_off_the_fitted_camera_and_only_it``).
+    ``tests/core/test_final_fit.py::test_outlier_cut_drops_a_star_off_the_fitted_camera_and_only_it``).
 18. No camera: the stars re-matched through the fitted camera must be beyond chance with the
     camera's freedom paid for (*Freedom paid for* above, :func:`chance_log_probability`);
     otherwise the verified stars are kept.
@@ -154,7 +154,7 @@ def ratio_tolerance(sigma_px: float, largest_edge_rad: float, f_px: float, model
     that covers the noise's tail, and ``model_err`` (the search tier's allowance for an
     unmodelled camera: distortion, a far-off focal length) is added. Tighter, true patterns are
     lost; looser, more false candidates reach verification (slower, never wrong: rule 5).
-    Pinned by ``tests/test_identify_accept.py::test_ratio_tolerance_covers_the_centroid_noise``
+    Pinned by ``tests/identify/test_identify_accept.py::test_ratio_tolerance_covers_the_centroid_noise``
     (99.9 % of true patterns with noise σ pass, fewer than 90 % with 2σ). The solve-rate tests
     do not pin it: they still pass with a tolerance ten times tighter (a field needs one pattern).
     """
@@ -169,7 +169,7 @@ def focal_allowed(f_px: float, lo_px: float, hi_px: float) -> bool:
 
     Why: a pattern of the right shape at the wrong scale is another pattern, and it is cheaper
     to reject it here than after verification. Pinned with rule 7 by
-    ``tests/test_identify.py::test_fov_hint_wrong_by_two_fails``: either rule alone makes that
+    ``tests/identify/test_identify.py::test_fov_hint_wrong_by_two_fails``: either rule alone makes that
     test pass (rule 7 rejects the refit of a candidate this one let through), both removed fail
     it. (NaN passes, as the kernel always had it; rule 3 rejects it.)
     """
@@ -185,10 +185,11 @@ def pattern_fits(max_residual_rad: float, f_px: float, radius_px: float) -> bool
     rotation that carries it onto the sky. Two shortcuts in the search reject such candidates
     before the SVD and reject nothing this rule would keep: an edge mismatch beyond twice the
     allowed star error, and ``no_rotation_fits`` (triple products,
-    ``tests/test_identify.py::test_rotation_bound_rejects_mirror_images_only``). Correctness
+    ``tests/identify/test_identify.py::test_rotation_bound_rejects_mirror_images_only``). Correctness
     does not rest on it: without it the verification (rule 5) still rejects mirror images
-    (``tests/test_identify.py::test_mirror_image_fails`` passes); it saves verifications. Its
-    definition is pinned by ``tests/test_identify_accept.py::test_rule_helpers_are_the_kernel_arithmetic``.
+    (``tests/identify/test_identify.py::test_mirror_image_fails`` passes); it saves verifications.
+    Its definition is pinned by
+    ``tests/identify/test_identify_accept.py::test_rule_helpers_are_the_kernel_arithmetic``.
     """
     return not (max_residual_rad * f_px > radius_px)
 
@@ -209,7 +210,7 @@ def quick_check_fails(n_catalog: int, log_p: float) -> bool:
 
     Why: speed. Most false candidates fail here at a third of the full verification's cost; a
     true one matches its brightest stars. It can only reject: without it the same fields solve.
-    Its thresholds are pinned by ``tests/test_identify_accept.py::test_quick_check_rule``.
+    Its thresholds are pinned by ``tests/identify/test_identify_accept.py::test_quick_check_rule``.
     """
     return n_catalog >= 3 and log_p > QUICK_LOG_P
 
@@ -231,9 +232,9 @@ def is_verified(log_prob: float, log_threshold: float) -> bool:
 
     Why: with 1e-9 and the look-elsewhere count, a false candidate is accepted about once in a
     billion frames. Pinned by
-    ``tests/test_identify_accept.py::test_prob_threshold_bounds_the_reported_chance`` and
-    ``tests/test_identify.py::test_false_match_probability_is_the_binomial_tail`` (the tail);
-    ``tests/test_identify.py::test_random_points_fail`` does not pin it alone: it passes with
+    ``tests/identify/test_identify_accept.py::test_prob_threshold_bounds_the_reported_chance`` and
+    ``tests/identify/test_identify.py::test_false_match_probability_is_the_binomial_tail`` (the tail);
+    ``tests/identify/test_identify.py::test_random_points_fail`` does not pin it alone: it passes with
     this rule loosened to P ≤ 1, as rule 6 rejects random points too.
     """
     return log_prob <= log_threshold
@@ -251,7 +252,7 @@ def refit_accepted(n_pairs: int, n_cat: int, n_img: int, radius_px: float, area_
     Why: a pattern that is right only locally (three stars of a dense cluster and a false star)
     passes the verification on the cluster's stars, but its refit matches barely more stars than
     a random attitude would at the radius its scatter needs. Pinned by
-    ``tests/test_identify.py::test_cluster_pattern_with_a_false_star_is_not_accepted`` (a
+    ``tests/identify/test_identify.py::test_cluster_pattern_with_a_false_star_is_not_accepted`` (a
     1560″ wrong attitude before).
     """
     return n_pairs >= MIN_REFIT_PAIRS and is_beyond_chance(n_pairs, n_cat, n_img, radius_px, area_px2,
@@ -264,8 +265,8 @@ def refit_focal_allowed(f_px: float, lo_px: float, hi_px: float) -> bool:
     Why: the refit frees the focal length (and k1) on all matched stars; a candidate whose refit
     leaves the range is a different camera than the one asked for (the search goes on). The
     3 % are the search's own slack: its focal length comes from one pattern's largest edge.
-    Pinned with rule 2 by ``tests/test_identify.py::test_fov_hint_wrong_by_two_fails`` (see
-    :func:`focal_allowed`); ``tests/test_identify_accept.py::test_refit_focal_range_rule`` checks
+    Pinned with rule 2 by ``tests/identify/test_identify.py::test_fov_hint_wrong_by_two_fails`` (see
+    :func:`focal_allowed`); ``tests/identify/test_identify_accept.py::test_refit_focal_range_rule`` checks
     that identify applies it.
     """
     return lo_px * 0.97 <= f_px <= hi_px * 1.03
@@ -281,7 +282,7 @@ def wrong_probability(covariance_rad2: np.ndarray, plate_scale_rad: float, dof: 
     are Student's (bivariate t: ``P(|e| > L) ≤ (1 + L²/(ν λ))^(−ν/2)``; t for the roll), not
     Gaussian (``exp(−L²/2λ)``, ν = ∞): a σ estimated from three stars' six residuals may be
     several times too small, and a three-star solution 4σ off was called solved before
-    (``tests/test_identify_triangle.py::test_sparse_noisy_fields_with_false_stars_are_never_wrong``).
+    (``tests/identify/test_identify_triangle.py::test_sparse_noisy_fields_with_false_stars_are_never_wrong``).
     NaN or negative variances give 1."""
     rows = np.asarray(covariance_rad2, dtype=np.float64).tolist()  # (3, 3): Python floats, fast
     if not all(math.isfinite(v) for row in rows for v in row):
@@ -303,7 +304,7 @@ def wrong_probability(covariance_rad2: np.ndarray, plate_scale_rad: float, dof: 
 def student_t_two_sided(t: float, nu: float) -> float:
     """``P(|T| > t)`` for Student's t with ``nu`` > 0 degrees of freedom (``2 stdtr(ν, −|t|)``
     in scipy.special; within 5e-13 relative of mpmath's for ν ≤ 1000, lgamma's cancellation
-    growing beyond, 2e-11 at ν = 1e5; tests/test_identify_accept.py): the regularised incomplete
+    growing beyond, 2e-11 at ν = 1e5; tests/identify/test_identify_accept.py): the regularised incomplete
     beta ``I_x(ν/2, 1/2)`` at ``x = ν / (ν + t²)``, by its continued fraction (modified Lentz).
     Written here because importing scipy.special costs a solving process ~0.06 s of CPU."""
     t = abs(float(t))

@@ -13,7 +13,7 @@ any profile follows exactly from ``φ`` and ``φ̇`` (the right Jacobian of the 
 
 which is ``φ̇`` itself whenever the turn keeps one axis (constant rate, slew); the pendulum's
 axes swing out of phase, so its rate needs the two extra terms. ``attitude(t)`` and ``rate(t)``
-are closed forms, exact to rounding; ``tests/test_simulate_profiles.py`` checks every profile's
+are closed forms, exact to rounding; ``tests/simulate/test_simulate_profiles.py`` checks every profile's
 rate against the numerical derivative of its attitude.
 
 Profiles by name (:data:`PROFILES`, :func:`make_profile`):

@@ -66,7 +66,7 @@ def fit_attitude(b, r, sigma_rad, keep, pair_k, outlier_k, min_stars):
     ``√(χ²/dof)`` when the residuals exceed their σ (never down). The sums are theirs
     (:mod:`skyfix._kernels.wahba`); only the loop is here, compiled, because those two public
     functions cost a tenth of a tracking update in their argument checks
-    (``tests/test_track.py`` checks this kernel against them).
+    (``tests/track/test_track.py`` checks this kernel against them).
 
     Returns ``(ok, A, P, scale)``; ``keep`` marks the stars in the fit."""
     pair_check(b, r, sigma_rad, keep, pair_k)

@@ -210,11 +210,11 @@ def unless_mirrored(result: Identification, xy: np.ndarray, width: int, height: 
     flipped by its reader (a FITS row order, a mirror in the optics) is a real input, and a
     near-symmetric constellation seen mirrored can put three or four of its stars on the sky's
     own within the tolerance: Orion's Rigel and belt, mirrored, were named with a chance of 8e-5
-    (``tests/test_identify_every_method.py``); flipped back they match with 3e-15. A flipped
+    (``tests/identify/test_identify_every_method.py``); flipped back they match with 3e-15. A flipped
     frame is the rarer input, so a mirror that fits only about as well (within
     :data:`AMBIGUITY_RATIO`, rule 13's margin between two hypotheses of the same frame) does not
     refuse: it would cost 2 of the 40 noise-free three-star fields of
-    ``tests/test_identify_triangle.py``, whose mirrored triangles match other catalogue ones."""
+    ``tests/identify/test_identify_triangle.py``, whose mirrored triangles match other catalogue ones."""
     flipped = np.array(xy, dtype=np.float64)
     flipped[:, 0] = 2.0 * float(result.camera.cx) - flipped[:, 0]
     mirror, _ = _identify(flipped, width, height, **options)

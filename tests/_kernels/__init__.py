@@ -1,0 +1,1 @@
+"""Tests of skyfix._kernels: the shared numba kernels and their cache check."""

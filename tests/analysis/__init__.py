@@ -1,0 +1,1 @@
+"""Tests of skyfix.analysis: the studies and campaigns."""

@@ -1,0 +1,1 @@
+"""Tests of skyfix.calibration: one camera over many star fields, checkerboards."""

@@ -1,0 +1,1 @@
+"""Tests of skyfix.corrections: aberration, apparent directions, bright bodies, refraction."""

@@ -1,0 +1,1 @@
+"""Tests of skyfix.detect: frame calibration, background, extraction, centroiders, streaks, smear."""

@@ -1,0 +1,2 @@
+"""Tests of skyfix.identify: pattern databases and bands, the search, verification, acceptance,
+the methods."""

@@ -1,0 +1,1 @@
+"""Tests of skyfix.montecarlo: campaigns, the Dask engine, results."""

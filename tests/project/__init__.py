@@ -1,0 +1,1 @@
+"""Tests of the repository as a whole: docs, import graph, benchmarks, the tests' own layout."""

@@ -1,0 +1,1 @@
+"""Tests of skyfix.simulate: rendering, sensor, motion profiles, slews."""

@@ -1,0 +1,1 @@
+"""Tests of skyfix.track: the tracker, its filter, rate, windowed measurement."""
