@@ -15,6 +15,11 @@ from skyfix._kernels import drop_stale_kernel_caches as _drop_stale_kernel_cache
 
 _drop_stale_kernel_caches()
 
+# numba's BLAS/LAPACK check and calls without importing all of scipy.linalg (~0.3 s of a solve)
+from skyfix._numba_lapack import install as _install_numba_lapack  # noqa: E402
+
+_install_numba_lapack()
+
 __all__ = ["solve", "solve_centroids", "Camera", "Solution", "load_hipparcos", "load_gaia"]
 
 _LAZY = {

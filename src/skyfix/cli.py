@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -36,11 +37,38 @@ from skyfix.validate import (
     check_solve_options,
 )
 
+
+class _Skyfix(typer.Typer):
+    """typer's app, with one shortcut: a plain ``skyfix solve IMAGE… [OPTIONS]`` (what
+    :func:`_plain_solve` accepts) calls the command directly, skipping typer's value coercion,
+    which imports pydantic and builds a validator per option (~0.15 s of CPU of the process).
+    Anything else — help, a bad or unusual value, another command — goes through typer as before,
+    so its messages and help are typer's own (tests/cli/test_cli_fast_path.py: the shortcut passes the
+    command what typer would)."""
+
+    def __call__(self, *args, **kwargs):
+        argv = None  # the shortcut only for app() and app(ARGS[, prog_name=…]), as click reads them
+        if not args and not kwargs:
+            argv = sys.argv[1:]
+        elif len(args) == 1 and isinstance(args[0], (list, tuple)) and set(kwargs) <= {"prog_name"}:
+            argv = list(args[0])
+        plain = _plain_solve(argv) if argv is not None and all(isinstance(a, str) for a in argv) else None
+        if plain is None:
+            return super().__call__(*args, **kwargs)
+        verbose, options = plain
+        try:
+            main_options(version=False, verbose=verbose)
+            solve(**options)
+        except typer.Exit as exc:  # as click's standalone mode does
+            sys.exit(exc.exit_code)
+        sys.exit(0)
+
+
 # rich_markup_mode=None: help and usage errors as plain text (click's formatter), without rich's
 # import (0.11 s of `skyfix -h`)
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  rich_markup_mode=None, context_settings={"help_option_names": ["-h", "--help"]},
-                  help="skyfix — a star tracker: solve sky images for the camera's attitude.")
+app = _Skyfix(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+              rich_markup_mode=None, context_settings={"help_option_names": ["-h", "--help"]},
+              help="skyfix — a star tracker: solve sky images for the camera's attitude.")
 database_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None,
                            help="Build or inspect the pattern database.")
 app.add_typer(database_app, name="database")
@@ -166,6 +194,101 @@ def solve(
     if progress is not None:
         progress.stop()
     raise typer.Exit(2 if any_error else 1 if any_failed else 0)
+
+
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+_COUNTED = re.compile(r"-v+|--verbose")
+
+
+def _plain_solve(argv: list[str]) -> tuple[int, dict] | None:
+    """``skyfix solve`` arguments that need none of typer's checks, read straight into the
+    command's keywords: ``(-v count before the command, {parameter: value})``; None for anything
+    else (typer then parses them). Plain means: ``-v``/``-vv``/``--verbose`` before ``solve``;
+    after it image paths and solve's options, each at most once, as ``--name VALUE`` or
+    ``--name=VALUE``, every value non-empty and not starting with ``-``, every number a plain
+    decimal (``10``, ``-2.5``, ``1e-3``: no ``nan``, no ``1_0``), flags without a value. Each
+    option's name, type and default come from the signature of :func:`solve`; an option of a
+    type not handled here turns the shortcut off."""
+    pre, i = 0, 0
+    while i < len(argv) and _COUNTED.fullmatch(argv[i]):
+        pre += _count(argv[i])
+        i += 1
+    if argv[i:i + 1] != ["solve"]:
+        return None
+    params = _solve_parameters()
+    if params is None:
+        return None
+    options = {name: default for name, (_, _, default) in params.items()}
+    by_flag = {flag: name for name, (flags, _, _) in params.items() for flag in flags}
+    images, given, verbose = [], set(), 0
+    rest = argv[i + 1:]
+    k = 0
+    while k < len(rest):
+        arg = rest[k]
+        k += 1
+        if not arg:
+            return None
+        if not arg.startswith("-"):
+            images.append(Path(arg))
+            continue
+        if _COUNTED.fullmatch(arg):
+            verbose += _count(arg)
+            continue
+        flag, eq, value = arg.partition("=")
+        name = by_flag.get(flag)
+        if name is None or name in given:
+            return None
+        given.add(name)
+        kind = params[name][1]
+        if kind is bool:
+            if eq:
+                return None
+            options[name] = True
+            continue
+        if not eq:
+            if k == len(rest):
+                return None
+            value = rest[k]
+            k += 1
+        if not value or value.startswith("-") and not (kind is float and _NUMBER.fullmatch(value)):
+            return None
+        if kind is float:
+            if not _NUMBER.fullmatch(value):
+                return None
+            options[name] = float(value)
+        else:
+            options[name] = kind(value)
+    if not images:
+        return None
+    options["images"], options["verbose"] = images, verbose
+    return pre, options
+
+
+def _count(arg: str) -> int:
+    return 1 if arg == "--verbose" else len(arg) - 1
+
+
+@functools.cache
+def _solve_parameters() -> dict[str, tuple[tuple[str, ...], type, object]] | None:
+    """solve's options as ``{parameter: (flags, type, default)}`` (images and -v apart), read
+    from its signature (annotations are strings here: ``from __future__ import annotations``);
+    None if one is of a kind :func:`_plain_solve` does not read."""
+    import inspect
+
+    kinds = {"float": float, "str": str, "Path": Path, "bool": bool}
+    out = {}
+    for name, p in inspect.signature(solve).parameters.items():
+        info = p.default
+        if name in ("images", "verbose"):
+            continue
+        kind = kinds.get(p.annotation) if isinstance(p.annotation, str) else None
+        decls = tuple(getattr(info, "param_decls", None) or ())
+        if (kind is None or not isinstance(info, typer.models.OptionInfo) or not decls
+                or not all(d.startswith("--") and "/" not in d for d in decls)
+                or info.callback is not None or info.envvar is not None or info.count):
+            return None
+        out[name] = (decls, kind, info.default)
+    return out
 
 
 def _solve_paths(identify_method: str, attitude_method: str, hint: bool) -> list[str]:

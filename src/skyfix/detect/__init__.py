@@ -24,6 +24,8 @@ Typical use::
   :func:`save_calibration` / :func:`load_calibration`.
 """
 
+from typing import TYPE_CHECKING
+
 from skyfix.detect.background import Background, estimate_background
 from skyfix.detect.calibrate_frames import (
     calibrate_frame,
@@ -46,7 +48,9 @@ from skyfix.detect.centroids import Centroids
 from skyfix.detect.diagnose import frame_problem
 from skyfix.detect.extract import METHODS, extract_centroids
 from skyfix.detect.saturation import saturation_level
-from skyfix.detect.streak import centroid_streaks, star_times, streak_motion
+
+if TYPE_CHECKING:
+    from skyfix.detect.streak import centroid_streaks, star_times, streak_motion
 
 __all__ = [
     "CENTROIDERS",
@@ -73,3 +77,20 @@ __all__ = [
     "star_times",
     "streak_motion",
 ]
+
+# The streak fit's names load skyfix.detect.streak (30 kernels) when first asked for: a solve
+# does not use it (issue 22: what `skyfix solve` imports).
+_LAZY = {"centroid_streaks": "skyfix.detect.streak", "star_times": "skyfix.detect.streak",
+         "streak_motion": "skyfix.detect.streak"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'skyfix.detect' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})
