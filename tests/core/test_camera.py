@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from skyfix.camera import PRESETS, Camera, camera_from_preset
-from skyfix.errors import CameraError
+from skyfix.errors import CameraError, UnknownNameError
 
 
 @pytest.fixture
@@ -79,7 +79,7 @@ def test_presets_load():
     for name in PRESETS:
         cam = camera_from_preset(name)
         assert 1.0 < cam.fov_deg < 90.0
-    with pytest.raises(CameraError):
+    with pytest.raises(UnknownNameError, match="unknown camera preset 'no-such-camera'; choose one of "):
         camera_from_preset("no-such-camera")
 
 

@@ -14,7 +14,7 @@ from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
 from skyfix.geometry import attitude_from_radec_roll, vector_to_radec
-from skyfix.identify import pyramid, voting
+from skyfix.identify.methods import pyramid, voting
 
 ARCSEC = np.pi / 180 / 3600
 # Betelgeuse, Rigel, Bellatrix, Alnitak, Alnilam, Mintaka, Saiph (brightest first but Rigel)

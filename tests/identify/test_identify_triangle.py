@@ -142,8 +142,8 @@ def test_rich_fields_with_fov_only(database, catalog):
 
 
 def test_bad_input(database):
-    with pytest.raises(InputError, match="max_stars must be 3–12"):
-        identify(np.zeros((5, 2)), W, H, method="triangle", fov_deg=15.0, database=database, max_stars=2)
+    with pytest.raises(InputError, match="triangle_stars must be 3–12"):
+        identify(np.zeros((5, 2)), W, H, method="triangle", fov_deg=15.0, database=database, triangle_stars=2)
     no_scale = identify(np.random.default_rng(0).uniform(0, 900, (6, 2)), W, H, method="triangle",
                         database=database)
     assert not no_scale.success and "needs a field of view or a camera" in no_scale.reason
