@@ -772,8 +772,13 @@ def against(ref: str, quick: bool = False, keep: Path | None = None, show_all: b
         added = _git("worktree", "add", "--detach", "--quiet", str(tree), sha)
         if added.returncode != 0:
             raise UsageError(f"git worktree add failed: {added.stderr.strip().splitlines()[-1:]}")
-        print(f"{ref} = {sha[:12]} checked out in {tree} (its numba kernels compile on first use)")
+        print(f"{ref} = {sha[:12]} checked out in {tree} (its kernels compile in a warm-up record first)")
         base_path, new_path = tmp / "base.npz", tmp / "new.npz"
+        # A quick record first, thrown away, on each side: a tree's kernels compile on first use,
+        # and a solve that waits for a compile can meet identification's 2 s wall-clock limit
+        # and fail where a warm one solves (04ada99's synthetic #009 did, twice).
+        for src in (tree / "src", REPO_ROOT / "src"):
+            _record_in_subprocess(src, tmp / "warm-up.npz", True)
         base_meta = _record_in_subprocess(tree / "src", base_path, quick)
         new_meta = _record_in_subprocess(REPO_ROOT / "src", new_path, quick)
         print(f"\nskyfix of {ref}: {base_meta['skyfix_file']} (git {base_meta['git']})")
