@@ -43,7 +43,7 @@ PROJECTIONS: dict[str, Projection] = {
 # Other names a camera file may give: equidistant is Kannala–Brandt with every k = 0.
 PROJECTION_ALIASES = {"equidistant": "kannala-brandt"}
 _PROJECTION_OF_CODE = {p.code: name for name, p in PROJECTIONS.items()}
-_KNOWN_PROJECTIONS = ", ".join([*PROJECTIONS, *PROJECTION_ALIASES])
+_KNOWN_PROJECTIONS = (*PROJECTIONS, *PROJECTION_ALIASES)
 
 # The camera's floating-point fields: its numbers for kernels less the projection's code.
 _FLOAT_KEYS = tuple(k for k in lens.CAMERA_NUMBERS if k != "projection_code")
@@ -96,7 +96,7 @@ class Camera:
         """Resolve an alias to its projection's name; a coefficient of another projection is an error."""
         name = self.projection
         if not isinstance(name, str) or PROJECTION_ALIASES.get(name, name) not in PROJECTIONS:
-            raise unknown_name("camera projection", name, _KNOWN_PROJECTIONS.split(", "))
+            raise unknown_name("camera projection", name, _KNOWN_PROJECTIONS)
         if name == "equidistant" and any(getattr(self, k) != 0.0 for k in ("k1", "k2", "k3", "k4")):
             raise CameraError("an equidistant camera has k1 = k2 = k3 = k4 = 0; give projection = "
                               '"kannala-brandt" for a θ polynomial')
