@@ -102,9 +102,9 @@ def main() -> None:
     load_database, solve = cli.load_database, pipeline.solve
     inner: dict[str, tuple[float, float]] = {}
 
-    def timed_load_database(path):
+    def timed_load_database(*args, **kwargs):
         s = _now()
-        out = load_database(path)
+        out = load_database(*args, **kwargs)
         e = _now()
         inner["database load"] = (e[0] - s[0], e[1] - s[1])
         return out
