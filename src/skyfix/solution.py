@@ -80,6 +80,7 @@ class Solution:
     dec_deg: float | None = None
     roll_deg: float | None = None
     boresight_px: list[float] | None = None
+    mirrored: bool = False  #: solved as a mirror image (skyfix.parity: parity="mirrored" or "either")
     fov_deg: float | None = None
     quaternion_xyzw: list[float] | None = None
     covariance_arcsec2: list[list[float]] | None = None
@@ -119,6 +120,8 @@ class Solution:
         ``A_icrs_to_cam``."""
         from skyfix.calibrate import frame_at_pixel
 
+        if self.mirrored:  # the camera and attitude are the flipped frame's (skyfix.parity)
+            x = (self.camera.width - 1) - x
         return frame_at_pixel(self.A_icrs_to_cam, self.camera, (x, y), along)
 
     def radec_of_pixel(self, x: float, y: float) -> tuple[float, float]:
@@ -128,6 +131,17 @@ class Solution:
 
         ra, dec = vector_to_radec(self.attitude_at_pixel(x, y)[2])
         return math.degrees(float(ra)), math.degrees(float(dec))
+
+    def flip_match_columns(self, width: int) -> None:
+        """The matches' x flipped left-right, ``x' = (W − 1) − x``, in place (for
+        :func:`skyfix.parity.unmirror_solution`)."""
+        value = self.__dict__.get("_matches")
+        if isinstance(value, MatchTable):
+            table = value.table.copy()
+            table[0] = (width - 1) - table[0]
+            self.matches = MatchTable(table, value.ids)
+        elif value:
+            self.matches = [m._replace(x=(width - 1) - m.x) for m in value]
 
     @property
     def center_px(self) -> list[float] | None:

@@ -102,4 +102,4 @@ def test_mirror_image_is_named(tmp_path, database):
     result = runner.invoke(app, ["solve", str(mirrored)])
     assert result.exit_code == 1
     assert result.stdout.endswith("but the stars match the sky mirrored left-right: a mirror image "
-                                  "(flip it before solving)\n")
+                                  "(solve it with --parity mirrored or either; parity= in Python)\n")
