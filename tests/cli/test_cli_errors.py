@@ -117,7 +117,7 @@ def test_same_named_inputs_get_distinct_outputs(tmp_path, database):
 
 
 def test_output_names_scheme():
-    from skyfix.cli_support import output_names
+    from skyfix.cli.common import output_names
 
     names = output_names([Path("a/sky.png"), Path("b/sky.png"), Path("c/moon.png")])
     assert names == ["a-sky", "b-sky", "moon"]

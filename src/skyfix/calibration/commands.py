@@ -16,7 +16,7 @@ from pathlib import Path
 
 import typer
 
-from skyfix.cli_support import VERBOSE, add_verbosity, guarded, prepare_outputs
+from skyfix.cli.common import VERBOSE, add_verbosity, guarded, prepare_outputs
 
 __all__ = ["calibrate_checkerboard_command", "calibrate_stars_command", "register"]
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import typer
 
-from skyfix.cli_support import VERBOSE, add_verbosity, guarded
+from skyfix.cli.common import VERBOSE, add_verbosity, guarded
 
 __all__ = ["register"]
 

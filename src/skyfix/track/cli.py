@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from skyfix.cli_support import (
+from skyfix.cli.common import (
     VERBOSE,
     add_verbosity,
     compile_notice,

@@ -1,10 +1,14 @@
 """What every ``skyfix`` command shares: one-line errors, the guard that turns any exception into
-one, ``-v``/``-vv``, output files (folders created, names never colliding) and the notice shown
-while numba compiles kernels (the first run on a machine).
+one, ``-v``/``-vv``, output files (folders created, names never colliding), the inputs several
+commands read (``--camera``, ``--calibration``/``--dark``/``--flat``, the pattern database) and
+the notice shown while numba compiles kernels (the first run on a machine).
 
 Errors: ``skyfix: error: MESSAGE`` on stderr and exit status 2; an interrupt prints
 ``skyfix: interrupted`` and exits 130 (the shell's convention for Ctrl-C); an unexpected
 exception (a bug) is one line too, and ``-vv`` adds its traceback.
+
+The camera, image, database and numba imports sit inside the functions that need them: every
+``skyfix`` start loads this module, ``--version`` and ``-h`` included, which must stay light.
 """
 
 from __future__ import annotations
@@ -26,8 +30,8 @@ import typer
 from skyfix.errors import DatabaseError, SkyfixError
 
 __all__ = [
-    "VERBOSE", "add_verbosity", "compile_notice", "error_line", "fail", "guarded", "load_database",
-    "output_names", "output_paths", "prepare_outputs", "reset_verbosity",
+    "VERBOSE", "add_verbosity", "calibration_maps", "compile_notice", "error_line", "fail", "guarded",
+    "load_camera", "load_database", "output_names", "output_paths", "prepare_outputs", "reset_verbosity",
 ]
 
 #: ``-v`` / ``-vv``: a counted flag (it takes no value), on ``skyfix`` itself and on commands.
@@ -197,6 +201,40 @@ def prepare_outputs(outputs: dict[str, Sequence[Path | None]], inputs: Sequence[
                 fail(f"{option}: cannot create the folder {folder} ({exc.strerror or type(exc).__name__})")
             if not os.access(folder, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
                 fail(f"{option}: cannot write {path} (permission denied)")
+
+
+# --- inputs several commands read ------------------------------------------------------------------
+def load_camera(value: str) -> Any:
+    """A Camera from ``--camera``'s value: a TOML file or a preset name (simulator presets
+    included)."""
+    from skyfix.camera import Camera
+
+    if value.endswith(".toml") or Path(value).is_file():
+        return Camera.load(value)
+    from skyfix.simulate import load_preset, preset_names
+
+    if value.lower() in preset_names():
+        return Camera.from_dict(load_preset(value)["camera"])
+    from skyfix.camera import camera_from_preset
+
+    return camera_from_preset(value)
+
+
+def calibration_maps(calibration: Path | None, dark: Path | None, flat: Path | None) -> dict:
+    """``dark``, ``flat`` and ``bad_pixels`` for :func:`skyfix.pipeline.solve`; files given
+    one by one override those in the calibration file."""
+    from skyfix.io import read_image
+
+    maps: dict = {}
+    if calibration is not None:
+        from skyfix.detect import load_calibration
+
+        maps.update(load_calibration(calibration))
+    if dark is not None:
+        maps["dark"] = read_image(dark)
+    if flat is not None:
+        maps["flat"] = read_image(flat)
+    return maps
 
 
 # --- the first run: building the database, numba compiling kernels ---------------------------------

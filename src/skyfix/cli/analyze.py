@@ -2,7 +2,8 @@
 tracking against lost in space and thesis 002, the seed presets solved lost in space.
 
 Registered in :mod:`skyfix.cli` with ``app.add_typer(analyze_app, name="analyze")``. Errors are
-one line, as everywhere in the CLI (:mod:`skyfix.cli_support`).
+one line, as everywhere in the CLI (:mod:`skyfix.cli.common`). Each study is imported when its
+command runs, not when the command table is set up: every ``skyfix`` start loads this module.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import typer
 
-from skyfix.cli_support import (
+from skyfix.cli.common import (
     VERBOSE,
     add_verbosity,
     compile_notice,

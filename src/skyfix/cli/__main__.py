@@ -1,0 +1,5 @@
+"""``python -m skyfix.cli …``: the ``skyfix`` command without its console script."""
+
+from skyfix.cli import main
+
+main()
