@@ -30,9 +30,7 @@ HEAVY = ("numpy", "numba", "llvmlite", "scipy", "astropy", "matplotlib", "dask",
 #: The skyfix modules that define the command table; everything else is a command's implementation.
 COMMAND_TABLE = {"skyfix", "skyfix._kernels", "skyfix._numba_lapack", "skyfix.errors", "skyfix.validate",
                  *(f"skyfix.cli{m}" for m in ("", ".common", ".solve", ".detect", ".simulate", ".warmup",
-                                             ".database", ".analyze", ".calibrate")),
-                 "skyfix.track", "skyfix.track.cli", "skyfix.montecarlo", "skyfix.montecarlo.command",
-                 "skyfix.calibration", "skyfix.calibration.commands"}
+                                             ".track", ".montecarlo", ".database", ".analyze", ".calibrate"))}
 
 _DRIVER = textwrap.dedent("""
     import json, sys

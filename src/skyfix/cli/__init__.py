@@ -6,11 +6,12 @@ goes on past a bad file and exits 2 at the end; 130 interrupted. No command prin
 traceback unless asked with ``-vv`` (:mod:`skyfix.cli.common`).
 
 One module a command or command group — :mod:`.solve`, :mod:`.detect`, :mod:`.simulate`,
-:mod:`.warmup`, :mod:`.database`, :mod:`.analyze`, :mod:`.calibrate` — and :mod:`.common` for
-what they share. Every ``skyfix`` start, ``--version`` and ``-h`` included, imports all of them
-to build the table, so they import at their top only typer and skyfix's light modules
-(:mod:`skyfix.cli.common`, :mod:`skyfix.errors`, :mod:`skyfix.validate`); what a command runs is
-imported when it runs (tests/cli/test_cli_start.py).
+:mod:`.warmup`, :mod:`.track`, :mod:`.montecarlo`, :mod:`.database`, :mod:`.analyze`,
+:mod:`.calibrate` — and :mod:`.common` for what they share; no other skyfix module imports them
+(tests/project/test_imports.py). Every ``skyfix`` start, ``--version`` and ``-h`` included,
+imports all of them to build the table, so they import at their top only typer and skyfix's
+light modules (:mod:`skyfix.cli.common`, :mod:`skyfix.errors`, :mod:`skyfix.validate`); what a
+command runs is imported when it runs (tests/cli/test_cli_start.py).
 """
 
 from __future__ import annotations
@@ -20,10 +21,8 @@ import sys
 import typer
 
 from skyfix import __version__
-from skyfix.cli import analyze, calibrate, database, detect, simulate, solve, warmup
-from skyfix.cli.common import VERBOSE, add_verbosity, load_camera, reset_verbosity
-from skyfix.montecarlo.command import register as register_montecarlo
-from skyfix.track.cli import register as register_track
+from skyfix.cli import analyze, calibrate, database, detect, montecarlo, simulate, solve, track, warmup
+from skyfix.cli.common import VERBOSE, add_verbosity, reset_verbosity
 
 __all__ = ["app", "main"]
 
@@ -85,8 +84,8 @@ app.command("solve", epilog=solve.OUTPUT_NAMES_HELP)(solve.solve)
 app.command("detect")(detect.detect)
 app.command("simulate")(simulate.simulate)
 app.command("warmup")(warmup.warmup_command)
-register_track(app, load_camera)
-register_montecarlo(app)
+app.command("track")(track.track)
+app.command("montecarlo")(montecarlo.montecarlo)
 app.add_typer(database.database_app, name="database")
 app.add_typer(analyze.analyze_app, name="analyze")
 app.add_typer(calibrate.calibrate_app, name="calibrate")
