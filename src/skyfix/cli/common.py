@@ -30,8 +30,9 @@ import typer
 from skyfix.errors import DatabaseError, SkyfixError
 
 __all__ = [
-    "VERBOSE", "add_verbosity", "calibration_maps", "compile_notice", "error_line", "fail", "guarded",
-    "load_camera", "load_database", "output_names", "output_paths", "prepare_outputs", "reset_verbosity",
+    "VERBOSE", "add_verbosity", "calibration_maps", "compile_notice", "counter_bar", "error_line", "fail",
+    "guarded", "load_camera", "load_database", "output_names", "output_paths", "prepare_outputs",
+    "reset_verbosity",
 ]
 
 #: ``-v`` / ``-vv``: a counted flag (it takes no value), on ``skyfix`` itself and on commands.
@@ -235,6 +236,20 @@ def calibration_maps(calibration: Path | None, dark: Path | None, flat: Path | N
     if flat is not None:
         maps["flat"] = read_image(flat)
     return maps
+
+
+# --- progress bars -------------------------------------------------------------------------------------
+def counter_bar(label: str, total: int) -> Any:
+    """A transient progress bar on stderr, started: ``LABEL ━━━━━━ 3/20 0:00:05`` (the caller
+    advances task 0 and stops it; whether to show one at all is the caller's choice)."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    progress = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                        console=Console(stderr=True), transient=True)
+    progress.add_task(label, total=total)
+    progress.start()
+    return progress
 
 
 # --- the first run: building the database, numba compiling kernels ---------------------------------

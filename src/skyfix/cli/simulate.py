@@ -13,7 +13,15 @@ from pathlib import Path
 
 import typer
 
-from skyfix.cli.common import VERBOSE, add_verbosity, compile_notice, fail, guarded, prepare_outputs
+from skyfix.cli.common import (
+    VERBOSE,
+    add_verbosity,
+    compile_notice,
+    counter_bar,
+    fail,
+    guarded,
+    prepare_outputs,
+)
 from skyfix.errors import SimulationError, UnknownNameError
 from skyfix.validate import check_count, check_positive
 
@@ -226,13 +234,4 @@ def _numbers(text: str, n: int, option: str, form: str) -> list[float]:
 
 def _simulate_progress(n: int):
     """A progress bar on stderr while a sequence renders (not for one frame, nor off a terminal)."""
-    if n < 2 or not sys.stderr.isatty():
-        return None
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    progress = Progress(TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                        console=Console(stderr=True), transient=True)
-    progress.add_task("rendering", total=n)
-    progress.start()
-    return progress
+    return counter_bar("rendering", n) if n >= 2 and sys.stderr.isatty() else None

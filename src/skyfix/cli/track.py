@@ -26,6 +26,7 @@ from skyfix.cli.common import (
     VERBOSE,
     add_verbosity,
     compile_notice,
+    counter_bar,
     error_line,
     fail,
     guarded,
@@ -191,16 +192,7 @@ def gyro_rates(samples: np.ndarray, times: list[float]) -> list[np.ndarray | Non
 
 def _progress(n: int, quiet: bool):
     """A progress bar on stderr for long sequences (not when piping JSON, not off a terminal)."""
-    if n < 20 or quiet or not sys.stderr.isatty():
-        return None
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    progress = Progress(TextColumn("tracking"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                        console=Console(stderr=True), transient=True)
-    progress.add_task("tracking", total=n)
-    progress.start()
-    return progress
+    return counter_bar("tracking", n) if n >= 20 and not quiet and sys.stderr.isatty() else None
 
 
 def _summary(sol) -> str:
