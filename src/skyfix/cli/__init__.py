@@ -22,7 +22,7 @@ import typer
 
 from skyfix import __version__
 from skyfix.cli import analyze, calibrate, database, detect, montecarlo, simulate, solve, track, warmup
-from skyfix.cli.common import VERBOSE, add_verbosity, reset_verbosity
+from skyfix.cli.common import VERBOSE, OneLineErrors, add_verbosity, reset_verbosity
 
 __all__ = ["app", "main"]
 
@@ -57,7 +57,7 @@ class _Skyfix(typer.Typer):
 
 # rich_markup_mode=None: help and usage errors as plain text (click's formatter), without rich's
 # import (0.11 s of `skyfix -h`)
-app = _Skyfix(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+app = _Skyfix(cls=OneLineErrors, add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
               rich_markup_mode=None, context_settings={"help_option_names": ["-h", "--help"]},
               help="skyfix — a star tracker: solve sky images for the camera's attitude.")
 

@@ -22,13 +22,13 @@ from pathlib import Path
 
 import typer
 
-from skyfix.cli.common import VERBOSE, add_verbosity, fail, guarded, prepare_outputs
+from skyfix.cli.common import VERBOSE, OneLineErrors, add_verbosity, checking, fail, guarded, prepare_outputs
 from skyfix.validate import check_positive
 
 __all__ = ["calibrate_app", "calibrate_checkerboard_command", "calibrate_frames", "calibrate_stars_command"]
 
 # -h lists the commands in the order they are defined here: stars, checkerboard, frames
-calibrate_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None,
+calibrate_app = typer.Typer(cls=OneLineErrors, no_args_is_help=True, rich_markup_mode=None,
                             help="Calibrate the sensor (dark, flat, hot pixels) and the camera (from stars).")
 
 
@@ -58,7 +58,8 @@ def calibrate_stars_command(
     from skyfix.calibration.stars import calibrate_stars, calibration_model, parameter_table
 
     add_verbosity(verbose)
-    calibration_model(model)
+    with checking("--model", model):
+        calibration_model(model)
     outputs = {"--output": [output]} | ({"--plot": [plot]} if plot else {})
     prepare_outputs(outputs, inputs=images)
     cal = calibrate_stars(images, model=model, skew=skew, max_stars=max_stars)
@@ -107,8 +108,10 @@ def calibrate_checkerboard_command(
     )
 
     add_verbosity(verbose)
-    checkerboard_model(model)
-    parse_pattern(pattern)
+    with checking("--model", model):
+        checkerboard_model(model)
+    with checking("--pattern", pattern):
+        parse_pattern(pattern)
     outputs = {"--output": [output]} | ({"--plot": [plot]} if plot else {})
     prepare_outputs(outputs, inputs=images)
     cal = calibrate_checkerboard(images, pattern=pattern, square_mm=square_mm, model=model)

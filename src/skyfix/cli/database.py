@@ -12,12 +12,12 @@ from pathlib import Path
 
 import typer
 
-from skyfix.cli.common import VERBOSE, add_verbosity, guarded, prepare_outputs
+from skyfix.cli.common import VERBOSE, OneLineErrors, add_verbosity, guarded, prepare_outputs
 from skyfix.validate import check_fov_range
 
 __all__ = ["database_app", "database_build"]
 
-database_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None,
+database_app = typer.Typer(cls=OneLineErrors, no_args_is_help=True, rich_markup_mode=None,
                            help="Build or inspect the pattern database.")
 
 

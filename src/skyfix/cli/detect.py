@@ -17,10 +17,11 @@ from skyfix.cli.common import (
     add_verbosity,
     calibration_maps,
     compile_notice,
-    error_line,
     fail,
     guarded,
+    input_error_line,
 )
+from skyfix.errors import unknown_name
 from skyfix.validate import check_count, check_positive
 
 __all__ = ["detect"]
@@ -47,9 +48,9 @@ def detect(
     sigma = check_positive(sigma, "--sigma")
     max_stars = check_count(max_stars, "--max-stars")
     if method not in det.METHODS:
-        fail(f"unknown detection method {method!r}; choose one of {', '.join(det.METHODS)}")
+        fail(f"--method: {unknown_name('detection method', method, det.METHODS)}")
     if centroid not in det.CENTROIDERS:
-        fail(f"unknown centroider {centroid!r}; choose one of {', '.join(det.CENTROIDERS)}")
+        fail(f"--centroid: {unknown_name('centroider', centroid, det.CENTROIDERS)}")
     maps = calibration_maps(calibration, None, None)
     any_error = False
     with compile_notice():
@@ -62,7 +63,7 @@ def detect(
                                           max_stars=max_stars)
             except Exception as exc:  # this image's error line, then the next image
                 any_error = True
-                typer.echo(f"skyfix: error: {error_line(exc, path)}", err=True)
+                typer.echo(f"skyfix: error: {input_error_line(exc, path)}", err=True)
                 continue
             if not json_out:
                 typer.echo(f"{path}: {len(c)} stars, background {c.background_level:.1f}, "

@@ -12,15 +12,19 @@ it); the campaign machinery (dask, pyarrow, numpy) is imported when the command 
 from __future__ import annotations
 
 import os
+import re
 import sys
 from pathlib import Path
 
 import typer
 
-from skyfix.cli.common import VERBOSE, add_verbosity, guarded
+from skyfix.cli.common import VERBOSE, add_verbosity, guarded, prepare_outputs
 from skyfix.errors import InputError
 
 __all__ = ["montecarlo"]
+
+#: A scheduler's address as Dask takes it: an optional protocol, a host, a port.
+_ADDRESS = re.compile(r"(?:[a-z][a-z0-9+.-]*://)?(?:\[[0-9a-fA-F:]+\]|[^\s/:\[\]]+):\d+/?")
 
 
 @guarded
@@ -44,10 +48,14 @@ def montecarlo(
         raise InputError("give --workers or --scheduler, not both")
     if workers is not None and workers < 1:
         raise InputError(f"--workers must be ≥ 1, got {workers}")
+    if scheduler is not None and not _ADDRESS.fullmatch(scheduler):
+        raise InputError(f"--scheduler {scheduler!r} is not a Dask scheduler's address: give "
+                         "[PROTOCOL://]HOST:PORT (tcp://10.0.0.5:8786)")
     if output.suffix.lower() != ".parquet":
         raise InputError(f"--output {output}: the results are Parquet: name it *.parquet")
     campaign = load_campaign(campaign_file)
-    output.parent.mkdir(parents=True, exist_ok=True)
+    prepare_outputs({"--output": [output, output.with_suffix(".summary.json")], "--plot": [plot]},
+                    inputs=[campaign_file])
     from skyfix.montecarlo.engine import parts_folder, run_campaign
     from skyfix.montecarlo.results import plot_results, summarize, summary_lines, timing, write_summary
 

@@ -16,10 +16,12 @@ import typer
 from skyfix.cli.common import (
     VERBOSE,
     add_verbosity,
+    checking,
     compile_notice,
     counter_bar,
     fail,
     guarded,
+    load_camera,
     prepare_outputs,
 )
 from skyfix.errors import SimulationError, UnknownNameError
@@ -29,20 +31,33 @@ __all__ = ["simulate"]
 
 
 def _camera_arg(value: str):
-    """A camera preset name, or a TOML file (which may also hold [sensor] and [optics] tables)."""
-    if value.endswith(".toml") or Path(value).is_file():
-        from skyfix.camera import Camera
-
-        return Camera.load(value)
-    return value
+    """``--camera``: the Camera of a TOML file, or a preset's name (the simulator takes the preset's
+    sensor and optics with it); a name no preset has, or a file that is no camera file, fails."""
+    with checking("--camera", value):
+        camera = load_camera(value)
+    return camera if value.endswith(".toml") or Path(value).is_file() else value
 
 
 def _sensor_arg(value: str | None):
+    """``--sensor``: the Sensor of a TOML file, or a preset's name (checked)."""
     if value is None:
         return None
     from skyfix.simulate import Sensor
 
-    return Sensor.load(value) if value.endswith(".toml") or Path(value).is_file() else value
+    with checking("--sensor", value):
+        if value.endswith(".toml") or Path(value).is_file():
+            return Sensor.load(value)
+        Sensor.from_preset(value)
+    return value
+
+
+def _check_time(value: str | None) -> None:
+    """``--time``: a time the simulator reads (ISO 8601), checked before any work."""
+    if value is not None:
+        from skyfix.simulate.scene import parse_time
+
+        with checking("--time", value):
+            parse_time(value)
 
 
 @guarded
@@ -119,6 +134,8 @@ def simulate(
                       "--start": start, "--amplitude-deg": amplitude_deg, "--period": period,
                       "--damping": damping, "--phase-deg": phase_deg}
     motion = _simulate_profile(profile, A, {k: v for k, v in motion_options.items() if v is not None})
+    cam, sensor_arg = _camera_arg(camera), _sensor_arg(sensor)
+    _check_time(time)
     if (out_dir is None) == (output is None):
         fail("give an output folder (OUT_DIR) or an image file (-o FILE), not both" if out_dir is not None
              else "give an output folder (OUT_DIR) or an image file (-o FILE)")
@@ -131,9 +148,8 @@ def simulate(
     else:
         paths = [output.with_name(f"{output.stem}-{k:04d}{output.suffix}") for k in range(frames)]
     prepare_outputs({"--output" if out_dir is None else "OUT_DIR": paths})
-    kw = dict(sensor=_sensor_arg(sensor), exposure_s=exposure, epoch=time, seed=seed,
+    kw = dict(sensor=sensor_arg, exposure_s=exposure, epoch=time, seed=seed,
               false_stars=false_stars, hot_pixels=hot_pixels)
-    cam = _camera_arg(camera)
     progress = _simulate_progress(frames)
     try:
         with compile_notice(progress):

@@ -24,16 +24,16 @@ from skyfix.cli.common import (
     VERBOSE,
     add_verbosity,
     calibration_maps,
+    checking,
     compile_notice,
-    error_line,
     fail,
     guarded,
+    input_error_line,
     load_camera,
     load_database,
     output_paths,
     prepare_outputs,
 )
-from skyfix.errors import ImageReadError, SkyfixError
 from skyfix.validate import check_positive, check_solve_options
 
 __all__ = ["OUTPUT_NAMES_HELP", "plain_solve", "solve", "solve_parameters"]
@@ -94,10 +94,8 @@ def solve(
     wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
     prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
     maps = calibration_maps(calibration, dark, flat)
-    try:
+    with checking("--camera", camera_file):
         camera = load_camera(camera_file) if camera_file is not None else None
-    except SkyfixError as exc:
-        fail(error_line(exc, camera_file))
     database = load_database(database_file, _solve_paths(identify_method, method, hint is not None))
     if hint is not None and camera is None and fov is None:
         typer.echo("skyfix: note: --attitude-hint needs the image scale (--camera or --fov); "
@@ -126,7 +124,7 @@ def solve(
                     plot_solution(read_image(path), sol, plot_path)
             except Exception as exc:  # this image's error line, then the next image
                 any_error = True
-                typer.echo(f"skyfix: error: {error_line(exc, path)}{_count_flag_hint(exc, path)}", err=True)
+                typer.echo(f"skyfix: error: {input_error_line(exc, path)}", err=True)
             if progress is not None:
                 progress.advance(0)
     if progress is not None:
@@ -268,13 +266,6 @@ def _identify_method(name: str) -> None:
 
     if name.lower() not in METHODS:
         fail(f"--method: unknown identification method {name!r}; choose one of {', '.join(METHODS)}")
-
-
-def _count_flag_hint(exc: BaseException, path: Path) -> str:
-    """``skyfix solve -v 1 x.png`` reads "1" as an image: say why."""
-    if isinstance(exc, ImageReadError) and str(path).isdigit() and not path.exists():
-        return " (-v takes no value: write -v or -vv)"
-    return ""
 
 
 def _progress(n: int, quiet: bool):

@@ -25,15 +25,17 @@ import typer
 from skyfix.cli.common import (
     VERBOSE,
     add_verbosity,
+    checking,
     compile_notice,
     counter_bar,
-    error_line,
     fail,
     guarded,
+    input_error_line,
     load_camera,
     load_database,
+    prepare_outputs,
 )
-from skyfix.errors import InputError, SkyfixError
+from skyfix.errors import InputError, SkyfixError, unknown_name
 
 if TYPE_CHECKING:
     import numpy as np
@@ -71,17 +73,18 @@ def track(
 ) -> None:
     """Track a sequence of frames: lost in space first, then windows around the predicted stars."""
     add_verbosity(verbose)
-    from skyfix.track import Tracker
+    from skyfix.track import PREDICTORS, Tracker
 
-    try:
+    with checking("--camera", camera_file):
         camera = load_camera(camera_file)
-    except SkyfixError as exc:
-        fail(error_line(exc, camera_file))
+    if predictor.lower() not in PREDICTORS:
+        fail(f"--predictor: {unknown_name('predictor', predictor, PREDICTORS)}")
     times = frame_times(frames, fps)
     samples = read_gyro(gyro) if gyro is not None else None
     rates = gyro_rates(samples, times) if samples is not None else [None] * len(frames)
     if plot is not None and plot.suffix.lower() != ".png":
         fail(f"--plot {plot}: give a .png file")
+    prepare_outputs({"--plot": [plot]}, inputs=frames)
     database = load_database(database_file, ("track",))
     tracker = Tracker(camera, database=database, predictor=predictor, epoch=epoch,
                       n_windows=windows, streak_windows=streak_windows, exposure_s=exposure,
@@ -106,7 +109,7 @@ def track(
                 typer.echo(sol.to_json() if json_out else _summary(sol))
             except SkyfixError as exc:  # this frame's error line, then the next frame
                 any_error = True
-                typer.echo(f"skyfix: error: {error_line(exc, path)}", err=True)
+                typer.echo(f"skyfix: error: {input_error_line(exc, path)}", err=True)
             if progress is not None:
                 progress.advance(0)
     if progress is not None:

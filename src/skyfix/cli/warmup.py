@@ -12,6 +12,7 @@ import functools
 import typer
 
 from skyfix.cli.common import VERBOSE, add_verbosity, fail, guarded
+from skyfix.errors import unknown_name
 from skyfix.validate import check_count
 
 __all__ = ["warmup_command"]
@@ -32,7 +33,7 @@ def warmup_command(
     names = list(paths) if paths else list(warmup.PATHS)
     unknown = [p for p in names if p not in warmup.PATHS]
     if unknown:
-        fail(f"unknown warm-up path {unknown[0]!r}; choose from {', '.join(warmup.PATHS)}")
+        fail(str(unknown_name("warm-up path", unknown[0], warmup.PATHS)))
     if workers is not None:
         workers = check_count(workers, "--workers")
     if list_paths:
