@@ -54,7 +54,7 @@ def test_compile_notice_shows_only_while_numba_compiles():
     import numba
     from rich.console import Console
 
-    from skyfix.cli_support import compile_notice
+    from skyfix.cli.common import compile_notice
 
     out = io.StringIO()
     console = Console(file=out, force_terminal=True, width=100)
