@@ -330,7 +330,7 @@ class Camera:
                 return cls.from_dict(load_preset(text)["camera"])
             if text.lower().strip() in PRESETS:
                 return camera_from_preset(text)
-            raise unknown_name("camera file or preset", text, sorted({*preset_names(), *PRESETS}))
+            raise unknown_name("camera preset or file", text, sorted({*preset_names(), *PRESETS}))
         try:
             text = p.read_text()
         except (OSError, UnicodeDecodeError) as exc:

@@ -50,6 +50,7 @@ BASE: dict[tuple[str, ...], list[str]] = {
     ("analyze", "presets"): ["--n", "1", "--presets", "generic"],
     ("analyze", "psf"): [IMAGE],
     ("analyze", "photometry"): [IMAGE],
+    ("analyze", "budget"): ["--camera", "generic", "--pointings", "5"],
     ("analyze", "coverage"): ["--fov", "10", "--mag", "4", "--n", "10"],
     ("analyze", "identification"): ["--quick"],
     ("calibrate", "stars"): [IMAGE, IMAGE, IMAGE, "-o", "cam.toml"],

@@ -26,7 +26,7 @@ def test_camera_only_presets_and_files_still_load(tmp_path):
 
 
 def test_an_unknown_name_lists_the_presets_and_a_missing_toml_is_a_file_error():
-    with pytest.raises(UnknownNameError, match="unknown camera file or preset 'nope'; choose one of .*sunsat"
+    with pytest.raises(UnknownNameError, match="unknown camera preset or file 'nope'; choose one of .*sunsat"
                        ):
         Camera.load("nope")
     with pytest.raises(CameraError, match="cannot read camera file nope.toml"):

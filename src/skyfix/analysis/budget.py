@@ -40,7 +40,8 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["CameraBudget", "CombinedBudget", "MagnitudeRow", "THESIS_003_TABLE_9_5", "camera_budget",
-           "combine_budget", "detection_rows", "pixel_noise_e"]
+           "budget_json", "combine_budget", "detection_rows", "format_budget",
+           "pixel_noise_e"]
 
 
 class MagnitudeRow(NamedTuple):
@@ -228,3 +229,38 @@ def camera_budget(camera="generic", *, sensor=None, optics=None, exposure_s: flo
         roll_arcsec=float(np.median(roll)) * arcsec if roll else math.nan,
         liebe_cross_arcsec=liebe[0] * arcsec, liebe_roll_arcsec=liebe[1] * arcsec,
         n_pointings=int(n_pointings))
+
+
+def budget_json(b: CameraBudget) -> dict:
+    """The budget as strict JSON data (its detection table as a list of rows; non-finite numbers
+    as None: an unreached saturation, a star not detected)."""
+    from skyfix.analysis._json import strict_json
+
+    return strict_json(b)  # NamedTuples (the budget, its rows) become dicts
+
+
+def format_budget(b: CameraBudget) -> str:
+    """``skyfix analyze budget``'s text: the camera, the detection table around the limit, the
+    stars in view and the attitude; thesis 003's Table 9.5 combined (:func:`combine_budget`)."""
+    lines = [f"{b.name}: FOV {b.fov_deg:.2f}°, {b.plate_scale_arcsec:.1f}″/px, exposure {b.exposure_s:g} s, "
+             f"PSF σ {b.psf_sigma_px:.2f} px, noise {b.noise_e:.1f} e⁻/px",
+             f"  limiting magnitude {b.limiting_mag:.2f} (SNR threshold), saturation from "
+             f"{b.saturation_mag:.2f}", "  mag   electrons   peak e⁻     SNR   centroid CRB px"]
+    for r in b.rows:
+        if b.limiting_mag - 4.0 <= r.mag <= b.limiting_mag + 1.0 and float(r.mag * 2).is_integer():
+            flag = " saturated" if r.saturated else "" if r.detected else " not detected"
+            lines.append(f"  {r.mag:4.1f} {r.electrons:11.4g} {r.peak_e:9.4g} {r.snr:7.1f} "
+                         f"{r.centroid_px:10.3f}{flag}")
+    lines += [f"  stars in view over {b.n_pointings} pointings: mean {b.stars_mean:.1f}, median "
+              f"{b.stars_median:.0f}; fewer than 3: {100 * b.fewer_than_3:.2f} %, fewer than 4: "
+              f"{100 * b.fewer_than_4:.2f} %",
+              f"  attitude (Cramér–Rao, median): cross-boresight {b.cross_boresight_arcsec:.2f}″ per axis, "
+              f"roll {b.roll_arcsec:.1f}″ (Liebe: {b.liebe_cross_arcsec:.2f}″, {b.liebe_roll_arcsec:.1f}″)",
+              "thesis 003 Table 9.5 (arcmin), components combined:"]
+    for camera, row in THESIS_003_TABLE_9_5.items():
+        c = combine_budget({k: row[k] for k in ("truth", "threshold", "lens", "atmosphere")}, row["total"],
+                           row["total_sigma"])
+        verdict = "within" if c.sum_within_2_sigma else "NOT within"
+        lines.append(f"  {camera}: total {c.total_mean:g} ± {c.total_sigma:g}; sum {c.linear_sum:.3f}, RSS "
+                     f"{c.rss:.3f} ({100 * c.explained_share:.0f} % of the total): the sum is {verdict} 2σ")
+    return "\n".join(lines)

@@ -273,6 +273,39 @@ def photometry(
 
 @analyze_app.command()
 @guarded
+def budget(
+    camera: str = typer.Option("generic", "--camera", help="Camera preset name or TOML file (its [sensor], "
+                               "[optics] and [defaults] tables, else the generic preset's)."),
+    exposure: float = typer.Option(None, "--exposure", help="Exposure, seconds (default: the preset's)."),
+    snr: float = typer.Option(5.0, "--snr", help="Detection threshold, SNR (skyfix's extractor: 5)."),
+    sky_mag: float = typer.Option(22.0, "--sky-mag", help="Sky surface brightness, mag/arcsec² "
+                                  "(22: a dark site; in orbit fainter)."),
+    pointings: int = typer.Option(400, "--pointings", help="Random pointings for the star counts and "
+                                  "the attitude."),
+    json_out: bool = typer.Option(False, "--json", help="Print the budget as one JSON line."),
+    verbose: int = VERBOSE,
+) -> None:
+    """A camera's budget: limiting and saturation magnitude, stars in view, and the Cramér–Rao
+    attitude error they give (thesis 004 §8.3, thesis 000 §2.9); thesis 003's Table 9.5 combined
+    in quadrature beside it."""
+    from skyfix.analysis import budget as bd
+
+    add_verbosity(verbose)
+    if exposure is not None:
+        check_positive(exposure, "--exposure")
+    check_positive(snr, "--snr")
+    pointings = check_count(pointings, "--pointings", minimum=1)
+    with checking("--camera", camera):
+        b = bd.camera_budget(camera, exposure_s=exposure, snr_threshold=snr, sky_mag_arcsec2=sky_mag,
+                             n_pointings=pointings)
+    if json_out:
+        typer.echo(json.dumps(bd.budget_json(b)))
+        return
+    typer.echo(bd.format_budget(b))
+
+
+@analyze_app.command()
+@guarded
 def coverage(
     fov: str = typer.Option(..., "--fov", help="Field width,height in degrees, e.g. 11.17,8.32 "
                             "(one number: a square field)."),

@@ -386,17 +386,9 @@ def load_camera(value: str) -> Any:
     included)."""
     from skyfix.camera import Camera
 
-    if value.endswith(".toml") or Path(value).is_file():
-        if not Path(value).is_file():
-            raise InputError(f"no such file {value}")
-        return Camera.load(value)
-    from skyfix.simulate import load_preset, preset_names
-
-    if value.lower() in preset_names():
-        return Camera.from_dict(load_preset(value)["camera"])
-    from skyfix.camera import camera_from_preset
-
-    return camera_from_preset(value)
+    if value.endswith(".toml") and not Path(value).is_file():
+        raise InputError(f"no such file {value}")
+    return Camera.load(value)  # a file, or a preset name (Camera.load says which names it knows)
 
 
 def calibration_maps(calibration: Path | None, dark: Path | None, flat: Path | None) -> dict:

@@ -75,6 +75,10 @@ def solve(
         help="The centroids' noise, pixels, when known (a calibrated tracker's): the search's "
              "tolerances, and with --camera a prior on the noise the error bars rest on — three or "
              "four stars' residuals cannot bound it alone (docs/identification-methods.md#triangle)."),
+    parity: str = typer.Option(
+        None, "--parity", metavar="normal|mirrored|either",
+        help="Whether the image may be a mirror image (a star diagonal, rows stored bottom-up): "
+             "normal, mirrored, or either (tries both; the default for FITS files, normal for the rest)."),
     smear: str = typer.Option(
         None, "--smear", metavar="DX,DY",
         help="The stars' streak over the exposure when the camera turned, pixels (a gyro's rate × the "
@@ -87,6 +91,11 @@ def solve(
     check_solve_options(fov, fov_tolerance, epoch, method,
                         ("--fov", "--fov-tolerance", "--epoch", "--attitude"))
     hint = _attitude_hint(attitude_hint)
+    if parity is not None:
+        from skyfix.parity import check_parity
+
+        with checking("--parity", parity):
+            check_parity(parity)
     smear_px = _smear(smear)
     noise = {} if centroid_sigma is None else {"centroid_sigma_px": check_positive(centroid_sigma,
                                                                                    "--centroid-sigma")}
@@ -110,13 +119,14 @@ def solve(
             try:
                 sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
                                   database=database, epoch=epoch, attitude_method=method, attitude_hint=hint,
-                                  identify_method=identify_method, smear_px=smear_px, **maps, **noise)
+                                  identify_method=identify_method, smear_px=smear_px, parity=parity, **maps,
+                                  **noise)
                 any_failed |= not sol.solved
                 typer.echo(sol.to_json() if json_out else _summary(sol))
                 if sol.solved and wcs_path is not None:
                     from skyfix.wcs import write_wcs
 
-                    write_wcs(wcs_path, sol.A_icrs_to_cam, sol.camera)
+                    write_wcs(wcs_path, sol.A_icrs_to_cam, sol.camera, mirrored=sol.mirrored)
                 if plot_path is not None:
                     from skyfix.io import read_image
                     from skyfix.plot import plot_solution
@@ -287,8 +297,17 @@ def _summary(sol) -> str:
     path = " | near the attitude hint" if sol.method == "attitude-hint" else ""
     sig = [v**0.5 for v in (sol.covariance_arcsec2[0][0], sol.covariance_arcsec2[1][1],
                             sol.covariance_arcsec2[2][2])]
-    return (f"{sol.image}: solved RA {sol.ra_deg:.5f}° Dec {sol.dec_deg:+.5f}° roll {sol.roll_deg:.3f}° "
+    # The image centre's numbers, as other plate solvers give them; the boresight named where the
+    # stars put the principal point elsewhere (docs/design.md#the-solution).
+    bx, by = sol.boresight_px
+    cx, cy = sol.center_px
+    where = ""
+    if math.hypot(bx - cx, by - cy) >= 0.5:
+        where = f" | boresight at ({bx:.1f}, {by:.1f}) px: RA {sol.ra_deg:.5f}° Dec {sol.dec_deg:+.5f}°"
+    mirrored = " | mirror image" if sol.mirrored else ""
+    return (f"{sol.image}: solved RA {sol.center_ra_deg:.5f}° Dec {sol.center_dec_deg:+.5f}° "
+            f"roll {sol.center_roll_deg:.3f}° "
             f"FOV {sol.fov_deg:.3f}° | {sol.n_matched}/{sol.n_detected} stars, rmse {sol.rmse_arcsec:.1f}″, "
             f"σ(x,y,roll) {sig[0]:.1f}″ {sig[1]:.1f}″ {sig[2]:.0f}″, P(false) {sol.prob_false:.1e} | "
-            f"{sol.time_ms.get('total', 0):.1f} ms{path}")
+            f"{sol.time_ms.get('total', 0):.1f} ms{path}{mirrored}{where}")
 
