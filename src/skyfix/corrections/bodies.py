@@ -38,7 +38,7 @@ from skyfix.obstime import ObservationTime
 
 # erfa is imported in the functions that call it: importing it takes ~150 ms.
 __all__ = ["BodyDirections", "BodyAngles", "Exclusion", "EXCLUSION_DEG", "body_directions",
-           "body_angles", "exclusion_for", "exclusion_warnings"]
+           "body_angles", "angles_from_directions", "exclusion_for", "exclusion_warnings"]
 
 
 class BodyDirections(NamedTuple):
@@ -130,8 +130,13 @@ def _light_time_position(body: str, jd_tt: float, seen_from_au: np.ndarray) -> n
 def body_angles(boresight: np.ndarray, time: ObservationTime, observer: Observer = GEOCENTRE) -> BodyAngles:
     """The angles of the Sun, the Moon and the Earth's limb from ``boresight`` (ICRS unit vector,
     ``A_icrs_to_cam[2]``) at ``time`` seen from ``observer``."""
+    return angles_from_directions(boresight, body_directions(time, observer))
+
+
+def angles_from_directions(boresight: np.ndarray, d: BodyDirections) -> BodyAngles:
+    """:func:`body_angles` from directions already found (:func:`body_directions`): a tracker's
+    frames, a few seconds apart, reuse one set (the Moon moves 0.5″ a second)."""
     b = normalize(np.asarray(boresight, dtype=np.float64).reshape(3))
-    d = body_directions(time, observer)
     limb = radius = math.nan
     if d.nadir is not None:
         radius = math.degrees(d.earth_radius_rad)
