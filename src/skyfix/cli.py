@@ -17,6 +17,7 @@ from pathlib import Path
 import typer
 
 from skyfix import __version__
+from skyfix.cli_observation import observation_option, observation_options, summary_suffix
 from skyfix.cli_support import (
     VERBOSE,
     add_verbosity,
@@ -141,6 +142,13 @@ def solve(
         None, "--smear", metavar="DX,DY",
         help="The stars' streak over the exposure when the camera turned, pixels (a gyro's rate × the "
              "exposure): stars are found in the frame averaged along it."),
+    obs_time: str = observation_option("--time"),
+    velocity_kms: str = observation_option("--velocity-kms"),
+    site: str = observation_option("--site"),
+    weather: str = observation_option("--weather"),
+    refraction: str = observation_option("--refraction"),
+    mounting: str = observation_option("--mounting"),
+    apparent: bool = observation_option("--apparent"),
     verbose: int = VERBOSE,
 ) -> None:
     """Solve sky images lost in space (or near --attitude-hint): print RA, Dec, roll and the error bars."""
@@ -153,6 +161,8 @@ def solve(
     noise = {} if centroid_sigma is None else {"centroid_sigma_px": check_positive(centroid_sigma,
                                                                                    "--centroid-sigma")}
     _identify_method(identify_method)
+    observation = observation_options(obs_time, velocity_kms, site, weather, refraction, mounting, apparent,
+                                      camera_file, epoch)
     wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
     prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
     maps = _calibration_maps(calibration, dark, flat)
@@ -174,13 +184,14 @@ def solve(
             try:
                 sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
                                   database=database, epoch=epoch, attitude_method=method, attitude_hint=hint,
-                                  identify_method=identify_method, smear_px=smear_px, **maps, **noise)
+                                  identify_method=identify_method, smear_px=smear_px, **maps, **noise,
+                                  **observation)
                 any_failed |= not sol.solved
                 typer.echo(sol.to_json() if json_out else _summary(sol))
                 if sol.solved and wcs_path is not None:
                     from skyfix.wcs import write_wcs
 
-                    write_wcs(wcs_path, sol.A_icrs_to_cam, sol.camera)
+                    write_wcs(wcs_path, sol.A_apparent_to_cam, sol.camera)  # against catalogue places
                 if plot_path is not None:
                     from skyfix.io import read_image
                     from skyfix.plot import plot_solution
@@ -380,7 +391,7 @@ def _summary(sol) -> str:
     return (f"{sol.image}: solved RA {sol.ra_deg:.5f}° Dec {sol.dec_deg:+.5f}° roll {sol.roll_deg:.3f}° "
             f"FOV {sol.fov_deg:.3f}° | {sol.n_matched}/{sol.n_detected} stars, rmse {sol.rmse_arcsec:.1f}″, "
             f"σ(x,y,roll) {sig[0]:.1f}″ {sig[1]:.1f}″ {sig[2]:.0f}″, P(false) {sol.prob_false:.1e} | "
-            f"{sol.time_ms.get('total', 0):.1f} ms{path}")
+            f"{sol.time_ms.get('total', 0):.1f} ms{path}{summary_suffix(sol)}")
 
 
 @database_app.command("build")
