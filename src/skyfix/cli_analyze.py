@@ -43,6 +43,23 @@ def _progress(total: int, quiet: bool):
                     disable=quiet or not console.is_terminal)
 
 
+def _each_image(images: list[Path], quiet: bool, title: str, work, errors: list):
+    """``work(path)`` for each image under a progress bar, yielding ``(path, result)``; an image
+    whose work raises gets its one error line (and is added to ``errors``), and the next goes on."""
+    with _progress(len(images), quiet) as bar, compile_notice(bar):
+        task = bar.add_task(title, total=len(images))
+        for path in images:
+            try:
+                result = work(path)
+            except Exception as exc:  # this image's error line, then the next image
+                errors.append(path)
+                typer.echo(f"skyfix: error: {error_line(exc, path)}", err=True)
+                continue
+            finally:
+                bar.update(task, advance=1)
+            yield path, result
+
+
 @analyze_app.command()
 @guarded
 def centroids(
@@ -221,21 +238,15 @@ def photometry(
     if fov is not None:
         check_fov(fov, "--fov")
     load_database(None)  # says so when it has to be built first
-    results = []
-    any_error = False
-    with _progress(len(images), json_out) as bar, compile_notice(bar):
-        task = bar.add_task("photometry", total=len(images))
-        for path in images:
-            try:
-                res = frame_photometry(path, epoch=epoch, fov_deg=fov, flux=flux)
-            except Exception as exc:  # this image's error line, then the next image
-                any_error = True
-                typer.echo(f"skyfix: error: {error_line(exc, path)}", err=True)
-                continue
-            finally:
-                bar.update(task, advance=1)
-            results.append(res)
-            typer.echo(json.dumps(res.summary()) if json_out else res.format_line())
+    results, errors = [], []
+
+    def measured(path):
+        return frame_photometry(path, epoch=epoch, fov_deg=fov, flux=flux)
+
+    for _, res in _each_image(images, json_out, "photometry", measured, errors):
+        results.append(res)
+        typer.echo(json.dumps(res.summary()) if json_out else res.format_line())
+    any_error = bool(errors)
     total = summarize(results)
     if total["n_frames_solved"] == 0:
         if not json_out:
@@ -450,23 +461,18 @@ def mounting(
     except (InputError, SkyfixError) as exc:
         fail(error_line(exc))
     load_database(None)
-    rows, names, any_error = [], [], False
-    with _progress(len(images), json_out) as bar, compile_notice(bar):
-        task = bar.add_task("solving", total=len(images))
-        for path in images:
-            try:
-                sol, A = image_to_enu(path, the_site, the_weather, camera=camera, fov_deg=fov)
-            except Exception as exc:  # this image's error line, then the next image
-                any_error = True
-                typer.echo(f"skyfix: error: {error_line(exc, path)}", err=True)
-                continue
-            finally:
-                bar.update(task, advance=1)
-            if A is None:
-                typer.echo(f"{path}: failed: {sol.reason}", err=True)
-                continue
-            rows.append(A)
-            names.append((str(path), sol))
+    rows, names, errors = [], [], []
+
+    def solved(path):
+        return image_to_enu(path, the_site, the_weather, camera=camera, fov_deg=fov)
+
+    for path, (sol, A) in _each_image(images, json_out, "solving", solved, errors):
+        if A is None:
+            typer.echo(f"{path}: failed: {sol.reason}", err=True)
+            continue
+        rows.append(A)
+        names.append((str(path), sol))
+    any_error = bool(errors)
     if len(rows) < 2:
         fail(f"{len(rows)} image(s) solved with a time: the mounting needs two or more",
              code=2 if any_error else 1)
