@@ -39,7 +39,7 @@ from skyfix.validate import (
     check_xy,
 )
 
-__all__ = ["catalogue_places", "solution_numbers", "solve", "solve_centroids"]
+__all__ = ["solution_numbers", "solve", "solve_centroids"]
 
 log = logging.getLogger("skyfix")
 
@@ -417,7 +417,7 @@ def _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude
 def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *, camera_given: bool,
                    database, epoch: float | None, prob_threshold: float, n_img: int,
                    centroid_sigma_px: float | None = None, observation: Observation) -> None:
-    seen = observation.seen if observation.moves_stars else None
+    seen = _Places(observation.seen) if observation.moves_stars else None
     fit = final_fit(xy, ident, camera_given=camera_given, database=database, epoch=epoch,
                     method=attitude_method, prob_threshold=prob_threshold, n_img=n_img, seen=seen)
     A, camera, idx = fit.A_icrs_to_cam, fit.camera, fit.star_index
@@ -439,11 +439,7 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     places = fit.catalog_vectors  # the catalogue places the matches report (seen: corrected, not those)
     A_apparent = A_reported = A
     if seen is not None:
-        if db is None:
-            from skyfix.identify import default_database
-
-            db = default_database()
-        places = catalogue_places(db, fit.catalog_ids, epoch)
+        places = seen.places(fit.catalog_ids)
         A_apparent = apparent_attitude(A, places, fit.catalog_vectors)
         A_reported = A_apparent if observation.apparent else A
     pointing, table, rmse = solution_numbers(A_reported, xy, idx, places, fit.catalog_mag, fit.residuals_rad)
@@ -470,13 +466,23 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     sol.matches = MatchTable(table, fit.catalog_ids)  # made into Match tuples when first read
 
 
-def catalogue_places(database, ids: np.ndarray, epoch: float | None) -> np.ndarray:
-    """The catalogue places (ICRS unit vectors at ``epoch``) of the stars numbered ``ids`` in
-    ``database`` (its numbers are unique: Hipparcos, Gaia ``source_id`` or −HIP), by a sorted
-    index of its numbers kept with it."""
-    numbers = np.asarray(database.star_arrays()[0])
-    order = database.derived(("numbers sorted",), lambda: np.argsort(numbers, kind="stable"))
-    return database.vectors_at(order[np.searchsorted(numbers, np.asarray(ids), sorter=order)], epoch)
+class _Places:
+    """:meth:`Observation.seen <skyfix.corrections.observation.Observation.seen>` for the final fit,
+    remembering the catalogue places it is given, by catalogue number: the matches report those."""
+
+    def __init__(self, seen) -> None:
+        self._seen, self._ids, self._vectors = seen, [], []
+
+    def __call__(self, vectors: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        self._ids.append(np.asarray(ids))
+        self._vectors.append(np.asarray(vectors, dtype=np.float64))
+        return self._seen(vectors, ids)
+
+    def places(self, ids: np.ndarray) -> np.ndarray:
+        """The catalogue places (K, 3) of the stars numbered ``ids``, each one seen before."""
+        numbers, vectors = np.concatenate(self._ids), np.concatenate(self._vectors)
+        order = np.argsort(numbers, kind="stable")
+        return vectors[order[np.searchsorted(numbers, np.asarray(ids), sorter=order)]]
 
 
 def solution_numbers(A: np.ndarray, xy: np.ndarray, idx: np.ndarray, v: np.ndarray, mag: np.ndarray,

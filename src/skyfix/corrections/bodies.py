@@ -99,8 +99,8 @@ def body_directions(time: ObservationTime, observer: Observer = GEOCENTRE) -> Bo
     offset = np.zeros(3) if observer.position_km is None else observer.position_km / AU_KM
     seen_from = earth.barycentric_au + offset
     velocity = earth.velocity_km_s + observer.velocity_km_s
-    sun, moon = (aberrate(normalize(_light_time_position(body, time.jd_tt, seen_from)), velocity)
-                 for body in ("sun", "moon"))
+    sun, moon = aberrate(normalize(np.array([_light_time_position(body, time.jd_tt, seen_from)
+                                             for body in ("sun", "moon")])), velocity)
     if observer.position_km is None:
         return BodyDirections(sun, moon, None, math.nan)
     distance = float(np.linalg.norm(observer.position_km))
