@@ -68,6 +68,8 @@ def observation_options(time: str | None, velocity_kms: str | None, site: str | 
 
             out["observer"] = parse_velocity(velocity_kms)
         out["site"], out["weather"] = check_site_weather(site, weather, names=("--site", "--weather"))
+        if refraction is not None and site is None:
+            raise InputError("--refraction needs a --site: refraction depends on where the camera is")
         if mounting is not None:
             out["mounting"] = Mounting.parse(mounting, "--mounting")
         else:

@@ -58,6 +58,7 @@ def sequence(tmp_path_factory):
     (["--mounting", "0,0,0,2"], "not a unit quaternion"),
     (["--velocity-kms", "7,0,0", "--site", "40,20"], "give one or the other"),
     (["--refraction", "magic", "--site", "40,20"], "refraction model 'magic'"),
+    (["--refraction", "bennett"], "--refraction needs a --site"),
 ])
 @pytest.mark.parametrize("command", ["solve", "track"])
 def test_bad_observation_options_are_one_line(tmp_path, args, words, command):

@@ -93,6 +93,7 @@ class Observation:
     epoch_given : float or None — the epoch asked for (``epoch=``, ``--epoch``).
     mounting : Mounting or None — the camera → body rotation, for the body frame's attitude.
     exclusion : Exclusion — the bright bodies' exclusion angles, degrees.
+    dut1_s : float — UT1 − UTC for a site's Earth rotation, seconds (0 unless given).
     applied : tuple of str — the corrections applied (:data:`CORRECTIONS`' names, in order).
     not_applied : dict — each correction not applied: why.
     space : ApparentFrame or None — the aberration frame (a time, no site).
@@ -130,9 +131,9 @@ class Observation:
         """The same camera, site and options at another time (a tracker's frame), and with
         another ``observer`` when given."""
         return observe(time, observer=self.observer if observer is None else observer, site=self.site,
-                       weather=self.weather,
-                       refraction=self.refraction, apparent=self.apparent, epoch=self.epoch_given,
-                       mounting=self.mounting, exclusion=self.exclusion, dut1_s=self.dut1_s)
+                       weather=self.weather, refraction=self.refraction, apparent=self.apparent,
+                       epoch=self.epoch_given, mounting=self.mounting, exclusion=self.exclusion,
+                       dut1_s=self.dut1_s)
 
     def seen(self, vectors: np.ndarray, ids: np.ndarray) -> np.ndarray:
         """Catalogue unit vectors (K, 3) at the epoch, of the stars numbered ``ids`` (K,) (their
