@@ -84,10 +84,15 @@ class CatalogueCone:
     squared radius, so the same stars as :func:`star_tree` finds)
     and each re-match takes its cone from those stars by the same test, and each star's vector
     at the epoch is computed once. (A tree query of a 60–90° cone returns 10–20 thousand stars
-    and took 8 ms a re-match; the rest of one takes 1–2.)"""
+    and took 8 ms a re-match; the rest of one takes 1–2.)
 
-    def __init__(self, database, epoch: float | None) -> None:
-        self.database, self.epoch = database, epoch
+    ``seen``, when given, turns those vectors into the directions the camera sees the stars in:
+    a callable ``seen(vectors (K, 3), catalogue ids (K,)) -> (K, 3)``
+    (:meth:`skyfix.corrections.observation.Observation.seen`: aberration, refraction, …); the
+    re-matches then predict and fit those."""
+
+    def __init__(self, database, epoch: float | None, seen=None) -> None:
+        self.database, self.epoch, self.seen = database, epoch, seen
         self._axis: np.ndarray | None = None
 
     def cone(self, axis: np.ndarray, half_angle: float, limit: int | None = None
@@ -112,10 +117,14 @@ class CatalogueCone:
 
     def vectors(self, rows: np.ndarray) -> np.ndarray:
         """The vectors (K, 3) at the epoch of the cached stars ``rows``
-        (:meth:`~skyfix.identify.PatternDatabase.vectors_at`, once a star)."""
+        (:meth:`~skyfix.identify.PatternDatabase.vectors_at`, once a star), as ``seen`` when given."""
         todo = rows[np.isnan(self._vectors[rows, 0])]
         if len(todo):
-            self._vectors[todo] = self.database.vectors_at(self._index[todo], self.epoch)
+            index = self._index[todo]
+            v = self.database.vectors_at(index, self.epoch)
+            if self.seen is not None:
+                v = self.seen(v, self.database.star_arrays()[0][index])
+            self._vectors[todo] = v
         return self._vectors[rows]
 
 

@@ -46,7 +46,7 @@ class FinalFit:
     camera : Camera — the camera model used (fitted when none was given).
     star_index : (M,) int — indices into the centroids.
     catalog_ids : (M,) int
-    catalog_vectors : (M, 3)
+    catalog_vectors : (M, 3) — the catalogue directions fitted: as the camera sees them with ``seen``.
     catalog_mag : (M,)
     residuals_rad : (M,) — angle between each star's ray and its catalogue direction.
     covariance_rad2 : (3, 3) — attitude error about the camera axes (x, y, roll).
@@ -90,7 +90,7 @@ def inliers(resid: np.ndarray, floor: float) -> np.ndarray:
 
 
 def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch: float | None = None,
-              method: str = "svd", prob_threshold: float = 1e-9, n_img: int = 200) -> FinalFit:
+              method: str = "svd", prob_threshold: float = 1e-9, n_img: int = 200, seen=None) -> FinalFit:
     """Refine a successful identification into the final attitude (see the module text).
 
     Parameters
@@ -105,9 +105,18 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
         (:mod:`skyfix.identify.accept`); with no camera given the re-matched stars are tested
         again, paying for the camera numbers fitted to them.
     n_img : int — brightest centroids the catalogue is re-matched to.
+    seen : callable, optional — the directions the camera sees catalogue stars in,
+        ``seen(vectors (K, 3) at the epoch, catalogue ids (K,)) -> (K, 3)``
+        (:meth:`skyfix.corrections.observation.Observation.seen`: aberration, refraction, …).
+        Every star is then fitted and re-matched by those, so the attitude is the camera's
+        physical one (``catalog_vectors`` holds them); identification's own search and
+        verification stay on the catalogue's places, which its tolerances cover.
     """
+    if seen is not None:
+        ident = replace(ident, catalog_vectors=seen(np.asarray(ident.catalog_vectors, dtype=np.float64),
+                                                    np.asarray(ident.catalog_ids)))
     if not camera_given:
-        return _fit_unknown_camera(xy, ident, database, epoch, method, math.log(prob_threshold), n_img)
+        return _fit_unknown_camera(xy, ident, database, epoch, method, math.log(prob_threshold), n_img, seen)
     camera: Camera = ident.camera
     idx = np.asarray(ident.star_index)
     ids = np.asarray(ident.catalog_ids)
@@ -162,7 +171,7 @@ def _matched(xy: np.ndarray, fit, rematch: _Rematch, max_radius_px: float = math
 
 
 def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, method: str,
-                        log_threshold: float, n_img: int) -> FinalFit:
+                        log_threshold: float, n_img: int, seen=None) -> FinalFit:
     """No camera given: fit the camera parameters the stars call for under their prior
     (:func:`skyfix.calibrate.fit_camera_with_prior`), re-match the catalogue through the fitted
     model, and repeat until the matches stop changing (:func:`_grow`). The re-matched stars must
@@ -198,7 +207,7 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
     if len(verified.idx) - len(cur.idx) > max(2, len(verified.idx) // 20):
         # Many stars off the model: least squares may have bent to the wrong ones; fit robustly.
         fit, cur = _robust_prior_fit(xy, verified, cam0, ident.A_icrs_to_cam, prior)
-    stars = CatalogueCone(database, epoch)
+    stars = CatalogueCone(database, epoch, seen)
     rematch = _Rematch(prior, stars, area, log_threshold, n_use, memo={})
     best = None
     if len(cur.idx) >= _ROBUST_MIN_STARS:

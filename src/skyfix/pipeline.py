@@ -2,6 +2,13 @@
 
 The same path serves the Python API and ``skyfix solve``. Each stage is a plain function
 of its own module; this one only composes them, times them and fills in the Solution.
+
+The observation — its time (given, or read from the image's FITS header or EXIF), the
+observer's velocity, a ground site — is made once per image
+(:func:`skyfix.corrections.observation.observe`); the final fit then compares the stars with the
+catalogue as the camera sees it (:meth:`~skyfix.corrections.observation.Observation.seen`) and
+the Solution reports the time, the corrections and what follows from them
+(docs/time-and-corrections.md#in-a-solve).
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ import numpy as np
 
 from skyfix._kernels import rotation
 from skyfix.camera import Camera
+from skyfix.corrections.observation import Observation, apparent_attitude, observe, time_of_image
 from skyfix.errors import CameraError, InputError
 from skyfix.final_fit import final_fit
 from skyfix.identify.accept import noise_posterior, precision_failure
@@ -57,6 +65,14 @@ def solve(
     attitude_hint=None,
     smear_px=None,
     parity: str | None = None,
+    time=None,
+    observer=None,
+    site=None,
+    weather=None,
+    refraction: str = "erfa",
+    apparent: bool = False,
+    mounting=None,
+    exclusion=None,
     **identify_options,
 ) -> Solution:
     """Solve one sky image, lost in space or near a known attitude.
@@ -99,6 +115,31 @@ def solve(
         bottom-up) or ``"either"`` (:mod:`skyfix.parity`; the Solution's ``mirrored`` says which
         solved). Default: ``"either"`` for FITS files, whose rows may be stored either way up,
         ``"normal"`` for everything else.
+    time : ObservationTime, str or datetime, optional
+        The observation time (ISO 8601 text, UTC unless it says otherwise). Default: the image
+        file's own — FITS ``DATE-OBS`` (mid-exposure with ``EXPTIME``), a JPEG's or TIFF's EXIF —
+        and none for an array. With a time the catalogue is moved to it and aberrated (the
+        Earth's and ``observer``'s velocity), so the attitude is the camera's true one against
+        the ICRS axes; with none, nothing that needs one is applied and the Solution's
+        ``corrections_not_applied`` says so (docs/time-and-corrections.md#in-a-solve).
+    observer : str, (3,) numbers or Observer, optional
+        The camera's velocity relative to the Earth's centre, km/s, GCRS axes (``"vx,vy,vz"``:
+        ``--velocity-kms``), or an :class:`skyfix.corrections.Observer` (with a position, the
+        Earth's limb and the orbit frame are known too).
+    site, weather : str, Site, Weather, optional
+        A camera on the ground: ``"LAT,LON[,HEIGHT_M]"`` and ``"T_C,P_HPA[,RH]"``; refraction is
+        applied per star and the Solution adds the boresight's Alt/Az and place of date.
+    refraction : str
+        The refraction model at a site: ``"erfa"`` (default), ``"bennett"`` (thesis 003), ``"none"``.
+    apparent : bool
+        Report the apparent attitude (against the catalogue places, as plate solvers do)
+        instead of the true one; ``attitude_frame`` says which.
+    mounting : Mounting or str, optional
+        Camera → body rotation (``"x,y,z,w"``, or Euler 1-2-3 ``"φ,θ,ψ"`` degrees): the Solution
+        adds the body's attitude (``frames``).
+    exclusion : Exclusion or str, optional
+        The Sun's, Moon's and Earth limb's exclusion angles, or a camera preset whose to use
+        (default 28.1° each, thesis 004's baffle); a body inside its angle is a warning.
 
     Returns
     -------
@@ -113,7 +154,7 @@ def solve(
         An argument is out of range or of the wrong kind (checked before any work).
     """
     from skyfix.detect import extract_centroids, frame_problem
-    from skyfix.io import read_image
+    from skyfix.io import read_image_with_header
 
     if not isinstance(image, (str, os.PathLike, np.ndarray)):
         raise InputError(f"solve() takes one image (a file path or a 2-D array), got a "
@@ -133,31 +174,39 @@ def solve(
         from skyfix.detect.smear import smear_offsets
 
         smear_offsets(smear_px)  # checked before any work
+    obs = observe(time, observer=observer, site=site, weather=weather, refraction=refraction,
+                  apparent=apparent, epoch=epoch, mounting=mounting, exclusion=exclusion)  # checked now
     _warm(database, fov_deg, camera)
-    t0 = time.perf_counter()
+    t0 = _clock()
     label = name if name is not None else (str(image) if isinstance(image, (str, Path)) else "<array>")
-    data = raw = read_image(image)
+    got = read_image_with_header(image)
+    data = raw = got.data
+    if time is None and got.format != "array":
+        own = time_of_image(image, got.header, got.format)
+        if own.known:
+            obs = obs.at(own)
     if dark is not None or flat is not None or bad_pixels is not None:
         from skyfix.detect import calibrate_frame
 
         data = calibrate_frame(data, dark=dark, flat=flat, bad_pixels=bad_pixels)
-    t_read = time.perf_counter()
+    t_read = _clock()
     if smear_px is not None:  # a part of the extraction
         from skyfix.detect.smear import smear_filter
 
         data = smear_filter(data, smear_px)
     centroids = extract_centroids(data, max_stars=max_stars)
-    t_extract = time.perf_counter()
+    t_extract = _clock()
     log.info("%s: %d×%d image, %d centroids (noise %.3g)", label, data.shape[1], data.shape[0],
              len(centroids), getattr(centroids, "noise", float("nan")))
     sol = solve_centroids(
         centroids.xy, data.shape[1], data.shape[0], fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
         camera=camera, database=database, epoch=epoch, attitude_method=attitude_method,
-        identify_method=identify_method, name=label, attitude_hint=hint, parity=parity, **identify_options,
+        identify_method=identify_method, name=label, attitude_hint=hint, parity=parity, observation=obs,
+        **identify_options,
     )
     if not sol.solved and (problem := frame_problem(raw)):  # blank, saturated, too small: say which
         sol.reason = f"{sol.reason}: {problem}"
-    t_end = time.perf_counter()
+    t_end = _clock()
     sol.time_ms = {
         "read": 1e3 * (t_read - t0),
         "extract": 1e3 * (t_extract - t_read),
@@ -183,29 +232,45 @@ def solve_centroids(
     name: str = "",
     attitude_hint=None,
     parity: str = "normal",
+    time=None,
+    observer=None,
+    site=None,
+    weather=None,
+    refraction: str = "erfa",
+    apparent: bool = False,
+    mounting=None,
+    exclusion=None,
+    observation: Observation | None = None,
     **identify_options,
 ) -> Solution:
     """Identify centroids (N, 2) (pixels, brightest first) and fit the attitude.
 
-    The keywords are those of :func:`solve` (``parity`` defaults to ``"normal"``); ``width``
-    and ``height`` are the frame's size in pixels. Raises :class:`~skyfix.errors.InputError`
-    for a bad argument, before any work.
+    The keywords are those of :func:`solve` (``parity`` defaults to ``"normal"``; with no
+    image, no time is read: ``time`` or none);
+    ``width`` and ``height`` are the frame's size in pixels. ``observation`` (an
+    :class:`~skyfix.corrections.observation.Observation`, :func:`~skyfix.corrections.observation.observe`'s)
+    gives the time and the rest at once instead, and then they must be left out. Raises
+    :class:`~skyfix.errors.InputError` for a bad argument, before any work.
     """
     xy = check_xy(xy)
     width, height = check_frame_size(width, height)
     _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_method,
                    identify_options)
     hint = _checked_hint(attitude_hint)
+    obs = _observation(observation, epoch, time=time, observer=observer, site=site, weather=weather,
+                       refraction=refraction, apparent=apparent, mounting=mounting, exclusion=exclusion)
+    epoch = obs.epoch
     if check_parity(parity) != "normal":
         def attempt(points: np.ndarray, cam: Camera | None, options: dict, hint_) -> Solution:
             return solve_centroids(points, width, height, fov_deg=fov_deg,
                                    fov_tolerance_deg=fov_tolerance_deg, camera=cam, database=database,
                                    epoch=epoch, attitude_method=attitude_method,
-                                   identify_method=identify_method, name=name, attitude_hint=hint_, **options)
+                                   identify_method=identify_method, name=name, attitude_hint=hint_,
+                                   observation=obs, **options)
 
         return solve_with_parity(parity, xy, width, camera, hint, identify_method, identify_options, attempt)
     _warm(database, fov_deg, camera)
-    sol = Solution(image=name, n_detected=len(xy))
+    sol = _new_solution(name, len(xy), obs)
     if camera is not None and (camera.width, camera.height) != (width, height):
         raise CameraError(f"camera is {camera.width}×{camera.height} but the image is {width}×{height}")
     if len(xy) < 3:
@@ -214,19 +279,19 @@ def solve_centroids(
     fit_options = dict(camera_given=camera is not None, database=database, epoch=epoch,
                        prob_threshold=identify_options.get("prob_threshold", 1e-9),
                        n_img=identify_options.get("refine_stars", 200),
-                       centroid_sigma_px=identify_options.get("centroid_sigma_px"))
-    t0 = time.perf_counter()
+                       centroid_sigma_px=identify_options.get("centroid_sigma_px"), observation=obs)
+    t0 = _clock()
     hint_failure = ""
     if hint is not None:
         hint_failure = _solve_near(sol, xy, width, height, hint, fov_deg, fov_tolerance_deg, camera, database,
                                    epoch, attitude_method, identify_options, fit_options)
         if not hint_failure:
-            sol.time_ms["total"] = 1e3 * (time.perf_counter() - t0)
+            sol.time_ms["total"] = 1e3 * (_clock() - t0)
             log.info("%s: solved near the attitude hint with %d stars, P(false) %.2g, rmse %.2f″", name,
                      sol.n_matched, sol.prob_false, sol.rmse_arcsec)
             return sol
         log.info("%s: not solved near the attitude hint (%s): solving lost in space", name, hint_failure)
-        sol = Solution(image=name, n_detected=len(xy))
+        sol = _new_solution(name, len(xy), obs)
     ident, assumed = identify_lost(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
                                    camera=camera, database=database, epoch=epoch,
                                    identify_method=identify_method, identify_options=identify_options)
@@ -234,7 +299,7 @@ def solve_centroids(
         fit_options["camera_given"] = True
         log.info("%s: identified through the %s preset's camera (its %d×%d size)", name, assumed, width,
                  height)
-    t1 = time.perf_counter()
+    t1 = _clock()
     sol.time_ms = {"identify": 1e3 * (t1 - t0)}
     sol.method = ident.method
     if not ident.success:
@@ -249,15 +314,16 @@ def solve_centroids(
                                      database=database, epoch=epoch, identify_method=identify_method,
                                      identify_options=identify_options)
         if again is not None:
-            retry = Solution(image=name, n_detected=len(xy), method=again.ident.method)
+            retry = _new_solution(name, len(xy), obs)
+            retry.method = again.ident.method
             _fill_attitude(retry, xy, again.ident, attitude_method, **{**fit_options, "camera_given": True})
             if retry.solved:
                 log.info("%s: solved through the %s preset's camera (its %d×%d size)", name, again.assumed,
                          width, height)
                 retry.time_ms = sol.time_ms
                 sol = retry
-    sol.time_ms["attitude"] = 1e3 * (time.perf_counter() - t1)
-    sol.time_ms["total"] = 1e3 * (time.perf_counter() - t0)
+    sol.time_ms["attitude"] = 1e3 * (_clock() - t1)
+    sol.time_ms["total"] = 1e3 * (_clock() - t0)
     if sol.solved:
         log.info("%s: solved with %d stars, P(false) %.2g, rmse %.2f″", name, sol.n_matched,
                  sol.prob_false, sol.rmse_arcsec)
@@ -285,6 +351,31 @@ def _warm(database, fov_deg: float | None, camera: Camera | None) -> None:
     warmup.ensure("solve", alongside=alongside, also=also)
 
 
+_clock = time.perf_counter  # the module's `time` is solve()'s keyword inside it
+
+
+def _observation(observation: Observation | None, epoch: float | None, **given) -> Observation:
+    """The solve's Observation: ``observation`` as made by :func:`solve` (or a caller), else one
+    made from the keywords (:func:`~skyfix.corrections.observation.observe`)."""
+    if observation is None:
+        return observe(epoch=epoch, **given)
+    if not isinstance(observation, Observation):
+        raise InputError(f"observation must be an Observation (observe(...)), not "
+                         f"{type(observation).__name__}")
+    both = [k for k, v in given.items()
+            if not (v is None or (k == "refraction" and v == "erfa") or (k == "apparent" and v is False))]
+    if both:
+        raise InputError(f"give {', '.join(both)} in the observation, not beside it")
+    return observation
+
+
+def _new_solution(name: str, n_detected: int, obs: Observation) -> Solution:
+    """An unsolved Solution with the observation's time and corrections."""
+    sol = Solution(image=name, n_detected=n_detected)
+    obs.report(sol, None)
+    return sol
+
+
 # The options of identify_near that lost in space's default method shares (same names, same meaning).
 _HINT_OPTIONS = ("prob_threshold", "verify_stars", "refine_stars", "match_radius", "centroid_sigma_px")
 
@@ -307,7 +398,7 @@ def _solve_near(sol: Solution, xy: np.ndarray, width: int, height: int, hint, fo
 
     if camera is None and fov_deg is None:
         return "no camera or FOV given: the hint needs the image scale"
-    t0 = time.perf_counter()
+    t0 = _clock()
     cam = camera if camera is not None else Camera.from_fov(width, height, fov_deg)
     if database is None:
         from skyfix.identify.catalogue.bands import database_for_fov
@@ -316,14 +407,14 @@ def _solve_near(sol: Solution, xy: np.ndarray, width: int, height: int, hint, fo
     near = identify_near(xy, cam, hint.A_icrs_to_cam, hint.uncertainty_rad, database=database, epoch=epoch,
                          fit_camera=camera is None, fov_tolerance_deg=fov_tolerance_deg,
                          **{k: identify_options[k] for k in _HINT_OPTIONS if k in identify_options})
-    t1 = time.perf_counter()
+    t1 = _clock()
     sol.time_ms = {"identify": 1e3 * (t1 - t0)}
     if not near.success:
         return near.reason
     ident = dataclasses.replace(near.identification(), database=database)
     sol.method = ident.method
     _fill_attitude(sol, xy, ident, attitude_method, **fit_options)
-    sol.time_ms["attitude"] = 1e3 * (time.perf_counter() - t1)
+    sol.time_ms["attitude"] = 1e3 * (_clock() - t1)
     return "" if sol.solved else sol.reason
 
 
@@ -350,9 +441,10 @@ def _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude
 
 def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *, camera_given: bool,
                    database, epoch: float | None, prob_threshold: float, n_img: int,
-                   centroid_sigma_px: float | None = None) -> None:
+                   centroid_sigma_px: float | None = None, observation: Observation) -> None:
+    seen = _Places(observation.seen) if observation.moves_stars else None
     fit = final_fit(xy, ident, camera_given=camera_given, database=database, epoch=epoch,
-                    method=attitude_method, prob_threshold=prob_threshold, n_img=n_img)
+                    method=attitude_method, prob_threshold=prob_threshold, n_img=n_img, seen=seen)
     A, camera, idx = fit.A_icrs_to_cam, fit.camera, fit.star_index
     # The σ behind the covariance was estimated from the residuals: 2 per star, less the
     # attitude's 3 and the camera's effective share (Student's tails for a few stars). A centroid
@@ -368,8 +460,14 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
         sol.reason = imprecise
         log.info("%s: %s", sol.image, imprecise)
         return
-    pointing, table, rmse = solution_numbers(A, xy, idx, fit.catalog_vectors, fit.catalog_mag,
-                                             fit.residuals_rad)
+    db = ident.database if ident.database is not None else database
+    places = fit.catalog_vectors  # the catalogue places the matches report (seen: corrected, not those)
+    A_apparent = A_reported = A
+    if seen is not None:
+        places = seen.places(fit.catalog_ids)
+        A_apparent = apparent_attitude(A, places, fit.catalog_vectors)
+        A_reported = A_apparent if observation.apparent else A
+    pointing, table, rmse = solution_numbers(A_reported, xy, idx, places, fit.catalog_mag, fit.residuals_rad)
     pointing = pointing.tolist()
     sol.status = "solved"
     sol.reason = ""
@@ -382,12 +480,34 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     sol.prob_false = max(float(ident.prob_false), math.exp(fit.log_prob_chance))
     sol.rmse_arcsec = rmse / _ARCSEC
     sol.A_icrs_to_cam = A
+    sol.A_apparent_to_cam = A_apparent
     sol.camera = camera
-    db = ident.database if ident.database is not None else database
+    observation.report(sol, A, A_reported)
+    for line in sol.warnings:  # a bright body inside its exclusion angle
+        log.warning("%s: %s", sol.image, line)
     if db is not None:
         sol.catalog = str(db.meta.get("catalog", ""))
         sol.catalog_epoch = float(epoch if epoch is not None else db.epoch)
     sol.matches = MatchTable(table, fit.catalog_ids)  # made into Match tuples when first read
+
+
+class _Places:
+    """:meth:`Observation.seen <skyfix.corrections.observation.Observation.seen>` for the final fit,
+    remembering the catalogue places it is given, by catalogue number: the matches report those."""
+
+    def __init__(self, seen) -> None:
+        self._seen, self._ids, self._vectors = seen, [], []
+
+    def __call__(self, vectors: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        self._ids.append(np.asarray(ids))
+        self._vectors.append(np.asarray(vectors, dtype=np.float64))
+        return self._seen(vectors, ids)
+
+    def places(self, ids: np.ndarray) -> np.ndarray:
+        """The catalogue places (K, 3) of the stars numbered ``ids``, each one seen before."""
+        numbers, vectors = np.concatenate(self._ids), np.concatenate(self._vectors)
+        order = np.argsort(numbers, kind="stable")
+        return vectors[order[np.searchsorted(numbers, np.asarray(ids), sorter=order)]]
 
 
 def solution_numbers(A: np.ndarray, xy: np.ndarray, idx: np.ndarray, v: np.ndarray, mag: np.ndarray,

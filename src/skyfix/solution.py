@@ -91,6 +91,21 @@ class Solution:
     method: str = ""
     catalog: str = ""  #: the star catalogue matched (e.g. "Hipparcos 2", "Gaia DR3 + Hipparcos 2 (G, …)")
     catalog_epoch: float | None = None  #: Julian year its positions were moved to (proper motion)
+    # The observation (docs/time-and-corrections.md#in-a-solve): always in the JSON.
+    time: str | None = None  #: the observation time, ISO 8601 UTC ("2026-03-01T22:00:00.000Z"); None: unknown
+    time_source: str = "none"  #: where it came from: "DATE-OBS" (or the FITS keyword), "EXIF", "--time", …
+    attitude_frame: str = "apparent"  #: what the attitude's numbers are against: "ICRS" or "apparent"
+    corrections: list[str] = field(default_factory=list)  #: applied to the catalogue before the fit
+    corrections_not_applied: dict[str, str] = field(default_factory=dict)  #: each one's reason
+    warnings: list[str] = field(default_factory=list)  #: e.g. the Sun inside its exclusion angle
+    # With a velocity, a site, a time, a mounting; None, and left out of the JSON, otherwise.
+    observer_velocity_km_s: list[float] | None = None  #: the camera's geocentric velocity, GCRS axes
+    alt_deg: float | None = None  #: the boresight's observed altitude (a site)
+    az_deg: float | None = None  #: its azimuth, from north through east (a site)
+    ra_jnow_deg: float | None = None  #: its apparent RA of date: true equator and equinox (a site)
+    dec_jnow_deg: float | None = None  #: its apparent Dec of date (a site)
+    bodies: dict[str, float | None] | None = None  #: Sun, Moon, Earth limb: angles from the boresight
+    frames: dict | None = None  #: the attitude of the body (and in the orbit frame): a mounting
     # Tracking (skyfix.track.Tracker) only; None, and left out of the JSON, from solve().
     mode: str | None = None  #: "lost", "acquiring" or "tracking": the tracker state that made it
     frame_time_s: float | None = None  #: the frame's time as given to Tracker.update, seconds
@@ -101,6 +116,9 @@ class Solution:
     # Not part of the JSON: the full numeric results for the API.
     A_icrs_to_cam: np.ndarray | None = field(default=None, repr=False)
     camera: object | None = field(default=None, repr=False)
+    #: The attitude against the catalogue places (``attitude_frame`` "apparent"): what a WCS and a
+    #: plot of catalogue stars need. ``A_icrs_to_cam`` itself when no correction moved the stars.
+    A_apparent_to_cam: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def success(self) -> bool:
@@ -196,10 +214,11 @@ class Solution:
                 out["center_roll_deg"] = _finite_or_none(centre.roll_deg)
                 out["center_px"] = self.center_px
         d = out
+        d.pop("A_apparent_to_cam")
         d["matches"] = matches
         if not self.reason:
             d.pop("reason")
-        for key in _TRACKING_FIELDS:
+        for key in _TRACKING_FIELDS + _OBSERVATION_FIELDS:
             if d[key] is None:
                 del d[key]
         return _clean(d)
@@ -221,6 +240,8 @@ def _finite_or_none(x: float) -> float | None:
 
 
 _TRACKING_FIELDS = ("mode", "frame_time_s", "rate_dps", "rate_covariance_dps2")
+_OBSERVATION_FIELDS = ("observer_velocity_km_s", "alt_deg", "az_deg", "ra_jnow_deg", "dec_jnow_deg", "bodies",
+                       "frames")
 
 
 def _clean(obj):

@@ -51,6 +51,7 @@ BASE: dict[tuple[str, ...], list[str]] = {
     ("analyze", "psf"): [IMAGE],
     ("analyze", "photometry"): [IMAGE],
     ("analyze", "budget"): ["--camera", "generic", "--pointings", "5"],
+    ("analyze", "mounting"): [IMAGE, "--site", "40,20,100"],
     ("analyze", "coverage"): ["--fov", "10", "--mag", "4", "--n", "10"],
     ("analyze", "identification"): ["--quick"],
     ("calibrate", "stars"): [IMAGE, IMAGE, IMAGE, "-o", "cam.toml"],

@@ -30,7 +30,8 @@ HEAVY = ("numpy", "numba", "llvmlite", "scipy", "astropy", "matplotlib", "dask",
 #: The skyfix modules that define the command table; everything else is a command's implementation.
 COMMAND_TABLE = {"skyfix", "skyfix._kernels", "skyfix._numba_lapack", "skyfix.errors", "skyfix.validate",
                  *(f"skyfix.cli{m}" for m in ("", ".common", ".solve", ".detect", ".simulate", ".warmup",
-                                             ".track", ".montecarlo", ".database", ".analyze", ".calibrate"))}
+                                             ".track", ".montecarlo", ".database", ".analyze", ".calibrate",
+                                             ".observation"))}
 
 _DRIVER = textwrap.dedent("""
     import json, sys

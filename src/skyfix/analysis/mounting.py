@@ -19,6 +19,10 @@ How well the average is known, two ways:
 
 The average absorbs every error that is the same in all images (a mis-set clock, a constant
 refraction error): it measures repeatability, not absolute accuracy (thesis 003 §8).
+
+``skyfix analyze mounting IMAGES… --site …`` solves each image at the site with its own time
+(:func:`image_to_enu`: refraction per star, aberration, so the attitude is the physical one) and
+averages them (:func:`estimate_mounting`).
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ from skyfix.errors import InputError
 from skyfix.frames import average_quaternions, euler123_from_matrix
 from skyfix.geometry import quaternion_from_attitude
 
-__all__ = ["MountingEstimate", "camera_to_enu", "estimate_mounting", "truth_attitudes"]
+__all__ = ["MountingEstimate", "camera_to_enu", "estimate_mounting", "image_to_enu", "truth_attitudes"]
 
 RAD_TO_ARCSEC = 180.0 / np.pi * 3600.0
 
@@ -96,3 +100,21 @@ def truth_attitudes(mounting: MountingEstimate, A_icrs_to_enu: np.ndarray) -> np
     """Each image's truth attitude from the averaged mounting (thesis 003 Eq. 7.19,
     ``q_T(ECI←c) = q(ENU←ECI)⁻¹ ⊗ q̃(ENU←c)``): ``A_icrs_to_cam = A_cam_to_enuᵀ · A_icrs_to_enu``."""
     return mounting.A_cam_to_enu.T @ np.asarray(A_icrs_to_enu, dtype=np.float64)
+
+
+def image_to_enu(image, site, weather=None, **solve_options):
+    """One image of a night solved at ``site`` (with ``weather``) at its own time (its FITS
+    DATE-OBS or EXIF, or ``time=`` in ``solve_options``): the Solution and, when solved, its
+    ``A_cam_to_enu`` (:func:`camera_to_enu` with the ground frame of its time), else None. An
+    image without a time is an :class:`~skyfix.errors.InputError`: the local frame turns with it."""
+    from skyfix.corrections.observation import observe
+    from skyfix.pipeline import solve
+
+    sol = solve(image, site=site, weather=weather, **solve_options)
+    if sol.time is None:
+        raise InputError("no observation time (DATE-OBS or EXIF): the mounting needs each image's")
+    if not sol.solved:
+        return sol, None
+    frame = observe(sol.time, site=site, weather=weather,
+                    refraction=solve_options.get("refraction", "erfa")).ground
+    return sol, camera_to_enu(sol.A_icrs_to_cam, frame.A_icrs_to_enu)

@@ -1,5 +1,6 @@
 """``skyfix analyze``: centroid accuracy vs. the Cramér–Rao bound, PSF across the field, photometry,
-tracking against lost in space and thesis 002, the seed presets solved lost in space.
+tracking against lost in space and thesis 002, the seed presets solved lost in space, the mounting
+of a fixed ground camera from a night of images.
 
 Registered in :mod:`skyfix.cli` with ``app.add_typer(analyze_app, name="analyze")``. Errors are
 one line, as everywhere in the CLI (:mod:`skyfix.cli.common`). Each study is imported when its
@@ -20,9 +21,11 @@ from skyfix.cli.common import (
     add_verbosity,
     checking,
     compile_notice,
+    error_line,
     fail,
     guarded,
     input_error_line,
+    load_camera,
     load_database,
     prepare_outputs,
 )
@@ -45,6 +48,23 @@ def _progress(total: int, quiet: bool):
     return Progress(TextColumn("[progress.description]{task.description}"), BarColumn(), MofNCompleteColumn(),
                     TimeRemainingColumn(), console=console, transient=True,
                     disable=quiet or not console.is_terminal)
+
+
+def _each_image(images: list[Path], quiet: bool, title: str, work, errors: list):
+    """``work(path)`` for each image under a progress bar, yielding ``(path, result)``; an image
+    whose work raises gets its one error line (and is added to ``errors``), and the next goes on."""
+    with _progress(len(images), quiet) as bar, compile_notice(bar):
+        task = bar.add_task(title, total=len(images))
+        for path in images:
+            try:
+                result = work(path)
+            except Exception as exc:  # this image's error line, then the next image
+                errors.append(path)
+                typer.echo(f"skyfix: error: {input_error_line(exc, path)}", err=True)
+                continue
+            finally:
+                bar.update(task, advance=1)
+            yield path, result
 
 
 @analyze_app.command()
@@ -225,21 +245,15 @@ def photometry(
     if fov is not None:
         check_fov(fov, "--fov")
     load_database(None)  # says so when it has to be built first
-    results = []
-    any_error = False
-    with _progress(len(images), json_out) as bar, compile_notice(bar):
-        task = bar.add_task("photometry", total=len(images))
-        for path in images:
-            try:
-                res = frame_photometry(path, epoch=epoch, fov_deg=fov, flux=flux)
-            except Exception as exc:  # this image's error line, then the next image
-                any_error = True
-                typer.echo(f"skyfix: error: {input_error_line(exc, path)}", err=True)
-                continue
-            finally:
-                bar.update(task, advance=1)
-            results.append(res)
-            typer.echo(json.dumps(res.summary()) if json_out else res.format_line())
+    results, errors = [], []
+
+    def measured(path):
+        return frame_photometry(path, epoch=epoch, fov_deg=fov, flux=flux)
+
+    for _, res in _each_image(images, json_out, "photometry", measured, errors):
+        results.append(res)
+        typer.echo(json.dumps(res.summary()) if json_out else res.format_line())
+    any_error = bool(errors)
     total = summarize(results)
     if total["n_frames_solved"] == 0:
         if not json_out:
@@ -452,3 +466,73 @@ def identification(
     typer.echo(paths[1].read_text())
     for p in paths:
         typer.echo(f"wrote {p}")
+
+
+@analyze_app.command()
+@guarded
+def mounting(
+    images: list[Path] = typer.Argument(..., help="A night of images from a camera fixed on the ground, "
+                                                  "each with its time (FITS DATE-OBS or EXIF)."),
+    site: str = typer.Option(..., "--site", metavar="LAT,LON,HEIGHT_M",
+                             help="Where the camera is: latitude, east longitude (degrees), height (m)."),
+    weather: str = typer.Option(None, "--weather", metavar="T_C,P_HPA,RH",
+                                help="The air at the site: °C, hPa, relative humidity 0-1."),
+    camera_file: Path = typer.Option(None, "--camera", help="Camera TOML file."),
+    fov: float = typer.Option(None, "--fov", help="Horizontal field of view, degrees (optional)."),
+    json_out: bool = typer.Option(False, "--json", help="One JSON line per image, then the mounting."),
+    verbose: int = VERBOSE,
+) -> None:
+    """The camera's orientation in the local frame (east, north, up) from a night of images
+    (thesis 003 §2.9–2.10): each solved at the site at its own time, their Markley average and
+    its standard error. An image that cannot be read, has no time or does not solve is reported
+    and left out; fewer than two left: exit 1."""
+    import numpy as np
+
+    from skyfix.analysis.mounting import estimate_mounting, image_to_enu
+    from skyfix.corrections.refraction import check_site_weather
+    from skyfix.errors import InputError, SkyfixError
+
+    add_verbosity(verbose)
+    try:
+        the_site, the_weather = check_site_weather(site, weather, names=("--site", "--weather"))
+        with checking("--camera", camera_file):
+            camera = load_camera(str(camera_file)) if camera_file is not None else None
+        if fov is not None:
+            check_fov(fov, "--fov")
+    except (InputError, SkyfixError) as exc:
+        fail(error_line(exc))
+    load_database(None)
+    rows, names, errors = [], [], []
+
+    def solved(path):
+        return image_to_enu(path, the_site, the_weather, camera=camera, fov_deg=fov)
+
+    for path, (sol, A) in _each_image(images, json_out, "solving", solved, errors):
+        if A is None:
+            typer.echo(f"{path}: failed: {sol.reason}", err=True)
+            continue
+        rows.append(A)
+        names.append((str(path), sol))
+    any_error = bool(errors)
+    if len(rows) < 2:
+        fail(f"{len(rows)} image(s) solved with a time: the mounting needs two or more",
+             code=2 if any_error else 1)
+    est = estimate_mounting(np.array(rows))
+    for (name, sol), dev in zip(names, est.deviations_arcsec, strict=True):
+        if json_out:
+            row = {"image": name, "time": sol.time, "alt_deg": sol.alt_deg, "az_deg": sol.az_deg,
+                   "deviation_arcsec": [round(float(d), 4) for d in dev]}
+            typer.echo(json.dumps(row))
+        else:
+            typer.echo(f"{name}: {sol.time} Alt {sol.alt_deg:.4f}° Az {sol.az_deg:.4f}° | off the average "
+                       f"{dev[0]:+.1f}″ {dev[1]:+.1f}″ {dev[2]:+.1f}″ (about E, N, up)")
+    if json_out:
+        typer.echo(json.dumps(est.to_json()))
+    else:
+        q, e = est.quaternion_xyzw, est.euler123_deg
+        typer.echo(f"mounting (camera → ENU) from {est.n_images} images: quaternion "
+                   f"{q[0]:.8f} {q[1]:.8f} {q[2]:.8f} {q[3]:.8f}; Euler 1-2-3 {e[0]:.5f}° {e[1]:.5f}° "
+                   f"{e[2]:.5f}°; standard error {est.standard_error_arcsec:.2f}″ "
+                   f"(per angle {' '.join(f'{x:.2f}' for x in est.euler_standard_error_arcsec)}″)")
+    if any_error:
+        raise typer.Exit(2)

@@ -34,6 +34,7 @@ from skyfix.cli.common import (
     output_paths,
     prepare_outputs,
 )
+from skyfix.cli.observation import observation_option, observation_options, summary_suffix
 from skyfix.validate import check_positive, check_solve_options
 
 __all__ = ["OUTPUT_NAMES_HELP", "plain_solve", "solve", "solve_parameters"]
@@ -83,6 +84,13 @@ def solve(
         None, "--smear", metavar="DX,DY",
         help="The stars' streak over the exposure when the camera turned, pixels (a gyro's rate × the "
              "exposure): stars are found in the frame averaged along it."),
+    obs_time: str = observation_option("--time"),
+    velocity_kms: str = observation_option("--velocity-kms"),
+    site: str = observation_option("--site"),
+    weather: str = observation_option("--weather"),
+    refraction: str = observation_option("--refraction"),
+    mounting: str = observation_option("--mounting"),
+    apparent: bool = observation_option("--apparent"),
     verbose: int = VERBOSE,
 ) -> None:
     """Solve sky images lost in space (or near --attitude-hint): print RA, Dec, roll and the error bars."""
@@ -105,6 +113,8 @@ def solve(
     maps = calibration_maps(calibration, dark, flat)
     with checking("--camera", camera_file):
         camera = load_camera(camera_file) if camera_file is not None else None
+    observation = observation_options(obs_time, velocity_kms, site, weather, refraction, mounting, apparent,
+                                      camera_file, epoch)  # after --camera: its [mounting] and [exclusion]
     database = load_database(database_file, _solve_paths(identify_method, method, hint is not None))
     if hint is not None and camera is None and fov is None:
         typer.echo("skyfix: note: --attitude-hint needs the image scale (--camera or --fov); "
@@ -120,13 +130,14 @@ def solve(
                 sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
                                   database=database, epoch=epoch, attitude_method=method, attitude_hint=hint,
                                   identify_method=identify_method, smear_px=smear_px, parity=parity, **maps,
-                                  **noise)
+                                  **noise, **observation)
                 any_failed |= not sol.solved
                 typer.echo(sol.to_json() if json_out else _summary(sol))
                 if sol.solved and wcs_path is not None:
                     from skyfix.wcs import write_wcs
 
-                    write_wcs(wcs_path, sol.A_icrs_to_cam, sol.camera, mirrored=sol.mirrored)
+                    # against the catalogue places, as a WCS is read (docs/time-and-corrections.md)
+                    write_wcs(wcs_path, sol.A_apparent_to_cam, sol.camera, mirrored=sol.mirrored)
                 if plot_path is not None:
                     from skyfix.io import read_image
                     from skyfix.plot import plot_solution
@@ -309,5 +320,5 @@ def _summary(sol) -> str:
             f"roll {sol.center_roll_deg:.3f}° "
             f"FOV {sol.fov_deg:.3f}° | {sol.n_matched}/{sol.n_detected} stars, rmse {sol.rmse_arcsec:.1f}″, "
             f"σ(x,y,roll) {sig[0]:.1f}″ {sig[1]:.1f}″ {sig[2]:.0f}″, P(false) {sol.prob_false:.1e} | "
-            f"{sol.time_ms.get('total', 0):.1f} ms{path}{mirrored}{where}")
+            f"{sol.time_ms.get('total', 0):.1f} ms{path}{mirrored}{where}{summary_suffix(sol)}")
 

@@ -35,6 +35,7 @@ from skyfix.cli.common import (
     load_database,
     prepare_outputs,
 )
+from skyfix.cli.observation import observation_option, observation_options, summary_suffix
 from skyfix.errors import InputError, SkyfixError, unknown_name
 
 if TYPE_CHECKING:
@@ -69,6 +70,13 @@ def track(
     json_out: bool = typer.Option(False, "--json", help="One JSON Solution per frame per line."),
     plot: Path = typer.Option(None, "--plot",
                               help="Write a PNG: attitude error bars, rate and star count vs time."),
+    obs_time: str = observation_option("--time"),
+    velocity_kms: str = observation_option("--velocity-kms"),
+    site: str = observation_option("--site"),
+    weather: str = observation_option("--weather"),
+    refraction: str = observation_option("--refraction"),
+    mounting: str = observation_option("--mounting"),
+    apparent: bool = observation_option("--apparent"),
     verbose: int = VERBOSE,
 ) -> None:
     """Track a sequence of frames: lost in space first, then windows around the predicted stars."""
@@ -80,6 +88,10 @@ def track(
     if predictor.lower() not in PREDICTORS:
         fail(f"--predictor: {unknown_name('predictor', predictor, PREDICTORS)}")
     times = frame_times(frames, fps)
+    observation = observation_options(obs_time, velocity_kms, site, weather, refraction, mounting,
+                                      apparent, camera_file, epoch)  # after --camera: its tables
+    if observation["time"] is None:  # the first frame's own time is the time of t = 0
+        observation["time"] = _first_frame_time(frames[0])
     samples = read_gyro(gyro) if gyro is not None else None
     rates = gyro_rates(samples, times) if samples is not None else [None] * len(frames)
     if plot is not None and plot.suffix.lower() != ".png":
@@ -88,7 +100,7 @@ def track(
     database = load_database(database_file, ("track",))
     tracker = Tracker(camera, database=database, predictor=predictor, epoch=epoch,
                       n_windows=windows, streak_windows=streak_windows, exposure_s=exposure,
-                      line_time_s=line_time)
+                      line_time_s=line_time, **observation)
     from skyfix.io import read_image
 
     any_failed = any_error = False
@@ -146,6 +158,15 @@ def _date_obs(path: Path) -> datetime | None:
         return datetime.fromisoformat(str(value).strip().replace("Z", "+00:00"))
     except (OSError, ValueError, TypeError):
         return None  # the frame itself is read (and its errors reported) in order
+
+
+def _first_frame_time(path: Path):
+    """The first frame's observation time (FITS DATE-OBS with EXPTIME, EXIF), None when it has
+    none or cannot be read (the frame's own error comes in order)."""
+    from skyfix.obstime import time_from_image
+
+    own = time_from_image(path)
+    return own if own.known else None
 
 
 def read_gyro(path: Path) -> np.ndarray:
@@ -207,7 +228,7 @@ def _summary(sol) -> str:
     coast = f" | {sol.reason}" if sol.reason else ""
     return (f"{head}: RA {sol.ra_deg:.5f}° Dec {sol.dec_deg:+.5f}° roll {sol.roll_deg:.3f}° | "
             f"{sol.n_matched} stars, σ(x,y,roll) {sig[0]:.1f}″ {sig[1]:.1f}″ {sig[2]:.0f}″{rate} | "
-            f"{sol.time_ms.get('total', 0):.2f} ms{coast}")
+            f"{sol.time_ms.get('total', 0):.2f} ms{coast}{summary_suffix(sol)}")
 
 
 def plot_track(sols: list, path: Path) -> None:

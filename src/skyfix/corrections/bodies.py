@@ -33,12 +33,12 @@ import numpy as np
 from skyfix.corrections.aberration import AU_KM, DAY_S, aberrate, earth_state
 from skyfix.corrections.observer import EARTH_EQUATORIAL_RADIUS_KM, GEOCENTRE, SPEED_OF_LIGHT_KM_S, Observer
 from skyfix.errors import InputError
-from skyfix.geometry import angle_between, normalize
+from skyfix.geometry import normalize
 from skyfix.obstime import ObservationTime
 
 # erfa is imported in the functions that call it: importing it takes ~150 ms.
 __all__ = ["BodyDirections", "BodyAngles", "Exclusion", "EXCLUSION_DEG", "body_directions",
-           "body_angles", "exclusion_for", "exclusion_warnings"]
+           "body_angles", "angles_from_directions", "exclusion_for", "exclusion_warnings"]
 
 
 class BodyDirections(NamedTuple):
@@ -99,8 +99,8 @@ def body_directions(time: ObservationTime, observer: Observer = GEOCENTRE) -> Bo
     offset = np.zeros(3) if observer.position_km is None else observer.position_km / AU_KM
     seen_from = earth.barycentric_au + offset
     velocity = earth.velocity_km_s + observer.velocity_km_s
-    sun, moon = (aberrate(normalize(_light_time_position(body, time.jd_tt, seen_from)), velocity)
-                 for body in ("sun", "moon"))
+    sun, moon = aberrate(normalize(np.array([_light_time_position(body, time.jd_tt, seen_from)
+                                             for body in ("sun", "moon")])), velocity)
     if observer.position_km is None:
         return BodyDirections(sun, moon, None, math.nan)
     distance = float(np.linalg.norm(observer.position_km))
@@ -108,36 +108,55 @@ def body_directions(time: ObservationTime, observer: Observer = GEOCENTRE) -> Bo
     return BodyDirections(sun, moon, -observer.position_km / distance, radius)
 
 
-def _barycentric_au(body: str, jd_tt: float) -> np.ndarray:
-    """The barycentric position of the Sun or the Moon at ``jd_tt``, au (ERFA ``epv00``, ``moon98``)."""
+def _barycentric_state(body: str, jd_tt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The barycentric position (au) and velocity (au/day) of the Sun or the Moon at ``jd_tt``
+    (ERFA ``epv00`` through :func:`earth_state`, cached per time, and ``moon98``); the Sun's
+    velocity is taken as 0 (its barycentric motion, at most 15 m/s, moves it 7 km in the light's
+    8.3 minutes: 0.01″)."""
     import erfa
 
     earth = earth_state(jd_tt)
     if body == "sun":
-        return earth.barycentric_au - earth.heliocentric_au
+        return earth.barycentric_au - earth.heliocentric_au, np.zeros(3)
     day = math.floor(jd_tt - 0.5) + 0.5
-    return earth.barycentric_au + erfa.moon98(day, jd_tt - day)[0]  # moon98: geocentric, GCRS axes
+    moon = erfa.moon98(day, jd_tt - day)  # geocentric, GCRS axes, au and au/day
+    return earth.barycentric_au + moon[0], earth.velocity_km_s * (DAY_S / AU_KM) + moon[1]
 
 
 def _light_time_position(body: str, jd_tt: float, seen_from_au: np.ndarray) -> np.ndarray:
     """Where ``body`` was, from ``seen_from_au`` (barycentric, au), when the light that arrives at
-    ``jd_tt`` left it (one iteration: the next changes it by 1e-4 of 1.3 s)."""
-    p = _barycentric_au(body, jd_tt) - seen_from_au
-    light_days = float(np.linalg.norm(p)) * AU_KM / SPEED_OF_LIGHT_KM_S / DAY_S
-    return _barycentric_au(body, jd_tt - light_days) - seen_from_au
+    ``jd_tt`` left it: its position moved back along its velocity by the light time (for the
+    Moon 1.3 s, in which its path bends by 2 m: the one ephemeris call serves)."""
+    position, velocity = _barycentric_state(body, jd_tt)
+    light_days = float(np.linalg.norm(position - seen_from_au)) * AU_KM / SPEED_OF_LIGHT_KM_S / DAY_S
+    return position - light_days * velocity - seen_from_au
 
 
 def body_angles(boresight: np.ndarray, time: ObservationTime, observer: Observer = GEOCENTRE) -> BodyAngles:
     """The angles of the Sun, the Moon and the Earth's limb from ``boresight`` (ICRS unit vector,
     ``A_icrs_to_cam[2]``) at ``time`` seen from ``observer``."""
-    b = normalize(np.asarray(boresight, dtype=np.float64).reshape(3))
-    d = body_directions(time, observer)
+    return angles_from_directions(boresight, body_directions(time, observer))
+
+
+def angles_from_directions(boresight: np.ndarray, d: BodyDirections) -> BodyAngles:
+    """:func:`body_angles` from directions already found (:func:`body_directions`): a tracker's
+    frames, a few seconds apart, reuse one set (the Moon moves 0.5″ a second)."""
+    b = np.asarray(boresight, dtype=np.float64).reshape(3).tolist()
     limb = radius = math.nan
     if d.nadir is not None:
         radius = math.degrees(d.earth_radius_rad)
-        limb = math.degrees(float(angle_between(b, d.nadir))) - radius
-    return BodyAngles(math.degrees(float(angle_between(b, d.sun))),
-                      math.degrees(float(angle_between(b, d.moon))), limb, radius)
+        limb = _angle_deg(b, d.nadir) - radius
+    return BodyAngles(_angle_deg(b, d.sun), _angle_deg(b, d.moon), limb, radius)
+
+
+def _angle_deg(b: list[float], d: np.ndarray) -> float:
+    """The angle (degrees) between ``b`` and ``d``, ``atan2(|b × d|, b · d)``: the formula of
+    :func:`skyfix.geometry.angle_between` for one pair, in Python floats (a tracker's frame asks
+    for three: numpy's cross product costs 20 µs a call, this 1)."""
+    x, y, z = b
+    u, v, w = d.tolist()
+    cx, cy, cz = y * w - z * v, z * u - x * w, x * v - y * u
+    return math.degrees(math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), x * u + y * v + z * w))
 
 
 def exclusion_for(preset: str | None = None) -> Exclusion:

@@ -40,6 +40,11 @@ the prediction stays precise enough for windows (``k_sigma`` σ of the boresight
 is never coasted on — the prediction may be what is wrong — and, like the end of coasting,
 leaves the tracker lost (status ``failed``).
 
+With an observation time (``time=``, or the first frame's own) the stars it projects and fits are
+moved to where the camera sees them (aberration; refraction at a site), kept current frame by
+frame (:mod:`skyfix.track.sky`): the attitude tracked is the camera's physical one, and each
+Solution carries the frame's time and what :func:`skyfix.solve` reports with it.
+
 Bad input raises a one-line :mod:`skyfix.errors` exception and leaves the state unchanged:
 a time that is not after the last frame's (out of order, repeated), not finite, or missing;
 a frame whose size is not the camera's; gyro rates that are not three finite numbers.
@@ -57,15 +62,18 @@ import numpy as np
 
 from skyfix.attitude import CENTROID_NOISE_FLOOR_PX
 from skyfix.camera import Camera
+from skyfix.corrections.observation import observe
 from skyfix.detect.centroid import centroider
 from skyfix.detect.streak import streak_model_sigma
 from skyfix.errors import CameraError, InputError
 from skyfix.identify.catalogue.database import readonly_view
 from skyfix.identify.catalogue.kernel_data import StarIndex
+from skyfix.obstime import julian_year
 from skyfix.solution import Match, Solution
 from skyfix.track import windows as win
 from skyfix.track.filter import innovation
 from skyfix.track.measure import CentroidSettings, measure_frame
+from skyfix.track.sky import TrackedSky
 
 __all__ = ["DEFAULT_ACCEL_PSD", "MODES", "TrackSettings", "Tracker", "window_fit_agrees"]
 
@@ -195,6 +203,10 @@ class Tracker:
         Keywords for the predictor (e.g. ``accel_psd`` of the MEKF).
     solve_options : dict, optional
         Keywords for the lost-in-space :func:`skyfix.solve`.
+    time : ObservationTime, str or datetime, optional
+        The time of ``t_s = 0`` (default: the first frame file's own, else none; :mod:`.sky`).
+    observer, site, weather, refraction, apparent, mounting, exclusion
+        As :func:`skyfix.solve`'s; ``observer`` may change frame by frame (:meth:`update`).
     """
 
     def __init__(self, camera: Camera, *, database=None, predictor: str = "mekf", epoch: float | None = None,
@@ -205,7 +217,8 @@ class Tracker:
                  exposure_s: float | None = None, line_time_s: float = 0.0, star_radius_px: float = 3.0,
                  max_window_px: float = 60.0, min_snr: float = 5.0, floor_px: float = CENTROID_NOISE_FLOOR_PX,
                  mag_tolerance: float = 1.5, nis_gate: float = 25.0, predictor_options: dict | None = None,
-                 solve_options: dict | None = None) -> None:
+                 solve_options: dict | None = None, time=None, observer=None, site=None, weather=None,
+                 refraction: str = "erfa", apparent: bool = False, mounting=None, exclusion=None) -> None:
         from skyfix.detect import CENTROIDERS
         from skyfix.identify import PatternDatabase
         from skyfix.identify.catalogue.bands import database_for_fov
@@ -239,6 +252,11 @@ class Tracker:
         self.camera = camera
         self.database = database_for_fov(camera.fov_deg) if database is None else database
         self.epoch = check_epoch(epoch)
+        obs = observe(time, observer=observer, site=site, weather=weather, refraction=refraction,
+                      apparent=apparent, epoch=epoch, mounting=mounting, exclusion=exclusion)  # checked now
+        self.sky = TrackedSky(obs, time_from_frames=time is None)
+        if self.epoch is None and self.sky.observation.time.known:
+            self.epoch = julian_year(self.sky.observation.time)
         from skyfix import warmup
 
         warmup.ensure("track")  # the tracker's kernels (and a solve's), compiled up front on first use
@@ -292,6 +310,7 @@ class Tracker:
             index = StarIndex(moved, *index[1:4], index.cell_radius_rad + shift)
         self._stars = index
         self._star_ids = ids
+        self.sky.new_catalogue()
         self._mags = np.ascontiguousarray(mags, dtype=np.float64)
         cam = self.camera
         corners = cam.pixel_to_ray(np.array([[-0.5, -0.5], [cam.width - 0.5, -0.5], [-0.5, cam.height - 0.5],
@@ -329,11 +348,16 @@ class Tracker:
                              f"({what} frame)")
         return t
 
-    def _check_image(self, image) -> np.ndarray:
+    def _check_image(self, image, t: float) -> np.ndarray:
         if not isinstance(image, np.ndarray) and isinstance(image, (str, os.PathLike)):
-            from skyfix.io import read_image
+            from skyfix.io import read_image_with_header
 
-            image = read_image(image)
+            got = read_image_with_header(image)
+            if self.sky.time_from_frames and self._t_last is None and self.sky.first_frame(got, image, t):
+                self.epoch = julian_year(self.sky.observation.time)  # the catalogue at the frames' epoch
+                self._setup_catalog()
+                self._local = None
+            image = got.data
         if not isinstance(image, np.ndarray):
             raise InputError(f"a frame is a 2-D array or an image file, got {type(image).__name__}")
         if image.ndim != 2 or image.dtype.kind not in "uif":
@@ -354,7 +378,7 @@ class Tracker:
         return g
 
     # --- one frame -------------------------------------------------------------------------
-    def update(self, image, t_s: float, *, gyro_rate_rad_s=None) -> Solution:
+    def update(self, image, t_s: float, *, gyro_rate_rad_s=None, observer=None) -> Solution:
         """Process one frame taken at ``t_s`` (seconds, mid-exposure; each frame later than
         the last) and return its Solution with ``mode``, ``frame_time_s``, and in tracking
         ``rate_dps`` and ``rate_covariance_dps2``.
@@ -367,6 +391,8 @@ class Tracker:
             Its time, seconds (any origin; only differences matter).
         gyro_rate_rad_s : (3,) array, optional
             The gyro's body rate over the interval since the last frame, camera frame.
+        observer : Observer or (3,) numbers, optional
+            The camera's velocity at this frame (km/s, GCRS axes), kept for the frames after it.
 
         Raises
         ------
@@ -378,8 +404,9 @@ class Tracker:
         t0 = time.perf_counter()
         t = self._check_time(t_s)
         name = "<array>" if isinstance(image, np.ndarray) else str(image)
-        img = self._check_image(image)
+        img = self._check_image(image, t)
         gyro = self._check_gyro(gyro_rate_rad_s)
+        self.sky.observe(t, observer)
         if self._predictor is None:
             sol = self._lost(img, t, gyro)
         else:
@@ -421,7 +448,8 @@ class Tracker:
         the smeared frame solved it (the streaks bore the rate out)."""
         from skyfix.pipeline import solve
 
-        options = dict(camera=self.camera, database=self.database, epoch=self.epoch, **self._solve_options)
+        options = dict(camera=self.camera, database=self.database, epoch=self.epoch,
+                       **self.sky.solve_options(), **self._solve_options)
         if rate is not None:
             smear = self._smear_px(np.asarray(rate, dtype=np.float64), t)
             if math.hypot(smear[0], smear[1]) >= _STREAK_PX:
@@ -587,7 +615,8 @@ class Tracker:
         A = c(pred.A_icrs_to_cam)
         rate = c(pred.rate_rad_s, dtype=np.float64)
         exposure = self._exposure(t)
-        self._local_catalog(A[2])
+        local = self._local_catalog(A[2])
+        vectors = self.sky.vectors(local, self._stars, self._star_ids)  # as seen, with a time
         wx, wy, _ = rate.tolist()  # the streak at the boresight, px: fewer windows when it is long
         streaking = s.centroid == "streak" and exposure * math.hypot(wx, wy) >= _STREAK_PX * self._plate
         n_max = s.streak_windows if streaking else s.n_windows
@@ -596,7 +625,7 @@ class Tracker:
          b) = measure_frame(img, A, c(pred.attitude_cov_rad2), rate, c(pred.rate_cov_rad2_s2), exposure,
                             s.line_time_s, self._local_t, min(self._select_mag, self._faintest + 1.0),
                             self._cam, windows, self._view_t, self._tiles, self._max_tile,
-                            self._stars.vectors, self._zero_point, self._match_settings_t, self._centroid_t,
+                            vectors, self._zero_point, self._match_settings_t, self._centroid_t,
                             s.min_stars, _OUTLIER_SIGMA)
         # next frame: stars down to a magnitude fainter than the faintest chosen (all, when short)
         self._faintest = faintest if n == n_max else math.inf
@@ -642,9 +671,11 @@ class Tracker:
             xy, b, index = self._no_xy, self._no_b, self._no_index
         else:
             xy, b, index = fit.xy, fit.b, fit.index
+        vectors = (self._stars.vectors if self._local is None
+                   else self.sky.vectors(self._local, self._stars, self._star_ids))
         head, table, rmse = win.solution_numbers(A, est.attitude_cov_rad2, est.rate_rad_s,
-                                                 est.rate_cov_rad2_s2, xy, b, index, self._stars.vectors,
-                                                 self._mags)
+                                                 est.rate_cov_rad2_s2, xy, b, index, vectors, self._mags)
+        A_reported = self.sky.numbers(A, head, table, index, self._stars)  # catalogue places, the frame asked
         h = head.tolist()
         cam = self.camera
         sol = Solution(image="<array>", status="solved", ra_deg=h[0], dec_deg=h[1], roll_deg=h[2],
@@ -653,6 +684,7 @@ class Tracker:
                        rate_dps=h[16:19], rate_covariance_dps2=[h[19:22], h[22:25], h[25:28]])
         sol.A_icrs_to_cam = A
         sol.camera = cam
+        self.sky.report(sol, A, A_reported)
         if fit is None:
             return sol
         sol.n_detected = fit.n_found

@@ -30,7 +30,7 @@ import numpy as np
 
 from skyfix._kernels.rotation import chord_angle
 from skyfix.cache import CorruptFileError, map_npz, verify, write_npz
-from skyfix.catalog import Catalog, epoch_now, fibonacci_sphere, load_hipparcos
+from skyfix.catalog import Catalog, epoch_now, fibonacci_sphere, load_hipparcos, propagate
 from skyfix.errors import DatabaseError
 from skyfix.identify.catalogue.hashing import build_table, edge_ratios, key_codes
 from skyfix.identify.catalogue.kernel_data import PatternTable, StarIndex
@@ -176,18 +176,13 @@ class PatternDatabase:
         super().__setattr__(name, value)
 
     def vectors_at(self, index: np.ndarray, epoch: float | None) -> np.ndarray:
-        """ICRS unit vectors of stars ``index`` moved by proper motion to ``epoch`` (default: as built)."""
+        """ICRS unit vectors of stars ``index`` moved by proper motion to ``epoch`` (default: as
+        built), by the catalogue's own formula (:func:`skyfix.catalog.propagate`)."""
         v = np.asarray(self.star_arrays()[2][index], dtype=np.float64)
         if epoch is None or epoch == self.epoch:
             return v
         pm = np.asarray(self.star_pm[index], dtype=np.float64)
-        z = np.array([0.0, 0.0, 1.0])
-        east = np.cross(z, v)
-        norm = np.linalg.norm(east, axis=-1, keepdims=True)
-        east = np.where(norm > 1e-12, east / np.maximum(norm, 1e-12), [0.0, 1.0, 0.0])
-        north = np.cross(v, east)
-        moved = v + (epoch - self.epoch) * (pm[:, :1] * east + pm[:, 1:] * north)
-        return moved / np.linalg.norm(moved, axis=-1, keepdims=True)
+        return propagate(v, pm[..., 0], pm[..., 1], epoch - self.epoch)
 
     # --- build ----------------------------------------------------------------------------
     # Over ten parameters: the build's settings, keywords with documented defaults (the options
