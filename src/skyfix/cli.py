@@ -161,8 +161,6 @@ def solve(
     noise = {} if centroid_sigma is None else {"centroid_sigma_px": check_positive(centroid_sigma,
                                                                                    "--centroid-sigma")}
     _identify_method(identify_method)
-    observation = observation_options(obs_time, velocity_kms, site, weather, refraction, mounting, apparent,
-                                      camera_file, epoch)
     wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
     prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
     maps = _calibration_maps(calibration, dark, flat)
@@ -170,6 +168,8 @@ def solve(
         camera = _load_camera(camera_file) if camera_file is not None else None
     except SkyfixError as exc:
         fail(error_line(exc, camera_file))
+    observation = observation_options(obs_time, velocity_kms, site, weather, refraction, mounting, apparent,
+                                      camera_file, epoch)  # after the camera: its file is reported first
     database = load_database(database_file, _solve_paths(identify_method, method, hint is not None))
     if hint is not None and camera is None and fov is None:
         typer.echo("skyfix: note: --attitude-hint needs the image scale (--camera or --fov); "

@@ -29,7 +29,8 @@ HEAVY = ("numpy", "numba", "llvmlite", "scipy", "astropy", "matplotlib", "dask",
 
 #: The skyfix modules that define the command table; everything else is a command's implementation.
 COMMAND_TABLE = {"skyfix", "skyfix._kernels", "skyfix._numba_lapack", "skyfix.cli", "skyfix.cli_analyze",
-                 "skyfix.cli_support", "skyfix.errors", "skyfix.validate", "skyfix.track", "skyfix.track.cli",
+                 "skyfix.cli_support", "skyfix.cli_observation", "skyfix.errors", "skyfix.validate",
+                 "skyfix.track", "skyfix.track.cli",
                  "skyfix.montecarlo", "skyfix.montecarlo.command", "skyfix.calibration",
                  "skyfix.calibration.commands"}
 
