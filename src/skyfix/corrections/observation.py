@@ -39,6 +39,7 @@ import math
 import os
 from dataclasses import dataclass
 from datetime import datetime
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -54,19 +55,15 @@ from skyfix.corrections.bodies import (
     exclusion_warnings,
 )
 from skyfix.corrections.observer import GEOCENTRE, Observer, observer_from_state, parse_velocity
-from skyfix.corrections.refraction import (
-    REFRACTION_MODELS,
-    GroundFrame,
-    Site,
-    Weather,
-    boresight_places,
-    check_site_weather,
-    ground_frame,
-    observed_directions,
-)
 from skyfix.errors import InputError
-from skyfix.frames import Mounting, attitude_frames, orbit_frame
 from skyfix.obstime import NO_TIME, ObservationTime, jd_utc, julian_year, parse_time
+
+if TYPE_CHECKING:
+    from skyfix.corrections.refraction import GroundFrame, Site, Weather
+    from skyfix.frames import Mounting
+
+# A site's refraction (ERFA's astrometry) and the body frames are imported when a site or a mounting
+# is given: a plain solve's process does without them (erfa, skyfix.frames: ~30 ms at start).
 
 __all__ = ["CORRECTIONS", "NO_TIME_REASON", "Observation", "apparent_attitude", "observe", "observer_of",
            "time_of_image"]
@@ -148,6 +145,8 @@ class Observation:
         if parallax.any():  # seen from the site's barycentric place (ERFA's astrometry holds it)
             p = p - parallax[:, None] * _barycentric_au(self.ground)
             p = p / np.linalg.norm(p, axis=1, keepdims=True)
+        from skyfix.corrections.refraction import observed_directions
+
         return observed_directions(p, self.ground)
 
     @functools.cached_property
@@ -178,6 +177,8 @@ class Observation:
             return
         A = np.asarray(A_icrs_to_cam, dtype=np.float64)
         if self.ground is not None:
+            from skyfix.corrections.refraction import boresight_places
+
             places = boresight_places(A, self.ground)
             sol.alt_deg, sol.az_deg = places.alt_deg, places.az_deg
             sol.ra_jnow_deg, sol.dec_jnow_deg = places.ra_jnow_deg, places.dec_jnow_deg
@@ -193,6 +194,8 @@ class Observation:
     def _frames(self, A: np.ndarray) -> dict:
         """The attitude of the camera and the body (and the body in the orbit frame when the
         observer's position is known), in the Solution's frame."""
+        from skyfix.frames import attitude_frames, orbit_frame
+
         orbit = None
         if self.observer is not None and self.observer.position_km is not None:
             orbit = orbit_frame(self.observer.position_km, self.observer.velocity_km_s)
@@ -282,16 +285,22 @@ def observe(time=None, *, observer=None, site=None, weather=None, refraction: st
     t = _time(time)
     t = NO_TIME if t is None else t
     obs = observer_of(observer)
-    site, weather = check_site_weather(site, weather, names=("site", "weather"))
+    if site is not None or weather is not None or refraction != "erfa":
+        from skyfix.corrections.refraction import REFRACTION_MODELS, check_site_weather
+
+        site, weather = check_site_weather(site, weather, names=("site", "weather"))
+        if refraction not in REFRACTION_MODELS:
+            raise InputError(f"refraction model {refraction!r} is not one of {', '.join(REFRACTION_MODELS)}")
     if site is not None and obs is not None:
         raise InputError("an observer velocity and a site: a camera on the ground moves with the Earth "
                          "(its site's velocity is computed); give one or the other")
-    if refraction not in REFRACTION_MODELS:
-        raise InputError(f"refraction model {refraction!r} is not one of {', '.join(REFRACTION_MODELS)}")
-    if isinstance(mounting, str):
-        mounting = Mounting.parse(mounting)
-    elif mounting is not None and not isinstance(mounting, Mounting):
-        raise InputError(f"mounting must be a Mounting or its text, not {type(mounting).__name__}")
+    if mounting is not None:
+        from skyfix.frames import Mounting
+
+        if isinstance(mounting, str):
+            mounting = Mounting.parse(mounting)
+        elif not isinstance(mounting, Mounting):
+            raise InputError(f"mounting must be a Mounting or its text, not {type(mounting).__name__}")
     if exclusion is None or isinstance(exclusion, str):
         exclusion = exclusion_for(exclusion)
     elif not isinstance(exclusion, Exclusion):
@@ -313,6 +322,8 @@ def observe(time=None, *, observer=None, site=None, weather=None, refraction: st
         if site is None:
             space = apparent_frame(t, obs if obs is not None else GEOCENTRE)  # speed ≥ c: InputError
         else:
+            from skyfix.corrections.refraction import ground_frame
+
             ground = ground_frame(site, jd_utc(t), weather, model=refraction, dut1_s=float(dut1_s))
             if refraction == "none":
                 missing["refraction"] = "refraction model 'none'"
