@@ -16,6 +16,8 @@ from skyfix.calibration.stars import (
     PRINCIPAL_POINT_SIGMA_PX,
     calibrate_stars,
     calibration_model,
+    check_not_one_field,
+    choose_model,
     parameter_table,
 )
 from skyfix.camera import Camera
@@ -95,9 +97,8 @@ def test_bic_and_refusals_keep_a_sparse_narrow_field_simple(stars):
     full = fit_joint(matched, Camera.from_fov(1280, 960, 10.0), family.ladder[-1])
     assert full.sigma["k3"] > 100 * abs(narrow.k3 + 1e-9) or abs(full.camera.k3) < 2 * full.sigma["k3"]
     assert max(full.sigma["cx"], full.sigma["cy"]) > PRINCIPAL_POINT_SIGMA_PX
-    from skyfix.calibration.stars import _choose  # the choice alone, without images to re-identify
-
-    best, scores, refused = _choose(matched, Camera.from_fov(1280, 960, 10.0), family, skew=False)
+    # the choice alone, without images to re-identify
+    best, scores, refused = choose_model(matched, Camera.from_fov(1280, 960, 10.0), family, skew=False)
     assert "k3" not in best.params and "principal_point" not in best.params
     assert "principal_point" in refused
     assert len(scores) == len(family.ladder)
@@ -116,10 +117,8 @@ def test_same_roll_images_constrain_the_principal_point_as_well(stars):
 def test_one_field_is_a_degenerate_set(stars):
     A = _attitudes(1, seed=1)[0]
     matched = _matched(stars, TRUTH, [A, A, A], 0.1, seed=0)
-    from skyfix.calibration.stars import _check_not_one_field
-
     with pytest.raises(CalibrationError, match="degenerate set: all 3 images are of one field"):
-        _check_not_one_field(matched)
+        check_not_one_field(matched)
 
 
 def test_unknown_model_and_too_few_images():
