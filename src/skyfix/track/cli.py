@@ -5,7 +5,9 @@ Registered in :mod:`skyfix.cli` by :func:`register`, which takes the command tab
 camera loader (files and preset names, as ``skyfix solve --camera``). One line per frame: a
 summary, or with ``--json`` the Solution (``mode``, ``frame_time_s``, ``rate_dps``, …; ``time_ms``
 holds ``read`` apart from the processing, and ``total``). A frame that cannot be read, or whose
-time is out of order, gets a one-line error and the sequence goes on. Exit codes as for
+time is out of order, gets a one-line error and the sequence goes on. Without ``--camera`` the
+tracker calibrates its own camera from the frames (:mod:`skyfix.track.self_calibration`) and says
+on stderr, at the end, which camera it used. Exit codes as for
 ``skyfix solve``: 0 every frame has an attitude, 1 some frame has none, 2 bad input.
 """
 
@@ -48,7 +50,8 @@ def register(app: typer.Typer, load_camera: Callable[[str], object]) -> None:
     @guarded
     def track(
         frames: list[Path] = typer.Argument(..., help="Frames in time order (FITS, PNG, TIFF, JPEG)."),
-        camera_file: str = typer.Option(..., "--camera", help="Camera TOML file or preset name (required)."),
+        camera_file: str = typer.Option(None, "--camera", help="Camera TOML file or preset name (default: "
+                                                               "calibrated from the frames themselves)."),
         fps: float = typer.Option(None, "--fps", help="Frame rate, Hz: frame k at k/FPS s (default: each "
                                                       "FITS frame's DATE-OBS)."),
         gyro: Path = typer.Option(None, "--gyro", help="CSV of gyro rates: t_s, x, y, z (rad/s about camera "
@@ -76,7 +79,7 @@ def register(app: typer.Typer, load_camera: Callable[[str], object]) -> None:
         from skyfix.track import Tracker
 
         try:
-            camera = load_camera(camera_file)
+            camera = None if camera_file is None else load_camera(camera_file)
         except SkyfixError as exc:
             fail(error_line(exc, camera_file))
         times = frame_times(frames, fps)
@@ -113,6 +116,8 @@ def register(app: typer.Typer, load_camera: Callable[[str], object]) -> None:
                     progress.advance(0)
         if progress is not None:
             progress.stop()
+        if tracker.calibration is not None:  # which camera it used
+            typer.echo(f"skyfix: {tracker.calibration.describe()}", err=True)
         if plot is not None and sols:
             plot_track(sols, plot)
         raise typer.Exit(2 if any_error else 1 if any_failed else 0)
@@ -246,7 +251,7 @@ def plot_track(sols: list, path: Path) -> None:
         axes[1].errorbar(t, rate[:, i], yerr=rate_sigma[:, i], fmt=".-", ms=3, label=f"ω{label}")
     axes[1].set_ylabel("rate (°/s)")
     axes[1].legend(loc="upper right", fontsize=8)
-    colours = {"lost": "C3", "acquiring": "C1", "tracking": "C2"}
+    colours = {"calibrating": "C0", "lost": "C3", "acquiring": "C1", "tracking": "C2"}
     n = np.array([s.n_matched for s in sols])
     for mode, colour in colours.items():
         pick = np.array([s.mode == mode for s in sols])
