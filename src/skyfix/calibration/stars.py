@@ -30,7 +30,6 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
@@ -64,9 +63,14 @@ SAME_FIELD_DEG = 0.05
 the camera from the pointing (a degenerate set)."""
 
 
-class CalibrationModel(NamedTuple):
+@dataclass(frozen=True)
+class CalibrationModel:
     """A family of camera models: its projection and its ladder of parameter sets, simplest
-    first, each holding the one before (:data:`skyfix.calibrate.CAMERA_PARAMETERS` names)."""
+    first, each holding the one before (:data:`skyfix.calibrate.CAMERA_PARAMETERS` names).
+
+    (This module's records are dataclasses, not NamedTuples, as :mod:`.joint`'s are: the tracker
+    imports this module, and the kernel cache's digest of every kernel module the tracker imports
+    takes in the NamedTuples of the tracker's imports — an edit here would drop them all.)"""
 
     projection: str
     ladder: tuple[tuple[str, ...], ...]
@@ -93,7 +97,8 @@ _DEFAULTS = {"k1": {"k1": 0.0}, "k2": {"k2": 0.0}, "k3": {"k3": 0.0}, "k4": {"k4
              "tangential": {"p1": 0.0, "p2": 0.0}, SKEW: {"skew": 0.0}}
 
 
-class StarFrame(NamedTuple):
+@dataclass(frozen=True)
+class StarFrame:
     """An image ready to calibrate: its name, size, centroids (N, 2) brightest first, their flux
     (N,), and its blind solution (:class:`skyfix.solution.Solution`)."""
 

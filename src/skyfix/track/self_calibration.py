@@ -14,8 +14,9 @@ makes the camera from the sequence itself and keeps it honest:
    a lens whose centre is 25 px off biased every attitude by 5″ in the simulated sequence of
    the tests; free, its σ is part of the error bars instead, item 3). The tracker then solves
    that frame lost in space through the camera, and tracks.
-2. **Refined across the sequence.** Every ``keyframe_every`` frames, a frame with an attitude
-   becomes a keyframe: the whole frame extracted, its stars re-identified through the current
+2. **Refined across the sequence.** Every ``keyframe_every`` frames, a frame tracked (with the
+   MEKF) becomes a keyframe: the whole frame extracted, its streaks refitted and a rolling
+   shutter's shear undone (:func:`keyframe_stars`), its stars re-identified through the current
    camera at the frame's attitude (:func:`~skyfix.calibration.stars.rematch_frame`), and the
    camera fitted again over every keyframe (:func:`~skyfix.calibration.stars.choose_model`:
    the model chosen again, so a term the first frames could not support joins when the sky
@@ -216,6 +217,7 @@ class SelfCalibration:
             self.frames.pop(0)
             sol.reason = f"camera not calibrated yet: {exc}"
             return sol
+        # the refits' start, as calibrate_frames': the blind solves' median focal length, centred
         fx = float(np.median([f.solution.camera.fx for f in self.frames]))
         self._start = Camera(width=w, height=h, fx=fx, fy=fx, cx=(w - 1) / 2.0, cy=(h - 1) / 2.0)
         if self.family.projection != "pinhole":
