@@ -24,6 +24,7 @@ Warm numba's cache first (one solve in the tree): a first run on a machine compi
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 import time
 from pathlib import Path
@@ -50,6 +51,8 @@ def main() -> None:
     t = _now()
     import skyfix.cli as cli
 
+    # the module whose load_database the solve command calls (skyfix.cli itself before cli/ was a package)
+    command = importlib.import_module("skyfix.cli.solve") if hasattr(cli, "__path__") else cli
     t = phase("import skyfix.cli (typer, skyfix, the command table)", t)
     import numba
     from numba.core import cpu, dispatcher, event
@@ -99,12 +102,12 @@ def main() -> None:
             pass
 
     event.register("numba:compile", Compiles())
-    load_database, solve = cli.load_database, pipeline.solve
+    load_database, solve = command.load_database, pipeline.solve
     inner: dict[str, tuple[float, float]] = {}
 
-    def timed_load_database(path):
+    def timed_load_database(*args, **kwargs):
         s = _now()
-        out = load_database(path)
+        out = load_database(*args, **kwargs)
         e = _now()
         inner["database load"] = (e[0] - s[0], e[1] - s[1])
         return out
@@ -117,7 +120,7 @@ def main() -> None:
         inner["  solved" if sol.solved else "  NOT SOLVED"] = (0.0, 0.0)
         return sol
 
-    cli.load_database, pipeline.solve = timed_load_database, timed_solve
+    command.load_database, pipeline.solve = timed_load_database, timed_solve
     t0 = _now()
     try:
         cli.app(["solve", opts.image], prog_name="skyfix", standalone_mode=False)
@@ -130,7 +133,7 @@ def main() -> None:
     rows.append(("  in numba dispatchers' first calls (cache loads)", first["wall"], first["cpu"]))
     rows.append(("    of which numba's registries on the first dispatch",
                  first["reg_wall"], first["reg_cpu"]))
-    cli.load_database, pipeline.solve = load_database, solve
+    command.load_database, pipeline.solve = load_database, solve
     later = []
     for _ in range(opts.repeat):
         s = _now()

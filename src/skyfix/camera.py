@@ -317,7 +317,20 @@ class Camera:
 
     @classmethod
     def load(cls, path: str | Path) -> Camera:
+        """A camera from a TOML file (``[camera]``), or — when ``path`` is no file and does not
+        end in ``.toml`` — from a preset name, as every ``--camera`` option takes: a bundled
+        hardware preset (:mod:`skyfix.presets`, e.g. ``"sunsat"``, ``"generic"``) or one of
+        :data:`PRESETS`."""
         p = Path(path)
+        text = str(path)
+        if not text.lower().endswith(".toml") and not p.exists():
+            from skyfix.presets import load_preset, preset_names
+
+            if text.lower().strip() in preset_names():
+                return cls.from_dict(load_preset(text)["camera"])
+            if text.lower().strip() in PRESETS:
+                return camera_from_preset(text)
+            raise unknown_name("camera preset or file", text, sorted({*preset_names(), *PRESETS}))
         try:
             text = p.read_text()
         except (OSError, UnicodeDecodeError) as exc:

@@ -51,7 +51,8 @@ import numpy as np
 
 from skyfix.errors import ImageReadError, unknown_name
 
-__all__ = ["read_image", "read_image_with_header", "as_image", "ImageFile", "DECODERS", "DECODER_CHAINS",
+__all__ = ["read_image", "read_image_with_header", "as_image", "file_format",
+           "ImageFile", "DECODERS", "DECODER_CHAINS",
            "MAX_NONFINITE_FRACTION"]
 
 log = logging.getLogger(__name__)
@@ -199,6 +200,19 @@ def as_image(data: np.ndarray, *, name: str = "image", replace_nonfinite: bool =
             img = img.copy()
         img = _replace_nonfinite(img, name)
     return img
+
+
+def file_format(path: str | os.PathLike) -> str:
+    """The format the file ``path`` is read as — ``"fits"``, ``"tiff"``, ``"png"``, ``"jpeg"`` or
+    ``"image"`` (any other, for Pillow) — from its first bytes or its suffix, without reading
+    the pixels; ``"image"`` for a file that cannot be opened (reading it says why)."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            magic = fh.read(8)
+    except OSError:
+        return "image"
+    return _format(p.name.lower(), magic)
 
 
 def _format(name: str, magic: bytes) -> str:

@@ -23,6 +23,7 @@ from skyfix.errors import CameraError, InputError
 from skyfix.final_fit import final_fit
 from skyfix.identify.accept import noise_posterior, precision_failure
 from skyfix.identify.lost import identify_lost, retry_through_preset
+from skyfix.parity import check_parity, solve_with_parity
 from skyfix.solution import MatchTable, Solution
 from skyfix.validate import (
     check_count,
@@ -55,6 +56,7 @@ def solve(
     bad_pixels: np.ndarray | None = None,
     attitude_hint=None,
     smear_px=None,
+    parity: str | None = None,
     **identify_options,
 ) -> Solution:
     """Solve one sky image, lost in space or near a known attitude.
@@ -92,6 +94,11 @@ def solve(
         search; the Solution's ``method`` is ``"attitude-hint"``) and the same acceptance rules
         decide; when that fails, or when neither ``camera`` nor ``fov_deg`` gives the scale the
         hint needs, the frame is solved lost in space (``method`` says which path solved it).
+    parity : str, optional
+        ``"normal"``, ``"mirrored"`` (a mirror image: a star diagonal, a FITS file stored
+        bottom-up) or ``"either"`` (:mod:`skyfix.parity`; the Solution's ``mirrored`` says which
+        solved). Default: ``"either"`` for FITS files, whose rows may be stored either way up,
+        ``"normal"`` for everything else.
 
     Returns
     -------
@@ -116,6 +123,12 @@ def solve(
     _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_method,
                    identify_options)
     hint = _checked_hint(attitude_hint)
+    if parity is None:
+        from skyfix.io import file_format
+
+        fits_file = isinstance(image, (str, os.PathLike)) and file_format(image) == "fits"
+        parity = "either" if fits_file else "normal"
+    parity = check_parity(parity)
     if smear_px is not None:
         from skyfix.detect.smear import smear_offsets
 
@@ -140,7 +153,7 @@ def solve(
     sol = solve_centroids(
         centroids.xy, data.shape[1], data.shape[0], fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
         camera=camera, database=database, epoch=epoch, attitude_method=attitude_method,
-        identify_method=identify_method, name=label, attitude_hint=hint, **identify_options,
+        identify_method=identify_method, name=label, attitude_hint=hint, parity=parity, **identify_options,
     )
     if not sol.solved and (problem := frame_problem(raw)):  # blank, saturated, too small: say which
         sol.reason = f"{sol.reason}: {problem}"
@@ -169,18 +182,28 @@ def solve_centroids(
     identify_method: str = "quad-hash",
     name: str = "",
     attitude_hint=None,
+    parity: str = "normal",
     **identify_options,
 ) -> Solution:
     """Identify centroids (N, 2) (pixels, brightest first) and fit the attitude.
 
-    The keywords are those of :func:`solve`; ``width`` and ``height`` are the frame's size in
-    pixels. Raises :class:`~skyfix.errors.InputError` for a bad argument, before any work.
+    The keywords are those of :func:`solve` (``parity`` defaults to ``"normal"``); ``width``
+    and ``height`` are the frame's size in pixels. Raises :class:`~skyfix.errors.InputError`
+    for a bad argument, before any work.
     """
     xy = check_xy(xy)
     width, height = check_frame_size(width, height)
     _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude_method, identify_method,
                    identify_options)
     hint = _checked_hint(attitude_hint)
+    if check_parity(parity) != "normal":
+        def attempt(points: np.ndarray, cam: Camera | None, options: dict, hint_) -> Solution:
+            return solve_centroids(points, width, height, fov_deg=fov_deg,
+                                   fov_tolerance_deg=fov_tolerance_deg, camera=cam, database=database,
+                                   epoch=epoch, attitude_method=attitude_method,
+                                   identify_method=identify_method, name=name, attitude_hint=hint_, **options)
+
+        return solve_with_parity(parity, xy, width, camera, hint, identify_method, identify_options, attempt)
     _warm(database, fov_deg, camera)
     sol = Solution(image=name, n_detected=len(xy))
     if camera is not None and (camera.width, camera.height) != (width, height):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -46,8 +47,17 @@ def plot_solution(image: np.ndarray, solution: Solution, path: str | Path, *, dp
         ax.annotate(f"HIP {m.id}", (m.x + radius, m.y - radius), color="#ffd43b",
                     fontsize=max(6, min(10, w // 120)))
     if solution.solved:
-        title = (f"RA {solution.ra_deg:.4f}°  Dec {solution.dec_deg:+.4f}°  roll {solution.roll_deg:.2f}°  "
-                 f"FOV {solution.fov_deg:.2f}°  {solution.n_matched} stars  rmse {solution.rmse_arcsec:.1f}″")
+        # The image centre's numbers, as the one-line summary and other solvers give them; the
+        # boresight (principal point) marked and named where the stars put it elsewhere.
+        title = (f"centre RA {solution.center_ra_deg:.4f}°  Dec {solution.center_dec_deg:+.4f}°  "
+                 f"roll {solution.center_roll_deg:.2f}°\nFOV {solution.fov_deg:.2f}°  "
+                 f"{solution.n_matched} stars  rmse {solution.rmse_arcsec:.1f}″")
+        bx, by = solution.boresight_px
+        cx, cy = solution.center_px
+        if math.hypot(bx - cx, by - cy) >= 0.5:
+            ax.plot([bx], [by], marker="+", markersize=2 * radius, color="#ff6b6b", mew=1.5)
+            title += (f"\nboresight (+) at ({bx:.0f}, {by:.0f}): RA {solution.ra_deg:.4f}° "
+                      f"Dec {solution.dec_deg:+.4f}°")
     else:
         title = f"failed: {solution.reason}"
     ax.text(0.01, 0.01, title, transform=ax.transAxes, color="white", fontsize=9,

@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Match", "MatchTable", "Solution"]
+__all__ = ["Match", "MatchTable", "Pointing", "Solution"]
 
 
 class Match(NamedTuple):
@@ -69,6 +69,8 @@ class Solution:
     ``ra_deg``, ``dec_deg`` and ``roll_deg`` are those of the boresight, the camera's +z axis,
     which meets the image at ``boresight_px`` (the principal point: the image centre unless a
     camera file says otherwise or, with no camera file, the stars pin it down elsewhere);
+    ``center_ra_deg``, ``center_dec_deg`` and ``center_roll_deg`` (:meth:`center_pointing`) are
+    those of the image centre ``center_px`` — what astrometry.net, tetra3 and cedar report;
     :meth:`radec_of_pixel` gives any other pixel's."""
 
     image: str = ""
@@ -78,6 +80,7 @@ class Solution:
     dec_deg: float | None = None
     roll_deg: float | None = None
     boresight_px: list[float] | None = None
+    mirrored: bool = False  #: solved as a mirror image (skyfix.parity: parity="mirrored" or "either")
     fov_deg: float | None = None
     quaternion_xyzw: list[float] | None = None
     covariance_arcsec2: list[list[float]] | None = None
@@ -109,14 +112,17 @@ class Solution:
     def solved(self) -> bool:
         return self.status == "solved"
 
-    def attitude_at_pixel(self, x: float, y: float) -> np.ndarray:
+    def attitude_at_pixel(self, x: float, y: float, along: str = "column") -> np.ndarray:
         """The attitude (3, 3) of the frame at pixel ``(x, y)``: z along its sky direction, x
-        along the growing column there (:func:`skyfix.calibrate.frame_at_pixel`); at
-        ``boresight_px`` it is ``A_icrs_to_cam``. The image centre's is what other solvers
-        report."""
+        along the growing column there — or, with ``along="row"``, y along the growing row, so
+        that its roll is image-up's position angle there, as plate solvers report it for the
+        image centre (:func:`skyfix.calibrate.frame_at_pixel`); at ``boresight_px`` it is
+        ``A_icrs_to_cam``."""
         from skyfix.calibrate import frame_at_pixel
 
-        return frame_at_pixel(self.A_icrs_to_cam, self.camera, (x, y))
+        if self.mirrored:  # the camera and attitude are the flipped frame's (skyfix.parity)
+            x = (self.camera.width - 1) - x
+        return frame_at_pixel(self.A_icrs_to_cam, self.camera, (x, y), along)
 
     def radec_of_pixel(self, x: float, y: float) -> tuple[float, float]:
         """RA, Dec (degrees) of the pixel ``(x, y)`` (e.g. the image centre, which is not the
@@ -126,11 +132,70 @@ class Solution:
         ra, dec = vector_to_radec(self.attitude_at_pixel(x, y)[2])
         return math.degrees(float(ra)), math.degrees(float(dec))
 
+    def flip_match_columns(self, width: int) -> None:
+        """The matches' x flipped left-right, ``x' = (W − 1) − x``, in place (for
+        :func:`skyfix.parity.unmirror_solution`)."""
+        value = self.__dict__.get("_matches")
+        if isinstance(value, MatchTable):
+            table = value.table.copy()
+            table[0] = (width - 1) - table[0]
+            self.matches = MatchTable(table, value.ids)
+        elif value:
+            self.matches = [m._replace(x=(width - 1) - m.x) for m in value]
+
+    @property
+    def center_px(self) -> list[float] | None:
+        """The image centre's pixel, ``[(W − 1)/2, (H − 1)/2]`` (None unless solved)."""
+        if self.camera is None:
+            return None
+        return [(self.camera.width - 1) / 2.0, (self.camera.height - 1) / 2.0]
+
+    def center_pointing(self) -> Pointing:
+        """RA, Dec and roll (degrees) of the image centre (:attr:`center_px`): its sky direction
+        and the position angle of image-up there (:meth:`attitude_at_pixel` with
+        ``along="row"``), as a plate solver reports them. The boresight's own numbers when the
+        principal point is the centre; NaN unless solved."""
+        centre = self.center_px
+        if centre is None or self.A_icrs_to_cam is None or self.ra_deg is None:
+            return Pointing(math.nan, math.nan, math.nan)
+        if self.boresight_px is not None and list(map(float, self.boresight_px)) == centre:
+            return Pointing(float(self.ra_deg), float(self.dec_deg), float(self.roll_deg))
+        from skyfix.geometry import radec_roll_from_attitude
+
+        ra, dec, roll = radec_roll_from_attitude(self.attitude_at_pixel(*centre, along="row"))
+        return Pointing(math.degrees(ra), math.degrees(dec), math.degrees(roll))
+
+    @property
+    def center_ra_deg(self) -> float | None:
+        """RA (degrees) of the image centre (:meth:`center_pointing`)."""
+        return _finite_or_none(self.center_pointing().ra_deg)
+
+    @property
+    def center_dec_deg(self) -> float | None:
+        """Dec (degrees) of the image centre (:meth:`center_pointing`)."""
+        return _finite_or_none(self.center_pointing().dec_deg)
+
+    @property
+    def center_roll_deg(self) -> float | None:
+        """Roll (degrees) of the image centre's frame (:meth:`center_pointing`)."""
+        return _finite_or_none(self.center_pointing().roll_deg)
+
     def to_dict(self) -> dict:
         matches = [m._asdict() for m in self.matches]
         d = asdict(self)
         d.pop("A_icrs_to_cam")
         d.pop("camera")
+        # The image centre's numbers beside the boresight's (computed once, here).
+        centre = self.center_pointing()
+        out = {}
+        for key, value in d.items():
+            out[key] = value
+            if key == "boresight_px":
+                out["center_ra_deg"] = _finite_or_none(centre.ra_deg)
+                out["center_dec_deg"] = _finite_or_none(centre.dec_deg)
+                out["center_roll_deg"] = _finite_or_none(centre.roll_deg)
+                out["center_px"] = self.center_px
+        d = out
         d["matches"] = matches
         if not self.reason:
             d.pop("reason")
@@ -141,6 +206,18 @@ class Solution:
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), separators=(", ", ": "))
+
+
+class Pointing(NamedTuple):
+    """Where a pixel of a solved image points: RA, Dec and roll, degrees."""
+
+    ra_deg: float
+    dec_deg: float
+    roll_deg: float
+
+
+def _finite_or_none(x: float) -> float | None:
+    return x if math.isfinite(x) else None
 
 
 _TRACKING_FIELDS = ("mode", "frame_time_s", "rate_dps", "rate_covariance_dps2")

@@ -85,7 +85,8 @@ def _frame_grid(camera: Camera, n: int = 41) -> np.ndarray:
     return np.column_stack([gx.ravel(), gy.ravel()])
 
 
-def wcs_header(A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.005) -> fits.Header:
+def wcs_header(A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.005,
+               mirrored: bool = False) -> fits.Header:
     """The FITS WCS header cards of :func:`solution_wcs` (TAN or ARC, with SIP when distorted).
 
     Parameters as :func:`solution_wcs`.
@@ -121,7 +122,27 @@ def wcs_header(A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.005)
     h["IMAGEH"] = (int(camera.height), "image height, pixels")
     if sip:
         _add_sip(h, camera, tol_px)
+    if mirrored:
+        _mirror_header(h, camera.width)
     return h
+
+
+def _mirror_header(h: fits.Header, width: int) -> None:
+    """Make the header of the flipped frame (``x' = (W − 1) − x``) the frame's own, in place:
+    ``CRPIX1`` flipped, the first column of ``CD`` negated, and SIP's terms in ``u^p v^q``
+    multiplied by ``(−1)^(p+1)`` (``A``, ``AP``: their output is ``u``) or ``(−1)^p`` (``B``,
+    ``BP``), since ``u' = −u``."""
+    h["CRPIX1"] = (width + 1.0) - h["CRPIX1"]
+    h["CD1_1"] = -h["CD1_1"]
+    h["CD2_1"] = -h["CD2_1"]
+    for key in list(h.keys()):
+        name, _, powers = key.partition("_")
+        if name in ("A", "B", "AP", "BP") and powers.count("_") == 1 and powers != "ORDER":
+            p = int(powers.split("_")[0])
+            odd_output = name in ("A", "AP")
+            if (p + odd_output) % 2:
+                h[key] = -h[key]
+    h["HISTORY"] = "skyfix: a mirror image (solved as the frame flipped left-right)"
 
 
 def _undistorted(camera: Camera, xy: np.ndarray) -> np.ndarray:
@@ -162,7 +183,8 @@ def _add_sip(h: fits.Header, camera: Camera, tol_px: float) -> None:
                     f"inverse order {order_p}, worst {worst_p:.2g} px")
 
 
-def solution_wcs(A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.005) -> WCS:
+def solution_wcs(A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.005,
+                 mirrored: bool = False) -> WCS:
     """An astropy WCS with the same pixel ↔ sky mapping as the camera model at attitude ``A``.
 
     Parameters
@@ -171,23 +193,27 @@ def solution_wcs(A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.00
     camera : the camera model: TAN for a pinhole, ARC for Kannala–Brandt (equidistant exactly),
         with SIP for distortion (Brown–Conrady, or a θ polynomial beyond equidistant).
     tol_px : worst SIP fit residual over the frame, pixels (sets the polynomial order).
+    mirrored : ``A`` and ``camera`` are those of the frame flipped left-right (a Solution's
+        ``mirrored``, :mod:`skyfix.parity`): the WCS is made the frame's own (``det CD < 0``).
 
     Returns
     -------
     astropy.wcs.WCS
         FITS pixel = skyfix pixel + 1 (use ``origin=1`` with ``x + 1``, or ``origin=0`` with ``x``).
     """
-    w = WCS(wcs_header(A_icrs_to_cam, camera, tol_px))
+    w = WCS(wcs_header(A_icrs_to_cam, camera, tol_px, mirrored))
     w.pixel_shape = (int(camera.width), int(camera.height))
     return w
 
 
-def write_wcs(path: str | Path, A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.005) -> None:
-    """Write the WCS as a FITS file holding only a header (like astrometry.net's ``.wcs``).
+def write_wcs(path: str | Path, A_icrs_to_cam: np.ndarray, camera: Camera, tol_px: float = 0.005,
+              mirrored: bool = False) -> None:
+    """Write the WCS as a FITS file holding only a header (like astrometry.net's ``.wcs``);
+    ``mirrored`` as :func:`solution_wcs`'s.
 
     Read it back with ``astropy.wcs.WCS(astropy.io.fits.getheader(path))``.
     """
-    hdu = fits.PrimaryHDU(header=wcs_header(A_icrs_to_cam, camera, tol_px))
+    hdu = fits.PrimaryHDU(header=wcs_header(A_icrs_to_cam, camera, tol_px, mirrored))
     hdu.writeto(Path(path), overwrite=True)
 
 

@@ -99,7 +99,7 @@ def test_s_curve_shape():
 
 
 def test_analyze_centroids_command_writes_tables_and_plots(tmp_path):
-    from skyfix.cli_analyze import analyze_app
+    from skyfix.cli.analyze import analyze_app
 
     out = tmp_path / "study"
     args = ["centroids", "--quick", "--trials", "40", "--methods", "com,gaussian", "--out", str(out)]

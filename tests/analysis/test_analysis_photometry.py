@@ -89,7 +89,7 @@ def test_esa_photometry_with_colour_and_vignetting_reaches_0p2(esa_results):
 
 @pytest.mark.skipif(len(ESA) != 8, reason="ESA frames not available")
 def test_analyze_photometry_command():
-    from skyfix.cli_analyze import analyze_app
+    from skyfix.cli.analyze import analyze_app
 
     r = CliRunner().invoke(analyze_app, ["photometry", *ESA[:2], "--epoch", str(EPOCH), "--json"])
     assert r.exit_code == 0, r.output

@@ -103,7 +103,7 @@ def test_blank_frame_gives_empty_field():
 
 @pytest.mark.skipif(not ESA, reason="ESA frames not available")
 def test_real_esa_frame_plausible(tmp_path):
-    from skyfix.cli_analyze import analyze_app
+    from skyfix.cli.analyze import analyze_app
 
     out = tmp_path / "psf.png"
     r = CliRunner().invoke(analyze_app, ["psf", ESA[2], "--out", str(out), "--json"])

@@ -72,7 +72,7 @@ def test_cli_case_and_bad_names(tmp_path):
     from skyfix.cli import app
 
     res = CliRunner().invoke(app, ["analyze", "identification", "--case", "nope", "--out", str(tmp_path)])
-    assert res.exit_code == 2 and "unknown case nope" in res.output
+    assert res.exit_code == 2 and "--case: unknown case 'nope'" in res.output
     res = CliRunner().invoke(app, ["analyze", "identification", "--methods", "bogus", "--out", str(tmp_path)])
     assert res.exit_code == 2 and "bogus" in res.output and "Traceback" not in res.output
     res = CliRunner().invoke(app, ["analyze", "identification", "--quick", "--methods", "quad-hash",

@@ -202,5 +202,5 @@ def test_cli_analyze_presets(tmp_path):
     assert row["preset"] == "generic" and row["summary"]["bands/blind"]["solved"] == 2
     assert (out / "presets.png").stat().st_size > 10_000
     bad = runner.invoke(app, ["analyze", "presets", "--presets", "nosuch", "--out", str(out)])
-    assert bad.exit_code == 2 and "unknown preset nosuch" in bad.output
+    assert bad.exit_code == 2 and "--presets: unknown preset 'nosuch'" in bad.output
     assert len(bad.output.strip().splitlines()) == 1

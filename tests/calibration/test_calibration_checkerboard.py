@@ -247,7 +247,8 @@ def test_command_writes_the_camera_and_refuses_bad_input(boards, tmp_path):
     out.unlink()
     cases = {("--pattern", "9by6"): "--pattern '9by6': give the inner corners as COLSxROWS, each at least 2 "
                                     "(9x6 for a board of 10 × 7 squares)",
-             ("--model", "zoom"): "unknown checkerboard model 'zoom'; choose one of brown-conrady, fisheye"}
+             ("--model", "zoom"): "--model: unknown checkerboard model 'zoom'; choose one of brown-conrady, "
+                                  "fisheye"}
     for (option, value), message in cases.items():
         result = CliRunner().invoke(app, [*base, *map(str, paths), option, value])
         assert result.exit_code == 2 and result.stderr.strip().splitlines() == [f"skyfix: error: {message}"]

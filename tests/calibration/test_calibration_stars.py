@@ -267,8 +267,8 @@ def test_command_refuses_bad_input_in_one_line_and_writes_nothing(tmp_path):
     for p in paths:
         p.write_bytes(b"")
     out = tmp_path / "camera.toml"
-    cases = {("--model", "zoom"): "unknown calibration model 'zoom'; choose one of pinhole, brown-conrady, "
-                                  "fisheye",
+    cases = {("--model", "zoom"): "--model: unknown calibration model 'zoom'; choose one of pinhole, "
+                                  "brown-conrady, fisheye",
              ("--max-stars", "300"): "a star calibration needs at least 3 images, got 2"}
     for (option, value), message in cases.items():
         images = paths if option == "--model" else paths[:2]

@@ -1,1 +1,1 @@
-"""Tests of the skyfix command (cli.py, cli_analyze.py, cli_support.py)."""
+"""Tests of the skyfix command (the skyfix.cli package)."""

@@ -117,7 +117,7 @@ def test_same_named_inputs_get_distinct_outputs(tmp_path, database):
 
 
 def test_output_names_scheme():
-    from skyfix.cli_support import output_names
+    from skyfix.cli.common import output_names
 
     names = output_names([Path("a/sky.png"), Path("b/sky.png"), Path("c/moon.png")])
     assert names == ["a-sky", "b-sky", "moon"]
@@ -134,7 +134,10 @@ def test_missing_database_and_bad_camera_file_are_named(tmp_path):
         f"`skyfix database build --fov-min … --fov-max … -o {missing}`)")
     bad = tmp_path / "bad.toml"
     bad.write_text("garbage = [\n")
-    assert _one_error(_run("solve", EXAMPLE, "--camera", bad)).startswith(f"{bad}: ")
+    msg = _one_error(_run("solve", EXAMPLE, "--camera", bad))
+    assert msg.startswith(f"--camera {bad}: not a camera file"), msg
+    assert _one_error(_run("solve", EXAMPLE, "--camera", tmp_path / "none.toml")) == (
+        f"--camera: no such file {tmp_path / 'none.toml'}")  # named once (issue 28: it was three times)
 
 
 # --- a batch goes on past a bad file --------------------------------------------------------------
@@ -160,6 +163,13 @@ def test_count_flag_given_a_value_says_so(database):
     result = _run("solve", "-v", "1", EXAMPLE)
     assert result.exit_code == 2
     assert "skyfix: error: 1: no such file (-v takes no value: write -v or -vv)" in result.stderr.splitlines()
+
+
+def test_a_flag_given_a_value_says_so(database):
+    # --json true: "true" is read as an image (a flag takes no value); the line says why
+    result = _run("detect", "--json", "true", EXAMPLE)
+    assert result.exit_code == 2 and result.stderr.splitlines() == [
+        "skyfix: error: true: no such file (a flag takes no value: write --json, not --json true)"]
 
 
 # --- nasty frames ---------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""The shortcut of a plain ``skyfix solve`` (skyfix.cli._plain_solve): it hands the command
+"""The shortcut of a plain ``skyfix solve`` (skyfix.cli.solve.plain_solve): it hands the command
 exactly what typer would, and leaves everything else to typer.
 
 - For arguments it accepts, the keywords it passes equal the values typer's parser gives the
@@ -24,7 +24,8 @@ import pytest
 import typer.main
 
 import skyfix
-from skyfix.cli import _plain_solve, _solve_parameters, app
+from skyfix.cli import app
+from skyfix.cli.solve import plain_solve, solve_parameters
 from tests.conftest import EXAMPLES
 
 SRC = Path(skyfix.__file__).resolve().parents[1]
@@ -51,13 +52,13 @@ def _typer_values(argv: list[str]) -> tuple[int, dict]:
 
 
 def _same(argv: list[str]) -> None:
-    plain = _plain_solve(argv)
+    plain = plain_solve(argv)
     assert plain is not None, argv
     assert plain == _typer_values(argv), argv
 
 
 def test_the_shortcut_reads_every_option_of_solve():
-    params = _solve_parameters()
+    params = solve_parameters()
     assert params is not None  # every option is of a kind it reads: the shortcut is on
     assert {"fov", "camera_file", "json_out", "plot", "attitude_hint", "smear"} <= set(params)
     for flags, kind, _ in params.values():
@@ -70,7 +71,7 @@ def test_the_shortcut_reads_every_option_of_solve():
 
 
 def test_random_mixtures_match_typer():
-    params = _solve_parameters()
+    params = solve_parameters()
     rng = random.Random(22)
     for _ in range(200):
         argv = ["-v"] * rng.randint(0, 2) + ["solve"]
@@ -97,7 +98,7 @@ def test_random_mixtures_match_typer():
     ["solve", "a.png", "--plot", "--json"],
 ])
 def test_anything_else_goes_to_typer(argv):
-    assert _plain_solve(argv) is None
+    assert plain_solve(argv) is None
 
 
 _DRIVER = textwrap.dedent("""

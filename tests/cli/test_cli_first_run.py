@@ -54,7 +54,7 @@ def test_compile_notice_shows_only_while_numba_compiles():
     import numba
     from rich.console import Console
 
-    from skyfix.cli_support import compile_notice
+    from skyfix.cli.common import compile_notice
 
     out = io.StringIO()
     console = Console(file=out, force_terminal=True, width=100)
@@ -102,4 +102,4 @@ def test_mirror_image_is_named(tmp_path, database):
     result = runner.invoke(app, ["solve", str(mirrored)])
     assert result.exit_code == 1
     assert result.stdout.endswith("but the stars match the sky mirrored left-right: a mirror image "
-                                  "(flip it before solving)\n")
+                                  "(solve it with --parity mirrored or either; parity= in Python)\n")

@@ -28,10 +28,9 @@ EXAMPLE = EXAMPLES / "sky.png"
 HEAVY = ("numpy", "numba", "llvmlite", "scipy", "astropy", "matplotlib", "dask", "PIL", "cv2", "pandas")
 
 #: The skyfix modules that define the command table; everything else is a command's implementation.
-COMMAND_TABLE = {"skyfix", "skyfix._kernels", "skyfix._numba_lapack", "skyfix.cli", "skyfix.cli_analyze",
-                 "skyfix.cli_support", "skyfix.errors", "skyfix.validate", "skyfix.track", "skyfix.track.cli",
-                 "skyfix.montecarlo", "skyfix.montecarlo.command", "skyfix.calibration",
-                 "skyfix.calibration.commands"}
+COMMAND_TABLE = {"skyfix", "skyfix._kernels", "skyfix._numba_lapack", "skyfix.errors", "skyfix.validate",
+                 *(f"skyfix.cli{m}" for m in ("", ".common", ".solve", ".detect", ".simulate", ".warmup",
+                                             ".track", ".montecarlo", ".database", ".analyze", ".calibrate"))}
 
 _DRIVER = textwrap.dedent("""
     import json, sys
@@ -118,7 +117,7 @@ def test_solve_imports_only_what_it_runs(database):
                 # numba's BLAS/LAPACK come from the two Cython modules alone (skyfix._numba_lapack):
                 # not from scipy.linalg's __init__, nor what it drags in
                 "scipy.linalg._", "scipy._lib._array_api", "numpy.f2py", "numpy.testing",
-                # a plain solve skips typer's value coercion (skyfix.cli._plain_solve)
+                # a plain solve skips typer's value coercion (skyfix.cli.solve.plain_solve)
                 "pydantic",
                 # the streak fit (30 kernels to set up) is for the tracker and --smear
                 "skyfix.detect.streak")

@@ -153,4 +153,4 @@ def test_mirror_image_is_named(database):
     assert "mirror image" in sol.reason
     assert sol.reason.startswith("no match after ")
     assert sol.reason.endswith("; but the stars match the sky mirrored left-right: a mirror image "
-                               "(flip it before solving)")
+                               "(solve it with --parity mirrored or either; parity= in Python)")

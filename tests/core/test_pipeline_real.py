@@ -26,15 +26,17 @@ def test_real_image_solves_near_reference(name, real_dir, real_solutions, databa
     ref = real_solutions[name]
     sol = solve(real_dir / name, database=database)
     assert sol.status == "solved", sol.reason
-    # The reference is the image centre's sky position (astrometry.net), which is the boresight
-    # only when the principal point was not found elsewhere.
-    ra, dec = sol.radec_of_pixel((sol.camera.width - 1) / 2, (sol.camera.height - 1) / 2)
-    sep = angle_between(radec_to_vector(np.radians(ra), np.radians(dec)),
+    # The reference is the image centre's sky position (astrometry.net): center_*, which are the
+    # boresight's numbers only when the principal point was not found elsewhere.
+    sep = angle_between(radec_to_vector(np.radians(sol.center_ra_deg), np.radians(sol.center_dec_deg)),
                         radec_to_vector(np.radians(ref["ra_deg"]), np.radians(ref["dec_deg"])))
     sep_arcsec = np.degrees(sep) * 3600
     assert sep_arcsec < (20.0 if name.startswith("esa") else 60.0)
-    droll = (sol.roll_deg - ref["roll_deg"] + 180.0) % 360.0 - 180.0
+    droll = (sol.center_roll_deg - ref["roll_deg"] + 180.0) % 360.0 - 180.0
     assert abs(droll) < 0.5
+    d = sol.to_dict()
+    assert (d["center_ra_deg"], d["center_dec_deg"], d["center_roll_deg"]) == (
+        sol.center_ra_deg, sol.center_dec_deg, sol.center_roll_deg)
     scale_arcsec = np.degrees(sol.camera.plate_scale_rad) * 3600
     assert scale_arcsec == pytest.approx(ref["pixscale_arcsec"], rel=0.01)
     assert sol.n_matched >= 6

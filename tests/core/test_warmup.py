@@ -216,6 +216,6 @@ def test_warmup_command_lists_paths_and_refuses_unknown_ones():
     assert lines[0].split(None, 1)[1] == "compiled"  # the session compiled the solve's kernels first
     bad = runner.invoke(app, ["warmup", "solve", "bogus"])
     assert bad.exit_code == 2
-    assert bad.stderr.startswith("skyfix: error: unknown warm-up path 'bogus'; choose from solve, ")
+    assert bad.stderr.startswith("skyfix: error: unknown warm-up path 'bogus'; choose one of solve, ")
     done = runner.invoke(app, ["warmup", "solve"])
     assert done.exit_code == 0 and done.stdout == "skyfix: 1 path(s) compiled already\n"

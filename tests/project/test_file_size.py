@@ -11,7 +11,6 @@ import skyfix
 LIMIT = 700
 SRC = Path(skyfix.__file__).parent
 STILL_OVER = {
-    "cli.py": "the cli/ package (issue 23 part 4)",
     "detect/streak.py": "its window kernels apart from the streak model",
     "_kernels/camera_fit.py": "the Jacobian apart from the model scoring and Gauss–Newton",
 }

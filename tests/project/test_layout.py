@@ -15,10 +15,10 @@ from tests.conftest import ROOT
 
 TESTS = ROOT / "tests"
 SRC = ROOT / "src" / "skyfix"
-# an area folder per package of src/skyfix/; and three more: core/ (the top-level modules of
-# src/skyfix/), cli/ (the command: cli.py, cli_analyze.py, cli_support.py), project/ (the
-# repository as a whole: docs, import graph, benchmarks, this layout)
-NOT_PACKAGES = {"core", "cli", "project"}
+# an area folder per package of src/skyfix/ (cli/: the command); and two more: core/ (the
+# top-level modules of src/skyfix/), project/ (the repository as a whole: docs, import graph,
+# benchmarks, this layout)
+NOT_PACKAGES = {"core", "project"}
 # where a test keeps what is not a test: shared data, caches
 NOT_TESTS = {"data", "__pycache__"}
 # an absolute path of one machine: a home, a scratch or a work folder

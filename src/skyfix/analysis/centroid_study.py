@@ -38,6 +38,8 @@ __all__ = [
     "DEFAULT_CENTROIDERS",
     "EXTRACTORS",
     "flux_for_snr",
+    "noise_area_px",
+    "star_snr",
     "numeric_crb",
     "expected_stamps",
     "render_stamps",
@@ -62,14 +64,26 @@ DEFAULT_SKY_E = 10.0
 DEFAULT_READ_E = 5.0
 
 
+def noise_area_px(sigma_px: float) -> float:
+    """The noise-equivalent area of a pixelated Gaussian PSF of σ ``sigma_px``, pixels:
+    ``A = 4π(σ² + 1/12)``."""
+    return 4.0 * math.pi * (sigma_px**2 + 1.0 / 12.0)
+
+
+def star_snr(flux_e, sigma_px: float, sky_e: float = DEFAULT_SKY_E, read_e: float = DEFAULT_READ_E):
+    """A star's SNR under the module's convention, ``F / √(F + A·(b + r²))`` (``F`` its
+    electrons, scalar or array; :func:`noise_area_px`); :func:`flux_for_snr` inverts it."""
+    f = np.asarray(flux_e, dtype=np.float64)
+    return f / np.sqrt(f + noise_area_px(sigma_px) * (sky_e + read_e**2))
+
+
 def flux_for_snr(snr: float, sigma_px: float, sky_e: float = DEFAULT_SKY_E,
                  read_e: float = DEFAULT_READ_E) -> float:
-    """Star electrons that give ``snr`` under the module's SNR convention.
+    """Star electrons that give ``snr`` under the module's SNR convention (:func:`star_snr`).
 
     Solves ``F² = SNR²·(F + A·(b + r²))`` with ``A = 4π(σ² + 1/12)``.
     """
-    area = 4.0 * math.pi * (sigma_px**2 + 1.0 / 12.0)
-    v = area * (sky_e + read_e**2)
+    v = noise_area_px(sigma_px) * (sky_e + read_e**2)
     s2 = float(snr) ** 2
     return 0.5 * (s2 + math.sqrt(s2 * s2 + 4.0 * s2 * v))
 

@@ -6,8 +6,8 @@
 - :mod:`skyfix.montecarlo.engine` — the batches run on Dask, kept on disk, resumed.
 - :mod:`skyfix.montecarlo.results` — the Parquet rows, the summary, the plots.
 - :mod:`skyfix.montecarlo.budget` — the attitude error predicted from centroid noise and geometry.
-- :mod:`skyfix.montecarlo.command` — the command, registered in :mod:`skyfix.cli`.
 
-Nothing is imported here: registering the command costs nothing until it runs, and dask and
-pyarrow load only with a campaign.
+The command is :mod:`skyfix.cli.montecarlo`.
+
+Nothing is imported here: dask and pyarrow load only with a campaign.
 """

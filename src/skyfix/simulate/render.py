@@ -94,7 +94,8 @@ def resolve_setup(camera: Camera | str | Path, sensor: Sensor | str | None, opti
             try:
                 camera = camera_from_preset(preset)  # a camera.py preset without sensor data
             except UnknownNameError:
-                raise unknown_name("camera preset", preset, [*preset_names(), *CAMERA_PRESETS]) from None
+                known = dict.fromkeys([*preset_names(), *CAMERA_PRESETS])  # each name once
+                raise unknown_name("camera preset", preset, known) from None
             preset = "generic"
     elif not isinstance(camera, Camera):
         raise SimulationError(f"camera must be a Camera or a preset name, got {type(camera).__name__}")

@@ -13,8 +13,8 @@
 - :mod:`skyfix.track.rate`, :mod:`skyfix.track.relative` — rates from star motion, and
   frame-to-frame star IDs without a catalogue (thesis 002 §2.4–2.5).
 
-The names below load their modules on first use, so that ``skyfix.track.cli`` (the ``skyfix
-track`` command, registered with every other command) costs nothing until the command runs.
+The names below load their modules on first use: ``import skyfix.track`` costs nothing until a
+name is asked for (the ``skyfix track`` command is :mod:`skyfix.cli.track`).
 """
 
 from __future__ import annotations

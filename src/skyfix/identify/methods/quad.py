@@ -53,7 +53,8 @@ from skyfix.identify.common.refine import refine_entry
 from skyfix.identify.common.result import Identification, finite_centroids
 from skyfix.identify.common.search import breadth_first_combinations, centre_first_combinations, search_entry
 
-__all__ = ["METHOD", "REFUSED_HIT_COST_S", "SEARCH_COST_S", "identify", "search_work", "warm_kernels"]
+__all__ = ["METHOD", "MIRROR_NOTE", "REFUSED_HIT_COST_S", "SEARCH_COST_S", "identify", "search_work",
+           "warm_kernels"]
 
 METHOD = "quad-hash"
 
@@ -537,18 +538,20 @@ def _outside_reason(fov: float | None, fov_lo: float | None, fov_hi: float | Non
             f"then `skyfix solve --database {out} ...`")
 
 
-_MIRROR_NOTE = "; but the stars match the sky mirrored left-right: a mirror image (flip it before solving)"
+#: What a failed solve adds when the stars match the frame flipped left-right (skyfix.parity).
+MIRROR_NOTE = ("; but the stars match the sky mirrored left-right: a mirror image "
+               "(solve it with --parity mirrored or either; parity= in Python)")
 
 
 def _mirror_note(xy: np.ndarray, width: int, height: int, cx: float, retry: dict | None) -> str:
-    """:data:`_MIRROR_NOTE` if the frame flipped left-right (about the principal point) is
+    """:data:`MIRROR_NOTE` if the frame flipped left-right (about the principal point) is
     identified with :func:`identify`'s options ``retry`` (a short budget: a real frame's first
     patterns match), else ``""`` (also when ``retry`` is None: no check)."""
     if retry is None:
         return ""
     flipped = xy.copy()
     flipped[:, 0] = 2.0 * cx - flipped[:, 0]
-    return _MIRROR_NOTE if identify(flipped, width, height, **retry).success else ""
+    return MIRROR_NOTE if identify(flipped, width, height, **retry).success else ""
 
 
 @dataclass(frozen=True)

@@ -222,7 +222,7 @@ def unless_mirrored(result: Identification, xy: np.ndarray, width: int, height: 
         return result
     return failure(METHOD, "ambiguous: the stars fit the sky mirrored left-right better (chance "
                            f"{mirror.prob_false:.1e} against {result.prob_false:.1e}): a mirror image? "
-                           "Flip it before solving", t0,
+                           "Solve it with --parity mirrored or either", t0,
                    result.n_patterns_tried, result.n_candidates)
 
 

@@ -1,17 +1,22 @@
 """What every ``skyfix`` command shares: one-line errors, the guard that turns any exception into
-one, ``-v``/``-vv``, output files (folders created, names never colliding) and the notice shown
-while numba compiles kernels (the first run on a machine).
+one, ``-v``/``-vv``, output files (folders created, names never colliding), the inputs several
+commands read (``--camera``, ``--calibration``/``--dark``/``--flat``, the pattern database) and
+the notice shown while numba compiles kernels (the first run on a machine).
 
 Errors: ``skyfix: error: MESSAGE`` on stderr and exit status 2; an interrupt prints
 ``skyfix: interrupted`` and exits 130 (the shell's convention for Ctrl-C); an unexpected
 exception (a bug) is one line too, and ``-vv`` adds its traceback.
+
+The camera, image, database and numba imports sit inside the functions that need them: every
+``skyfix`` start loads this module, ``--version`` and ``-h`` included, which must stay light.
 """
 
 from __future__ import annotations
 
 import functools
+import inspect
 import logging
-import os
+import re
 import sys
 import time
 import traceback
@@ -23,10 +28,11 @@ from typing import Any, NoReturn
 
 import typer
 
-from skyfix.errors import DatabaseError, SkyfixError
+from skyfix.errors import DatabaseError, ImageReadError, InputError, SkyfixError
 
 __all__ = [
-    "VERBOSE", "add_verbosity", "compile_notice", "error_line", "fail", "guarded", "load_database",
+    "VERBOSE", "OneLineErrors", "add_verbosity", "calibration_maps", "checking", "compile_notice",
+    "counter_bar", "error_line", "fail", "guarded", "input_error_line", "load_camera", "load_database",
     "output_names", "output_paths", "prepare_outputs", "reset_verbosity",
 ]
 
@@ -79,15 +85,32 @@ def fail(message: str, code: int = 2) -> NoReturn:
     raise typer.Exit(code)
 
 
+@contextmanager
+def checking(option: str, value: object = None) -> Iterator[None]:
+    """Inside, a SkyfixError — a name no registry has, a file that cannot be read, a value out of
+    range — fails as one line said of ``option`` and its ``value``: ``OPTION VALUE: message``, or
+    ``OPTION: message`` when the message names the value itself (or the option)."""
+    try:
+        yield
+    except SkyfixError as exc:
+        text = str(exc)
+        if text.startswith(option):
+            fail(text)
+        named = value is None or str(value) in text
+        fail(f"{option}: {text}" if named else f"{option} {value}: {text}")
+
+
 def error_line(exc: BaseException, where: str | Path | None = None) -> str:
-    """One line for an exception: a SkyfixError's own message, anything else as an internal error.
-    With ``-vv`` the traceback goes to stderr first. ``where`` (a file) goes in front unless the
-    message already starts with it."""
+    """One line for an exception: a SkyfixError's own message, a file system's refusal as the file
+    and the reason, anything else as an internal error. With ``-vv`` the traceback goes to stderr
+    first. ``where`` (a file) goes in front unless the message already starts with it."""
     debug = _state["verbosity"] >= 2
     if debug:
         typer.echo("".join(traceback.format_exception(exc)).rstrip(), err=True)
     if isinstance(exc, SkyfixError):
         text = str(exc)
+    elif isinstance(exc, OSError) and exc.filename is not None:  # the file system said no: not a bug
+        text = f"{exc.filename}: {exc.strerror or type(exc).__name__}"
     else:
         first = (str(exc).strip().splitlines() or [""])[0]
         text = f"internal error: {type(exc).__name__}{': ' + first if first else ''}"
@@ -95,6 +118,19 @@ def error_line(exc: BaseException, where: str | Path | None = None) -> str:
             text += " (run with -vv for the traceback)"
     if where is not None and not text.startswith(str(where)):
         text = f"{where}: {text}"
+    return text
+
+
+def input_error_line(exc: BaseException, path: Path) -> str:
+    """:func:`error_line` for an input file of a batch, with a hint when the "file" is a value
+    given to an option that takes none (``-v 1 x.png``, ``--json true x.png``)."""
+    text = error_line(exc, path)
+    word = str(path)
+    if isinstance(exc, ImageReadError) and not Path(path).exists():
+        if word.isdigit():
+            return f"{text} (-v takes no value: write -v or -vv)"
+        if word.lower() in ("true", "false", "yes", "no", "on", "off"):
+            return f"{text} (a flag takes no value: write --json, not --json {word})"
     return text
 
 
@@ -117,6 +153,133 @@ def guarded(func: Callable[..., Any]) -> Callable[..., Any]:
             reset_verbosity()
 
     return wrapper
+
+
+# --- usage errors: click's parser, one line ---------------------------------------------------------
+#: click's usage errors — an option's value of the wrong type or out of range, an option without its
+#: value or a flag with one, a missing argument, an unknown option or command. typer ≥ 0.20 runs on
+#: a click of its own (private); its UsageError is the base of the public ``typer.BadParameter``.
+_USAGE_ERROR = next(k for k in typer.BadParameter.__mro__ if k.__name__ == "UsageError")
+_ARGV = "skyfix.argv"  # the command line, kept in the contexts' shared meta to quote a bad value
+
+
+class OneLineErrors(typer.core.TyperGroup):
+    """A command group whose usage errors are one line, ``skyfix: error: …`` naming the option and
+    what it takes, exit status 2 — not click's usage, hint and message (the one error style of
+    every command: tests/cli/test_bad_values.py). Help for a group called alone passes through."""
+
+    def make_context(self, info_name, args, parent=None, **extra):
+        argv = list(args)
+        try:
+            ctx = super().make_context(info_name, args, parent=parent, **extra)
+        except _USAGE_ERROR as exc:
+            words = [*_words(parent), info_name] if parent is not None else ["skyfix"]
+            _usage_failure(exc, self, words, argv)
+        ctx.meta.setdefault(_ARGV, argv)
+        return ctx
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except _USAGE_ERROR as exc:  # a subcommand's (its own context, when it has one, says which)
+            name = ctx.invoked_subcommand
+            command = self.get_command(ctx, name) if name else None
+            words = _words(ctx) + ([name] if command is not None else [])
+            _usage_failure(exc, command or self, words, ctx.meta.get(_ARGV, []))
+
+
+def _words(ctx: Any) -> list[str]:
+    """The command's words, ``skyfix`` first (whatever the program was called: ``python -m …``)."""
+    names = []
+    while ctx is not None and ctx.parent is not None:
+        names.append(ctx.info_name)
+        ctx = ctx.parent
+    return ["skyfix", *reversed(names)] if ctx is not None else []
+
+
+def _usage_failure(exc: Exception, command: Any, words: list[str], argv: list[str]) -> NoReturn:
+    if type(exc).__name__ == "NoArgsIsHelpError":
+        raise exc  # a group called alone: its help, as before
+    ctx = getattr(exc, "ctx", None)
+    if ctx is not None:
+        command, words = ctx.command, _words(ctx)
+    fail(_usage_line(exc, command, " ".join(words) or "skyfix", argv))
+
+
+def _usage_line(exc: Exception, command: Any, where: str, argv: Sequence[str] = ()) -> str:
+    """The one line (without ``skyfix: error:``) for click's usage error ``exc`` raised while
+    parsing ``command`` (called ``where``, e.g. ``skyfix solve``) from the words ``argv``."""
+    kind = type(exc).__name__
+    message = str(getattr(exc, "message", exc)).strip()
+    param = getattr(exc, "param", None)
+    if param is None and getattr(exc, "option_name", None):
+        param = next((p for p in getattr(command, "params", ()) if exc.option_name in _opts(p)), None)
+    if kind == "NoSuchOption" and exc.option_name == "-=":  # -v=2: a short option's value after "="
+        word = next((w for w in reversed(argv) if re.fullmatch(r"-\w=.*", w)), "")
+        param = next((p for p in getattr(command, "params", ()) if word[:2] in _opts(p)), None)
+        if param is not None:
+            return (f"{word[:2]} is a flag: it takes no value" if param.is_flag or param.count
+                    else f"{word[:2]} takes its value after a space: {word[:2]} {word[3:]}")
+    if kind == "NoSuchOption":
+        near = sorted(exc.possibilities or ())
+        guess = f" (did you mean {' or '.join(near)}?)" if near else ""
+        return f"{where} has no option {exc.option_name}{guess}; see {where} -h"
+    if kind == "BadOptionUsage" and param is not None:
+        if param.is_flag or param.count:
+            return f"{exc.option_name} is a flag: it takes no value"
+        shape = f" {param.metavar}" if param.metavar else ""  # RA,DEC,ROLL[,UNCERTAINTY_DEG], NAME …
+        return f"{exc.option_name} needs a value{shape}: {_accepts(command, param)}"
+    if kind == "MissingParameter" and param is not None:
+        if param.param_type_name == "argument":
+            return f"{where} needs {_metavar(param)}: {_accepts(command, param)}"
+        return f"{where} needs {_opts(param)[0]}: {_accepts(command, param)}"
+    if param is not None and param.param_type_name == "option":  # a value of the wrong type or range
+        typed, value = _given(param, argv)
+        return f"{typed} takes {_accepts(command, param)}" + ("" if value is None else f", not {value!r}")
+    if message.startswith("No such command"):
+        name = message.split(" ", 3)[-1].rstrip(".")
+        return f"{where} has no command {name}; choose one of {', '.join(getattr(command, 'commands', {}))}"
+    return f"{where}: {message[:1].lower()}{message[1:].rstrip('.')}"
+
+
+def _opts(param: Any) -> list[str]:
+    return [*param.opts, *param.secondary_opts]
+
+
+def _metavar(param: Any) -> str:
+    meta = param.metavar or param.name.upper()
+    return f"{meta}…" if param.nargs == -1 else meta
+
+
+def _given(param: Any, argv: Sequence[str]) -> tuple[str, str | None]:
+    """(the option as written, its value) from the last mention of ``param`` in ``argv``."""
+    names = _opts(param)
+    for i in range(len(argv) - 1, -1, -1):
+        word = argv[i]
+        if word in names:
+            return word, argv[i + 1] if i + 1 < len(argv) else None
+        head, eq, value = word.partition("=")
+        if eq and head in names:
+            return head, value
+    return names[0], None
+
+
+def _accepts(command: Any, param: Any) -> str:
+    """What ``param`` takes, in a few words: a number (in its range), or its help's first sentence."""
+    callback = getattr(command, "callback", None)
+    annotation = inspect.signature(callback).parameters[param.name].annotation if callback else ""
+    text = annotation if isinstance(annotation, str) else getattr(annotation, "__name__", str(annotation))
+    kind = next((k for k in ("int", "float") if re.search(rf"\b{k}\b", text)), None)
+    if kind is not None:
+        low, high = getattr(param, "min", None), getattr(param, "max", None)
+        what = "a whole number" if kind == "int" else "a number"
+        if low is not None and high is not None:
+            return f"{what} from {low:g} to {high:g}"
+        return what + (f" ≥ {low:g}" if low is not None else f" ≤ {high:g}" if high is not None else "")
+    first = re.split(r"(?<=[a-z)])\. ", (param.help or "").strip(), maxsplit=1)[0].rstrip(".")
+    word = first.split(" ", 1)[0]
+    acronym = len(word) > 1 and word.isupper()  # FITS, CSV: as written
+    return (first if acronym else first[:1].lower() + first[1:]) or "a value"
 
 
 # --- output files ----------------------------------------------------------------------------------
@@ -195,8 +358,68 @@ def prepare_outputs(outputs: dict[str, Sequence[Path | None]], inputs: Sequence[
                 folder.mkdir(parents=True, exist_ok=True)
             except OSError as exc:
                 fail(f"{option}: cannot create the folder {folder} ({exc.strerror or type(exc).__name__})")
-            if not os.access(folder, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
-                fail(f"{option}: cannot write {path} (permission denied)")
+            why = _cannot_write(path)
+            if why is not None:
+                fail(f"{option}: cannot write {path} ({why})")
+
+
+def _cannot_write(path: Path) -> str | None:
+    """Why ``path`` cannot be written, or None when it can: tried, not judged from permission bits
+    (root passes every access check, and /proc or a read-only mount refuse it anyway). An existing
+    file is opened for appending and left as it was; a new one is created and removed."""
+    try:
+        if path.exists():
+            with open(path, "ab"):
+                pass
+        else:
+            with open(path, "xb"):
+                pass
+            path.unlink()
+    except OSError as exc:
+        return exc.strerror or type(exc).__name__
+    return None
+
+
+# --- inputs several commands read ------------------------------------------------------------------
+def load_camera(value: str) -> Any:
+    """A Camera from ``--camera``'s value: a TOML file or a preset name (simulator presets
+    included)."""
+    from skyfix.camera import Camera
+
+    if value.endswith(".toml") and not Path(value).is_file():
+        raise InputError(f"no such file {value}")
+    return Camera.load(value)  # a file, or a preset name (Camera.load says which names it knows)
+
+
+def calibration_maps(calibration: Path | None, dark: Path | None, flat: Path | None) -> dict:
+    """``dark``, ``flat`` and ``bad_pixels`` for :func:`skyfix.pipeline.solve`; files given
+    one by one override those in the calibration file."""
+    from skyfix.io import read_image
+
+    maps: dict = {}
+    if calibration is not None:
+        from skyfix.detect import load_calibration
+
+        maps.update(load_calibration(calibration))
+    if dark is not None:
+        maps["dark"] = read_image(dark)
+    if flat is not None:
+        maps["flat"] = read_image(flat)
+    return maps
+
+
+# --- progress bars -------------------------------------------------------------------------------------
+def counter_bar(label: str, total: int) -> Any:
+    """A transient progress bar on stderr, started: ``LABEL ━━━━━━ 3/20 0:00:05`` (the caller
+    advances task 0 and stops it; whether to show one at all is the caller's choice)."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    progress = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                        console=Console(stderr=True), transient=True)
+    progress.add_task(label, total=total)
+    progress.start()
+    return progress
 
 
 # --- the first run: building the database, numba compiling kernels ---------------------------------

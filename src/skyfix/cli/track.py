@@ -1,14 +1,16 @@
 """``skyfix track FRAMES…``: follow a sequence of frames with :class:`skyfix.track.Tracker`
 (docs/tracking.md#the-command).
 
-Registered in :mod:`skyfix.cli` by :func:`register`, which takes the command table and the CLI's
-camera loader (files and preset names, as ``skyfix solve --camera``). One line per frame: a
+``--camera`` takes a file or a preset name, as ``skyfix solve --camera``. One line per frame: a
 summary, or with ``--json`` the Solution (``mode``, ``frame_time_s``, ``rate_dps``, …; ``time_ms``
 holds ``read`` apart from the processing, and ``total``). A frame that cannot be read, or whose
 time is out of order, gets a one-line error and the sequence goes on. Without ``--camera`` the
 tracker calibrates its own camera from the frames (:mod:`skyfix.track.self_calibration`) and says
 on stderr, at the end, which camera it used. Exit codes as for
 ``skyfix solve``: 0 every frame has an attitude, 1 some frame has none, 2 bad input.
+
+The tracker, numpy, astropy's FITS header reader and matplotlib are imported inside the
+functions that use them: every ``skyfix`` start loads this module, ``-h`` included.
 """
 
 from __future__ import annotations
@@ -16,111 +18,112 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import typer
 
-from skyfix.cli_support import (
+from skyfix.cli.common import (
     VERBOSE,
     add_verbosity,
+    checking,
     compile_notice,
-    error_line,
+    counter_bar,
     fail,
     guarded,
+    input_error_line,
+    load_camera,
     load_database,
+    prepare_outputs,
 )
-from skyfix.errors import InputError, SkyfixError
+from skyfix.errors import InputError, SkyfixError, unknown_name
 
 if TYPE_CHECKING:
     import numpy as np
 
-__all__ = ["frame_times", "gyro_rates", "read_gyro", "register"]
+__all__ = ["frame_times", "gyro_rates", "plot_track", "read_gyro", "track"]
 
 _FITS = (".fits", ".fit", ".fts")
 
 
-def register(app: typer.Typer, load_camera: Callable[[str], object]) -> None:
-    """Add ``track`` to the ``skyfix`` command table; ``load_camera`` turns ``--camera``'s value
-    (a TOML file or a preset name) into a Camera."""
+@guarded
+def track(
+    frames: list[Path] = typer.Argument(..., help="Frames in time order (FITS, PNG, TIFF, JPEG)."),
+    camera_file: str = typer.Option(None, "--camera", help="Camera TOML file or preset name (default: "
+                                                           "calibrated from the frames themselves)."),
+    fps: float = typer.Option(None, "--fps", help="Frame rate, Hz: frame k at k/FPS s (default: each "
+                                                  "FITS frame's DATE-OBS)."),
+    gyro: Path = typer.Option(None, "--gyro", help="CSV of gyro rates: t_s, x, y, z (rad/s about camera "
+                                                   "x, y, z; t_s on the frames' clock, 0 at the first)."),
+    epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: the "
+                                                      "database's)."),
+    database_file: Path = typer.Option(None, "--database",
+                                       help="Pattern database file (default: cached)."),
+    predictor: str = typer.Option("mekf", "--predictor", help="mekf, small-angle, three-point, "
+                                                              "three-point-thesis."),
+    windows: int = typer.Option(16, "--windows", help="Stars tracked per frame."),
+    streak_windows: int = typer.Option(None, "--streak-windows",
+                                       help="Stars tracked per frame while they streak (at most "
+                                            "--windows; default --windows)."),
+    exposure: float = typer.Option(None, "--exposure", help="Exposure, s (default: the frame period)."),
+    line_time: float = typer.Option(0.0, "--line-time",
+                                    help="Rolling shutter: seconds per row (0: global)."),
+    json_out: bool = typer.Option(False, "--json", help="One JSON Solution per frame per line."),
+    plot: Path = typer.Option(None, "--plot",
+                              help="Write a PNG: attitude error bars, rate and star count vs time."),
+    verbose: int = VERBOSE,
+) -> None:
+    """Track a sequence of frames: lost in space first, then windows around the predicted stars."""
+    add_verbosity(verbose)
+    from skyfix.track import PREDICTORS, Tracker
 
-    @app.command("track")
-    @guarded
-    def track(
-        frames: list[Path] = typer.Argument(..., help="Frames in time order (FITS, PNG, TIFF, JPEG)."),
-        camera_file: str = typer.Option(None, "--camera", help="Camera TOML file or preset name (default: "
-                                                               "calibrated from the frames themselves)."),
-        fps: float = typer.Option(None, "--fps", help="Frame rate, Hz: frame k at k/FPS s (default: each "
-                                                      "FITS frame's DATE-OBS)."),
-        gyro: Path = typer.Option(None, "--gyro", help="CSV of gyro rates: t_s, x, y, z (rad/s about camera "
-                                                       "x, y, z; t_s on the frames' clock, 0 at the first)."),
-        epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: the "
-                                                          "database's)."),
-        database_file: Path = typer.Option(None, "--database",
-                                           help="Pattern database file (default: cached)."),
-        predictor: str = typer.Option("mekf", "--predictor", help="mekf, small-angle, three-point, "
-                                                                  "three-point-thesis."),
-        windows: int = typer.Option(16, "--windows", help="Stars tracked per frame."),
-        streak_windows: int = typer.Option(None, "--streak-windows",
-                                           help="Stars tracked per frame while they streak (at most "
-                                                "--windows; default --windows)."),
-        exposure: float = typer.Option(None, "--exposure", help="Exposure, s (default: the frame period)."),
-        line_time: float = typer.Option(0.0, "--line-time",
-                                        help="Rolling shutter: seconds per row (0: global)."),
-        json_out: bool = typer.Option(False, "--json", help="One JSON Solution per frame per line."),
-        plot: Path = typer.Option(None, "--plot",
-                                  help="Write a PNG: attitude error bars, rate and star count vs time."),
-        verbose: int = VERBOSE,
-    ) -> None:
-        """Track a sequence of frames: lost in space first, then windows around the predicted stars."""
-        add_verbosity(verbose)
-        from skyfix.track import Tracker
+    camera = None  # calibrated from the frames (skyfix.track.self_calibration)
+    if camera_file is not None:
+        with checking("--camera", camera_file):
+            camera = load_camera(camera_file)
+    if predictor.lower() not in PREDICTORS:
+        fail(f"--predictor: {unknown_name('predictor', predictor, PREDICTORS)}")
+    times = frame_times(frames, fps)
+    samples = read_gyro(gyro) if gyro is not None else None
+    rates = gyro_rates(samples, times) if samples is not None else [None] * len(frames)
+    if plot is not None and plot.suffix.lower() != ".png":
+        fail(f"--plot {plot}: give a .png file")
+    prepare_outputs({"--plot": [plot]}, inputs=frames)
+    database = load_database(database_file, ("track",))
+    tracker = Tracker(camera, database=database, predictor=predictor, epoch=epoch,
+                      n_windows=windows, streak_windows=streak_windows, exposure_s=exposure,
+                      line_time_s=line_time)
+    from skyfix.io import read_image
 
-        try:
-            camera = None if camera_file is None else load_camera(camera_file)
-        except SkyfixError as exc:
-            fail(error_line(exc, camera_file))
-        times = frame_times(frames, fps)
-        samples = read_gyro(gyro) if gyro is not None else None
-        rates = gyro_rates(samples, times) if samples is not None else [None] * len(frames)
-        if plot is not None and plot.suffix.lower() != ".png":
-            fail(f"--plot {plot}: give a .png file")
-        database = load_database(database_file, ("track",))
-        tracker = Tracker(camera, database=database, predictor=predictor, epoch=epoch,
-                          n_windows=windows, streak_windows=streak_windows, exposure_s=exposure,
-                          line_time_s=line_time)
-        from skyfix.io import read_image
-
-        any_failed = any_error = False
-        sols = []
-        progress = _progress(len(frames), json_out)
-        with compile_notice(progress):
-            for path, t, rate in zip(frames, times, rates, strict=True):
-                try:
-                    t0 = time.perf_counter()
-                    image = read_image(path)
-                    t_read = 1e3 * (time.perf_counter() - t0)
-                    sol = tracker.update(image, t, gyro_rate_rad_s=rate)
-                    sol.image = str(path)
-                    work = {k: v for k, v in sol.time_ms.items() if k != "total"}
-                    sol.time_ms = {"read": t_read, **work, "total": t_read + sol.time_ms.get("total", 0.0)}
-                    any_failed |= not sol.solved
-                    sols.append(sol)
-                    typer.echo(sol.to_json() if json_out else _summary(sol))
-                except SkyfixError as exc:  # this frame's error line, then the next frame
-                    any_error = True
-                    typer.echo(f"skyfix: error: {error_line(exc, path)}", err=True)
-                if progress is not None:
-                    progress.advance(0)
-        if progress is not None:
-            progress.stop()
-        if tracker.calibration is not None:  # which camera it used
-            typer.echo(f"skyfix: {tracker.calibration.describe()}", err=True)
-        if plot is not None and sols:
-            plot_track(sols, plot)
-        raise typer.Exit(2 if any_error else 1 if any_failed else 0)
+    any_failed = any_error = False
+    sols = []
+    progress = _progress(len(frames), json_out)
+    with compile_notice(progress):
+        for path, t, rate in zip(frames, times, rates, strict=True):
+            try:
+                t0 = time.perf_counter()
+                image = read_image(path)
+                t_read = 1e3 * (time.perf_counter() - t0)
+                sol = tracker.update(image, t, gyro_rate_rad_s=rate)
+                sol.image = str(path)
+                work = {k: v for k, v in sol.time_ms.items() if k != "total"}
+                sol.time_ms = {"read": t_read, **work, "total": t_read + sol.time_ms.get("total", 0.0)}
+                any_failed |= not sol.solved
+                sols.append(sol)
+                typer.echo(sol.to_json() if json_out else _summary(sol))
+            except SkyfixError as exc:  # this frame's error line, then the next frame
+                any_error = True
+                typer.echo(f"skyfix: error: {input_error_line(exc, path)}", err=True)
+            if progress is not None:
+                progress.advance(0)
+    if progress is not None:
+        progress.stop()
+    if tracker.calibration is not None:  # which camera it used
+        typer.echo(f"skyfix: {tracker.calibration.describe()}", err=True)
+    if plot is not None and sols:
+        plot_track(sols, plot)
+    raise typer.Exit(2 if any_error else 1 if any_failed else 0)
 
 
 def frame_times(frames: list[Path], fps: float | None) -> list[float]:
@@ -199,16 +202,7 @@ def gyro_rates(samples: np.ndarray, times: list[float]) -> list[np.ndarray | Non
 
 def _progress(n: int, quiet: bool):
     """A progress bar on stderr for long sequences (not when piping JSON, not off a terminal)."""
-    if n < 20 or quiet or not sys.stderr.isatty():
-        return None
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    progress = Progress(TextColumn("tracking"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                        console=Console(stderr=True), transient=True)
-    progress.add_task("tracking", total=n)
-    progress.start()
-    return progress
+    return counter_bar("tracking", n) if n >= 20 and not quiet and sys.stderr.isatty() else None
 
 
 def _summary(sol) -> str:

@@ -2,7 +2,8 @@
 tracking against lost in space and thesis 002, the seed presets solved lost in space.
 
 Registered in :mod:`skyfix.cli` with ``app.add_typer(analyze_app, name="analyze")``. Errors are
-one line, as everywhere in the CLI (:mod:`skyfix.cli_support`).
+one line, as everywhere in the CLI (:mod:`skyfix.cli.common`). Each study is imported when its
+command runs, not when the command table is set up: every ``skyfix`` start loads this module.
 """
 
 from __future__ import annotations
@@ -13,19 +14,23 @@ from pathlib import Path
 
 import typer
 
-from skyfix.cli_support import (
+from skyfix.cli.common import (
     VERBOSE,
+    OneLineErrors,
     add_verbosity,
+    checking,
     compile_notice,
-    error_line,
     fail,
     guarded,
+    input_error_line,
     load_database,
     prepare_outputs,
 )
+from skyfix.errors import unknown_name
 from skyfix.validate import check_count, check_epoch, check_fov, check_positive
 
-analyze_app = typer.Typer(no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
+analyze_app = typer.Typer(cls=OneLineErrors, no_args_is_help=True, pretty_exceptions_enable=False,
+                          rich_markup_mode=None,
                           help="Analyses: centroid accuracy vs. the Cramér–Rao bound, PSF over the field, "
                                "photometry against the catalogue, tracking against lost in space, the seed "
                                "presets solved lost in space.")
@@ -62,10 +67,10 @@ def centroids(
     trials = check_count(trials, "--trials", minimum=10)
 
     names = tuple(m.strip() for m in methods.split(",") if m.strip()) or cs.DEFAULT_CENTROIDERS
-    bad = [m for m in names if m not in (*CENTROIDERS, *cs.EXTRACTORS)]
+    known = (*CENTROIDERS, *cs.EXTRACTORS)
+    bad = [m for m in names if m not in known]
     if bad or not names:
-        fail(f"unknown centroider {', '.join(bad) or '(none)'}; choose from "
-              f"{', '.join((*CENTROIDERS, *cs.EXTRACTORS))}")
+        fail(f"--methods: {unknown_name('centroider', ', '.join(bad) or '(none)', known)}")
     sigmas, snrs = cs.DEFAULT_SIGMA, cs.DEFAULT_SNR
     if quick:
         sigmas, snrs, trials = (0.5, 1.0, 2.0), (10.0, 50.0, 500.0), min(trials, 200)
@@ -139,7 +144,7 @@ def presets(
     names = [p.strip().lower() for p in only.split(",") if p.strip()]
     bad = [p for p in names if p not in preset_names()]
     if bad:
-        fail(f"unknown preset {', '.join(bad)}; choose from {', '.join(preset_names())}")
+        fail(f"--presets: {unknown_name('preset', ', '.join(bad), preset_names())}")
     rows = tuple(r for r in pc.CAMPAIGN_ROWS if not names or r.preset in names)
     rows += tuple(pc.CampaignRow(p) for p in names if p not in {r.preset for r in pc.CAMPAIGN_ROWS})
     command = (f"skyfix analyze presets --n {n}" + (f" --seed {seed}" if seed else "")
@@ -215,7 +220,7 @@ def photometry(
 
     add_verbosity(verbose)
     if flux not in ("psf", "aperture", "extractor"):
-        fail(f"unknown flux estimator {flux!r}; choose psf, aperture or extractor")
+        fail(f"--flux: {unknown_name('flux estimator', flux, ('psf', 'aperture', 'extractor'))}")
     check_epoch(epoch, "--epoch")
     if fov is not None:
         check_fov(fov, "--fov")
@@ -229,7 +234,7 @@ def photometry(
                 res = frame_photometry(path, epoch=epoch, fov_deg=fov, flux=flux)
             except Exception as exc:  # this image's error line, then the next image
                 any_error = True
-                typer.echo(f"skyfix: error: {error_line(exc, path)}", err=True)
+                typer.echo(f"skyfix: error: {input_error_line(exc, path)}", err=True)
                 continue
             finally:
                 bar.update(task, advance=1)
@@ -264,6 +269,39 @@ def photometry(
         raise typer.Exit(2)
     if total["n_frames_solved"] < total["n_frames"]:
         raise typer.Exit(1)
+
+
+@analyze_app.command()
+@guarded
+def budget(
+    camera: str = typer.Option("generic", "--camera", help="Camera preset name or TOML file (its [sensor], "
+                               "[optics] and [defaults] tables, else the generic preset's)."),
+    exposure: float = typer.Option(None, "--exposure", help="Exposure, seconds (default: the preset's)."),
+    snr: float = typer.Option(5.0, "--snr", help="Detection threshold, SNR (skyfix's extractor: 5)."),
+    sky_mag: float = typer.Option(22.0, "--sky-mag", help="Sky surface brightness, mag/arcsec² "
+                                  "(22: a dark site; in orbit fainter)."),
+    pointings: int = typer.Option(400, "--pointings", help="Random pointings for the star counts and "
+                                  "the attitude."),
+    json_out: bool = typer.Option(False, "--json", help="Print the budget as one JSON line."),
+    verbose: int = VERBOSE,
+) -> None:
+    """A camera's budget: limiting and saturation magnitude, stars in view, and the Cramér–Rao
+    attitude error they give (thesis 004 §8.3, thesis 000 §2.9); thesis 003's Table 9.5 combined
+    in quadrature beside it."""
+    from skyfix.analysis import budget as bd
+
+    add_verbosity(verbose)
+    if exposure is not None:
+        check_positive(exposure, "--exposure")
+    check_positive(snr, "--snr")
+    pointings = check_count(pointings, "--pointings", minimum=1)
+    with checking("--camera", camera):
+        b = bd.camera_budget(camera, exposure_s=exposure, snr_threshold=snr, sky_mag_arcsec2=sky_mag,
+                             n_pointings=pointings)
+    if json_out:
+        typer.echo(json.dumps(bd.budget_json(b)))
+        return
+    typer.echo(bd.format_budget(b))
 
 
 @analyze_app.command()
@@ -352,11 +390,12 @@ def identification(
 
     add_verbosity(verbose)
     names = tuple(m.strip().lower() for m in methods.split(",") if m.strip())
-    method_list = method_names(names)  # one line for an unknown name
+    with checking("--methods", methods):
+        method_list = method_names(names)
     cases = [c.strip().lower() for c in case.split(",") if c.strip()]
     bad = [c for c in cases if c not in CASES and c != "safety"]
     if bad:
-        fail(f"unknown case {', '.join(bad)}; choose from safety, {', '.join(CASES)}")
+        fail(f"--case: {unknown_name('case', ', '.join(bad), ('safety', *CASES))}")
     base = st.QUICK if quick else st.FULL
     workers = check_count(workers, "--workers", minimum=1)
     settings = base._replace(methods=tuple(method_list), seed=int(seed), workers=workers,

@@ -1,28 +1,30 @@
 """``skyfix montecarlo CAMPAIGN.toml [--workers N | --scheduler ADDRESS] -o RESULTS.parquet``
 (docs/montecarlo.md).
 
-Registered in :mod:`skyfix.cli` by :func:`register`; this module imports only typer and the
-command helpers, the campaign machinery (dask, pyarrow, numpy) loads when the command runs.
 Writes ``RESULTS.parquet`` (a row per trial), ``RESULTS.summary.json`` and with ``--plot`` a PNG;
 prints the summary. Exit status 0 when the campaign finished, 2 for bad input (one line), 130
 when interrupted (the finished batches are kept: the same command continues).
+
+This module imports only typer and the command helpers at its top (every ``skyfix`` start loads
+it); the campaign machinery (dask, pyarrow, numpy) is imported when the command runs.
 """
 
 from __future__ import annotations
 
+import os
+import re
 import sys
 from pathlib import Path
 
 import typer
 
-from skyfix.cli_support import VERBOSE, add_verbosity, guarded
+from skyfix.cli.common import VERBOSE, add_verbosity, guarded, prepare_outputs
+from skyfix.errors import InputError
 
-__all__ = ["register"]
+__all__ = ["montecarlo"]
 
-
-def register(app: typer.Typer) -> None:
-    """Add ``montecarlo`` to the ``skyfix`` command table."""
-    app.command("montecarlo")(montecarlo)
+#: A scheduler's address as Dask takes it: an optional protocol, a host, a port.
+_ADDRESS = re.compile(r"(?:[a-z][a-z0-9+.-]*://)?(?:\[[0-9a-fA-F:]+\]|[^\s/:\[\]]+):\d+/?")
 
 
 @guarded
@@ -40,19 +42,20 @@ def montecarlo(
 ) -> None:
     """Run a Monte Carlo campaign: simulate, solve and judge every trial, on Dask; resumable."""
     add_verbosity(verbose)
-    from skyfix.errors import InputError
     from skyfix.montecarlo.campaign import load_campaign
 
     if workers is not None and scheduler is not None:
         raise InputError("give --workers or --scheduler, not both")
     if workers is not None and workers < 1:
         raise InputError(f"--workers must be ≥ 1, got {workers}")
+    if scheduler is not None and not _ADDRESS.fullmatch(scheduler):
+        raise InputError(f"--scheduler {scheduler!r} is not a Dask scheduler's address: give "
+                         "[PROTOCOL://]HOST:PORT (tcp://10.0.0.5:8786)")
     if output.suffix.lower() != ".parquet":
         raise InputError(f"--output {output}: the results are Parquet: name it *.parquet")
     campaign = load_campaign(campaign_file)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    import os
-
+    prepare_outputs({"--output": [output, output.with_suffix(".summary.json")], "--plot": [plot]},
+                    inputs=[campaign_file])
     from skyfix.montecarlo.engine import parts_folder, run_campaign
     from skyfix.montecarlo.results import plot_results, summarize, summary_lines, timing, write_summary
 

@@ -1,0 +1,253 @@
+"""``skyfix simulate``: one rendered star image, or a sequence of frames as the camera turns
+(a motion profile by name), each with its truth file (docs/simulating.md).
+
+The simulator, the camera model and the geometry (numpy, numba) are imported when the command
+runs, not when the command table is set up: every ``skyfix`` start loads this module.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import typer
+
+from skyfix.cli.common import (
+    VERBOSE,
+    add_verbosity,
+    checking,
+    compile_notice,
+    counter_bar,
+    fail,
+    guarded,
+    load_camera,
+    prepare_outputs,
+)
+from skyfix.errors import SimulationError, UnknownNameError
+from skyfix.validate import check_count, check_positive
+
+__all__ = ["simulate"]
+
+
+def _camera_arg(value: str):
+    """``--camera``: the Camera of a TOML file, or a preset's name (the simulator takes the preset's
+    sensor and optics with it); a name no preset has, or a file that is no camera file, fails."""
+    with checking("--camera", value):
+        camera = load_camera(value)
+    return camera if value.endswith(".toml") or Path(value).is_file() else value
+
+
+def _sensor_arg(value: str | None):
+    """``--sensor``: the Sensor of a TOML file, or a preset's name (checked)."""
+    if value is None:
+        return None
+    from skyfix.simulate import Sensor
+
+    with checking("--sensor", value):
+        if value.endswith(".toml") or Path(value).is_file():
+            return Sensor.load(value)
+        Sensor.from_preset(value)
+    return value
+
+
+def _check_time(value: str | None) -> None:
+    """``--time``: a time the simulator reads (ISO 8601), checked before any work."""
+    if value is not None:
+        from skyfix.simulate.scene import parse_time
+
+        with checking("--time", value):
+            parse_time(value)
+
+
+@guarded
+def simulate(
+    out_dir: Path = typer.Argument(None, metavar="[OUT_DIR]",
+                                   help="Folder for the frames (frame-0000.fits … with NAME.truth.json "
+                                        "beside each); or give one image file with -o."),
+    ra: float = typer.Option(..., "--ra", help="Boresight right ascension, degrees."),
+    dec: float = typer.Option(..., "--dec", help="Boresight declination, degrees."),
+    roll: float = typer.Option(0.0, "--roll", help="Roll (PA of image-up from north through east), degrees."),
+    camera: str = typer.Option("generic", "--camera", help="Camera preset name or TOML file."),
+    sensor: str = typer.Option(None, "--sensor", help="Sensor preset name or TOML file."),
+    exposure: float = typer.Option(None, "--exposure", help="Exposure, seconds (default: the preset's)."),
+    time: str = typer.Option(None, "--time",
+                             help="Mid-exposure time of the first frame, ISO 8601 (default: now)."),
+    seed: int = typer.Option(0, "--seed", help="Noise seed (same seed, same image, bit for bit)."),
+    false_stars: int = typer.Option(0, "--false-stars", help="False stars / debris to add."),
+    hot_pixels: int = typer.Option(0, "--hot-pixels", help="Hot pixels to add."),
+    frames: int = typer.Option(1, "--frames", help="Number of frames (a sequence when > 1)."),
+    fps: float = typer.Option(10.0, "--fps", help="Frame rate of a sequence, frames per second."),
+    output: Path = typer.Option(None, "--output", "-o",
+                                help="Image file: .fits, .png or .tif (a sequence: NAME-0000.fits …)."),
+    profile: str = typer.Option(None, "--profile", rich_help_panel="Motion",
+                                help="How the camera turns: constant (--rate-dps), inertial-axis, slew, "
+                                     "pendulum (docs/simulating.md). Default: constant."),
+    rate_dps: str = typer.Option(None, "--rate-dps", rich_help_panel="Motion",
+                                 help="constant: body rate wx,wy,wz about the camera axes, deg/s; "
+                                      "inertial-axis: the rate about --axis, deg/s."),
+    axis: str = typer.Option(None, "--axis", rich_help_panel="Motion",
+                             help="inertial-axis: the ICRS axis as RA,DEC, degrees."),
+    rotation_deg: str = typer.Option(None, "--rotation-deg", rich_help_panel="Motion",
+                                     help="slew: the turn as a rotation vector x,y,z in the camera axes, "
+                                          "degrees (0,10,0: 10° about camera y). Default 0,10,0."),
+    max_rate_dps: float = typer.Option(None, "--max-rate-dps", rich_help_panel="Motion",
+                                       help="slew: the coasting rate, deg/s (default 2)."),
+    accel_dps2: float = typer.Option(None, "--accel-dps2", rich_help_panel="Motion",
+                                     help="slew: the (peak) acceleration, deg/s² (default 1)."),
+    smooth: bool = typer.Option(False, "--smooth", rich_help_panel="Motion",
+                                help="slew: ramp the rate as a half cosine (no jump in acceleration) "
+                                     "instead of a trapezoid."),
+    start: float = typer.Option(None, "--start", rich_help_panel="Motion",
+                                help="slew: when it starts, seconds after the first frame (default 0)."),
+    amplitude_deg: str = typer.Option(None, "--amplitude-deg", rich_help_panel="Motion",
+                                      help="pendulum: amplitude about camera x,y,z, degrees (default "
+                                           "0.5,2,0.2: mostly pitch, as thesis 002's air bearing)."),
+    period: float = typer.Option(None, "--period", rich_help_panel="Motion",
+                                 help="pendulum: the damped period, seconds (default 8)."),
+    damping: float = typer.Option(None, "--damping", rich_help_panel="Motion",
+                                  help="pendulum: the damping ratio, 0 to < 1 (default 0.05)."),
+    phase_deg: str = typer.Option(None, "--phase-deg", rich_help_panel="Motion",
+                                  help="pendulum: phase of each axis, degrees (default 0,0,90: through "
+                                       "equilibrium at the first frame, yaw a quarter period behind)."),
+    verbose: int = VERBOSE,
+) -> None:
+    """Render a simulated star image, or a sequence of frames as the camera turns, and write the
+    truth beside each image (NAME.truth.json: attitude, body rate, time, every star)."""
+    from skyfix.geometry import attitude_from_radec_roll
+    from skyfix.simulate import render, render_sequence, write_frame
+
+    add_verbosity(verbose)
+    if not (math.isfinite(ra) and math.isfinite(roll)):
+        fail("--ra and --roll must be finite numbers of degrees")
+    if not -90.0 <= dec <= 90.0:
+        fail(f"--dec {dec:g} is outside -90..90 degrees")
+    frames = check_count(frames, "--frames")
+    check_positive(fps, "--fps")
+    if exposure is not None:
+        check_positive(exposure, "--exposure")
+    for name, value in (("--false-stars", false_stars), ("--hot-pixels", hot_pixels), ("--seed", seed)):
+        check_count(value, name, minimum=0)
+    A = attitude_from_radec_roll(math.radians(ra), math.radians(dec), math.radians(roll))
+    motion_options = {"--rate-dps": rate_dps, "--axis": axis, "--rotation-deg": rotation_deg,
+                      "--max-rate-dps": max_rate_dps, "--accel-dps2": accel_dps2, "--smooth": smooth or None,
+                      "--start": start, "--amplitude-deg": amplitude_deg, "--period": period,
+                      "--damping": damping, "--phase-deg": phase_deg}
+    motion = _simulate_profile(profile, A, {k: v for k, v in motion_options.items() if v is not None})
+    cam, sensor_arg = _camera_arg(camera), _sensor_arg(sensor)
+    _check_time(time)
+    if (out_dir is None) == (output is None):
+        fail("give an output folder (OUT_DIR) or an image file (-o FILE), not both" if out_dir is not None
+             else "give an output folder (OUT_DIR) or an image file (-o FILE)")
+    if out_dir is not None:
+        if out_dir.exists() and not out_dir.is_dir():
+            fail(f"OUT_DIR {out_dir} is a file; give a folder (or write one image with -o {out_dir})")
+        paths = [out_dir / f"frame-{k:04d}.fits" for k in range(frames)]
+    elif frames == 1:
+        paths = [output]
+    else:
+        paths = [output.with_name(f"{output.stem}-{k:04d}{output.suffix}") for k in range(frames)]
+    prepare_outputs({"--output" if out_dir is None else "OUT_DIR": paths})
+    kw = dict(sensor=sensor_arg, exposure_s=exposure, epoch=time, seed=seed,
+              false_stars=false_stars, hot_pixels=hot_pixels)
+    progress = _simulate_progress(frames)
+    try:
+        with compile_notice(progress):
+            if frames == 1 and out_dir is None and motion is None:
+                image, truth = write_frame(render(A, cam, **kw), output)
+                typer.echo(f"wrote {image} and {truth}")
+                return
+            sequence = render_sequence(A, cam, n_frames=frames, fps=fps, profile=motion, **kw)
+            for path, frame in zip(paths, sequence, strict=True):
+                write_frame(frame, path)
+                if progress is not None:
+                    progress.advance(0)
+    except ValueError as exc:  # the simulator's own checks of sensor and preset values
+        fail(f"bad value: {exc}")
+    finally:
+        if progress is not None:
+            progress.stop()
+    if frames == 1:
+        typer.echo(f"wrote {paths[0]} and {paths[0].with_suffix('.truth.json')}")
+    else:
+        where = out_dir if out_dir is not None else paths[0].parent
+        typer.echo(f"wrote {frames} frames to {where} ({paths[0].name} … {paths[-1].name}, "
+                   "truth beside each)")
+
+
+#: Each profile's options on the command line, with their defaults (None: required).
+_PROFILE_OPTIONS: dict[str, dict[str, object]] = {
+    "constant": {"--rate-dps": "0,0,0"},
+    "inertial-axis": {"--axis": None, "--rate-dps": None},
+    "slew": {"--rotation-deg": "0,10,0", "--max-rate-dps": 2.0, "--accel-dps2": 1.0, "--smooth": False,
+             "--start": 0.0},
+    "pendulum": {"--amplitude-deg": "0.5,2,0.2", "--period": 8.0, "--damping": 0.05, "--phase-deg": "0,0,90"},
+}
+
+
+def _simulate_profile(name: str | None, A, given: dict):
+    """The simulate command's attitude profile from ``--profile`` and its options (None: a camera
+    at rest); an option of another profile, or a value that makes no sense, fails (exit 2)."""
+    from skyfix.simulate import PROFILES, make_profile
+
+    if name is None:
+        if not given:
+            return None
+        name = "constant"
+    if name not in PROFILES:
+        fail(f"--profile {name!r} is not a motion profile; choose one of {', '.join(PROFILES)}")
+    allowed = _PROFILE_OPTIONS[name]
+    for option in given:
+        if option not in allowed:
+            fail(f"{option} is not an option of --profile {name} (its options: {', '.join(allowed)})")
+    opts = {**allowed, **given}
+    for option, value in opts.items():
+        if value is None:
+            fail(f"--profile {name} needs {option}")
+    def radians(option: str, n: int, form: str) -> list[float]:
+        return [math.radians(v) for v in _numbers(opts[option], n, option, form)]
+
+    def positive_radians(option: str) -> float:
+        return math.radians(check_positive(opts[option], option))
+
+    try:
+        if name == "constant":
+            params = dict(rate_rad_s=radians("--rate-dps", 3, "wx,wy,wz"))
+        elif name == "inertial-axis":
+            ra_rad, dec_rad = radians("--axis", 2, "RA,DEC")
+            if not abs(dec_rad) <= math.pi / 2:
+                fail(f"--axis declination {math.degrees(dec_rad):g} is outside -90..90 degrees")
+            from skyfix.geometry import radec_to_vector
+
+            params = dict(axis_icrs=radec_to_vector(ra_rad, dec_rad),
+                          rate_rad_s=radians("--rate-dps", 1, "W")[0])
+        elif name == "slew":
+            params = dict(rotation_rad=radians("--rotation-deg", 3, "x,y,z"),
+                          max_rate_rad_s=positive_radians("--max-rate-dps"),
+                          accel_rad_s2=positive_radians("--accel-dps2"),
+                          start_s=opts["--start"], shape="smooth" if opts["--smooth"] else "trapezoid")
+        else:
+            if not 0.0 <= opts["--damping"] < 1.0:
+                fail(f"--damping {opts['--damping']:g} must be a damping ratio from 0 to below 1")
+            params = dict(amplitude_rad=radians("--amplitude-deg", 3, "ax,ay,az"),
+                          period_s=check_positive(opts["--period"], "--period"),
+                          damping_ratio=opts["--damping"], phase_rad=radians("--phase-deg", 3, "px,py,pz"))
+        return make_profile(name, A, **params)
+    except (SimulationError, UnknownNameError) as exc:  # a parameter out of range, in the profile's own words
+        fail(f"--profile {name}: {exc}")
+
+
+def _numbers(text: str, n: int, option: str, form: str) -> list[float]:
+    """``n`` finite comma-separated numbers, or fail saying ``option`` takes ``form``."""
+    try:
+        values = [float(v) for v in str(text).split(",")]
+    except ValueError:
+        values = []
+    if len(values) != n or not all(map(math.isfinite, values)):
+        fail(f"{option} takes {n} number{'s' if n > 1 else ''}: {form} (got {text!r})")
+    return values
+
+
+def _simulate_progress(n: int):
+    """A progress bar on stderr while a sequence renders (not for one frame, nor off a terminal)."""
+    return counter_bar("rendering", n) if n >= 2 and sys.stderr.isatty() else None

@@ -1,0 +1,313 @@
+"""``skyfix solve IMAGE…``: lost in space (or near ``--attitude-hint``), one line or one JSON
+Solution per image; and the shortcut that runs a plain solve without typer's value coercion.
+
+Exit codes: 0 all images solved; 1 some image failed to solve (its reason is printed); 2 bad
+input, with a one-line error — a batch goes on past a bad file and exits 2 at the end.
+
+Imports of what a solve runs (the pipeline, the identification registry, the WCS writer, the
+plot) sit inside the functions that use them: this module is loaded by every ``skyfix`` start,
+``--version`` and ``-h`` included, which must stay light (tests/cli/test_cli_start.py).
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import math
+import re
+import sys
+from pathlib import Path
+
+import typer
+
+from skyfix.cli.common import (
+    VERBOSE,
+    add_verbosity,
+    calibration_maps,
+    checking,
+    compile_notice,
+    fail,
+    guarded,
+    input_error_line,
+    load_camera,
+    load_database,
+    output_paths,
+    prepare_outputs,
+)
+from skyfix.validate import check_positive, check_solve_options
+
+__all__ = ["OUTPUT_NAMES_HELP", "plain_solve", "solve", "solve_parameters"]
+
+#: The epilog of ``skyfix solve -h``: how output files are named.
+OUTPUT_NAMES_HELP = ("Outputs are named after each image: put {stem} in the name (out/{stem}.png). "
+                     "Images that share a name get their folder's name in front if the folders differ "
+                     "(a/sky.png → a-sky, b/sky.png → b-sky), their extension behind if the extensions "
+                     "differ (sky-png, sky-fits), -2 for a file given twice. Missing folders are "
+                     "created; no output overwrites an input or another output.")
+
+
+@guarded
+def solve(
+    images: list[Path] = typer.Argument(..., help="Image files (FITS, PNG, TIFF, JPEG)."),
+    fov: float = typer.Option(None, "--fov", help="Horizontal field of view, degrees (optional)."),
+    fov_tolerance: float = typer.Option(None, "--fov-tolerance",
+                                        help="Allowed error of --fov, degrees (default 10%)."),
+    camera_file: str = typer.Option(None, "--camera", help="Camera TOML file or preset name."),
+    epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: now)."),
+    method: str = typer.Option("svd", "--attitude", help="Wahba solver: svd, quest, esoq2, q-method, triad."),
+    identify_method: str = typer.Option(
+        "quad-hash", "--method", metavar="NAME",
+        help="Identification method (skyfix.identify.METHODS; docs/identification-methods.md). The default "
+             "tries the triangle method on sparse frames when --camera or --fov gives the scale."),
+    json_out: bool = typer.Option(False, "--json", help="One JSON Solution per image per line."),
+    wcs: Path = typer.Option(None, "--wcs", help="Write a FITS WCS header (use {stem} for many images)."),
+    plot: Path = typer.Option(None, "--plot", help="Write a PNG with identified stars circled."),
+    database_file: Path = typer.Option(None, "--database", help="Pattern database file (default: cached)."),
+    calibration: Path = typer.Option(None, "--calibration", help="Maps from `skyfix calibrate frames`."),
+    dark: Path = typer.Option(None, "--dark", help="Master dark image to subtract."),
+    flat: Path = typer.Option(None, "--flat", help="Master flat image to divide by (normalised to 1)."),
+    attitude_hint: str = typer.Option(
+        None, "--attitude-hint", metavar="RA,DEC,ROLL[,UNCERTAINTY_DEG]",
+        help="A rough attitude, degrees (uncertainty: the largest error, default 1): identify the stars "
+             "near it first, falling back to lost in space. Needs --camera or --fov for the scale."),
+    centroid_sigma: float = typer.Option(
+        None, "--centroid-sigma", metavar="PX",
+        help="The centroids' noise, pixels, when known (a calibrated tracker's): the search's "
+             "tolerances, and with --camera a prior on the noise the error bars rest on — three or "
+             "four stars' residuals cannot bound it alone (docs/identification-methods.md#triangle)."),
+    parity: str = typer.Option(
+        None, "--parity", metavar="normal|mirrored|either",
+        help="Whether the image may be a mirror image (a star diagonal, rows stored bottom-up): "
+             "normal, mirrored, or either (tries both; the default for FITS files, normal for the rest)."),
+    smear: str = typer.Option(
+        None, "--smear", metavar="DX,DY",
+        help="The stars' streak over the exposure when the camera turned, pixels (a gyro's rate × the "
+             "exposure): stars are found in the frame averaged along it."),
+    verbose: int = VERBOSE,
+) -> None:
+    """Solve sky images lost in space (or near --attitude-hint): print RA, Dec, roll and the error bars."""
+    add_verbosity(verbose)
+    # Every option is checked, and every output folder made, before any work.
+    check_solve_options(fov, fov_tolerance, epoch, method,
+                        ("--fov", "--fov-tolerance", "--epoch", "--attitude"))
+    hint = _attitude_hint(attitude_hint)
+    if parity is not None:
+        from skyfix.parity import check_parity
+
+        with checking("--parity", parity):
+            check_parity(parity)
+    smear_px = _smear(smear)
+    noise = {} if centroid_sigma is None else {"centroid_sigma_px": check_positive(centroid_sigma,
+                                                                                   "--centroid-sigma")}
+    _identify_method(identify_method)
+    wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
+    prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
+    maps = calibration_maps(calibration, dark, flat)
+    with checking("--camera", camera_file):
+        camera = load_camera(camera_file) if camera_file is not None else None
+    database = load_database(database_file, _solve_paths(identify_method, method, hint is not None))
+    if hint is not None and camera is None and fov is None:
+        typer.echo("skyfix: note: --attitude-hint needs the image scale (--camera or --fov); "
+                   "solving lost in space", err=True)
+
+    from skyfix.pipeline import solve as solve_image
+
+    any_failed = any_error = False
+    progress = _progress(len(images), json_out)
+    with compile_notice(progress):
+        for path, wcs_path, plot_path in zip(images, wcs_paths, plot_paths, strict=True):
+            try:
+                sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
+                                  database=database, epoch=epoch, attitude_method=method, attitude_hint=hint,
+                                  identify_method=identify_method, smear_px=smear_px, parity=parity, **maps,
+                                  **noise)
+                any_failed |= not sol.solved
+                typer.echo(sol.to_json() if json_out else _summary(sol))
+                if sol.solved and wcs_path is not None:
+                    from skyfix.wcs import write_wcs
+
+                    write_wcs(wcs_path, sol.A_icrs_to_cam, sol.camera, mirrored=sol.mirrored)
+                if plot_path is not None:
+                    from skyfix.io import read_image
+                    from skyfix.plot import plot_solution
+
+                    plot_solution(read_image(path), sol, plot_path)
+            except Exception as exc:  # this image's error line, then the next image
+                any_error = True
+                typer.echo(f"skyfix: error: {input_error_line(exc, path)}", err=True)
+            if progress is not None:
+                progress.advance(0)
+    if progress is not None:
+        progress.stop()
+    raise typer.Exit(2 if any_error else 1 if any_failed else 0)
+
+
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+_COUNTED = re.compile(r"-v+|--verbose")
+
+
+def plain_solve(argv: list[str]) -> tuple[int, dict] | None:
+    """``skyfix solve`` arguments that need none of typer's checks, read straight into the
+    command's keywords: ``(-v count before the command, {parameter: value})``; None for anything
+    else (typer then parses them). Plain means: ``-v``/``-vv``/``--verbose`` before ``solve``;
+    after it image paths and solve's options, each at most once, as ``--name VALUE`` or
+    ``--name=VALUE``, every value non-empty and not starting with ``-``, every number a plain
+    decimal (``10``, ``-2.5``, ``1e-3``: no ``nan``, no ``1_0``), flags without a value. Each
+    option's name, type and default come from the signature of :func:`solve`; an option of a
+    type not handled here turns the shortcut off."""
+    pre, i = 0, 0
+    while i < len(argv) and _COUNTED.fullmatch(argv[i]):
+        pre += _count(argv[i])
+        i += 1
+    if argv[i:i + 1] != ["solve"]:
+        return None
+    params = solve_parameters()
+    if params is None:
+        return None
+    options = {name: default for name, (_, _, default) in params.items()}
+    by_flag = {flag: name for name, (flags, _, _) in params.items() for flag in flags}
+    images, given, verbose = [], set(), 0
+    rest = argv[i + 1:]
+    k = 0
+    while k < len(rest):
+        arg = rest[k]
+        k += 1
+        if not arg:
+            return None
+        if not arg.startswith("-"):
+            images.append(Path(arg))
+            continue
+        if _COUNTED.fullmatch(arg):
+            verbose += _count(arg)
+            continue
+        flag, eq, value = arg.partition("=")
+        name = by_flag.get(flag)
+        if name is None or name in given:
+            return None
+        given.add(name)
+        kind = params[name][1]
+        if kind is bool:
+            if eq:
+                return None
+            options[name] = True
+            continue
+        if not eq:
+            if k == len(rest):
+                return None
+            value = rest[k]
+            k += 1
+        if not value or value.startswith("-") and not (kind is float and _NUMBER.fullmatch(value)):
+            return None
+        if kind is float:
+            if not _NUMBER.fullmatch(value):
+                return None
+            options[name] = float(value)
+        else:
+            options[name] = kind(value)
+    if not images:
+        return None
+    options["images"], options["verbose"] = images, verbose
+    return pre, options
+
+
+def _count(arg: str) -> int:
+    return 1 if arg == "--verbose" else len(arg) - 1
+
+
+@functools.cache
+def solve_parameters() -> dict[str, tuple[tuple[str, ...], type, object]] | None:
+    """solve's options as ``{parameter: (flags, type, default)}`` (images and -v apart), read
+    from its signature (annotations are strings here: ``from __future__ import annotations``);
+    None if one is of a kind :func:`plain_solve` does not read."""
+    kinds = {"float": float, "str": str, "Path": Path, "bool": bool}
+    out = {}
+    for name, p in inspect.signature(solve).parameters.items():
+        info = p.default
+        if name in ("images", "verbose"):
+            continue
+        kind = kinds.get(p.annotation) if isinstance(p.annotation, str) else None
+        decls = tuple(getattr(info, "param_decls", None) or ())
+        if (kind is None or not isinstance(info, typer.models.OptionInfo) or not decls
+                or not all(d.startswith("--") and "/" not in d for d in decls)
+                or info.callback is not None or info.envvar is not None or info.count):
+            return None
+        out[name] = (decls, kind, info.default)
+    return out
+
+
+def _solve_paths(identify_method: str, attitude_method: str, hint: bool) -> list[str]:
+    """The warm-up paths (:mod:`skyfix.warmup`) a solve with these options runs: the default
+    solve's, and the method's, solver's and hint's when they are not the defaults."""
+    paths = ["solve"]
+    if identify_method.lower() not in ("quad-hash", "hash"):
+        paths.append(f"method-{identify_method.lower()}")
+    if attitude_method.lower() != "svd":
+        paths.append("attitude")
+    if hint:
+        paths.append("hint")
+    return paths
+
+
+def _attitude_hint(text: str | None):
+    """``--attitude-hint RA,DEC,ROLL[,UNCERTAINTY_DEG]`` checked before any work (None: no hint)."""
+    if text is None:
+        return None
+    from skyfix.identify.hint import check_attitude_hint
+
+    return check_attitude_hint(text, "--attitude-hint")
+
+
+def _smear(text: str | None):
+    """``--smear DX,DY`` checked before any work (None: no smear)."""
+    if text is None:
+        return None
+    try:
+        parts = [float(p) for p in text.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) != 2 or not all(math.isfinite(p) for p in parts):
+        fail(f"--smear wants two numbers of pixels DX,DY, got {text!r}")
+    return parts
+
+
+def _identify_method(name: str) -> None:
+    """``--method NAME`` checked before any work: a registered identification method."""
+    from skyfix.identify import METHODS
+
+    if name.lower() not in METHODS:
+        fail(f"--method: unknown identification method {name!r}; choose one of {', '.join(METHODS)}")
+
+
+def _progress(n: int, quiet: bool):
+    """A progress bar on stderr for long batches (not for one image, not when piping JSON)."""
+    if n < 5 or quiet or not sys.stderr.isatty():
+        return None
+    from rich.console import Console
+    from rich.progress import Progress
+
+    progress = Progress(console=Console(stderr=True), transient=True)
+    progress.add_task("solving", total=n)
+    progress.start()
+    return progress
+
+
+def _summary(sol) -> str:
+    if not sol.solved:
+        return f"{sol.image}: failed: {sol.reason}"
+    path = " | near the attitude hint" if sol.method == "attitude-hint" else ""
+    sig = [v**0.5 for v in (sol.covariance_arcsec2[0][0], sol.covariance_arcsec2[1][1],
+                            sol.covariance_arcsec2[2][2])]
+    # The image centre's numbers, as other plate solvers give them; the boresight named where the
+    # stars put the principal point elsewhere (docs/design.md#the-solution).
+    bx, by = sol.boresight_px
+    cx, cy = sol.center_px
+    where = ""
+    if math.hypot(bx - cx, by - cy) >= 0.5:
+        where = f" | boresight at ({bx:.1f}, {by:.1f}) px: RA {sol.ra_deg:.5f}° Dec {sol.dec_deg:+.5f}°"
+    mirrored = " | mirror image" if sol.mirrored else ""
+    return (f"{sol.image}: solved RA {sol.center_ra_deg:.5f}° Dec {sol.center_dec_deg:+.5f}° "
+            f"roll {sol.center_roll_deg:.3f}° "
+            f"FOV {sol.fov_deg:.3f}° | {sol.n_matched}/{sol.n_detected} stars, rmse {sol.rmse_arcsec:.1f}″, "
+            f"σ(x,y,roll) {sig[0]:.1f}″ {sig[1]:.1f}″ {sig[2]:.0f}″, P(false) {sol.prob_false:.1e} | "
+            f"{sol.time_ms.get('total', 0):.1f} ms{path}{mirrored}{where}")
+
