@@ -350,9 +350,12 @@ def _projection_of_code(code: float) -> str:
 
 # The seeds' cameras (docs/seeds.md#the-seed-cameras); sizes and optics as the theses state them.
 PRESETS: dict[str, dict] = {
-    # Thesis 000: Aptina MT9V022 752×480, 6 µm pixels, 8.5 mm f/1.3.
+    # Thesis 000: Aptina MT9V022 752×480, 6 µm pixels, 8.5 mm f/1.3 — the thesis's checkerboard
+    # calibration (§5.2: fx 8.63 mm, fy 8.56 mm; Bouguet kc = k1, k2, p1, p2, k3 as OpenCV's); it
+    # gives no principal point, so the centre.
     "mt9v022": dict(name="MT9V022 + 8.5 mm f/1.3", width=752, height=480,
-                    focal_length_mm=8.5, pixel_pitch_um=6.0),
+                    fx=1438.3333333333333, fy=1426.6666666666667, k1=-0.3686, k2=0.3148, p1=-0.0023,
+                    p2=0.0003, focal_length_mm=8.5, pixel_pitch_um=6.0),
     # Thesis 002: Cypress HAS2 1024×1024, 18 µm pixels (ExoplanetSat star camera).
     "has2": dict(name="Cypress HAS2 + 85 mm", width=1024, height=1024,
                  focal_length_mm=85.0, pixel_pitch_um=18.0),

@@ -87,17 +87,21 @@ def test_generic_solves_every_frame_to_two_arcsec(small_campaign):
 
 
 def test_mt9v022_sees_about_five_stars_and_is_never_wrong(small_campaign):
-    """Thesis 000 saw at most ~4 stars a frame; the preset's frames have 3–7 detectable (median
-    5). Measured: all 5 solve, with no hint as with the camera given (a sparse 752×480 frame is
-    tried through the MT9V022 preset's camera: skyfix.identify.lost.preset_cameras), 0.4–23″ off
-    (thesis 000's estimate: 11.4″); before that fallback 4 of 5 failed "no match"."""
+    """Thesis 000 saw at most ~4 stars a frame; the preset's frames have 4–7 detectable (median
+    5). Measured with thesis 000's calibrated lens (issue 25): 4 of 5 solve, with no hint as with
+    the camera given (a sparse 752×480 frame is tried through the MT9V022 preset's camera:
+    skyfix.identify.lost.preset_cameras), 3.0–23″ off (thesis 000's estimate: 11.4″); the fifth,
+    4 detectable stars, is refused as too uncertain (σ 16″), not wrong. (With the nominal pinhole
+    that frame had 3 detectable — the barrel widens the field — and the other 4 all solved; before
+    the preset fallback 4 of 5 failed "no match".)"""
     frames = small_campaign["mt9v022"]
     detectable = [f.n_detectable for f in frames]
     assert 3 <= np.median(detectable) <= 7 and max(detectable) <= 10, detectable
     for key in ("bands/blind", "bands/camera"):
         s = summarize_row(frames, key)
         assert s["wrong"] == 0, s
-        assert s["solved_of_4_detectable"] == s["frames_4_detectable"] == 4, s
+        assert s["frames_4_detectable"] == 5 and s["solved_of_4_detectable"] == 4, s
+        assert s["failures"] == {"attitude too uncertain": 1}, s
         solved = [f.solves[key] for f in frames if f.solves[key].solved]
         assert all(o.boresight_arcsec < 45.0 for o in solved), s
 

@@ -73,7 +73,9 @@ FREE_NUMBERS = ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "k3", "p1", "p2", "k
 @dataclass(frozen=True)
 class MatchedImage:
     """One image's stars matched to the catalogue: pixel positions (N, 2) (docs/design.md's
-    convention), catalogue unit vectors (N, 3, ICRS) and a starting attitude (3, 3).
+    convention), catalogue unit vectors (N, 3, ICRS) and a starting attitude (3, 3); optionally
+    each star's measured flux and catalogue magnitude (N,), which the fit carries along for the
+    calibration statistics (:mod:`skyfix.calibration.bench`) and does not use.
 
     (A dataclass, not a NamedTuple: this module imports the kernels, whose cache digest takes in
     the NamedTuples of every module that imports them.)"""
@@ -82,6 +84,16 @@ class MatchedImage:
     xy: np.ndarray
     r_icrs: np.ndarray
     A_icrs_to_cam: np.ndarray
+    flux: np.ndarray | None = None
+    mag: np.ndarray | None = None
+
+    def subset(self, keep: np.ndarray, A_icrs_to_cam: np.ndarray | None = None) -> MatchedImage:
+        """The stars ``keep`` (a mask or indices) of this image, every per-star array alike; the
+        attitude replaced when one is given."""
+        return replace(self, xy=self.xy[keep], r_icrs=self.r_icrs[keep],
+                       flux=None if self.flux is None else self.flux[keep],
+                       mag=None if self.mag is None else self.mag[keep],
+                       A_icrs_to_cam=self.A_icrs_to_cam if A_icrs_to_cam is None else A_icrs_to_cam)
 
 
 @dataclass(frozen=True)
@@ -101,6 +113,8 @@ class JointFit:
     inliers : list of (N_i,) bool — the stars of the final least squares.
     names : tuple of str — the images.
     xy : list of (N_i, 2) — the stars' measured positions, px.
+    flux, mag : list of (N_i,) or None — the stars' fluxes and catalogue magnitudes, when the
+        images carried them (:class:`MatchedImage`).
     """
 
     camera: Camera
@@ -112,6 +126,8 @@ class JointFit:
     inliers: list = field(repr=False)
     names: tuple[str, ...] = ()
     xy: list = field(default_factory=list, repr=False)
+    flux: list = field(default_factory=list, repr=False)
+    mag: list = field(default_factory=list, repr=False)
 
     @property
     def n_stars(self) -> int:
@@ -336,4 +352,4 @@ def fit_joint(images: Sequence[MatchedImage], camera: Camera, params: Sequence[s
     fitted = camera.replace(**dict(zip(lens.CAMERA_NUMBERS, cam.tolist(), strict=True)))
     return JointFit(camera=fitted, attitudes=attitudes, params=params, sigma_px=math.sqrt(sigma2),
                     covariance=cov, residuals_px=rs, inliers=keep, names=tuple(i.name for i in images),
-                    xy=[i.xy for i in images])
+                    xy=[i.xy for i in images], flux=[i.flux for i in images], mag=[i.mag for i in images])

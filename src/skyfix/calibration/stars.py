@@ -30,7 +30,6 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
@@ -42,8 +41,9 @@ from skyfix.geometry import radec_to_vector, rotation_angle_between
 
 __all__ = ["CALIBRATION_MODELS", "MIN_IMAGES", "MIN_STARS", "PRINCIPAL_POINT_SIGMA_PX", "REMATCH_FLOOR_PX",
            "REMATCH_SIGMA", "SAME_FIELD_DEG", "SIGNIFICANCE", "CalibrationModel", "StarCalibration",
-           "StarFrame", "calibrate_frames", "calibrate_stars", "calibration_model", "parameter_table",
-           "prepare_frames"]
+           "StarFrame", "calibrate_frames", "calibrate_stars", "calibration_model", "check_not_one_field",
+           "choose_model", "frame_catalogues", "parameter_table", "prepare_frames", "rematch_frame",
+           "solution_matches"]
 
 MIN_IMAGES = 3
 """Fewest images a star calibration takes (one image pins a pinhole down in principle, but its
@@ -63,9 +63,14 @@ SAME_FIELD_DEG = 0.05
 the camera from the pointing (a degenerate set)."""
 
 
-class CalibrationModel(NamedTuple):
+@dataclass(frozen=True)
+class CalibrationModel:
     """A family of camera models: its projection and its ladder of parameter sets, simplest
-    first, each holding the one before (:data:`skyfix.calibrate.CAMERA_PARAMETERS` names)."""
+    first, each holding the one before (:data:`skyfix.calibrate.CAMERA_PARAMETERS` names).
+
+    (This module's records are dataclasses, not NamedTuples, as :mod:`.joint`'s are: the tracker
+    imports this module, and the kernel cache's digest of every kernel module the tracker imports
+    takes in the NamedTuples of the tracker's imports — an edit here would drop them all.)"""
 
     projection: str
     ladder: tuple[tuple[str, ...], ...]
@@ -92,7 +97,8 @@ _DEFAULTS = {"k1": {"k1": 0.0}, "k2": {"k2": 0.0}, "k3": {"k3": 0.0}, "k4": {"k4
              "tangential": {"p1": 0.0, "p2": 0.0}, SKEW: {"skew": 0.0}}
 
 
-class StarFrame(NamedTuple):
+@dataclass(frozen=True)
+class StarFrame:
     """An image ready to calibrate: its name, size, centroids (N, 2) brightest first, their flux
     (N,), and its blind solution (:class:`skyfix.solution.Solution`)."""
 
@@ -196,15 +202,30 @@ def calibration_model(name: str) -> CalibrationModel:
     return CALIBRATION_MODELS[name]
 
 
-def _solution_matches(frame: StarFrame) -> MatchedImage:
+def solution_matches(frame: StarFrame) -> MatchedImage:
+    """The frame's solution's matched stars as a :class:`MatchedImage` (with each star's flux,
+    looked up among the frame's centroids, and catalogue magnitude), at its attitude."""
     sol = frame.solution
-    xy = np.array([(m.x, m.y) for m in sol.matches], dtype=np.float64)
+    xy = np.array([(m.x, m.y) for m in sol.matches], dtype=np.float64).reshape(-1, 2)
     ra = np.radians([m.ra_deg for m in sol.matches])
-    r = radec_to_vector(ra, np.radians([m.dec_deg for m in sol.matches]))
-    return MatchedImage(frame.name, xy, r, np.asarray(sol.A_icrs_to_cam, dtype=np.float64))
+    r = radec_to_vector(ra, np.radians([m.dec_deg for m in sol.matches])).reshape(-1, 3)
+    mag = np.array([m.mag for m in sol.matches], dtype=np.float64)
+    A = np.asarray(sol.A_icrs_to_cam, dtype=np.float64)
+    return MatchedImage(frame.name, xy, r, A, _flux_at(frame, xy), mag)
 
 
-def _catalogues(frames: Sequence[StarFrame]) -> list:
+def _flux_at(frame: StarFrame, xy: np.ndarray) -> np.ndarray:
+    """The flux of the frame's centroid nearest each position (NaN beyond 0.01 px: none)."""
+    from scipy.spatial import cKDTree
+
+    if len(frame.xy) == 0 or len(xy) == 0:
+        return np.full(len(xy), np.nan)
+    d, i = cKDTree(frame.xy).query(xy)
+    flux = np.asarray(frame.flux, dtype=np.float64)
+    return np.where(d < 0.01, flux[np.minimum(i, len(flux) - 1)], np.nan)
+
+
+def frame_catalogues(frames: Sequence[StarFrame]) -> list:
     """Each frame's catalogue — the one its solution matched, at its epoch, a magnitude past the
     faintest star any frame matched — loaded once for frames that share it."""
     from skyfix.catalog import load_gaia, load_hipparcos
@@ -221,9 +242,11 @@ def _catalogues(frames: Sequence[StarFrame]) -> list:
     return out
 
 
-def _rematch(frame: StarFrame, catalogue, camera: Camera, A: np.ndarray, radius_px: float) -> MatchedImage:
+def rematch_frame(frame: StarFrame, catalogue, camera: Camera, A: np.ndarray, radius_px: float
+                  ) -> MatchedImage:
     """The frame's centroids paired with the catalogue stars ``camera`` and ``A`` predict within
-    ``radius_px`` of them, mutual nearest neighbours only."""
+    ``radius_px`` of them, mutual nearest neighbours only (with their fluxes and magnitudes).
+    ``frame.solution`` is not used: a frame tracked, not solved, may be re-identified too."""
     from scipy.spatial import cKDTree
 
     half = math.radians(camera.fov_diagonal_deg) / 2.0 * 1.05
@@ -231,17 +254,21 @@ def _rematch(frame: StarFrame, catalogue, camera: Camera, A: np.ndarray, radius_
     r = catalogue.vectors[idx]
     uv, front = camera.ray_to_pixel(r @ A.T)
     seen = front & camera.in_frame(uv, margin=-radius_px)
-    r, uv = r[seen], uv[seen]
-    if len(uv) == 0:
-        return MatchedImage(frame.name, np.empty((0, 2)), np.empty((0, 3)), A)
+    r, uv, mag = r[seen], uv[seen], np.asarray(catalogue.mag, dtype=np.float64)[idx][seen]
+    if len(uv) == 0 or len(frame.xy) == 0:
+        return MatchedImage(frame.name, np.empty((0, 2)), np.empty((0, 3)), A, np.empty(0), np.empty(0))
     d_cat, near_star = cKDTree(frame.xy).query(uv, distance_upper_bound=radius_px)
     _, near_pred = cKDTree(uv).query(frame.xy, distance_upper_bound=radius_px)
     ok = np.flatnonzero(np.isfinite(d_cat))
     ok = ok[near_pred[near_star[ok]] == ok]  # mutual
-    return MatchedImage(frame.name, frame.xy[near_star[ok]], r[ok], A)
+    stars = near_star[ok]
+    flux = np.asarray(frame.flux, dtype=np.float64)[stars]
+    return MatchedImage(frame.name, frame.xy[stars], r[ok], A, flux, mag[ok])
 
 
-def _check_not_one_field(matched: Sequence[MatchedImage]) -> None:
+def check_not_one_field(matched: Sequence[MatchedImage]) -> None:
+    """Raise :class:`~skyfix.errors.CalibrationError` when every image's attitude lies within
+    :data:`SAME_FIELD_DEG` of the first's (a degenerate set)."""
     A0 = matched[0].A_icrs_to_cam
     if all(math.degrees(rotation_angle_between(A0, m.A_icrs_to_cam)) < SAME_FIELD_DEG for m in matched[1:]):
         raise CalibrationError(f"degenerate set: all {len(matched)} images are of one field (attitudes "
@@ -249,17 +276,18 @@ def _check_not_one_field(matched: Sequence[MatchedImage]) -> None:
                                "point the camera elsewhere between images")
 
 
-def _choose(matched: Sequence[MatchedImage], start: Camera, family: CalibrationModel, skew: bool
-            ) -> tuple[JointFit, dict, dict]:
-    """Fit the ladder, keep the lowest BIC, then refuse what the stars cannot constrain.
+def choose_model(matched: Sequence[MatchedImage], start: Camera, family: CalibrationModel, skew: bool, *,
+                 principal_point_sigma_px: float = PRINCIPAL_POINT_SIGMA_PX) -> tuple[JointFit, dict, dict]:
+    """Fit the ladder, keep the lowest BIC, then refuse what the stars cannot constrain
+    (steps 2–3 of the module text): the fit, the BIC of each parameter set, and the refusals.
 
     The richest model's robust fit decides the outliers; every model is then scored by least
     squares on the same inliers (BICs of different stars would not compare), each started from
-    the one before (its other numbers at ``start``'s: no distortion, the centre)."""
+    the one before (its other numbers at ``start``'s: no distortion, the centre). The principal
+    point is refused when its 1σ exceeds ``principal_point_sigma_px`` (``math.inf``: never)."""
     extra = (SKEW,) if skew else ()
     richest = fit_joint(matched, start, family.ladder[-1] + extra)
-    inliers = [replace(m, xy=m.xy[k], r_icrs=m.r_icrs[k], A_icrs_to_cam=A)
-               for m, k, A in zip(matched, richest.inliers, richest.attitudes, strict=True)]
+    inliers = [m.subset(k, A) for m, k, A in zip(matched, richest.inliers, richest.attitudes, strict=True)]
     scores: dict[tuple[str, ...], float] = {}
     best: JointFit | None = None
     camera = start
@@ -272,7 +300,7 @@ def _choose(matched: Sequence[MatchedImage], start: Camera, family: CalibrationM
     assert best is not None
     refused: dict[str, str] = {}
     while True:
-        drop = _refusals(best)
+        drop = _refusals(best, principal_point_sigma_px)
         if not drop:
             return best, scores, refused
         refused.update(drop)
@@ -289,14 +317,14 @@ def _held(param: str, start: Camera) -> dict[str, float]:
     return _DEFAULTS[param]
 
 
-def _refusals(fit: JointFit) -> dict[str, str]:
+def _refusals(fit: JointFit, principal_point_sigma_px: float) -> dict[str, str]:
     """Parameters of ``fit`` the stars do not constrain, each with the reason."""
     sigma, cam = fit.sigma, fit.camera
     out = {}
     if "principal_point" in fit.params:
         s = max(sigma["cx"], sigma["cy"])
-        if s > PRINCIPAL_POINT_SIGMA_PX:
-            out["principal_point"] = (f"not constrained: 1σ {s:.3g} px > {PRINCIPAL_POINT_SIGMA_PX} px; "
+        if s > principal_point_sigma_px:
+            out["principal_point"] = (f"not constrained: 1σ {s:.3g} px > {principal_point_sigma_px} px; "
                                       "held at the centre")
     for p in fit.params:
         if p not in _DEFAULTS:
@@ -313,8 +341,13 @@ def _before(matched: Sequence[MatchedImage], start: Camera) -> JointFit:
 
 
 def calibrate_frames(frames: Sequence[StarFrame], *, model: str = "brown-conrady", skew: bool = False,
-                     max_rounds: int = 5) -> StarCalibration:
-    """Fit one camera to solved frames (steps 2–4 of the module text)."""
+                     max_rounds: int = 5, allow_one_field: bool = False,
+                     principal_point_sigma_px: float = PRINCIPAL_POINT_SIGMA_PX) -> StarCalibration:
+    """Fit one camera to solved frames (steps 2–4 of the module text).
+
+    ``allow_one_field``: frames of one field are not refused (:func:`check_not_one_field`) — a
+    tracker starting at rest has nothing else, and fits what they constrain;
+    ``principal_point_sigma_px``: :func:`choose_model`'s."""
     family = calibration_model(model)
     if len(frames) < MIN_IMAGES:
         raise CalibrationError(f"a star calibration needs at least {MIN_IMAGES} images, got {len(frames)}")
@@ -323,15 +356,17 @@ def calibrate_frames(frames: Sequence[StarFrame], *, model: str = "brown-conrady
     start = Camera(width=w, height=h, fx=fx, fy=fx, cx=(w - 1) / 2.0, cy=(h - 1) / 2.0)
     if family.projection != "pinhole":
         start = Camera.from_fov(w, h, start.fov_deg, projection=family.projection)
-    matched = [_solution_matches(f) for f in frames]
-    _check_not_one_field(matched)
-    catalogues = _catalogues(frames)
-    fit, scores, refused = _choose(matched, start, family, skew)
+    matched = [solution_matches(f) for f in frames]
+    if not allow_one_field:
+        check_not_one_field(matched)
+    catalogues = frame_catalogues(frames)
+    fit, scores, refused = choose_model(matched, start, family, skew,
+                                        principal_point_sigma_px=principal_point_sigma_px)
     rounds = 1
     while rounds < max_rounds:
         radius = max(REMATCH_SIGMA * fit.sigma_px, REMATCH_FLOOR_PX)
-        again = [_rematch(f, c, fit.camera, A, radius) for f, c, A in zip(frames, catalogues, fit.attitudes,
-                                                                         strict=True)]
+        again = [rematch_frame(f, c, fit.camera, A, radius)
+                 for f, c, A in zip(frames, catalogues, fit.attitudes, strict=True)]
         for f, m in zip(frames, again, strict=True):
             if len(m.xy) < MIN_STARS:
                 raise CalibrationError(f"{f.name}: too few stars re-identified ({len(m.xy)}) through the "
@@ -342,7 +377,8 @@ def calibrate_frames(frames: Sequence[StarFrame], *, model: str = "brown-conrady
         if same:
             break
         rounds += 1
-        fit, scores, refused = _choose(matched, start, family, skew)
+        fit, scores, refused = choose_model(matched, start, family, skew,
+                                            principal_point_sigma_px=principal_point_sigma_px)
     before = _before([replace(m, A_icrs_to_cam=A) for m, A in zip(matched, fit.attitudes, strict=True)],
                      start)
     solve_rms = np.array([f.solution.rmse_arcsec for f in frames])

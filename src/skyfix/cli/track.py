@@ -4,7 +4,9 @@
 ``--camera`` takes a file or a preset name, as ``skyfix solve --camera``. One line per frame: a
 summary, or with ``--json`` the Solution (``mode``, ``frame_time_s``, ``rate_dps``, …; ``time_ms``
 holds ``read`` apart from the processing, and ``total``). A frame that cannot be read, or whose
-time is out of order, gets a one-line error and the sequence goes on. Exit codes as for
+time is out of order, gets a one-line error and the sequence goes on. Without ``--camera`` the
+tracker calibrates its own camera from the frames (:mod:`skyfix.track.self_calibration`) and says
+on stderr, at the end, which camera it used. Exit codes as for
 ``skyfix solve``: 0 every frame has an attitude, 1 some frame has none, 2 bad input.
 
 The tracker, numpy, astropy's FITS header reader and matplotlib are imported inside the
@@ -49,7 +51,8 @@ _FITS = (".fits", ".fit", ".fts")
 @guarded
 def track(
     frames: list[Path] = typer.Argument(..., help="Frames in time order (FITS, PNG, TIFF, JPEG)."),
-    camera_file: str = typer.Option(..., "--camera", help="Camera TOML file or preset name (required)."),
+    camera_file: str = typer.Option(None, "--camera", help="Camera TOML file or preset name (default: "
+                                                           "calibrated from the frames themselves)."),
     fps: float = typer.Option(None, "--fps", help="Frame rate, Hz: frame k at k/FPS s (default: each "
                                                   "FITS frame's DATE-OBS)."),
     gyro: Path = typer.Option(None, "--gyro", help="CSV of gyro rates: t_s, x, y, z (rad/s about camera "
@@ -83,8 +86,10 @@ def track(
     add_verbosity(verbose)
     from skyfix.track import PREDICTORS, Tracker
 
-    with checking("--camera", camera_file):
-        camera = load_camera(camera_file)
+    camera = None  # calibrated from the frames (skyfix.track.self_calibration)
+    if camera_file is not None:
+        with checking("--camera", camera_file):
+            camera = load_camera(camera_file)
     if predictor.lower() not in PREDICTORS:
         fail(f"--predictor: {unknown_name('predictor', predictor, PREDICTORS)}")
     times = frame_times(frames, fps)
@@ -126,6 +131,8 @@ def track(
                 progress.advance(0)
     if progress is not None:
         progress.stop()
+    if tracker.calibration is not None:  # which camera it used
+        typer.echo(f"skyfix: {tracker.calibration.describe()}", err=True)
     if plot is not None and sols:
         plot_track(sols, plot)
     raise typer.Exit(2 if any_error else 1 if any_failed else 0)
@@ -259,7 +266,7 @@ def plot_track(sols: list, path: Path) -> None:
         axes[1].errorbar(t, rate[:, i], yerr=rate_sigma[:, i], fmt=".-", ms=3, label=f"ω{label}")
     axes[1].set_ylabel("rate (°/s)")
     axes[1].legend(loc="upper right", fontsize=8)
-    colours = {"lost": "C3", "acquiring": "C1", "tracking": "C2"}
+    colours = {"calibrating": "C0", "lost": "C3", "acquiring": "C1", "tracking": "C2"}
     n = np.array([s.n_matched for s in sols])
     for mode, colour in colours.items():
         pick = np.array([s.mode == mode for s in sols])

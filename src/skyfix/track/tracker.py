@@ -45,6 +45,11 @@ moved to where the camera sees them (aberration; refraction at a site), kept cur
 frame (:mod:`skyfix.track.sky`): the attitude tracked is the camera's physical one, and each
 Solution carries the frame's time and what :func:`skyfix.solve` reports with it.
 
+With no camera (``Tracker()``), the first frames are ``"calibrating"``: solved lost in space
+with no camera until three are, then one camera fitted to them jointly and refined on keyframes
+across the sequence, its uncertainty added to every reported covariance
+(:mod:`skyfix.track.self_calibration`; ``calibration_options`` are its keywords).
+
 Bad input raises a one-line :mod:`skyfix.errors` exception and leaves the state unchanged:
 a time that is not after the last frame's (out of order, repeated), not finite, or missing;
 a frame whose size is not the camera's; gyro rates that are not three finite numbers.
@@ -54,7 +59,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import os
 import time
 from typing import NamedTuple
 
@@ -70,6 +74,7 @@ from skyfix.identify.catalogue.database import readonly_view
 from skyfix.identify.catalogue.kernel_data import StarIndex
 from skyfix.obstime import julian_year
 from skyfix.solution import Match, Solution
+from skyfix.track import inputs
 from skyfix.track import windows as win
 from skyfix.track.filter import innovation
 from skyfix.track.measure import CentroidSettings, measure_frame
@@ -78,7 +83,7 @@ from skyfix.track.sky import TrackedSky
 __all__ = ["DEFAULT_ACCEL_PSD", "MODES", "TrackSettings", "Tracker", "window_fit_agrees"]
 
 #: The tracker's states, the ``mode`` of its Solutions.
-MODES = ("lost", "acquiring", "tracking")
+MODES = ("calibrating", "lost", "acquiring", "tracking")
 
 _ARCSEC = math.pi / (180 * 3600)
 _DEG = math.pi / 180
@@ -151,8 +156,9 @@ class Tracker:
 
     Parameters
     ----------
-    camera : Camera
-        The camera model (frames must be its size).
+    camera : Camera, optional
+        The camera model (frames must be its size). None: calibrated from the frames themselves
+        (:attr:`calibration`, a :class:`~skyfix.track.self_calibration.SelfCalibration`).
     database : PatternDatabase, optional
         Catalogue and star index for lost-in-space and the windows (default: the default FOV
         band's that serves the camera, :func:`skyfix.identify.catalogue.bands.database_for_fov`).
@@ -207,25 +213,27 @@ class Tracker:
         The time of ``t_s = 0`` (default: the first frame file's own, else none; :mod:`.sky`).
     observer, site, weather, refraction, apparent, mounting, exclusion
         As :func:`skyfix.solve`'s; ``observer`` may change frame by frame (:meth:`update`).
+    calibration_options : dict, optional
+        With no camera, keywords for :class:`~skyfix.track.self_calibration.SelfCalibration`.
     """
 
-    def __init__(self, camera: Camera, *, database=None, predictor: str = "mekf", epoch: float | None = None,
-                 n_windows: int = 16, streak_windows: int | None = None, centroid: str = "streak",
-                 gain: float | None = None,
+    def __init__(self, camera: Camera | None = None, *, database=None, predictor: str = "mekf",
+                 epoch: float | None = None, n_windows: int = 16, streak_windows: int | None = None,
+                 centroid: str = "streak", gain: float | None = None,
                  psf_sigma_px: float | None = None, k_sigma: float = 4.0,
                  min_stars: int = 3, max_coast_frames: int = 5, max_rate_dps: float = 3.0,
                  exposure_s: float | None = None, line_time_s: float = 0.0, star_radius_px: float = 3.0,
                  max_window_px: float = 60.0, min_snr: float = 5.0, floor_px: float = CENTROID_NOISE_FLOOR_PX,
                  mag_tolerance: float = 1.5, nis_gate: float = 25.0, predictor_options: dict | None = None,
-                 solve_options: dict | None = None, time=None, observer=None, site=None, weather=None,
-                 refraction: str = "erfa", apparent: bool = False, mounting=None, exclusion=None) -> None:
+                 solve_options: dict | None = None, calibration_options: dict | None = None, time=None,
+                 observer=None, site=None, weather=None, refraction: str = "erfa", apparent: bool = False,
+                 mounting=None, exclusion=None) -> None:
         from skyfix.detect import CENTROIDERS
         from skyfix.identify import PatternDatabase
-        from skyfix.identify.catalogue.bands import database_for_fov
         from skyfix.track.predictors import make_predictor
         from skyfix.validate import check_count, check_epoch, check_positive
 
-        if not isinstance(camera, Camera):
+        if camera is not None and not isinstance(camera, Camera):
             raise InputError(f"camera must be a Camera (Camera.load(path)), got {type(camera).__name__}")
         if database is not None and not isinstance(database, PatternDatabase):
             raise InputError(f"database must be a PatternDatabase, got {type(database).__name__}")
@@ -249,14 +257,20 @@ class Tracker:
             min_snr=check_positive(min_snr, "min_snr"), floor_px=check_positive(floor_px, "floor_px"),
             mag_tolerance=check_positive(mag_tolerance, "mag_tolerance"),
             nis_gate=check_positive(nis_gate, "nis_gate"))
-        self.camera = camera
-        self.database = database_for_fov(camera.fov_deg) if database is None else database
+        self.camera: Camera | None = None
+        self.database = database
         self.epoch = check_epoch(epoch)
         obs = observe(time, observer=observer, site=site, weather=weather, refraction=refraction,
                       apparent=apparent, epoch=epoch, mounting=mounting, exclusion=exclusion)  # checked now
         self.sky = TrackedSky(obs, time_from_frames=time is None)
         if self.epoch is None and self.sky.observation.time.known:
             self.epoch = julian_year(self.sky.observation.time)
+        self.calibration = None
+        if camera is None:
+            from skyfix.track.self_calibration import SelfCalibration
+
+            self.calibration = SelfCalibration(database=database, epoch=self.epoch,
+                                               **(calibration_options or {}))
         from skyfix import warmup
 
         warmup.ensure("track")  # the tracker's kernels (and a solve's), compiled up front on first use
@@ -281,9 +295,6 @@ class Tracker:
         self._streak_window_settings_t = tuple(
             self._window_settings._replace(n_max=self.settings.streak_windows))
         self._match_settings_t = tuple(self._match_settings)
-        self._setup_catalog()
-        self._cam = camera.numbers()
-        self._plate = camera.plate_scale_rad
         self._view_t = tuple(win.View.empty(_VIEW_CAP))
         self._max_tile = int(math.ceil(self.settings.max_window_px + 3 * self.settings.star_radius_px))
         self._tiles = np.zeros(self.settings.n_windows * (2 * self._max_tile) ** 2, np.float32)
@@ -294,8 +305,24 @@ class Tracker:
             centroid == "streak", _STREAK_PX, int(math.ceil(r_star)) + 1,  # the star and a pixel
             streak_model_sigma(self.settings.psf_sigma_px), tuple(how)))
         self._no_xy, self._no_b, self._no_index = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64)
-        self._fov_deg = camera.fov_deg
+        self._n_frames = 0
         self.reset()
+        if camera is not None:
+            self._use_camera(camera)
+
+    def _use_camera(self, camera: Camera) -> None:
+        """Track through ``camera`` from now on: its numbers, plate scale, the catalogue cone that
+        holds its frame, and (none given) the database that serves its field."""
+        from skyfix.identify.catalogue.bands import database_for_fov
+
+        if self.database is None:
+            self.database = database_for_fov(camera.fov_deg)
+        self.camera = camera
+        self._cam = camera.numbers()
+        self._plate = camera.plate_scale_rad
+        self._fov_deg = camera.fov_deg
+        self._setup_catalog()
+        self._local = None
 
     def _setup_catalog(self) -> None:
         """The star index (vectors moved to the epoch when it is not the database's), magnitudes
@@ -330,24 +357,7 @@ class Tracker:
         self._local: win.Local | None = None
         self._local_z = (0.0, 0.0, 0.0)
 
-    # --- input checks ----------------------------------------------------------------------
-    @staticmethod
-    def _finite_time(t_s, what: str) -> float:
-        if t_s is None or isinstance(t_s, bool) or not isinstance(t_s, (int, float, np.integer, np.floating)):
-            raise InputError(f"{what} needs its time in seconds, got {t_s!r}")
-        t = float(t_s)
-        if not math.isfinite(t):
-            raise InputError(f"{what}: the time must be a finite number of seconds, got {t_s!r}")
-        return t
-
-    def _check_time(self, t_s) -> float:
-        t = self._finite_time(t_s, "a frame")
-        if self._t_last is not None and not t > self._t_last:
-            what = "repeated" if t == self._t_last else "out of order"
-            raise InputError(f"frame time {t:.6g} s is not after the previous frame's {self._t_last:.6g} s "
-                             f"({what} frame)")
-        return t
-
+    # --- input checks (skyfix.track.inputs) ---------------------------------------------
     def _check_image(self, image, t: float) -> np.ndarray:
         if not isinstance(image, np.ndarray) and isinstance(image, (str, os.PathLike)):
             from skyfix.io import read_image_with_header
@@ -355,27 +365,17 @@ class Tracker:
             got = read_image_with_header(image)
             if self.sky.time_from_frames and self._t_last is None and self.sky.first_frame(got, image, t):
                 self.epoch = julian_year(self.sky.observation.time)  # the catalogue at the frames' epoch
-                self._setup_catalog()
+                if self.camera is not None:
+                    self._setup_catalog()
                 self._local = None
             image = got.data
-        if not isinstance(image, np.ndarray):
-            raise InputError(f"a frame is a 2-D array or an image file, got {type(image).__name__}")
-        if image.ndim != 2 or image.dtype.kind not in "uif":
-            raise InputError(f"a frame must be a 2-D array of numbers, got shape {image.shape} "
-                             f"of {image.dtype}")
+        image = inputs.frame_array(image)
         h, w = image.shape
-        if (w, h) != (self.camera.width, self.camera.height):
+        if self.calibration is not None:
+            self.calibration.check_size(w, h)
+        elif (w, h) != (self.camera.width, self.camera.height):
             raise CameraError(f"frame is {w}×{h} but the camera is {self.camera.width}×{self.camera.height}")
-        return image if image.flags.c_contiguous else np.ascontiguousarray(image)
-
-    @staticmethod
-    def _check_gyro(gyro) -> np.ndarray | None:
-        if gyro is None:
-            return None
-        g = np.asarray(gyro, dtype=np.float64).reshape(-1)
-        if g.shape != (3,) or not np.isfinite(g).all():
-            raise InputError("gyro_rate_rad_s must be three finite numbers (rad/s about camera x, y, z)")
-        return g
+        return image
 
     # --- one frame -------------------------------------------------------------------------
     def update(self, image, t_s: float, *, gyro_rate_rad_s=None, observer=None) -> Solution:
@@ -402,15 +402,20 @@ class Tracker:
             A frame of another size than the camera's.
         """
         t0 = time.perf_counter()
-        t = self._check_time(t_s)
+        t = inputs.frame_time(t_s, self._t_last)
         name = "<array>" if isinstance(image, np.ndarray) else str(image)
         img = self._check_image(image, t)
-        gyro = self._check_gyro(gyro_rate_rad_s)
+        gyro = inputs.gyro_rate(gyro_rate_rad_s)
         self.sky.observe(t, observer)
-        if self._predictor is None:
+        if self.camera is None:
+            sol = self._calibrating(img, t, gyro, name)
+        elif self._predictor is None:
             sol = self._lost(img, t, gyro)
         else:
             sol = self._track(img, t, gyro, t0)
+        if self.calibration is not None and self.camera is not None:
+            self._refine(img, t, gyro, sol)
+        self._n_frames += 1
         self._t_last = t
         sol.image = name
         sol.frame_time_s = t
@@ -435,10 +440,36 @@ class Tracker:
         """
         if self._predictor is None:
             raise InputError("the tracker is lost: no attitude to predict until a frame is solved")
-        t = self._finite_time(t_s, "predict")
+        t = inputs.finite_time(t_s, "predict")
         if t < self._t_last:
             raise InputError(f"predict({t:.6g} s) is before the last frame ({self._t_last:.6g} s)")
-        return self._predictor.predict(t, gyro_rate_rad_s=self._check_gyro(gyro_rate_rad_s))
+        return self._predictor.predict(t, gyro_rate_rad_s=inputs.gyro_rate(gyro_rate_rad_s))
+
+    # --- no camera: the self-calibration ------------------------------------------------
+    def _calibrating(self, img: np.ndarray, t: float, gyro, name: str) -> Solution:
+        """A frame solved blind for the self-calibration; the one that completes it is solved
+        again, lost in space, through the camera it made."""
+        sol = self.calibration.calibrating_frame(img, self._n_frames, name)
+        if self.calibration.camera is None:
+            return sol
+        self._use_camera(self.calibration.camera)
+        return self._lost(img, t, gyro)
+
+    def _refine(self, img: np.ndarray, t: float, gyro, sol: Solution) -> None:
+        """A keyframe when one is due (tracking, with the MEKF): the camera refitted, taken from
+        the next frame on, the filter restarted at the frame's refitted attitude with its rate;
+        then the camera's uncertainty added to the frame's covariance."""
+        cal = self.calibration
+        if self.mode == "tracking" and self.predictor_name == "mekf":
+            rate = None if sol.rate_dps is None else np.radians(sol.rate_dps)
+            A = cal.keyframe(img, self._n_frames, sol, rate, self._exposure(t), self.settings.line_time_s)
+            if A is not None:
+                pred = self._predictor.predict(t, gyro_rate_rad_s=gyro)
+                self._use_camera(cal.camera)
+                rate_sigma = math.sqrt(float(np.max(np.diagonal(pred.rate_cov_rad2_s2))))
+                P = np.asarray(sol.covariance_arcsec2) * _ARCSEC ** 2
+                self._restart(A, t, P, gyro, pred.rate_rad_s, rate_sigma)
+        cal.account(sol)
 
     # --- lost in space ---------------------------------------------------------------------
     def _solve_lost(self, img: np.ndarray, rate=None, t: float | None = None) -> tuple[Solution, bool]:
