@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import time
 from typing import NamedTuple
 
