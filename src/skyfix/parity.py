@@ -73,15 +73,20 @@ def unmirror_solution(sol, width: int) -> None:
     sol.flip_match_columns(width)
 
 
-def halved_thresholds(identify_method: str, options: dict) -> dict:
-    """``options`` with the method's false-match thresholds (``prob_threshold`` and, where the
-    method has it, the sparse frames' ``lone_prob_threshold``) halved — given or defaulted —
-    for a search with two parity hypotheses open."""
+def _method_parameters(identify_method: str):
+    """The identification method's parameters (``inspect.signature``), by name."""
     import inspect
 
     from skyfix.identify import get_method
 
-    params = inspect.signature(get_method(identify_method)).parameters
+    return inspect.signature(get_method(identify_method)).parameters
+
+
+def halved_thresholds(identify_method: str, options: dict) -> dict:
+    """``options`` with the method's false-match thresholds (``prob_threshold`` and, where the
+    method has it, the sparse frames' ``lone_prob_threshold``) halved — given or defaulted —
+    for a search with two parity hypotheses open."""
+    params = _method_parameters(identify_method)
     out = dict(options)
     for key in ("prob_threshold", "lone_prob_threshold"):
         if key in params:
@@ -109,7 +114,12 @@ def solve_with_parity(parity: str, xy: np.ndarray, width: int, camera, attitude_
             sol.reason = sol.reason[: -len(MIRROR_NOTE)] + NOT_MIRRORED_NOTE
         return sol
     options = halved_thresholds(identify_method, identify_options)
-    sol = attempt(xy, camera, options, attitude_hint)
+    # The frame as given need not look for a mirror image on failure (the method's check_mirror,
+    # up to 0.25 s): the flipped frame is tried next anyway.
+    plain = dict(options)
+    if "check_mirror" not in identify_options and "check_mirror" in _method_parameters(identify_method):
+        plain["check_mirror"] = False
+    sol = attempt(xy, camera, plain, attitude_hint)
     if not sol.solved:
         alt = attempt(mirror_xy(xy, width), flipped_camera, options, None)
         if alt.solved:
