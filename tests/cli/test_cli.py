@@ -76,6 +76,24 @@ def test_cli_simulate_writes_image_and_truth(tmp_path):
     assert bad.exit_code == 2 and "unknown camera preset" in bad.output
 
 
+def test_cli_simulate_takes_a_camera_files_sensor_and_optics(tmp_path):
+    """A camera TOML with [sensor] and [optics] renders through them, not the generic preset's:
+    a 6-bit sensor's frame never exceeds 63 ADU (the generic preset is 12-bit)."""
+    from skyfix.camera import Camera
+    from skyfix.io import read_image
+
+    cam = tmp_path / "six-bit.toml"
+    cam.write_text(Camera.from_fov(320, 240, 12.0).to_toml()
+                   + "\n[sensor]\nbit_depth = 6\ngain_e_per_adu = 40.0\nbias_adu = 4.0\n"
+                   + "\n[optics]\naperture_mm = 20.0\npsf_fwhm_px = 2.5\n")
+    out = tmp_path / "six.fits"
+    result = runner.invoke(app, ["simulate", "--ra", "84", "--dec", "-2", "--camera", str(cam),
+                                 "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    image = read_image(out)
+    assert image.shape == (240, 320) and image.max() <= 63 and image.max() >= 40  # bright stars saturate
+
+
 def test_cli_detect_json_matches_truth():
     result = runner.invoke(app, ["detect", "--json", str(EXAMPLE)])
     assert result.exit_code == 0, result.output

@@ -31,11 +31,13 @@ __all__ = ["simulate"]
 
 
 def _camera_arg(value: str):
-    """``--camera``: the Camera of a TOML file, or a preset's name (the simulator takes the preset's
-    sensor and optics with it); a name no preset has, or a file that is no camera file, fails."""
+    """``--camera``: a TOML file's path or a preset's name, checked (a name no preset has, or a file
+    that is no camera file, fails); the simulator takes the sensor, optics and exposure with it — a
+    preset's, or the file's own ``[sensor]``, ``[optics]`` and ``[defaults]`` tables when it has them
+    (:func:`skyfix.simulate.resolve_setup`; before, a file's were ignored for the generic preset's)."""
     with checking("--camera", value):
-        camera = load_camera(value)
-    return camera if value.endswith(".toml") or Path(value).is_file() else value
+        load_camera(value)
+    return Path(value) if value.endswith(".toml") or Path(value).is_file() else value
 
 
 def _sensor_arg(value: str | None):
