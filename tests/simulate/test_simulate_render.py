@@ -2,6 +2,7 @@
 
 import json
 import math
+from datetime import datetime, timedelta
 
 import numpy as np
 import pytest
@@ -288,7 +289,10 @@ def test_write_fits_png_tiff_and_truth(tmp_path):
     with fits.open(p) as hdul:
         assert np.array_equal(hdul[0].data, f.image)
         h = hdul[0].header
-        assert h["TRU_RA"] == pytest.approx(40.0) and h["DATE-OBS"].startswith("2024-12-31T18:00")  # J2025.0
+        assert h["TRU_RA"] == pytest.approx(40.0) and h["DATE-AVG"].startswith("2024-12-31T18:00")  # J2025.0
+        # DATE-OBS is the exposure's start (FITS), half an exposure before the middle
+        start = datetime.fromisoformat(h["DATE-OBS"]) + timedelta(seconds=0.5 * h["EXPTIME"])
+        assert start == datetime.fromisoformat(h["DATE-AVG"])
     truth = json.loads(tp.read_text())
     assert set(truth) >= {"ra_deg", "dec_deg", "roll_deg", "quaternion_xyzw", "time", "camera", "stars"}
     assert set(truth["stars"][0]) == {"id", "x", "y", "mag", "electrons"}

@@ -77,9 +77,9 @@ def test_the_first_frame_file_gives_the_time(frames, tmp_path):
         write_frame(f, paths[-1])
     tracker = Tracker(CAMERA, observer=V_ORBIT)
     sols = [tracker.update(p, k / 10) for k, p in enumerate(paths)]
-    # DATE-OBS is written as the mid-exposure time and read as the start: EXPTIME/2 (25 ms) later
-    assert sols[0].time == "2026-09-10T03:00:00.025Z" and sols[0].time_source == "DATE-OBS"
-    assert sols[2].time == "2026-09-10T03:00:00.225Z"
+    # the simulator writes DATE-AVG (mid-exposure, read first) beside DATE-OBS (the start)
+    assert sols[0].time == "2026-09-10T03:00:00.000Z" and sols[0].time_source == "DATE-AVG"
+    assert sols[2].time == "2026-09-10T03:00:00.200Z"
     assert tracker.epoch == pytest.approx(julian_year(T0), abs=1e-6)
 
 

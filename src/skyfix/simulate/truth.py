@@ -33,8 +33,14 @@ def read_truth(path: str | Path) -> dict:
 def _fits_header(truth: dict):
     from astropy.io import fits
 
+    from skyfix.obstime import later, parse_time
+
     hdr = fits.Header()
-    hdr["DATE-OBS"] = (truth["time"].rstrip("Z"), "mid-exposure time (UTC)")
+    # FITS: DATE-OBS is the exposure's start, DATE-AVG its middle (what skyfix reads first); the
+    # truth's time is the middle (both were the middle's before, half an exposure late as read).
+    mid = parse_time(truth["time"])
+    hdr["DATE-OBS"] = (later(mid, -0.5 * float(truth["exposure_s"])).iso.rstrip("Z"), "exposure start (UTC)")
+    hdr["DATE-AVG"] = (truth["time"].rstrip("Z"), "mid-exposure time (UTC)")
     hdr["EXPTIME"] = (truth["exposure_s"], "exposure, s")
     hdr["TRU_RA"] = (truth["ra_deg"], "truth boresight RA, deg (ICRS)")
     hdr["TRU_DEC"] = (truth["dec_deg"], "truth boresight Dec, deg (ICRS)")
