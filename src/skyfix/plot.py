@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -53,8 +52,7 @@ def plot_solution(image: np.ndarray, solution: Solution, path: str | Path, *, dp
                  f"roll {solution.center_roll_deg:.2f}°\nFOV {solution.fov_deg:.2f}°  "
                  f"{solution.n_matched} stars  rmse {solution.rmse_arcsec:.1f}″")
         bx, by = solution.boresight_px
-        cx, cy = solution.center_px
-        if math.hypot(bx - cx, by - cy) >= 0.5:
+        if solution.boresight_off_centre:
             ax.plot([bx], [by], marker="+", markersize=2 * radius, color="#ff6b6b", mew=1.5)
             title += (f"\nboresight (+) at ({bx:.0f}, {by:.0f}): RA {solution.ra_deg:.4f}° "
                       f"Dec {solution.dec_deg:+.4f}°")

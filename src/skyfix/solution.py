@@ -168,6 +168,15 @@ class Solution:
             return None
         return [(self.camera.width - 1) / 2.0, (self.camera.height - 1) / 2.0]
 
+    @property
+    def boresight_off_centre(self) -> bool:
+        """The principal point ``boresight_px`` half a pixel or more from the image centre: where
+        the summary line and the plot name the boresight beside the centre's numbers."""
+        centre = self.center_px
+        if centre is None or self.boresight_px is None:
+            return False
+        return math.hypot(self.boresight_px[0] - centre[0], self.boresight_px[1] - centre[1]) >= 0.5
+
     def center_pointing(self) -> Pointing:
         """RA, Dec and roll (degrees) of the image centre (:attr:`center_px`): its sky direction
         and the position angle of image-up there (:meth:`attitude_at_pixel` with

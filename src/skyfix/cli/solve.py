@@ -311,9 +311,8 @@ def _summary(sol) -> str:
     # The image centre's numbers, as other plate solvers give them; the boresight named where the
     # stars put the principal point elsewhere (docs/design.md#the-solution).
     bx, by = sol.boresight_px
-    cx, cy = sol.center_px
     where = ""
-    if math.hypot(bx - cx, by - cy) >= 0.5:
+    if sol.boresight_off_centre:
         where = f" | boresight at ({bx:.1f}, {by:.1f}) px: RA {sol.ra_deg:.5f}° Dec {sol.dec_deg:+.5f}°"
     mirrored = " | mirror image" if sol.mirrored else ""
     return (f"{sol.image}: solved RA {sol.center_ra_deg:.5f}° Dec {sol.center_dec_deg:+.5f}° "
