@@ -1,5 +1,5 @@
-"""The default FOV bands: fields from 2° to 90° solve with no hint (issue 10), each band's database
-built on first need, a stale or corrupt one rebuilt."""
+"""The default FOV bands: fields from 1° to 90° solve with no hint (issues 10 and 26), each band's
+database built on first need, a stale or corrupt one rebuilt."""
 
 import math
 
@@ -21,23 +21,28 @@ def _case(name):
     return next(c for c in CASES if c.name == name)
 
 
-def test_bands_cover_2_to_90_degrees_and_are_tried_in_order():
-    assert [b.name for b in bands_for()] == ["standard", "narrow", "wide"]
+def test_bands_cover_1_to_90_degrees_and_are_tried_in_order():
+    assert [b.name for b in bands_for()] == ["standard", "narrow", "wide", "fine"]
     served = sorted(b.served_fov_deg for b in BANDS)
-    assert served[0][0] < 2.0 and served[-1][1] > 90.0
+    assert served[0][0] < 1.0 and served[-1][1] > 90.0
     for below, above in zip(served, served[1:], strict=False):
         assert above[0] < below[1], "a gap between bands"
     assert [b.name for b in bands_for(14, 16)] == ["standard"]
     assert [b.name for b in bands_for(3, 4)] == ["narrow"]
     assert [b.name for b in bands_for(36, 50)] == ["wide", "standard"]  # the most overlap first
-    assert bands_for(0.6, 1.2) == []
+    assert [b.name for b in bands_for(0.8, 1.2)] == ["fine"]
+    assert [b.name for b in bands_for(1.6, 2.5)] == ["narrow", "fine"]
+    assert bands_for(0.5, 0.7) == []
 
 
-def test_a_fov_hint_outside_every_band_fails_in_one_line():
+def test_a_fov_hint_outside_every_band_fails_in_one_line_naming_a_deeper_catalogue():
     xy = np.random.default_rng(0).uniform(0, 1000, (20, 2))
-    sol = solve_centroids(xy, 1280, 960, fov_deg=1.0)
+    sol = solve_centroids(xy, 1280, 960, fov_deg=0.6)
     assert not sol.solved
-    assert "outside every default FOV band" in sol.reason and "\n" not in sol.reason
+    assert "outside every default FOV band (they serve 0.741–122°)" in sol.reason and "\n" not in sol.reason
+    # 11.7 stars deg⁻² × 0.6° × 0.45° (0.66° wide at the hint's 10 % tolerance)
+    assert "holds about 3 stars of the bundled catalogue" in sol.reason
+    assert "`skyfix database build --fov-min 0.54 --fov-max 0.66 --catalog DEEP.csv" in sol.reason
     with pytest.raises(DatabaseError, match="outside every default FOV band"):
         database_for_fov(150.0)
 
@@ -75,6 +80,18 @@ def test_narrow_fields_solve_from_gaia_with_no_hint():
     assert all(0.4 < v < 2.0 for v in s["normalised_rms"])
 
 
+def test_1_degree_fields_solve_from_gaia_with_no_hint():
+    """1° fields (Gaia to G 10, ~9 stars in view on average): the fine band, with no hint, and a
+    failure where too few stars are in view."""
+    case = _case("4°")._replace(name="1°", fov_deg=1.0)
+    trials = field_trials(case, 12, seed=3)
+    s = summarize_case(case, trials)
+    countable = [t.trial for t in trials if t.trial.n_stars >= 8]
+    assert len(countable) >= 6, s
+    assert sum(t.solved for t in countable) >= len(countable) - 1 and s["wrong"] == 0, s
+    assert s["median_boresight_arcsec"] < 1.5  # 2.8″ pixels
+
+
 def test_a_60_degree_barrel_lens_solves_with_no_camera_file():
     """k1 = −0.3 squeezes the corners of a 60° frame by 22 %: found among the distortion hypotheses."""
     case = _case("60°, k1 −0.3")
@@ -110,8 +127,9 @@ def test_cli_builds_every_default_band_and_says_what_it_serves():
     result = CliRunner().invoke(app, ["database", "build", "--default-bands"])
     assert result.exit_code == 0, result.output
     lines = result.output.strip().splitlines()
-    assert [line.split(":")[0] for line in lines] == ["standard", "narrow", "wide"]
+    assert [line.split(":")[0] for line in lines] == ["standard", "narrow", "wide", "fine"]
     assert "serves 1.48–8.1°" in lines[1] and "482176 stars" in lines[1]
+    assert "serves 0.741–1.96°" in lines[3] and "482176 stars" in lines[3]
 
 
 def test_a_fisheye_camera_given_selects_the_band_of_its_true_field():

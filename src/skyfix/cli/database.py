@@ -7,12 +7,13 @@ table is set up: every ``skyfix`` start loads this module.
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
 import typer
 
-from skyfix.cli.common import VERBOSE, OneLineErrors, add_verbosity, guarded, prepare_outputs
+from skyfix.cli.common import VERBOSE, OneLineErrors, add_verbosity, checking, fail, guarded, prepare_outputs
 from skyfix.validate import check_fov_range
 
 __all__ = ["database_app", "database_build"]
@@ -30,10 +31,22 @@ def database_build(
     default_bands: bool = typer.Option(False, "--default-bands",
                                        help="Build every default FOV band (2–90°) into the user cache now, "
                                             "instead of on first need."),
+    catalog: Path = typer.Option(None, "--catalog", metavar="FILE",
+                                 help="Build from this star catalogue (CSV, ECSV, FITS or VOTable with "
+                                      "ra, dec, mag columns; docs/catalogues.md#a-deeper-catalogue) "
+                                      "instead of Hipparcos: for fields the bundled catalogues are too "
+                                      "shallow for (under ~1°)."),
+    catalog_epoch: float = typer.Option(2016.0, "--catalog-epoch", metavar="YEAR",
+                                        help="Julian year of the --catalog file's positions "
+                                             "(Gaia DR3: 2016.0)."),
+    mag_limit: float = typer.Option(None, "--mag-limit", metavar="MAG",
+                                    help="With --catalog: the faintest stars that form patterns "
+                                         "(default: every star of the file)."),
     verbose: int = VERBOSE,
 ) -> None:
     """Build the lost-in-space pattern database for a FOV range (it serves fields about 1.35×
-    beyond it on either side), or every default FOV band (--default-bands)."""
+    beyond it on either side), from Hipparcos or a deeper catalogue file (--catalog), or every
+    default FOV band (--default-bands)."""
     add_verbosity(verbose)
     from skyfix.identify import PatternDatabase, default_database_path
 
@@ -50,9 +63,33 @@ def database_build(
         return
 
     check_fov_range(fov_min, fov_max, ("--fov-min", "--fov-max"))
-    path = output or default_database_path(fov_min, fov_max)
-    prepare_outputs({"--output": [path]})
-    db = PatternDatabase.build(fov_min_deg=fov_min, fov_max_deg=fov_max, progress=True)
+    if catalog is None:
+        if mag_limit is not None:
+            fail("--mag-limit is for a --catalog file's build; give --catalog FILE too")
+        path = output or default_database_path(fov_min, fov_max)
+        prepare_outputs({"--output": [path]})
+        db = PatternDatabase.build(fov_min_deg=fov_min, fov_max_deg=fov_max, progress=True)
+    else:
+        if not math.isfinite(catalog_epoch) or not 1900.0 <= catalog_epoch <= 2100.0:
+            fail(f"--catalog-epoch must be a Julian year in 1900–2100, not {catalog_epoch:g}")
+        if mag_limit is not None and not math.isfinite(mag_limit):
+            fail(f"--mag-limit must be a finite magnitude, not {mag_limit}")
+        if output is None:
+            fail("--output FILE is needed with --catalog (where to write the database; then solve "
+                 "with --database FILE)")
+        from skyfix.catalog import epoch_now
+        from skyfix.catalog_file import load_catalog_file
+        from skyfix.identify import DEEP
+
+        path = output
+        prepare_outputs({"--output": [path]})
+        with checking("--catalog", catalog):
+            stars = load_catalog_file(catalog, position_epoch=catalog_epoch, epoch=epoch_now(),
+                                      mag_limit=mag_limit)
+        db = PatternDatabase.build(fov_min_deg=fov_min, fov_max_deg=fov_max, catalog=stars,
+                                   band_ratio=DEEP.band_ratio, stars_per_field=DEEP.stars_per_field,
+                                   lattice_step=DEEP.lattice_step, pattern_mag_limit=float(stars.mag.max()),
+                                   progress=True, catalog_source=f"file:{catalog.name}")
     db.save(path)
     typer.echo(f"wrote {path} ({len(db)} patterns of {len(db.star_ids)} stars, FOV {db.fov_min_deg:g}–"
                f"{db.fov_max_deg:g}°)")

@@ -16,6 +16,7 @@
 
 from skyfix.identify.catalogue.bands import (
            BANDS,
+           DEEP,
            Band,
            band_database,
            default_database,
@@ -25,8 +26,9 @@ from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.common.result import Identification
 from skyfix.identify.methods import DEFAULT_METHOD, METHODS, get_method, identify, method_options
 
-__all__ = ["BANDS", "Band", "DEFAULT_METHOD", "METHODS", "Identification", "PatternDatabase", "band_database",
-           "default_database", "default_database_path", "get_method", "identify", "method_options"]
+__all__ = ["BANDS", "DEEP", "Band", "DEFAULT_METHOD", "METHODS", "Identification", "PatternDatabase",
+           "band_database", "default_database", "default_database_path", "get_method", "identify",
+           "method_options"]
 
 # Modules that moved into the layers (issue 23): ``skyfix.identify.quad`` and the like still work
 # as attributes (``from skyfix.identify import quad``), with a warning, until the next release.

@@ -1,9 +1,9 @@
-"""Field-of-view bands: the pattern databases that let a solve serve any field from 2° to 90°
+"""Field-of-view bands: the pattern databases that let a solve serve any field from 1° to 90°
 with no hint, each built on first need and cached.
 
 One pattern database serves fields up to :data:`FOV_MARGIN` beyond its FOV range on either
-side (its lattice fields' patterns are still among an image's brightest stars there). Three
-bands cover 1.5–120°:
+side (its lattice fields' patterns are still among an image's brightest stars there). Four
+bands cover 0.74–120°:
 
 ========  ==========  ===========================  ===================================
 band      built for   serves                       stars
@@ -11,13 +11,16 @@ band      built for   serves                       stars
 standard  10–30°      7.4–40.5°                    Hipparcos 2 (Hp ≤ 8.5 form patterns)
 narrow    2–6°        1.5–8.1°                     Gaia DR3 to G 10 + Hipparcos
 wide      40–90°      29.6–121°                    Hipparcos 2
+fine      1–1.45°     0.74–1.96°                   Gaia DR3 to G 10 + Hipparcos
 ========  ==========  ===========================  ===================================
 
 Below ~6° Hipparcos has too few stars (a 2° × 1.5° field holds 4 stars of Hp ≤ 8.5 on average,
 against 35 of G ≤ 10 and at least 6 anywhere: docs/catalogues.md):
 the narrow band uses the deeper catalogue. Its lattice is sparser and its fields give 6 stars'
 patterns (15) instead of 8 (70), or it would be 20 times larger (its fields are 25 times as many
-as the standard band's).
+as the standard band's). The fine band serves fields of ~1°, where G 10 holds 8.8 stars a frame
+on average: sparser still (5 stars a field, 5 patterns), or it would be 3.5 times the narrow
+band's size. Narrower fields need a deeper catalogue of the user's (:data:`DEEP`).
 
 :func:`bands_for` orders the bands a frame is tried against: the one(s) its FOV hint or camera
 falls in; with none, all of them, the standard band first (the common case stays as fast as it
@@ -40,8 +43,8 @@ from skyfix.cache import cache_dir, exclusive_lock, has_index, notice
 from skyfix.errors import DatabaseError, unknown_name
 from skyfix.identify.catalogue.database import DATABASE_VERSION, PatternDatabase, ProgressCallback
 
-__all__ = ["BANDS", "Band", "FOV_MARGIN", "band_database", "bands_for", "database_for_fov",
-           "default_database", "default_database_path", "served_fov_deg"]
+__all__ = ["BANDS", "Band", "DEEP", "FOV_MARGIN", "band_database", "bands_for", "database_for_fov",
+           "default_database", "default_database_path", "served_fov_deg", "served_range_deg"]
 
 log = logging.getLogger(__name__)
 
@@ -80,8 +83,18 @@ STANDARD = Band("standard", 10.0, 30.0)
 NARROW = Band("narrow", 2.0, 6.0, catalog="gaia", stars_per_field=6, lattice_step=0.8, band_ratio=1.5,
               pattern_mag_limit=10.0, loose_tolerance=(0.010, 0.004))
 WIDE = Band("wide", 40.0, 90.0)
-BANDS: tuple[Band, ...] = (STANDARD, NARROW, WIDE)
+FINE = Band("fine", 1.0, 1.45, catalog="gaia", stars_per_field=5, lattice_step=1.0, band_ratio=1.5,
+            pattern_mag_limit=10.0, loose_tolerance=(0.010, 0.004))
+BANDS: tuple[Band, ...] = (STANDARD, NARROW, WIDE, FINE)
+DEEP = FINE._replace(name="deep")
+"""How a database is built from a deep catalogue file (``skyfix database build --catalog``): the
+fine band's lattice, 5 stars a field (such a catalogue holds many stars in every field)."""
 """The default bands, in the order a frame with no FOV hint is tried."""
+
+
+def served_range_deg() -> tuple[float, float]:
+    """The horizontal fields the default bands serve together, degrees (narrowest, widest)."""
+    return min(b.served_fov_deg[0] for b in BANDS), max(b.served_fov_deg[1] for b in BANDS)
 
 
 def served_fov_deg(database: PatternDatabase) -> tuple[float, float]:
@@ -116,7 +129,7 @@ def database_for_fov(fov_deg: float, *, progress: bool | ProgressCallback = True
     """
     bands = bands_for(fov_deg, fov_deg)
     if not bands:
-        lo, hi = NARROW.served_fov_deg[0], WIDE.served_fov_deg[1]
+        lo, hi = served_range_deg()
         raise DatabaseError(f"field of view {fov_deg:.3g}° is outside every default FOV band "
                             f"({lo:.3g}–{hi:.3g}°)")
     return band_database(bands[0], progress=progress)

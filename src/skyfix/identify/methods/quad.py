@@ -36,7 +36,7 @@ from skyfix._kernels import lens
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
 from skyfix.identify.accept import refit_accepted, refit_focal_allowed
-from skyfix.identify.catalogue.bands import BANDS, band_database, bands_for, served_fov_deg
+from skyfix.identify.catalogue.bands import band_database, bands_for, served_fov_deg, served_range_deg
 from skyfix.identify.catalogue.database import PatternDatabase, readonly_view
 from skyfix.identify.catalogue.kernel_data import (
     FocalRange,
@@ -151,7 +151,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     max_patterns : int
         Work bound: image 4-star combinations looked up.
     time_limit_s : float
-        Work bound: wall time, seconds.
+        Work bound: wall time of the search, seconds (loading or building a band's database the
+        first time a search reaches it is not counted: a frame must not fail for a cold cache).
     epoch : float, optional
         Julian year for the catalogue positions of the result (default: the database's).
     pattern_stars : int
@@ -267,6 +268,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                              distortion, order) for distortion in hypotheses]
     total = min(len(combos), max_patterns)
     n_lookups = n_cand = 0
+    loading_s = 0.0  # spent loading databases (not counted against time_limit_s)
     while True:
         # The database that has taken the least (modelled) time so far goes next (the first one,
         # the common case, first) — its distortion hypotheses share its time — one chunk of
@@ -285,13 +287,15 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
             # the loose tier lags the tight one by a factor of 4 in patterns
             goal = target if tier == 0 or target >= total else target // 4
             while search.pos[tier] < goal:
-                if n_lookups and time.perf_counter() - t0 > time_limit_s:
+                if n_lookups and time.perf_counter() - t0 - loading_s > time_limit_s:
                     n_tried = max(s.pos[0] for s in searches)
                     return _failure(f"time limit {time_limit_s:g} s reached after {n_tried} patterns"
                                     + _mirror_note(xy, width, height, cx, retry), t0, n_tried, n_cand)
                 start = search.pos[tier]
                 stop = min(goal, start + 512)
+                t_load = time.perf_counter()
                 plain = search.plain()
+                loading_s += time.perf_counter() - t_load
                 hit = search_entry(plain.image, search.combos(stop), start, stop, plain.focal,
                                    tier_tolerances, plain.patterns, plain.stars, verification, n_cand)
                 search.pos[tier] = start + hit.n_done
@@ -312,7 +316,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                     search.work_s += REFUSED_HIT_COST_S
     n_tried = max(s.pos[0] for s in searches)
     return _failure(f"no match after {n_tried} patterns ({n_cand} candidates verified)"
-                    + _mirror_note(xy, width, height, cx, retry), t0, n_tried, n_cand)
+                    + _mirror_note(xy, width, height, cx, retry) + _shallow_note(hinted[1]),
+                    t0, n_tried, n_cand)
 
 
 class _Plain(NamedTuple):
@@ -519,11 +524,18 @@ def _fov_from_focal(width: int, f: float) -> float:
 def _outside_reason(fov: float | None, fov_lo: float | None, fov_hi: float | None, sources: list) -> str:
     """The failure reason for a FOV (allowed ``fov_lo``–``fov_hi``) no database can serve (the
     database given, or every default band when ``sources`` is empty), with the commands that
-    build and use one that can."""
+    build and use one that can: below the default bands, from a deeper catalogue (the bundled
+    ones hold too few stars in so narrow a field)."""
     from skyfix.validate import FOV_RANGE_DEG
 
-    lo = max(FOV_RANGE_DEG[0], math.floor(fov_lo + 1e-9))
-    hi = min(FOV_RANGE_DEG[1], math.ceil(fov_hi - 1e-9))
+    lo_band, hi_band = served_range_deg()
+    narrow = fov_hi < lo_band
+    if narrow:  # two significant digits: 0.5–0.75°, not 0–1°
+        lo = max(FOV_RANGE_DEG[0], float(f"{fov_lo:.2g}"))
+        hi = min(FOV_RANGE_DEG[1], max(lo, float(f"{fov_hi:.2g}")))
+    else:
+        lo = max(FOV_RANGE_DEG[0], math.floor(fov_lo + 1e-9))
+        hi = min(FOV_RANGE_DEG[1], math.ceil(fov_hi - 1e-9))
     out = f"patterns-{lo:g}-{hi:g}deg.npz"
     if sources:
         db = sources[0]
@@ -531,11 +543,38 @@ def _outside_reason(fov: float | None, fov_lo: float | None, fov_hi: float | Non
         what = (f"the pattern database's range {db.fov_min_deg:g}–{db.fov_max_deg:g}° (it serves "
                 f"{served[0]:.3g}–{served[1]:.3g}°)")
     else:
-        what = (f"every default FOV band (they serve {BANDS[1].served_fov_deg[0]:.3g}–"
-                f"{BANDS[2].served_fov_deg[1]:.3g}°)")
+        what = f"every default FOV band (they serve {lo_band:.3g}–{hi_band:.3g}°)"
+    if narrow:
+        n_stars = shallow_field_stars(fov)
+        return (f"field of view {fov:.3g}° is outside {what}: a field this narrow holds about "
+                f"{n_stars:.0f} stars of the bundled catalogue (Gaia to G 10), too few to identify; "
+                f"build a database from a deeper catalogue file (docs/catalogues.md#a-deeper-catalogue): "
+                f"`skyfix database build --fov-min {lo:g} --fov-max {hi:g} --catalog DEEP.csv -o {out}`, "
+                f"then `skyfix solve --database {out} ...`")
     return (f"field of view {fov:.3g}° is outside {what}; build one that covers it: "
             f"`skyfix database build --fov-min {lo:g} --fov-max {hi:g} -o {out}`, "
             f"then `skyfix solve --database {out} ...`")
+
+
+#: Stars a square degree of the bundled Gaia catalogue holds on average (G ≤ 10; 4.4–5.1 at the
+#: galactic poles: docs/catalogues.md).
+GAIA_STARS_PER_SQ_DEG = 11.7
+
+
+def shallow_field_stars(fov_deg: float, aspect: float = 0.75) -> float:
+    """The bundled catalogue's stars in a ``fov_deg``-wide frame of ``aspect`` (height/width), on average."""
+    return GAIA_STARS_PER_SQ_DEG * fov_deg * fov_deg * aspect
+
+
+def _shallow_note(fov_hi: float | None) -> str:
+    """What a failed search adds when the frame (at most ``fov_hi`` wide, when known) holds on
+    average fewer than twice the 8 catalogue stars a solve needs: the catalogue may be too shallow."""
+    if fov_hi is None or shallow_field_stars(fov_hi) >= 16.0:
+        return ""
+    return (f"; a {fov_hi:.2g}° field holds about {shallow_field_stars(fov_hi):.0f} stars of the bundled "
+            f"catalogue (Gaia to G 10) on average, fewer in sparse parts of the sky: if the frame shows "
+            f"fewer than 8 of them, solve it with a database built from a deeper catalogue "
+            f"(docs/catalogues.md#a-deeper-catalogue)")
 
 
 #: What a failed solve adds when the stars match the frame flipped left-right (skyfix.parity).
