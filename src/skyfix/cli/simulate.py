@@ -75,6 +75,10 @@ def simulate(
     exposure: float = typer.Option(None, "--exposure", help="Exposure, seconds (default: the preset's)."),
     time: str = typer.Option(None, "--time",
                              help="Mid-exposure time of the first frame, ISO 8601 (default: now)."),
+    velocity_kms: str = typer.Option(None, "--velocity-kms", metavar="VX,VY,VZ",
+                                     help="The camera's velocity relative to the Earth's centre, km/s, "
+                                          "GCRS axes (an orbit); the stars are aberrated by it and by "
+                                          "the Earth's own velocity at the time (default: 0,0,0)."),
     seed: int = typer.Option(0, "--seed", help="Noise seed (same seed, same image, bit for bit)."),
     false_stars: int = typer.Option(0, "--false-stars", help="False stars / debris to add."),
     hot_pixels: int = typer.Option(0, "--hot-pixels", help="Hot pixels to add."),
@@ -150,8 +154,15 @@ def simulate(
     else:
         paths = [output.with_name(f"{output.stem}-{k:04d}{output.suffix}") for k in range(frames)]
     prepare_outputs({"--output" if out_dir is None else "OUT_DIR": paths})
-    kw = dict(sensor=sensor_arg, exposure_s=exposure, epoch=time, seed=seed,
-              false_stars=false_stars, hot_pixels=hot_pixels)
+    timed = all(p.suffix.lower() in (".fits", ".fit", ".fts") for p in paths)
+    if velocity_kms is not None and not timed:
+        fail("--velocity-kms needs FITS frames: a PNG or TIFF frame carries no time, so a solve could "
+             "not remove the aberration it would show")
+    first, velocity = _sky_seen_at(time, velocity_kms)
+    if not timed:  # no time in the file: the stars at their catalogue places, as a solve without one
+        velocity = None
+    kw = dict(sensor=sensor_arg, exposure_s=exposure, epoch=first, seed=seed,
+              false_stars=false_stars, hot_pixels=hot_pixels, observer_velocity_km_s=velocity)
     progress = _simulate_progress(frames)
     try:
         with compile_notice(progress):
@@ -175,6 +186,27 @@ def simulate(
         where = out_dir if out_dir is not None else paths[0].parent
         typer.echo(f"wrote {frames} frames to {where} ({paths[0].name} … {paths[-1].name}, "
                    "truth beside each)")
+
+
+def _sky_seen_at(time: str | None, velocity_kms: str | None):
+    """The first frame's mid-exposure time (ISO 8601 UTC; now when not given) and the camera's
+    barycentric velocity then, km/s: the Earth's (ERFA ``epv00``) plus ``--velocity-kms``. FITS
+    frames show the stellar aberration a real camera would (up to 20.5″ from the Earth's orbit),
+    so that a solve reading the frame's time (DATE-OBS) gives back the truth's attitude."""
+    from datetime import UTC, datetime
+
+    from skyfix.corrections import earth_state
+    from skyfix.corrections.observer import parse_velocity
+    from skyfix.obstime import parse_time
+
+    text = time if time is not None else datetime.now(UTC).isoformat(timespec="milliseconds")
+    with checking("--time", time):
+        t = parse_time(text)
+    velocity = earth_state(t.jd_tt).velocity_km_s
+    if velocity_kms is not None:
+        with checking("--velocity-kms", velocity_kms):
+            velocity = velocity + parse_velocity(velocity_kms).velocity_km_s
+    return t.iso, velocity
 
 
 #: Each profile's options on the command line, with their defaults (None: required).
