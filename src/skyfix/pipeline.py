@@ -40,7 +40,8 @@ from skyfix.validate import (
     check_xy,
 )
 
-__all__ = ["solution_numbers", "solve", "solve_centroids"]
+__all__ = ["DETECT_SIGMA", "FAINT_LOOK_BELOW", "FAINT_SIGMA", "look_fainter", "solution_numbers", "solve",
+           "solve_centroids"]
 
 log = logging.getLogger("skyfix")
 
@@ -62,6 +63,7 @@ def solve(
     dark: np.ndarray | None = None,
     flat: np.ndarray | None = None,
     bad_pixels: np.ndarray | None = None,
+    mask=None,
     attitude_hint=None,
     smear_px=None,
     parity: str | None = None,
@@ -99,6 +101,10 @@ def solve(
     dark, flat, bad_pixels : (H, W) arrays, optional
         Frame calibration applied before extraction, in this order (master dark in ADU,
         normalised flat, hot/dead pixel mask): see :mod:`skyfix.detect.calibrate_frames`.
+    mask : (H, W) array or image file, optional
+        The pixels that show sky: non-zero (white) = use, zero (black) = ignore (a horizon, trees,
+        a caption, the corners outside an all-sky lens). Stars within 3 px of an ignored pixel
+        are dropped (:mod:`skyfix.detect.mask`). A mask of another size is an InputError.
     max_stars : int
         Brightest centroids kept: identification tries patterns among the brightest and
         verifies against all of them, and every verified star enters the attitude fit.
@@ -153,7 +159,8 @@ def solve(
     skyfix.errors.InputError
         An argument is out of range or of the wrong kind (checked before any work).
     """
-    from skyfix.detect import extract_centroids, frame_problem
+    from skyfix.detect import frame_problem
+    from skyfix.detect.mask import as_mask
     from skyfix.io import read_image_with_header
 
     if not isinstance(image, (str, os.PathLike, np.ndarray)):
@@ -194,7 +201,8 @@ def solve(
         from skyfix.detect.smear import smear_filter
 
         data = smear_filter(data, smear_px)
-    centroids = extract_centroids(data, max_stars=max_stars)
+    usable = None if mask is None else as_mask(mask, data.shape[:2])
+    centroids = _extract(data, DETECT_SIGMA, max_stars, usable)
     t_extract = _clock()
     log.info("%s: %d×%d image, %d centroids (noise %.3g)", label, data.shape[1], data.shape[0],
              len(centroids), getattr(centroids, "noise", float("nan")))
@@ -204,7 +212,28 @@ def solve(
         identify_method=identify_method, name=label, attitude_hint=hint, parity=parity, observation=obs,
         **identify_options,
     )
-    if not sol.solved and (problem := frame_problem(raw)):  # blank, saturated, too small: say which
+    problem = frame_problem(raw) if not sol.solved else ""
+    if not sol.solved and not problem and look_fainter(len(centroids), hint):
+        # A sparse frame that failed: the stars a solve needs may lie between the fainter
+        # threshold and the default one. A second extraction and solve; kept only if it solves.
+        faint = _extract(data, FAINT_SIGMA, max_stars, usable)
+        if len(faint) > len(centroids):
+            again = solve_centroids(
+                faint.xy, data.shape[1], data.shape[0], fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
+                camera=camera, database=database, epoch=epoch, attitude_method=attitude_method,
+                identify_method=identify_method, name=label, parity=parity, observation=obs,
+                **identify_options)
+            if again.solved:
+                log.info("%s: solved from %d stars above %g σ (%d above %g σ did not)", label, len(faint),
+                         FAINT_SIGMA, len(centroids), DETECT_SIGMA)
+                sol = again
+                sol.detection_sigma = FAINT_SIGMA
+            else:
+                sol.reason = (f"{sol.reason}; with the {len(faint)} stars above {FAINT_SIGMA:g} σ: "
+                              f"{again.reason}")
+    if sol.detection_sigma is None:
+        sol.detection_sigma = DETECT_SIGMA
+    if not sol.solved and problem:  # blank, saturated, too small: say which
         sol.reason = f"{sol.reason}: {problem}"
     t_end = _clock()
     sol.time_ms = {
@@ -352,6 +381,37 @@ def _warm(database, fov_deg: float | None, camera: Camera | None) -> None:
 
 
 _clock = time.perf_counter  # the module's `time` is solve()'s keyword inside it
+
+DETECT_SIGMA = 5.0
+"""The detection threshold of a solve, in σ of the matched-filtered frame's noise."""
+FAINT_SIGMA = 3.5
+"""The threshold of the second look at a sparse frame that failed (:func:`look_fainter`)."""
+FAINT_LOOK_BELOW = 20
+"""A frame with fewer stars than this above :data:`DETECT_SIGMA` is sparse."""
+
+
+def _extract(data: np.ndarray, sigma: float, max_stars: int, usable: np.ndarray | None):
+    """The frame's stars above ``sigma``, the brightest ``max_stars`` of those on the sky of the
+    mask (``usable``, :func:`skyfix.detect.mask.as_mask`; None: every pixel)."""
+    from skyfix.detect import extract_centroids
+
+    if usable is None:
+        return extract_centroids(data, sigma=sigma, max_stars=max_stars)
+    from skyfix.detect.mask import sky_only
+
+    found = extract_centroids(data, sigma=sigma, max_stars=4 * max_stars)  # some fall on masked pixels
+    return sky_only(found, usable).brightest(max_stars)
+
+
+def look_fainter(n_detected: int, hint) -> bool:
+    """Whether a frame that failed to solve is extracted again at :data:`FAINT_SIGMA`: when it is
+    sparse (fewer than :data:`FAINT_LOOK_BELOW` stars above :data:`DETECT_SIGMA`: a short
+    exposure, a small aperture or a narrow field, whose stars a solve needs may lie just below
+    the threshold) and no attitude hint was given (a hint's failure is about the hint). The
+    fainter extraction holds more false detections (~0.02 % of noise peaks pass 3.5 σ), which
+    identification counts against chance as any other; a second solve that does not solve
+    changes nothing but the reason."""
+    return hint is None and n_detected < FAINT_LOOK_BELOW
 
 
 def _observation(observation: Observation | None, epoch: float | None, **given) -> Observation:

@@ -85,6 +85,10 @@ class Solution:
     quaternion_xyzw: list[float] | None = None
     covariance_arcsec2: list[list[float]] | None = None
     n_detected: int = 0
+    #: the detection threshold that found them, σ of the filtered frame's noise (5; 3.5 when a
+    #: sparse frame solved only on a second, fainter look: skyfix.pipeline.look_fainter); None
+    #: for centroids given
+    detection_sigma: float | None = None
     n_matched: int = 0
     prob_false: float | None = None
     rmse_arcsec: float | None = None

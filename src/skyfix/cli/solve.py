@@ -67,6 +67,9 @@ def solve(
     calibration: Path = typer.Option(None, "--calibration", help="Maps from `skyfix calibrate frames`."),
     dark: Path = typer.Option(None, "--dark", help="Master dark image to subtract."),
     flat: Path = typer.Option(None, "--flat", help="Master flat image to divide by (normalised to 1)."),
+    mask: Path = typer.Option(None, "--mask", metavar="FILE",
+                              help="Image of the frame's size: white (non-zero) = sky to use, black = "
+                                   "ignore (horizon, trees, a caption, outside an all-sky lens)."),
     attitude_hint: str = typer.Option(
         None, "--attitude-hint", metavar="RA,DEC,ROLL[,UNCERTAINTY_DEG]",
         help="A rough attitude, degrees (uncertainty: the largest error, default 1): identify the stars "
@@ -111,6 +114,11 @@ def solve(
     wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
     prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
     maps = calibration_maps(calibration, dark, flat)
+    if mask is not None:
+        from skyfix.detect.mask import as_mask
+
+        with checking("--mask", mask):
+            maps["mask"] = as_mask(mask, margin_px=0)  # read once; each image checks its size
     with checking("--camera", camera_file):
         camera = load_camera(camera_file) if camera_file is not None else None
     observation = observation_options(obs_time, velocity_kms, site, weather, refraction, mounting, apparent,
