@@ -392,15 +392,23 @@ FAINT_LOOK_BELOW = 20
 
 def _extract(data: np.ndarray, sigma: float, max_stars: int, usable: np.ndarray | None):
     """The frame's stars above ``sigma``, the brightest ``max_stars`` of those on the sky of the
-    mask (``usable``, :func:`skyfix.detect.mask.as_mask`; None: every pixel)."""
+    mask (``usable``, :func:`skyfix.detect.mask.as_mask`; None: every pixel) that are not letters
+    of a caption or time stamp (:func:`skyfix.detect.text.text_like`)."""
     from skyfix.detect import extract_centroids
+    from skyfix.detect.text import text_like
 
-    if usable is None:
-        return extract_centroids(data, sigma=sigma, max_stars=max_stars)
-    from skyfix.detect.mask import sky_only
+    found = extract_centroids(data, sigma=sigma, max_stars=max_stars if usable is None else 4 * max_stars)
+    text = text_like(found)
+    if usable is None and not text.any():
+        return found  # the common case, as extracted
+    if text.any():  # the letters took stars' places: look deeper, then leave the text out
+        found = extract_centroids(data, sigma=sigma, max_stars=4 * max_stars)
+        found = found.subset(np.flatnonzero(~text_like(found)))
+    if usable is not None:
+        from skyfix.detect.mask import sky_only
 
-    found = extract_centroids(data, sigma=sigma, max_stars=4 * max_stars)  # some fall on masked pixels
-    return sky_only(found, usable).brightest(max_stars)
+        found = sky_only(found, usable)
+    return found.brightest(max_stars)
 
 
 def look_fainter(n_detected: int, hint) -> bool:
