@@ -40,8 +40,8 @@ from skyfix.validate import (
     check_xy,
 )
 
-__all__ = ["DETECT_SIGMA", "FAINT_LOOK_BELOW", "FAINT_SIGMA", "look_fainter", "solution_numbers", "solve",
-           "solve_centroids"]
+__all__ = ["DETECT_SIGMA", "FAINT_LOOK_BELOW", "FAINT_LOOK_FROM", "FAINT_SIGMA", "look_fainter",
+           "solution_numbers", "solve", "solve_centroids"]
 
 log = logging.getLogger("skyfix")
 
@@ -388,6 +388,8 @@ FAINT_SIGMA = 3.5
 """The threshold of the second look at a sparse frame that failed (:func:`look_fainter`)."""
 FAINT_LOOK_BELOW = 20
 """A frame with fewer stars than this above :data:`DETECT_SIGMA` is sparse."""
+FAINT_LOOK_FROM = 3
+"""... and one with fewer than this shows no star at all (noise, cloud, a lens cap): no second look."""
 
 
 def _extract(data: np.ndarray, sigma: float, max_stars: int, usable: np.ndarray | None):
@@ -413,13 +415,15 @@ def _extract(data: np.ndarray, sigma: float, max_stars: int, usable: np.ndarray 
 
 def look_fainter(n_detected: int, hint) -> bool:
     """Whether a frame that failed to solve is extracted again at :data:`FAINT_SIGMA`: when it is
-    sparse (fewer than :data:`FAINT_LOOK_BELOW` stars above :data:`DETECT_SIGMA`: a short
-    exposure, a small aperture or a narrow field, whose stars a solve needs may lie just below
-    the threshold) and no attitude hint was given (a hint's failure is about the hint). The
+    sparse (:data:`FAINT_LOOK_FROM` to :data:`FAINT_LOOK_BELOW` stars above :data:`DETECT_SIGMA`:
+    a short exposure, a small aperture or a narrow field, whose stars a solve needs may lie just
+    below the threshold; fewer: nothing but noise, whose peaks above 3.5 σ — 24–49 on a 1280 × 960
+    frame of pure noise — would cost a 2 s search to refuse) and no attitude hint was given (a
+    hint's failure is about the hint). The
     fainter extraction holds more false detections (~0.02 % of noise peaks pass 3.5 σ), which
     identification counts against chance as any other; a second solve that does not solve
     changes nothing but the reason."""
-    return hint is None and n_detected < FAINT_LOOK_BELOW
+    return hint is None and FAINT_LOOK_FROM <= n_detected < FAINT_LOOK_BELOW
 
 
 def _observation(observation: Observation | None, epoch: float | None, **given) -> Observation:

@@ -47,15 +47,23 @@ def test_a_faint_sparse_frame_solves_on_the_second_look(finder, ra, dec, seed):
 
 
 def test_a_sparse_frame_that_fails_twice_says_both(finder):
-    frame, _ = _frame(finder, 53, -33, 1)
+    frame, _ = _frame(finder, 0, -70, 0)  # 4 stars above 5 σ, 5 above 3.5 σ
     sol = skyfix.solve(frame.image, epoch=2026.9)
     assert not sol.solved and sol.detection_sigma == DETECT_SIGMA
     assert f"stars above {FAINT_SIGMA:g} σ:" in sol.reason and "\n" not in sol.reason
 
 
 def test_the_second_look_is_for_sparse_frames_without_a_hint():
-    assert look_fainter(5, None) and look_fainter(19, None)
+    assert look_fainter(3, None) and look_fainter(19, None)
     assert not look_fainter(20, None) and not look_fainter(5, (10.0, 20.0, 0.0))
+    assert not look_fainter(2, None)  # no star at all: noise peaks, not faint stars
+
+
+def test_a_frame_of_noise_is_not_looked_at_again():
+    import numpy as np
+
+    sol = skyfix.solve(np.random.default_rng(0).normal(100.0, 5.0, (960, 1280)).astype(np.float32))
+    assert not sol.solved and sol.detection_sigma == DETECT_SIGMA and "3.5 σ" not in sol.reason
 
 
 def test_an_ordinary_frame_is_found_at_the_default_threshold():
