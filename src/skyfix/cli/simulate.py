@@ -54,9 +54,9 @@ def _sensor_arg(value: str | None):
 
 
 def _check_time(value: str | None) -> None:
-    """``--time``: a time the simulator reads (ISO 8601), checked before any work."""
+    """``--time``: a time (:func:`skyfix.obstime.parse_time`, as solve's), checked before any work."""
     if value is not None:
-        from skyfix.simulate.scene import parse_time
+        from skyfix.obstime import parse_time
 
         with checking("--time", value):
             parse_time(value)
@@ -74,7 +74,8 @@ def simulate(
     sensor: str = typer.Option(None, "--sensor", help="Sensor preset name or TOML file."),
     exposure: float = typer.Option(None, "--exposure", help="Exposure, seconds (default: the preset's)."),
     time: str = typer.Option(None, "--time",
-                             help="Mid-exposure time of the first frame, ISO 8601 (default: now)."),
+                             help="Mid-exposure time of the first frame, ISO 8601 (UTC unless it says so) "
+                                  "or a Julian epoch J2026.25 (default: now)."),
     seed: int = typer.Option(0, "--seed", help="Noise seed (same seed, same image, bit for bit)."),
     false_stars: int = typer.Option(0, "--false-stars", help="False stars / debris to add."),
     hot_pixels: int = typer.Option(0, "--hot-pixels", help="Hot pixels to add."),
