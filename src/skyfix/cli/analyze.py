@@ -16,6 +16,7 @@ from pathlib import Path
 import typer
 
 from skyfix.cli.common import (
+    EPOCH_HELP,
     VERBOSE,
     OneLineErrors,
     add_verbosity,
@@ -227,7 +228,7 @@ def psf(
 @guarded
 def photometry(
     images: list[Path] = typer.Argument(..., help="Sky images to solve and calibrate."),
-    epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: now)."),
+    epoch: float = typer.Option(None, "--epoch", help=EPOCH_HELP),
     fov: float = typer.Option(None, "--fov", help="Horizontal field of view, degrees (optional)."),
     flux: str = typer.Option("psf", "--flux", help="Flux estimator: psf, aperture, extractor."),
     json_out: bool = typer.Option(False, "--json", help="One JSON line per image, then one for the set."),

@@ -31,15 +31,19 @@ import typer
 from skyfix.errors import DatabaseError, ImageReadError, InputError, SkyfixError
 
 __all__ = [
-    "VERBOSE", "OneLineErrors", "add_verbosity", "calibration_maps", "checking", "compile_notice",
-    "counter_bar", "error_line", "fail", "guarded", "input_error_line", "load_camera", "load_database",
-    "output_names", "output_paths", "prepare_outputs", "reset_verbosity",
+    "EPOCH_HELP", "VERBOSE", "OneLineErrors", "add_verbosity", "calibration_maps", "checking",
+    "compile_notice", "counter_bar", "error_line", "fail", "guarded", "input_error_line", "load_camera",
+    "load_database", "output_names", "output_paths", "prepare_outputs", "reset_verbosity",
 ]
 
 #: ``-v`` / ``-vv``: a counted flag (it takes no value), on ``skyfix`` itself and on commands.
 VERBOSE = typer.Option(0, "--verbose", "-v", count=True, metavar="", show_default=False,
                        help="-v: say what each stage decided; -vv: debug detail and tracebacks "
                             "(a counted flag: it takes no value).")
+
+#: ``--epoch``, the same in every command that solves (solve, track, analyze photometry).
+EPOCH_HELP = ("Catalogue epoch, Julian year: where proper motion moves the stars to (default: the "
+              "observation time's, from --time, DATE-OBS or EXIF, else the pattern database's).")
 
 _state = {"verbosity": 0}
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import typer
 
 from skyfix.cli.common import (
+    EPOCH_HELP,
     VERBOSE,
     add_verbosity,
     calibration_maps,
@@ -66,7 +67,7 @@ def solve(
     fov_tolerance: float = typer.Option(None, "--fov-tolerance",
                                         help="Allowed error of --fov, degrees (default 10%)."),
     camera_file: str = typer.Option(None, "--camera", help="Camera TOML file or preset name."),
-    epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: now)."),
+    epoch: float = typer.Option(None, "--epoch", help=EPOCH_HELP),
     method: str = typer.Option("svd", "--attitude", help="Wahba solver: svd, quest, esoq2, q-method, triad."),
     identify_method: str = typer.Option(
         "quad-hash", "--method", metavar="NAME",
