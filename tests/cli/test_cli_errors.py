@@ -196,7 +196,9 @@ def test_unusable_files_one_line(tmp_path, kind, expected):
     (np.zeros((480, 640), np.uint8), "blank frame: every pixel is 0 (lens cap on, or no exposure?)"),
     (np.full((480, 640), 255, np.uint8),
      "saturated frame: 100% of the pixels at full scale 255 (overexposed?)"),
-    (np.zeros((1, 1), np.uint8), "the image is 1×1 pixels, too small to hold stars"),
+    (np.zeros((1, 1), np.uint8),
+     "the image is 1×1 pixels, too small for any star field (a solve needs three or "
+     "more stars, a few pixels apart: give the whole frame, at least 32×32)"),
 ])
 def test_featureless_frames_fail_saying_which(tmp_path, pixels, reason, database):
     from PIL import Image

@@ -356,5 +356,6 @@ def _summary(sol) -> str:
             f"roll {sol.center_roll_deg:.3f}° "
             f"FOV {sol.fov_deg:.3f}° | {sol.n_matched}/{sol.n_detected} stars, rmse {sol.rmse_arcsec:.1f}″, "
             f"σ(x,y,roll) {sig[0]:.1f}″ {sig[1]:.1f}″ {sig[2]:.0f}″, P(false) {sol.prob_false:.1e} | "
-            f"{sol.time_ms.get('total', 0):.1f} ms{path}{mirrored}{where}{summary_suffix(sol)}")
+            f"{sol.time_ms.get('total', 0):.1f} ms{path}{mirrored}{where}{summary_suffix(sol)}"
+            + "".join(f" | {w}" for w in sol.warnings))
 
