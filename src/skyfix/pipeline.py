@@ -296,7 +296,8 @@ def solve_centroids(
                                    camera=camera, database=database, epoch=epoch,
                                    identify_method=identify_method, identify_options=identify_options)
     fov_failure = ""
-    if not ident.success and fov_deg is not None and camera is None and _searched(database, fov_deg):
+    if (not ident.success and fov_deg is not None and camera is None
+            and identify_method.lower() in _BLIND_METHODS and _searched(database, fov_deg)):
         # A FOV hint that matched nothing may be wrong: the frame is searched without it, and the
         # Solution says the hint was not used (warnings) — or, failing too, what both said.
         fov_failure = ident.reason
@@ -350,13 +351,19 @@ def solve_centroids(
     return sol
 
 
-def _searched(database, fov_deg: float) -> bool:
-    """Whether a search at ``fov_deg`` ran: a given database that does not serve it refuses it
-    (its reason says how to build one that does), and then the hint is not what failed."""
-    if database is None:
-        return True
-    from skyfix.identify.catalogue.bands import served_fov_deg
+#: The identification methods that search without a FOV (the others need the scale), so that a
+#: FOV hint that matched nothing can be left out.
+_BLIND_METHODS = ("quad-hash", "hash")
 
+
+def _searched(database, fov_deg: float) -> bool:
+    """Whether a search at ``fov_deg`` ran: a database (given, or the default bands) that does not
+    serve it refuses it — its reason says how to build one that does — and then the hint is not
+    what failed."""
+    from skyfix.identify.catalogue.bands import bands_for, served_fov_deg
+
+    if database is None:
+        return bool(bands_for(fov_deg, fov_deg))
     lo, hi = served_fov_deg(database)
     return lo <= fov_deg <= hi
 

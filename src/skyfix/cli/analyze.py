@@ -18,6 +18,7 @@ import typer
 from skyfix.cli.common import (
     EPOCH_HELP,
     VERBOSE,
+    LineProgress,
     OneLineErrors,
     add_verbosity,
     checking,
@@ -41,11 +42,14 @@ analyze_app = typer.Typer(cls=OneLineErrors, no_args_is_help=True, pretty_except
 
 
 def _progress(total: int, quiet: bool):
-    """A transient progress bar on stderr, shown only on a terminal (and not when ``quiet``)."""
+    """Progress on stderr (not when ``quiet``): a transient bar on a terminal, a line per step
+    off one (:class:`~skyfix.cli.common.LineProgress`: ``skyfix: what 3/20 (12 s)``)."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     console = Console(stderr=True)
+    if not quiet and not console.is_terminal:
+        return LineProgress()
     return Progress(TextColumn("[progress.description]{task.description}"), BarColumn(), MofNCompleteColumn(),
                     TimeRemainingColumn(), console=console, transient=True,
                     disable=quiet or not console.is_terminal)

@@ -8,7 +8,6 @@ runs, not when the command table is set up: every ``skyfix`` start loads this mo
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 
 import typer
@@ -252,5 +251,6 @@ def _numbers(text: str, n: int, option: str, form: str) -> list[float]:
 
 
 def _simulate_progress(n: int):
-    """A progress bar on stderr while a sequence renders (not for one frame, nor off a terminal)."""
-    return counter_bar("rendering", n) if n >= 2 and sys.stderr.isatty() else None
+    """Progress on stderr while a sequence renders (not for one frame): a bar on a terminal, a
+    line per frame off one."""
+    return counter_bar("rendering", n) if n >= 2 else None

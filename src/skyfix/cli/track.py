@@ -222,8 +222,11 @@ def gyro_rates(samples: np.ndarray, times: list[float]) -> list[np.ndarray | Non
 
 
 def _progress(n: int, quiet: bool):
-    """A progress bar on stderr for long sequences (not when piping JSON, not off a terminal)."""
-    return counter_bar("tracking", n) if n >= 20 and not quiet and sys.stderr.isatty() else None
+    """Progress on stderr for sequences of 20 frames or more: a bar on a terminal (not under
+    --json), a line per frame off one."""
+    if n < 20 or quiet and sys.stderr.isatty():
+        return None
+    return counter_bar("tracking", n)
 
 
 def _summary(sol) -> str:
