@@ -12,6 +12,7 @@ of the top-left pixel. Camera ``+z`` is the boresight, ``+x`` toward increasing 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import operator
 from dataclasses import dataclass
@@ -249,19 +250,25 @@ class Camera:
                 & (xy[..., 1] >= -0.5 + margin) & (xy[..., 1] <= self.height - 0.5 - margin))
 
     # --- TOML ---------------------------------------------------------------------------
-    def to_toml(self) -> str:
-        """The ``[camera]`` table (docs/design.md#camera-file-toml) as TOML text."""
-        lines = ["[camera]"]
-        if self.name:
-            lines.append(f'name = "{self.name}"')
-        lines += [f"width = {int(self.width)}", f"height = {int(self.height)}"]
+    def to_dict(self) -> dict:
+        """The ``[camera]`` table (docs/design.md#camera-file-toml) as a dict: what
+        :meth:`to_toml` writes and :meth:`from_dict` reads (the ``camera`` field of a solve's JSON)."""
+        table: dict = {"name": self.name} if self.name else {}
+        table.update(width=int(self.width), height=int(self.height))
         if self.projection != "pinhole":
-            lines.append(f'projection = "{self.projection}"')
-        keys = _INTRINSICS + PROJECTIONS[self.projection].coefficients
-        lines += [f"{k} = {float(getattr(self, k))!r}" for k in keys]
+            table["projection"] = self.projection
+        for k in _INTRINSICS + PROJECTIONS[self.projection].coefficients:
+            table[k] = float(getattr(self, k))
         for k in ("pixel_pitch_um", "focal_length_mm"):
             if getattr(self, k) is not None:
-                lines.append(f"{k} = {float(getattr(self, k))!r}")
+                table[k] = float(getattr(self, k))
+        return table
+
+    def to_toml(self) -> str:
+        """The ``[camera]`` table (:meth:`to_dict`) as TOML text."""
+        lines = ["[camera]"]
+        for k, v in self.to_dict().items():
+            lines.append(f"{k} = {json.dumps(v) if isinstance(v, str) else repr(v)}")
         return "\n".join(lines) + "\n"
 
     def save(self, path: str | Path) -> None:

@@ -53,7 +53,7 @@ from skyfix.errors import ImageReadError, unknown_name
 
 __all__ = ["read_image", "read_image_with_header", "as_image", "file_format",
            "ImageFile", "DECODERS", "DECODER_CHAINS",
-           "MAX_NONFINITE_FRACTION"]
+           "IMAGE_SUFFIXES", "MAX_NONFINITE_FRACTION"]
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +63,8 @@ MAX_NONFINITE_FRACTION = 0.5
 _LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
 _FITS_SUFFIXES = (".fits", ".fit", ".fts", ".fits.gz", ".fit.gz", ".fts.gz")
 _TIFF_SUFFIXES = (".tif", ".tiff")
+#: The file names taken as images when a folder is given (``skyfix solve FOLDER``), lower case.
+IMAGE_SUFFIXES = (*_FITS_SUFFIXES, *_TIFF_SUFFIXES, ".png", ".jpg", ".jpeg")
 _TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 _JPEG_MAGIC = b"\xff\xd8\xff"

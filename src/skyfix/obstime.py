@@ -31,10 +31,11 @@ from __future__ import annotations
 
 import logging
 import math
+import numbers
 import re
 import warnings
 from collections.abc import Mapping
-from datetime import datetime, timedelta
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import NamedTuple
 
@@ -245,9 +246,11 @@ def _from_jd_tt(jd_tt: float, source: str, uncertainty_s: float = 0.0) -> Observ
     return ObservationTime(jd_tt, source, _iso_utc(jd1, jd_tt - jd1), uncertainty_s)
 
 
-def parse_time(text: str | datetime, source: str = "--time") -> ObservationTime:
+def parse_time(text: str | datetime | float, source: str = "--time") -> ObservationTime:
     """The time ``text`` names: ISO 8601 (UTC unless it carries ``Z`` or an offset), or a Julian
-    epoch ``J2026.25`` (TT); a ``datetime`` (naive = UTC) too.
+    epoch ``J2026.25`` (TT); a ``datetime`` (naive = UTC), a Julian year as a number (TT, as
+    ``J…``) and an ``astropy.time.Time`` too. skyfix's one reader of times (``--time``,
+    ``time=``, a simulation's ``epoch``).
 
     Raises :class:`~skyfix.errors.InputError` for text that is not a time and for a time outside
     1900–2100.
@@ -257,6 +260,12 @@ def parse_time(text: str | datetime, source: str = "--time") -> ObservationTime:
     >>> round(julian_year(parse_time("J2026.25")), 6)
     2026.25
     """
+    if hasattr(text, "to_datetime") and not isinstance(text, datetime):  # astropy Time
+        text = text.to_datetime(timezone=timezone.utc)
+    if isinstance(text, numbers.Real) and not isinstance(text, bool):
+        if not math.isfinite(float(text)):
+            raise InputError(f"{source}: a Julian year must be finite, got {text}")
+        text = f"J{float(text):.10f}"
     if isinstance(text, datetime):
         offset = text.utcoffset()
         f = _Fields(text.year, text.month, text.day, text.hour, text.minute,

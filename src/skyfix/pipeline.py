@@ -324,6 +324,17 @@ def solve_centroids(
     ident, assumed = identify_lost(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
                                    camera=camera, database=database, epoch=epoch,
                                    identify_method=identify_method, identify_options=identify_options)
+    fov_failure = ""
+    if (not ident.success and fov_deg is not None and camera is None
+            and identify_method.lower() in _BLIND_METHODS and _searched(database, fov_deg)):
+        # A FOV hint that matched nothing may be wrong: the frame is searched without it, and the
+        # Solution says the hint was not used (warnings) — or, failing too, what both said.
+        fov_failure = ident.reason
+        log.info("%s: nothing matched at the FOV hint %g° (%s): solving without it", name, fov_deg,
+                 fov_failure)
+        ident, assumed = identify_lost(xy, width, height, fov_deg=None, fov_tolerance_deg=None, camera=None,
+                                       database=database, epoch=epoch, identify_method=identify_method,
+                                       identify_options=identify_options)
     if assumed is not None:
         fit_options["camera_given"] = True
         log.info("%s: identified through the %s preset's camera (its %d×%d size)", name, assumed, width,
@@ -333,6 +344,9 @@ def solve_centroids(
     sol.method = ident.method
     if not ident.success:
         sol.reason = ident.reason + (f"; attitude hint: {hint_failure}" if hint_failure else "")
+        if fov_failure:
+            sol.reason += (f"; with the FOV hint {fov_deg:g}° too ({fov_failure}): if the field of view "
+                           "is known, check it; else solve without it")
         log.info("%s: identification failed: %s", name, ident.reason)
         return sol
     _fill_attitude(sol, xy, ident, attitude_method, **fit_options)
@@ -356,9 +370,31 @@ def solve_centroids(
     if sol.solved:
         log.info("%s: solved with %d stars, P(false) %.2g, rmse %.2f″", name, sol.n_matched,
                  sol.prob_false, sol.rmse_arcsec)
+        if fov_failure:
+            sol.warnings.append(f"the FOV hint {fov_deg:g}° was not used: nothing matched at it "
+                                f"({fov_failure}); solved without it, the stars give {sol.fov_deg:.3f}°")
+        if hint_failure:
+            sol.warnings.append(f"the attitude hint was not used ({hint_failure}): solved lost in space")
     elif hint_failure:
         sol.reason += f"; attitude hint: {hint_failure}"
     return sol
+
+
+#: The identification methods that search without a FOV (the others need the scale), so that a
+#: FOV hint that matched nothing can be left out.
+_BLIND_METHODS = ("quad-hash", "hash")
+
+
+def _searched(database, fov_deg: float) -> bool:
+    """Whether a search at ``fov_deg`` ran: a database (given, or the default bands) that does not
+    serve it refuses it — its reason says how to build one that does — and then the hint is not
+    what failed."""
+    from skyfix.identify.catalogue.bands import bands_for, served_fov_deg
+
+    if database is None:
+        return bool(bands_for(fov_deg, fov_deg))
+    lo, hi = served_fov_deg(database)
+    return lo <= fov_deg <= hi
 
 
 def _warm(database, fov_deg: float | None, camera: Camera | None) -> None:

@@ -166,6 +166,20 @@ class Solution:
             self.matches = [m._replace(x=(width - 1) - m.x) for m in value]
 
     @property
+    def frame_camera(self):
+        """The fitted (or given) camera of the frame as stored — what ``--camera FILE.toml`` and
+        :meth:`Camera.load <skyfix.camera.Camera.load>` read, so the next frame of that camera can
+        use it; for a mirror image, :attr:`camera` (the flipped frame's) mirrored back. None unless
+        solved."""
+        if not self.solved or self.camera is None:
+            return None
+        if self.mirrored:
+            from skyfix.parity import mirror_camera
+
+            return mirror_camera(self.camera)
+        return self.camera
+
+    @property
     def center_px(self) -> list[float] | None:
         """The image centre's pixel, ``[(W − 1)/2, (H − 1)/2]`` (None unless solved)."""
         if self.camera is None:
@@ -228,9 +242,9 @@ class Solution:
                 out["center_px"] = self.center_px
         d = out
         d.pop("A_apparent_to_cam")
+        camera = self.frame_camera
+        d["camera"] = camera.to_dict() if hasattr(camera, "to_dict") else None
         d["matches"] = matches
-        if not self.reason:
-            d.pop("reason")
         for key in _TRACKING_FIELDS + _OBSERVATION_FIELDS:
             if d[key] is None:
                 del d[key]

@@ -26,6 +26,7 @@ import typer.main
 from typer.testing import CliRunner
 
 from skyfix.cli import app
+from skyfix.identify.catalogue.bands import STANDARD
 from tests.conftest import EXAMPLES, ROOT
 
 IMAGE = str(EXAMPLES / "sky.png")
@@ -57,6 +58,9 @@ BASE: dict[tuple[str, ...], list[str]] = {
     ("calibrate", "stars"): [IMAGE, IMAGE, IMAGE, "-o", "cam.toml"],
     ("calibrate", "checkerboard"): [IMAGE, IMAGE, IMAGE, "-o", "cam.toml"],
     ("calibrate", "frames"): ["--darks", IMAGE, "-o", "maps.fits"],
+    ("database", "info"): [str(STANDARD.path)],
+    ("cache", "info"): [],
+    ("cache", "clear"): ["--dry-run"],  # a bad option must stop it before it removes anything
 }
 
 

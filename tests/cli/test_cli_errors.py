@@ -147,11 +147,12 @@ def test_batch_goes_on_past_an_unreadable_file(tmp_path, database):
     result = _run("solve", "--json", EXAMPLE, empty, EXAMPLE)
     assert result.exit_code == 2
     assert result.stderr.splitlines() == [f"skyfix: error: {empty}: empty file"]
-    solved = [json.loads(line) for line in result.stdout.splitlines()]
-    assert [d["status"] for d in solved] == ["solved", "solved"]
+    records = [json.loads(line) for line in result.stdout.splitlines()]
+    assert [d["status"] for d in records] == ["solved", "error", "solved"]  # a record for every input
+    assert records[1] == {"image": str(empty), "status": "error", "reason": "empty file"}
     # The error line comes between the two images' lines.
     lines = result.output.splitlines()
-    assert lines[1].startswith("skyfix: error:") and len(lines) == 3
+    assert lines[1].startswith("skyfix: error:") and len(lines) == 4
 
 
 def test_missing_file_message_names_it_once(tmp_path):
@@ -174,7 +175,7 @@ def test_a_flag_given_a_value_says_so(database):
 
 # --- nasty frames ---------------------------------------------------------------------------------
 @pytest.mark.parametrize(("kind", "expected"), [
-    ("directory", "is a directory, not an image"),
+    ("directory", "no images in the folder (FITS, TIFF, PNG or JPEG:"),  # a folder is its images
     ("empty", "empty file"),
     ("nan", "10000 of 10000 pixels are NaN or infinite"),
 ])
@@ -188,14 +189,16 @@ def test_unusable_files_one_line(tmp_path, kind, expected):
         from astropy.io import fits
 
         fits.PrimaryHDU(np.full((100, 100), np.nan, np.float32)).writeto(path)
-    assert _one_error(_run("solve", path)) == f"{path}: {expected}"
+    assert _one_error(_run("solve", path)).startswith(f"{path}: {expected}")
 
 
 @pytest.mark.parametrize(("pixels", "reason"), [
     (np.zeros((480, 640), np.uint8), "blank frame: every pixel is 0 (lens cap on, or no exposure?)"),
     (np.full((480, 640), 255, np.uint8),
      "saturated frame: 100% of the pixels at full scale 255 (overexposed?)"),
-    (np.zeros((1, 1), np.uint8), "the image is 1×1 pixels, too small to hold stars"),
+    (np.zeros((1, 1), np.uint8),
+     "the image is 1×1 pixels, too small for any star field (a solve needs three or "
+     "more stars, a few pixels apart: give the whole frame, at least 32×32)"),
 ])
 def test_featureless_frames_fail_saying_which(tmp_path, pixels, reason, database):
     from PIL import Image

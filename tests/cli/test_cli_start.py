@@ -31,7 +31,7 @@ HEAVY = ("numpy", "numba", "llvmlite", "scipy", "astropy", "matplotlib", "dask",
 COMMAND_TABLE = {"skyfix", "skyfix._kernels", "skyfix._numba_lapack", "skyfix.errors", "skyfix.validate",
                  *(f"skyfix.cli{m}" for m in ("", ".common", ".solve", ".detect", ".simulate", ".warmup",
                                              ".track", ".montecarlo", ".database", ".analyze", ".calibrate",
-                                             ".observation"))}
+                                             ".observation", ".records", ".inputs", ".cache"))}
 
 _DRIVER = textwrap.dedent("""
     import json, sys

@@ -119,12 +119,21 @@ def test_extract_centroids_rejects_bad_arguments(kw):
     (np.zeros((480, 640)), "blank frame: every pixel is 0 (lens cap on, or no exposure?)"),
     (np.full((480, 640), 1234.0), "blank frame: every pixel is 1234 (lens cap on, or no exposure?)"),
     (np.full((480, 640), 255.0), "saturated frame: 100% of the pixels at full scale 255 (overexposed?)"),
-    (np.zeros((1, 1)), "the image is 1×1 pixels, too small to hold stars"),
+    (np.zeros((1, 1)), "the image is 1×1 pixels, too small for any star field (a solve needs three or "
+     "more stars, a few pixels apart: give the whole frame, at least 32×32)"),
 ])
 def test_featureless_frames_say_which(image, reason, database):
     sol = solve(image, database=database)
     assert sol.status == "failed"
     assert sol.reason == f"too few stars detected (0; need at least 3): {reason}"
+
+
+def test_a_tiny_frame_says_it_is_too_small_for_any_star(database):
+    """A 10×10 frame of noise (issue 28: it said only "too few stars")."""
+    sol = solve(np.random.default_rng(0).normal(40.0, 3.0, (10, 10)), database=database)
+    assert sol.status == "failed" and sol.reason.endswith(
+        "the image is 10×10 pixels, too small for any star field (a solve needs three or more stars, a few "
+        "pixels apart: give the whole frame, at least 32×32)")
 
 
 def test_mostly_saturated_frame_says_so(database):

@@ -209,3 +209,20 @@ def test_no_time_has_no_julian_year():
     assert not NO_TIME.known and NO_TIME.source == "none"
     with pytest.raises(InputError, match="no observation time"):
         julian_year(NO_TIME)
+
+
+def test_one_reader_of_times_takes_every_form():
+    """skyfix.obstime.parse_time is the one time reader (issue 28: the simulator had its own): ISO
+    text, a Julian epoch as text or a number (TT), a datetime, an astropy Time name one instant."""
+    from astropy.time import Time
+
+    iso = parse_time("2026-03-01T22:00:00Z")
+    assert parse_time(datetime(2026, 3, 1, 22, tzinfo=timezone.utc)) == parse_time(datetime(2026, 3, 1, 22))
+    assert parse_time(Time("2026-03-01T22:00:00", scale="utc")).jd_tt == iso.jd_tt
+    assert parse_time(datetime(2026, 3, 1, 22)).jd_tt == iso.jd_tt
+    assert parse_time(2025.5).jd_tt == parse_time("J2025.5").jd_tt
+    assert julian_year(parse_time(np.float64(2025.5))) == pytest.approx(2025.5, abs=1e-12)
+    with pytest.raises(InputError, match="finite"):
+        parse_time(float("nan"))
+    with pytest.raises(InputError, match="1900"):
+        parse_time(1800.0)

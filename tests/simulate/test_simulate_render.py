@@ -13,7 +13,7 @@ from skyfix.errors import CameraError, SimulationError, SkyfixError, UnknownName
 from skyfix.geometry import angle_between, attitude_from_radec_roll
 from skyfix.simulate import Optics, Sensor, load_preset, render, render_sequence, star_electrons, write_frame
 from skyfix.simulate.psf import add_gaussians
-from skyfix.simulate.scene import parse_time
+from skyfix.simulate.scene import simulation_time
 
 EPOCH = 2025.0
 A0 = attitude_from_radec_roll(math.radians(40.0), math.radians(20.0), math.radians(30.0))
@@ -252,7 +252,7 @@ def test_sequence_moves_and_matches_single_render():
     single = render(A0, "generic", rate_rad_s=rate, epoch=EPOCH, seed=4, mag_limit=6.5)
     assert np.array_equal(frames[0].image, single.image)
     assert not np.array_equal(frames[0].image, frames[1].image)
-    t0, t1 = (parse_time(f.truth["time"])[0] for f in frames[:2])
+    t0, t1 = (simulation_time(f.truth["time"])[0] for f in frames[:2])
     assert (t1 - t0) * 365.25 * 86400 == pytest.approx(0.1, abs=1e-3)
     q = [np.array(f.truth["quaternion_xyzw"]) for f in frames]
     ang = 2 * math.acos(min(1.0, abs(float(q[0] @ q[2]))))
@@ -289,7 +289,8 @@ def test_write_fits_png_tiff_and_truth(tmp_path):
     with fits.open(p) as hdul:
         assert np.array_equal(hdul[0].data, f.image)
         h = hdul[0].header
-        assert h["TRU_RA"] == pytest.approx(40.0) and h["DATE-AVG"].startswith("2024-12-31T18:00")  # J2025.0
+        # J2025.0 is 18:00 TT, 69.184 s later than UTC (a Julian year is TT, as obstime reads it)
+        assert h["TRU_RA"] == pytest.approx(40.0) and h["DATE-AVG"] == "2024-12-31T17:58:50.816"
         # DATE-OBS is the exposure's start (FITS), half an exposure before the middle
         start = datetime.fromisoformat(h["DATE-OBS"]) + timedelta(seconds=0.5 * h["EXPTIME"])
         assert start == datetime.fromisoformat(h["DATE-AVG"])

@@ -21,7 +21,7 @@ import sys
 import typer
 
 from skyfix import __version__
-from skyfix.cli import analyze, calibrate, database, detect, montecarlo, simulate, solve, track, warmup
+from skyfix.cli import analyze, cache, calibrate, database, detect, montecarlo, simulate, solve, track, warmup
 from skyfix.cli.common import VERBOSE, OneLineErrors, add_verbosity, reset_verbosity
 
 __all__ = ["app", "main"]
@@ -89,6 +89,7 @@ app.command("montecarlo")(montecarlo.montecarlo)
 app.add_typer(database.database_app, name="database")
 app.add_typer(analyze.analyze_app, name="analyze")
 app.add_typer(calibrate.calibrate_app, name="calibrate")
+app.add_typer(cache.cache_app, name="cache")
 
 
 def main() -> None:  # pragma: no cover - console entry point

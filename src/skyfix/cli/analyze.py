@@ -16,7 +16,9 @@ from pathlib import Path
 import typer
 
 from skyfix.cli.common import (
+    EPOCH_HELP,
     VERBOSE,
+    LineProgress,
     OneLineErrors,
     add_verbosity,
     checking,
@@ -40,11 +42,14 @@ analyze_app = typer.Typer(cls=OneLineErrors, no_args_is_help=True, pretty_except
 
 
 def _progress(total: int, quiet: bool):
-    """A transient progress bar on stderr, shown only on a terminal (and not when ``quiet``)."""
+    """Progress on stderr (not when ``quiet``): a transient bar on a terminal, a line per step
+    off one (:class:`~skyfix.cli.common.LineProgress`: ``skyfix: what 3/20 (12 s)``)."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     console = Console(stderr=True)
+    if not quiet and not console.is_terminal:
+        return LineProgress()
     return Progress(TextColumn("[progress.description]{task.description}"), BarColumn(), MofNCompleteColumn(),
                     TimeRemainingColumn(), console=console, transient=True,
                     disable=quiet or not console.is_terminal)
@@ -227,7 +232,7 @@ def psf(
 @guarded
 def photometry(
     images: list[Path] = typer.Argument(..., help="Sky images to solve and calibrate."),
-    epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: now)."),
+    epoch: float = typer.Option(None, "--epoch", help=EPOCH_HELP),
     fov: float = typer.Option(None, "--fov", help="Horizontal field of view, degrees (optional)."),
     flux: str = typer.Option("psf", "--flux", help="Flux estimator: psf, aperture, extractor."),
     json_out: bool = typer.Option(False, "--json", help="One JSON line per image, then one for the set."),

@@ -31,15 +31,19 @@ import typer
 from skyfix.errors import DatabaseError, ImageReadError, InputError, SkyfixError
 
 __all__ = [
-    "VERBOSE", "OneLineErrors", "add_verbosity", "calibration_maps", "checking", "compile_notice",
-    "counter_bar", "error_line", "fail", "guarded", "input_error_line", "load_camera", "load_database",
-    "output_names", "output_paths", "prepare_outputs", "reset_verbosity",
+    "EPOCH_HELP", "VERBOSE", "LineProgress", "OneLineErrors", "add_verbosity", "calibration_maps",
+    "checking", "compile_notice", "counter_bar", "error_line", "fail", "guarded", "input_error_line",
+    "load_camera", "load_database", "output_names", "output_paths", "prepare_outputs", "reset_verbosity",
 ]
 
 #: ``-v`` / ``-vv``: a counted flag (it takes no value), on ``skyfix`` itself and on commands.
 VERBOSE = typer.Option(0, "--verbose", "-v", count=True, metavar="", show_default=False,
                        help="-v: say what each stage decided; -vv: debug detail and tracebacks "
                             "(a counted flag: it takes no value).")
+
+#: ``--epoch``, the same in every command that solves (solve, track, analyze photometry).
+EPOCH_HELP = ("Catalogue epoch, Julian year: where proper motion moves the stars to (default: the "
+              "observation time's, from --time, DATE-OBS or EXIF, else the pattern database's).")
 
 _state = {"verbosity": 0}
 
@@ -411,7 +415,12 @@ def calibration_maps(calibration: Path | None, dark: Path | None, flat: Path | N
 # --- progress bars -------------------------------------------------------------------------------------
 def counter_bar(label: str, total: int) -> Any:
     """A transient progress bar on stderr, started: ``LABEL ━━━━━━ 3/20 0:00:05`` (the caller
-    advances task 0 and stops it; whether to show one at all is the caller's choice)."""
+    advances task 0 and stops it; whether to show one at all is the caller's choice); off a
+    terminal, a :class:`LineProgress`: ``skyfix: LABEL 3/20 (5 s)``, a line per step."""
+    if not sys.stderr.isatty():
+        progress = LineProgress()
+        progress.add_task(label, total=total)
+        return progress
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -420,6 +429,63 @@ def counter_bar(label: str, total: int) -> Any:
     progress.add_task(label, total=total)
     progress.start()
     return progress
+
+
+class LineProgress:
+    """Progress as lines on stderr, for when it is not a terminal (a pipe, a log file): one line
+    when a task starts, and one each time it advances — ``skyfix: TITLE 3/20: STEP (12 s)``, the
+    title the task's first description, the step its latest. It takes the calls a
+    :class:`rich.progress.Progress` takes here (``add_task``, ``update``, ``advance``,
+    ``remove_task``, ``start``, ``stop``, a ``with`` block), so a command drives either the same
+    way; a task with no total (a spinner: the compile notice, which logs its own line) prints
+    nothing."""
+
+    def __init__(self) -> None:
+        self._tasks: dict[int, dict[str, Any]] = {}
+        self._t0 = time.perf_counter()
+
+    def __enter__(self) -> LineProgress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def start(self) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+    def add_task(self, description: str, total: float | None = None, **_: Any) -> int:
+        task = len(self._tasks)
+        self._tasks[task] = {"title": description, "step": description, "total": total, "completed": 0}
+        self._line(task)
+        return task
+
+    def remove_task(self, task: int) -> None:
+        self._tasks.pop(task, None)
+
+    def advance(self, task: int, advance: float = 1) -> None:
+        self.update(task, advance=advance)
+
+    def update(self, task: int, *, advance: float | None = None, description: str | None = None,
+               **_: Any) -> None:
+        t = self._tasks.get(task)
+        if t is None:
+            return
+        if description is not None:
+            t["step"] = description
+        if advance:
+            t["completed"] += advance
+            self._line(task)
+
+    def _line(self, task: int) -> None:
+        t = self._tasks[task]
+        if t["total"] is None:
+            return
+        step = f": {t['step']}" if t["step"] != t["title"] else ""
+        typer.echo(f"skyfix: {t['title']} {t['completed']:g}/{t['total']:g}{step} "
+                   f"({time.perf_counter() - self._t0:.0f} s)", err=True)
 
 
 # --- the first run: building the database, numba compiling kernels ---------------------------------

@@ -16,10 +16,10 @@ import typer
 from skyfix.cli.common import VERBOSE, OneLineErrors, add_verbosity, checking, fail, guarded, prepare_outputs
 from skyfix.validate import check_fov_range
 
-__all__ = ["database_app", "database_build"]
+__all__ = ["database_app", "database_build", "database_info"]
 
 database_app = typer.Typer(cls=OneLineErrors, no_args_is_help=True, rich_markup_mode=None,
-                           help="Build or inspect the pattern database.")
+                           help="Build a pattern database, or say what one covers (info).")
 
 
 @database_app.command("build")
@@ -93,3 +93,35 @@ def database_build(
     db.save(path)
     typer.echo(f"wrote {path} ({len(db)} patterns of {len(db.star_ids)} stars, FOV {db.fov_min_deg:g}–"
                f"{db.fov_max_deg:g}°)")
+
+
+@database_app.command("info")
+@guarded
+def database_info(
+    path: Path = typer.Argument(..., metavar="FILE", help="A pattern database (.npz)."),
+    json_out: bool = typer.Option(False, "--json", help="The same as one JSON object."),
+    verbose: int = VERBOSE,
+) -> None:
+    """What a pattern database covers: the FOV range it was built for and the fields it serves, the
+    magnitude limit of its patterns, its stars and patterns, catalogue, epoch and file size."""
+    add_verbosity(verbose)
+    from skyfix.identify import PatternDatabase
+    from skyfix.identify.catalogue.bands import served_fov_deg
+
+    db = PatternDatabase.load(path)
+    lo, hi = served_fov_deg(db)
+    info = {"file": str(path), "size_bytes": path.stat().st_size, "fov_min_deg": db.fov_min_deg,
+            "fov_max_deg": db.fov_max_deg, "served_fov_deg": [lo, hi],
+            "pattern_mag_limit": db.meta.get("pattern_mag_limit"), "n_stars": len(db.star_ids),
+            "n_patterns": len(db), "catalog": db.meta.get("catalog", ""), "epoch": db.epoch,
+            "version": db.meta.get("version")}
+    if json_out:
+        import json
+
+        typer.echo(json.dumps(info))
+        return
+    mag = info["pattern_mag_limit"]
+    typer.echo(f"{path}: built for FOV {db.fov_min_deg:g}–{db.fov_max_deg:g}°, serves fields of "
+               f"{lo:.3g}–{hi:.3g}°; {len(db)} patterns of {len(db.star_ids)} stars"
+               f"{f' (patterns to magnitude {mag:g})' if mag is not None else ''}; catalogue "
+               f"{info['catalog'] or 'unknown'} at epoch {db.epoch:.2f}; {info['size_bytes'] / 1e6:.0f} MB")

@@ -20,8 +20,9 @@ __all__ = ["OBSERVATION_HELP", "observation_option", "observation_options", "sum
 
 #: The options' help, by flag (both commands declare them with these words).
 OBSERVATION_HELP = {
-    "--time": "Observation time, ISO 8601 (UTC unless it says so; default: the image's FITS DATE-OBS "
-              "or EXIF). Moves the catalogue to it and removes the aberration: the true attitude.",
+    "--time": "Observation time, ISO 8601 (UTC unless it says so) or a Julian epoch J2026.25 (default: "
+              "the image's FITS DATE-OBS or EXIF). Moves the catalogue to it and removes the aberration: "
+              "the true attitude.",
     "--velocity-kms": "The camera's velocity relative to the Earth's centre, km/s, GCRS axes (vx,vy,vz): "
                       "its aberration is removed with the Earth's.",
     "--site": "A camera on the ground: latitude, east longitude (degrees), height (m). Refraction per "

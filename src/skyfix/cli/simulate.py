@@ -8,7 +8,6 @@ runs, not when the command table is set up: every ``skyfix`` start loads this mo
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 
 import typer
@@ -54,9 +53,9 @@ def _sensor_arg(value: str | None):
 
 
 def _check_time(value: str | None) -> None:
-    """``--time``: a time the simulator reads (ISO 8601), checked before any work."""
+    """``--time``: a time (:func:`skyfix.obstime.parse_time`, as solve's), checked before any work."""
     if value is not None:
-        from skyfix.simulate.scene import parse_time
+        from skyfix.obstime import parse_time
 
         with checking("--time", value):
             parse_time(value)
@@ -74,7 +73,8 @@ def simulate(
     sensor: str = typer.Option(None, "--sensor", help="Sensor preset name or TOML file."),
     exposure: float = typer.Option(None, "--exposure", help="Exposure, seconds (default: the preset's)."),
     time: str = typer.Option(None, "--time",
-                             help="Mid-exposure time of the first frame, ISO 8601 (default: now)."),
+                             help="Mid-exposure time of the first frame, ISO 8601 (UTC unless it says so) "
+                                  "or a Julian epoch J2026.25 (default: now)."),
     velocity_kms: str = typer.Option(None, "--velocity-kms", metavar="VX,VY,VZ",
                                      help="The camera's velocity relative to the Earth's centre, km/s, "
                                           "GCRS axes (an orbit); the stars are aberrated by it and by "
@@ -283,5 +283,6 @@ def _numbers(text: str, n: int, option: str, form: str) -> list[float]:
 
 
 def _simulate_progress(n: int):
-    """A progress bar on stderr while a sequence renders (not for one frame, nor off a terminal)."""
-    return counter_bar("rendering", n) if n >= 2 and sys.stderr.isatty() else None
+    """Progress on stderr while a sequence renders (not for one frame): a bar on a terminal, a
+    line per frame off one."""
+    return counter_bar("rendering", n) if n >= 2 else None

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import json
 import math
 import re
 import sys
@@ -21,23 +22,26 @@ from pathlib import Path
 import typer
 
 from skyfix.cli.common import (
+    EPOCH_HELP,
     VERBOSE,
     add_verbosity,
     calibration_maps,
     checking,
     compile_notice,
+    counter_bar,
     fail,
     guarded,
-    input_error_line,
     load_camera,
     load_database,
     output_paths,
     prepare_outputs,
 )
+from skyfix.cli.inputs import expand_inputs, frame_size
 from skyfix.cli.observation import observation_option, observation_options, summary_suffix
+from skyfix.cli.records import CentroidTable, InputOutputs, solve_input
 from skyfix.validate import check_positive, check_solve_options
 
-__all__ = ["OUTPUT_NAMES_HELP", "plain_solve", "solve", "solve_parameters"]
+__all__ = ["CENTROIDS_HELP", "OUTPUT_NAMES_HELP", "plain_solve", "solve", "solve_parameters"]
 
 #: The epilog of ``skyfix solve -h``: how output files are named.
 OUTPUT_NAMES_HELP = ("Outputs are named after each image: put {stem} in the name (out/{stem}.png). "
@@ -46,21 +50,37 @@ OUTPUT_NAMES_HELP = ("Outputs are named after each image: put {stem} in the name
                      "differ (sky-png, sky-fits), -2 for a file given twice. Missing folders are "
                      "created; no output overwrites an input or another output.")
 
+#: ``--centroids``: what the table holds (README's "Solving images").
+CENTROIDS_HELP = ("Solve a table of centroids instead of an image: columns x,y[,flux], pixels, (0,0) the "
+                  "centre of the top-left pixel, brightest first unless flux is given. Needs --size.")
+
 
 @guarded
 def solve(
-    images: list[Path] = typer.Argument(..., help="Image files (FITS, PNG, TIFF, JPEG)."),
+    images: list[Path] = typer.Argument(
+        None, show_default=False,
+        help="Image files (FITS, PNG, TIFF, JPEG), folders (their images, sorted by name) and list "
+             "files @LIST.txt (one path a line, relative to the list's folder)."),
+    centroids: Path = typer.Option(None, "--centroids", metavar="FILE.csv", help=CENTROIDS_HELP),
+    size: str = typer.Option(None, "--size", metavar="W,H",
+                             help="The frame's width and height, pixels, for --centroids."),
     fov: float = typer.Option(None, "--fov", help="Horizontal field of view, degrees (optional)."),
     fov_tolerance: float = typer.Option(None, "--fov-tolerance",
                                         help="Allowed error of --fov, degrees (default 10%)."),
     camera_file: str = typer.Option(None, "--camera", help="Camera TOML file or preset name."),
-    epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: now)."),
+    epoch: float = typer.Option(None, "--epoch", help=EPOCH_HELP),
     method: str = typer.Option("svd", "--attitude", help="Wahba solver: svd, quest, esoq2, q-method, triad."),
     identify_method: str = typer.Option(
         "quad-hash", "--method", metavar="NAME",
         help="Identification method (skyfix.identify.METHODS; docs/identification-methods.md). The default "
              "tries the triangle method on sparse frames when --camera or --fov gives the scale."),
-    json_out: bool = typer.Option(False, "--json", help="One JSON Solution per image per line."),
+    json_out: bool = typer.Option(
+        False, "--json", help="One JSON record per input per line, in input order, errors included "
+                              "(fields: docs/design.md#the-solution)."),
+    save_camera: Path = typer.Option(
+        None, "--save-camera", metavar="FILE.toml",
+        help="Write the camera fitted on the frame (a --camera file for the next frame of that camera; "
+             "use {stem} for many images)."),
     wcs: Path = typer.Option(None, "--wcs", help="Write a FITS WCS header (use {stem} for many images)."),
     plot: Path = typer.Option(None, "--plot", help="Write a PNG with identified stars circled."),
     database_file: Path = typer.Option(None, "--database", help="Pattern database file (default: cached)."),
@@ -111,8 +131,11 @@ def solve(
     noise = {} if centroid_sigma is None else {"centroid_sigma_px": check_positive(centroid_sigma,
                                                                                    "--centroid-sigma")}
     _identify_method(identify_method)
-    wcs_paths, plot_paths = output_paths(wcs, images, ".wcs"), output_paths(plot, images, ".png")
-    prepare_outputs({"--wcs": wcs_paths, "--plot": plot_paths}, inputs=images)
+    sources = _sources(images, centroids, size, plot)
+    names = [s.path if isinstance(s, CentroidTable) else s for s in sources]
+    outputs = {"--wcs": output_paths(wcs, names, ".wcs"), "--plot": output_paths(plot, names, ".png"),
+               "--save-camera": output_paths(save_camera, names, ".toml")}
+    prepare_outputs(outputs, inputs=names)
     maps = calibration_maps(calibration, dark, flat)
     if mask is not None:
         from skyfix.detect.mask import as_mask
@@ -127,33 +150,29 @@ def solve(
     if hint is not None and camera is None and fov is None:
         typer.echo("skyfix: note: --attitude-hint needs the image scale (--camera or --fov); "
                    "solving lost in space", err=True)
-
-    from skyfix.pipeline import solve as solve_image
+    options = dict(fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera, database=database,
+                   epoch=epoch, attitude_method=method, attitude_hint=hint, identify_method=identify_method,
+                   **noise, **observation)
+    if parity is not None:
+        options["parity"] = parity
+    if centroids is None:
+        options.update(smear_px=smear_px, **maps)
+    elif maps or smear_px is not None:
+        fail("--calibration, --dark, --flat and --smear work on an image; a --centroids table has none")
 
     any_failed = any_error = False
-    progress = _progress(len(images), json_out)
+    progress = _progress(len(sources), json_out)
     with compile_notice(progress):
-        for path, wcs_path, plot_path in zip(images, wcs_paths, plot_paths, strict=True):
-            try:
-                sol = solve_image(path, fov_deg=fov, fov_tolerance_deg=fov_tolerance, camera=camera,
-                                  database=database, epoch=epoch, attitude_method=method, attitude_hint=hint,
-                                  identify_method=identify_method, smear_px=smear_px, parity=parity, **maps,
-                                  **noise, **observation)
-                any_failed |= not sol.solved
-                typer.echo(sol.to_json() if json_out else _summary(sol))
-                if sol.solved and wcs_path is not None:
-                    from skyfix.wcs import write_wcs
-
-                    # against the catalogue places, as a WCS is read (docs/time-and-corrections.md)
-                    write_wcs(wcs_path, sol.A_apparent_to_cam, sol.camera, mirrored=sol.mirrored)
-                if plot_path is not None:
-                    from skyfix.io import read_image
-                    from skyfix.plot import plot_solution
-
-                    plot_solution(read_image(path), sol, plot_path)
-            except Exception as exc:  # this image's error line, then the next image
-                any_error = True
-                typer.echo(f"skyfix: error: {input_error_line(exc, path)}", err=True)
+        for source, *paths in zip(sources, *outputs.values(), strict=True):
+            record, sol = solve_input(source, InputOutputs(*paths), options)
+            any_error |= sol is None
+            any_failed |= sol is not None and not sol.solved
+            if sol is None:  # on stderr with --json too, where a reader watching the batch sees it
+                typer.echo(f"skyfix: error: {record['image']}: {record['reason']}", err=True)
+            if json_out:
+                typer.echo(json.dumps(record, separators=(", ", ": ")))
+            elif sol is not None:
+                typer.echo(_summary(sol))
             if progress is not None:
                 progress.advance(0)
     if progress is not None:
@@ -254,6 +273,25 @@ def solve_parameters() -> dict[str, tuple[tuple[str, ...], type, object]] | None
     return out
 
 
+def _sources(images: list[Path] | None, centroids: Path | None, size: str | None,
+             plot: Path | None) -> list[Path | CentroidTable]:
+    """The inputs in order: images (folders and @lists expanded), or the one --centroids table."""
+    if centroids is None:
+        if size is not None:
+            fail("--size is the frame size of a --centroids table; an image gives its own")
+        if not images:
+            fail("give images to solve (files, folders, @LIST.txt) or --centroids FILE.csv --size W,H")
+        return expand_inputs(images)
+    if images:
+        fail("--centroids takes the place of images: give one or the other")
+    if size is None:
+        fail("--centroids needs --size W,H (the frame's width and height, pixels)")
+    if plot is not None:
+        fail("--plot draws on an image; a --centroids table has none")
+    width, height = frame_size(size)
+    return [CentroidTable(centroids, width, height)]
+
+
 def _solve_paths(identify_method: str, attitude_method: str, hint: bool) -> list[str]:
     """The warm-up paths (:mod:`skyfix.warmup`) a solve with these options runs: the default
     solve's, and the method's, solver's and hint's when they are not the defaults."""
@@ -298,16 +336,11 @@ def _identify_method(name: str) -> None:
 
 
 def _progress(n: int, quiet: bool):
-    """A progress bar on stderr for long batches (not for one image, not when piping JSON)."""
-    if n < 5 or quiet or not sys.stderr.isatty():
+    """Progress on stderr for batches of 5 inputs or more: a bar on a terminal (not under
+    --json), a line per input off one (``skyfix: solving 3/20 (4 s)``)."""
+    if n < 5 or quiet and sys.stderr.isatty():
         return None
-    from rich.console import Console
-    from rich.progress import Progress
-
-    progress = Progress(console=Console(stderr=True), transient=True)
-    progress.add_task("solving", total=n)
-    progress.start()
-    return progress
+    return counter_bar("solving", n)
 
 
 def _summary(sol) -> str:
@@ -327,5 +360,6 @@ def _summary(sol) -> str:
             f"roll {sol.center_roll_deg:.3f}° "
             f"FOV {sol.fov_deg:.3f}° | {sol.n_matched}/{sol.n_detected} stars, rmse {sol.rmse_arcsec:.1f}″, "
             f"σ(x,y,roll) {sig[0]:.1f}″ {sig[1]:.1f}″ {sig[2]:.0f}″, P(false) {sol.prob_false:.1e} | "
-            f"{sol.time_ms.get('total', 0):.1f} ms{path}{mirrored}{where}{summary_suffix(sol)}")
+            f"{sol.time_ms.get('total', 0):.1f} ms{path}{mirrored}{where}{summary_suffix(sol)}"
+            + "".join(f" | {w}" for w in sol.warnings))
 

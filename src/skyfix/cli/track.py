@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from skyfix.cli.common import (
+    EPOCH_HELP,
     VERBOSE,
     add_verbosity,
     checking,
@@ -57,8 +58,7 @@ def track(
                                                   "FITS frame's DATE-OBS)."),
     gyro: Path = typer.Option(None, "--gyro", help="CSV of gyro rates: t_s, x, y, z (rad/s about camera "
                                                    "x, y, z; t_s on the frames' clock, 0 at the first)."),
-    epoch: float = typer.Option(None, "--epoch", help="Observation epoch, Julian year (default: the "
-                                                      "database's)."),
+    epoch: float = typer.Option(None, "--epoch", help=EPOCH_HELP),
     database_file: Path = typer.Option(None, "--database",
                                        help="Pattern database file (default: cached)."),
     predictor: str = typer.Option("mekf", "--predictor", help="mekf, small-angle, three-point, "
@@ -222,8 +222,11 @@ def gyro_rates(samples: np.ndarray, times: list[float]) -> list[np.ndarray | Non
 
 
 def _progress(n: int, quiet: bool):
-    """A progress bar on stderr for long sequences (not when piping JSON, not off a terminal)."""
-    return counter_bar("tracking", n) if n >= 20 and not quiet and sys.stderr.isatty() else None
+    """Progress on stderr for sequences of 20 frames or more: a bar on a terminal (not under
+    --json), a line per frame off one."""
+    if n < 20 or quiet and sys.stderr.isatty():
+        return None
+    return counter_bar("tracking", n)
 
 
 def _summary(sol) -> str:

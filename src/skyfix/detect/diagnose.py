@@ -7,7 +7,11 @@ import numpy as np
 
 from skyfix.detect.saturation import saturation_level
 
-__all__ = ["SATURATED_FRACTION", "frame_problem"]
+__all__ = ["MIN_FRAME_PX", "SATURATED_FRACTION", "frame_problem"]
+
+#: A frame narrower or lower than this, pixels, cannot hold the three or more stars a solve
+#: needs, each a few pixels wide and apart from the others.
+MIN_FRAME_PX = 32
 
 #: A frame with at least this fraction of its pixels at full scale is called saturated.
 SATURATED_FRACTION = 0.25
@@ -16,15 +20,18 @@ SATURATED_FRACTION = 0.25
 def frame_problem(image: np.ndarray) -> str:
     """What is wrong with a frame as a star image, or ``""`` when nothing obvious is.
 
-    In this order: smaller than 3×3 pixels; at least :data:`SATURATED_FRACTION` of the pixels
-    at a full-scale value (:func:`~skyfix.detect.saturation_level`); every pixel the same.
+    In this order: smaller than :data:`MIN_FRAME_PX` on a side; at least
+    :data:`SATURATED_FRACTION` of the pixels at a full-scale value
+    (:func:`~skyfix.detect.saturation_level`); every pixel the same.
     """
     img = np.asarray(image)
     if img.ndim != 2 or img.size == 0:
         return ""
     h, w = img.shape
-    if h < 3 or w < 3:
-        return f"the image is {w}×{h} pixels, too small to hold stars"
+    if h < MIN_FRAME_PX or w < MIN_FRAME_PX:
+        side = f"{MIN_FRAME_PX}×{MIN_FRAME_PX}"
+        return (f"the image is {w}×{h} pixels, too small for any star field (a solve needs three or "
+                f"more stars, a few pixels apart: give the whole frame, at least {side})")
     full = saturation_level(img)
     if np.isfinite(full):
         fraction = np.count_nonzero(img >= full) / img.size

@@ -30,7 +30,7 @@ from skyfix.simulate.scene import (
     catalog_at,
     cosmic_ray_hits,
     false_star_list,
-    parse_time,
+    simulation_time,
     stray_light_map,
 )
 from skyfix.simulate.sensor import Sensor, apply_detector, fixed_pattern, noise_switches
@@ -210,7 +210,7 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
 
     warmup.ensure("simulate")  # its kernels, compiled up front on first use
     switches = noise_switches(noise)
-    epoch_jy, time_iso = parse_time(epoch)
+    epoch_jy, time_iso = simulation_time(epoch)
     rate = None if rate_rad_s is None else np.asarray(rate_rad_s, dtype=np.float64).reshape(3)
     if rate is not None and not np.all(np.isfinite(rate)):
         raise SimulationError("rate_rad_s must be three finite numbers")

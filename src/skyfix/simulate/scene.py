@@ -5,16 +5,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from datetime import datetime, timedelta, timezone
+from datetime import datetime, timezone
 
 import numpy as np
 
 from skyfix.catalog import Catalog, load_hipparcos
-from skyfix.errors import SimulationError
+from skyfix.errors import InputError, SimulationError
 from skyfix.geometry import radec_to_vector
 
 __all__ = [
-    "parse_time",
+    "simulation_time",
     "catalog_at",
     "field_radius",
     "candidate_stars",
@@ -24,41 +24,20 @@ __all__ = [
 ]
 
 UTC = timezone.utc
-_J2000 = datetime(2000, 1, 1, 12, 0, 0, tzinfo=UTC)
 
 
-def parse_time(epoch) -> tuple[float, str]:
-    """(Julian year, ISO-8601 UTC text) of ``epoch``: None (now), a Julian year (float), an ISO
-    string, a ``datetime`` (naive = UTC) or an ``astropy.time.Time``."""
-    if epoch is None:
-        when = datetime.now(UTC)
-    elif isinstance(epoch, datetime):
-        when = epoch if epoch.tzinfo else epoch.replace(tzinfo=UTC)
-    elif isinstance(epoch, (int, float, np.floating, np.integer)):
-        jy = float(epoch)
-        if not (math.isfinite(jy) and 0.0 < jy < 10000.0):
-            raise SimulationError(f"epoch must be a Julian year such as 2025.5, got {epoch}")
-        days = (jy - 2000.0) * 365.25
-        when = _J2000 + _timedelta_days(days)
-        return jy, when.isoformat(timespec="milliseconds").replace("+00:00", "Z")
-    elif isinstance(epoch, str):
-        try:
-            when = datetime.fromisoformat(epoch.strip().replace("Z", "+00:00"))
-        except ValueError:
-            raise SimulationError(f"cannot read the time {epoch!r}; use ISO 8601, e.g. 2025-03-01T22:00:00Z"
-                                  ) from None
-        when = when if when.tzinfo else when.replace(tzinfo=UTC)
-    elif hasattr(epoch, "to_datetime"):  # astropy Time
-        when = epoch.to_datetime(timezone=UTC)
-    else:
-        raise SimulationError(f"cannot use {type(epoch).__name__} as a time")
-    when = when.astimezone(UTC)
-    jy = 2000.0 + (when - _J2000).total_seconds() / (365.25 * 86400.0)
-    return jy, when.isoformat(timespec="milliseconds").replace("+00:00", "Z")
+def simulation_time(epoch) -> tuple[float, str]:
+    """(Julian year, ISO 8601 UTC text) of a simulation's ``epoch``: None for now, else any time
+    :func:`skyfix.obstime.parse_time` reads (ISO text, ``J2026.25``, a Julian year as a number,
+    a ``datetime``, an ``astropy.time.Time``); a Julian year is TT, as everywhere in skyfix.
+    Raises :class:`~skyfix.errors.SimulationError` for anything else."""
+    from skyfix.obstime import julian_year, parse_time
 
-
-def _timedelta_days(days: float) -> timedelta:
-    return timedelta(days=days)
+    try:
+        t = parse_time(datetime.now(UTC) if epoch is None else epoch, source="epoch=")
+    except InputError as exc:
+        raise SimulationError(str(exc)) from None
+    return julian_year(t), t.iso
 
 
 _CATALOG_CACHE: dict[tuple, Catalog] = {}

@@ -12,7 +12,7 @@ from skyfix.errors import SimulationError
 from skyfix.geometry import rotation_angle_between
 from skyfix.simulate.profiles import ConstantRate, Profile, profile_of
 from skyfix.simulate.render import SimulatedFrame, render, resolve_setup
-from skyfix.simulate.scene import catalog_at, parse_time
+from skyfix.simulate.scene import catalog_at, simulation_time
 
 __all__ = ["render_sequence"]
 
@@ -49,7 +49,7 @@ def render_sequence(A_icrs_to_cam: np.ndarray | None, camera, *, n_frames: int, 
     camera, sensor, optics, exposure_s = resolve_setup(camera, sensor, optics, exposure_s)
     if n_frames > 1 and exposure_s > 1.0 / fps + 1e-12:
         raise SimulationError(f"exposure {exposure_s} s is longer than the frame period {1.0 / fps:.6g} s")
-    jy0, iso0 = parse_time(epoch)
+    jy0, iso0 = simulation_time(epoch)
     t0 = datetime.fromisoformat(iso0.replace("Z", "+00:00"))
     if catalog is None:
         catalog = catalog_at(jy0, mag_limit)  # proper motion over a sequence is negligible
