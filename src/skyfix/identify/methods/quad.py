@@ -152,7 +152,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         Work bound: image 4-star combinations looked up.
     time_limit_s : float
         Work bound: wall time of the search, seconds (loading or building a band's database the
-        first time a search reaches it is not counted: a frame must not fail for a cold cache).
+        first time a search reaches it, and compiling or loading the search kernel for new argument
+        types, are not counted: a frame must not fail for a cold cache).
     epoch : float, optional
         Julian year for the catalogue positions of the result (default: the database's).
     pattern_stars : int
@@ -268,7 +269,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                              distortion, order) for distortion in hypotheses]
     total = min(len(combos), max_patterns)
     n_lookups = n_cand = 0
-    loading_s = 0.0  # spent loading databases (not counted against time_limit_s)
+    loading_s = 0.0  # spent loading databases or kernels (not counted against time_limit_s)
     while True:
         # The database that has taken the least (modelled) time so far goes next (the first one,
         # the common case, first) — its distortion hypotheses share its time — one chunk of
@@ -296,8 +297,12 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 t_load = time.perf_counter()
                 plain = search.plain()
                 loading_s += time.perf_counter() - t_load
+                known = len(search_entry.signatures)
+                t_call = time.perf_counter()
                 hit = search_entry(plain.image, search.combos(stop), start, stop, plain.focal,
                                    tier_tolerances, plain.patterns, plain.stars, verification, n_cand)
+                if len(search_entry.signatures) != known:  # compiled or loaded from numba's cache just now
+                    loading_s += time.perf_counter() - t_call
                 search.pos[tier] = start + hit.n_done
                 search.work_s += search_work(hit)
                 n_lookups += hit.n_done
