@@ -31,6 +31,7 @@ from skyfix.attitude import CENTROID_NOISE_FLOOR_PX, attitude_covariance, solve_
 from skyfix.calibrate import CameraPrior, fit_camera_with_prior
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
+from skyfix.identify import default_database
 from skyfix.identify.accept import chance_log_probability
 
 __all__ = ["FinalFit", "final_fit"]
@@ -191,8 +192,6 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
     if database is None:
         database = ident.database
     if database is None:
-        from skyfix.identify import default_database
-
         database = default_database()
     verified = _Matches(np.asarray(ident.star_index), np.asarray(ident.catalog_ids),
                         np.ascontiguousarray(ident.catalog_vectors, dtype=np.float64),

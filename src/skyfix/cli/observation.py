@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import typer
+
 from skyfix.cli.common import checking, fail
 from skyfix.errors import InputError
 
@@ -41,8 +43,6 @@ _METAVARS = {"--time": "ISO8601", "--velocity-kms": "VX,VY,VZ", "--site": "LAT,L
 def observation_option(flag: str):
     """The typer declaration of one observation option (its flag, metavar, help; ``--apparent`` a
     flag, the others text, default None)."""
-    import typer
-
     if flag == "--apparent":
         return typer.Option(False, flag, help=OBSERVATION_HELP[flag])
     return typer.Option(None, flag, metavar=_METAVARS[flag], help=OBSERVATION_HELP[flag])

@@ -71,6 +71,7 @@ from skyfix._kernels.lens import offset_ray
 from skyfix._kernels.rotation import det3, triad
 from skyfix.camera import Camera
 from skyfix.errors import InputError
+from skyfix.geometry import attitude_from_radec_roll
 from skyfix.identify.accept import (
     focal_allowed,
     is_verified,
@@ -138,8 +139,6 @@ def check_attitude_hint(value: object, name: str = "attitude_hint") -> AttitudeH
     skyfix.errors.InputError
         One line naming ``name`` (``--attitude-hint`` from the command line) and what it takes.
     """
-    from skyfix.geometry import attitude_from_radec_roll
-
     if isinstance(value, AttitudeHint):
         unc_deg = _degrees_or_nan(value.uncertainty_rad)
         _check_uncertainty(unc_deg, name)

@@ -69,11 +69,15 @@ import numpy as np
 from skyfix.attitude import CENTROID_NOISE_FLOOR_PX
 from skyfix.camera import Camera
 from skyfix.corrections.observation import observe
+from skyfix.detect import CENTROIDERS
 from skyfix.detect.centroid import centroider
-from skyfix.detect.streak import streak_model_sigma
+from skyfix.detect.streak import streak_model_sigma, streak_motion
 from skyfix.errors import CameraError, InputError
+from skyfix.identify import PatternDatabase
+from skyfix.identify.catalogue.bands import database_for_fov
 from skyfix.identify.catalogue.database import readonly_view
 from skyfix.identify.catalogue.kernel_data import StarIndex
+from skyfix.io import read_image_with_header
 from skyfix.obstime import julian_year
 from skyfix.solution import Match, Solution
 from skyfix.track import inputs
@@ -81,6 +85,7 @@ from skyfix.track import windows as win
 from skyfix.track.frame_steps import STREAK_PX, FrameSteps, WindowFit
 from skyfix.track.measure import CentroidSettings
 from skyfix.track.sky import TrackedSky
+from skyfix.validate import check_count, check_epoch, check_positive
 
 __all__ = ["DEFAULT_ACCEL_PSD", "MODES", "TrackSettings", "Tracker"]
 
@@ -199,10 +204,7 @@ class Tracker(FrameSteps):
                  solve_options: dict | None = None, calibration_options: dict | None = None, time=None,
                  observer=None, site=None, weather=None, refraction: str = "erfa", apparent: bool = False,
                  mounting=None, exclusion=None) -> None:
-        from skyfix.detect import CENTROIDERS
-        from skyfix.identify import PatternDatabase
         from skyfix.track.predictors import make_predictor
-        from skyfix.validate import check_count, check_epoch, check_positive
 
         if camera is not None and not isinstance(camera, Camera):
             raise InputError(f"camera must be a Camera (Camera.load(path)), got {type(camera).__name__}")
@@ -284,8 +286,6 @@ class Tracker(FrameSteps):
     def _use_camera(self, camera: Camera) -> None:
         """Track through ``camera`` from now on: its numbers, plate scale, the catalogue cone that
         holds its frame, and (none given) the database that serves its field."""
-        from skyfix.identify.catalogue.bands import database_for_fov
-
         if self.database is None:
             self.database = database_for_fov(camera.fov_deg)
         self.camera = camera
@@ -331,8 +331,6 @@ class Tracker(FrameSteps):
     # --- input checks (skyfix.track.inputs) ---------------------------------------------
     def _check_image(self, image, t: float) -> np.ndarray:
         if not isinstance(image, np.ndarray) and isinstance(image, (str, os.PathLike)):
-            from skyfix.io import read_image_with_header
-
             got = read_image_with_header(image)
             if self.sky.time_from_frames and self._t_last is None and self.sky.first_frame(got, image, t):
                 self.epoch = julian_year(self.sky.observation.time)  # the catalogue at the frames' epoch
@@ -462,8 +460,6 @@ class Tracker(FrameSteps):
 
     def _smear_px(self, rate: np.ndarray, t: float | None) -> np.ndarray:
         """A star's streak at the frame's centre under the body rate ``rate`` over the exposure."""
-        from skyfix.detect.streak import streak_motion
-
         cam = self.camera
         return streak_motion(cam, np.array([[cam.cx, cam.cy]]), rate, self._exposure(t))[0]
 

@@ -52,6 +52,7 @@ from skyfix.identify.common.hypothesis import failure
 from skyfix.identify.common.refine import refine_entry
 from skyfix.identify.common.result import Identification, finite_centroids
 from skyfix.identify.common.search import breadth_first_combinations, centre_first_combinations, search_entry
+from skyfix.validate import FOV_RANGE_DEG
 
 __all__ = ["METHOD", "MIRROR_NOTE", "REFUSED_HIT_COST_S", "SEARCH_COST_S", "identify", "search_work",
            "warm_kernels"]
@@ -520,8 +521,6 @@ def _outside_reason(fov: float | None, fov_lo: float | None, fov_hi: float | Non
     """The failure reason for a FOV (allowed ``fov_lo``–``fov_hi``) no database can serve (the
     database given, or every default band when ``sources`` is empty), with the commands that
     build and use one that can."""
-    from skyfix.validate import FOV_RANGE_DEG
-
     lo = max(FOV_RANGE_DEG[0], math.floor(fov_lo + 1e-9))
     hi = min(FOV_RANGE_DEG[1], math.ceil(fov_hi - 1e-9))
     out = f"patterns-{lo:g}-{hi:g}deg.npz"
