@@ -38,7 +38,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from skyfix.detect._stats import robust_level_noise
+from skyfix.detect._stats import robust_level_noise, window_border
 from skyfix.detect.centroids import Centroids, background_snr
 from skyfix.errors import unknown_name
 
@@ -343,15 +343,7 @@ def _windows(img, xs, ys, hs, how):
         x0, x1 = max(cx - hs, 0), min(cx + hs - 1, w - 1)
         if y1 - y0 < 2 or x1 - x0 < 2:
             continue
-        m = 0
-        for x in range(x0, x1 + 1):
-            buf[m] = img[y0, x]
-            buf[m + 1] = img[y1, x]
-            m += 2
-        for y in range(y0 + 1, y1):
-            buf[m] = img[y, x0]
-            buf[m + 1] = img[y, x1]
-            m += 2
+        m = window_border(img, y0, y1, x0, x1, buf)
         bg[i], nz[i] = robust_level_noise(buf[:m].copy(), 0.0, False)
     return refine_kernel(img, xs, ys, bg, nz, half, how)
 

@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from skyfix.detect._stats import robust_level_noise
+from skyfix.detect._stats import robust_level_noise, window_border
 
 __all__ = ["START_SIGMA_PX", "StreakFit", "fit_streaks"]
 
@@ -556,15 +556,7 @@ def fit_streaks(img, xy, motion, half_size, s, ig, sigma_pred):
         if y1 - y0 < 2 or x1 - x0 < 2:
             continue
         buf = np.empty(2 * (x1 - x0 + 1) + 2 * (y1 - y0 - 1))  # the sky from the window's border
-        m = 0
-        for x in range(x0, x1 + 1):
-            buf[m] = img[y0, x]
-            buf[m + 1] = img[y1, x]
-            m += 2
-        for y in range(y0 + 1, y1):
-            buf[m] = img[y, x0]
-            buf[m + 1] = img[y, x1]
-            m += 2
+        window_border(img, y0, y1, x0, x1, buf)  # fills buf: it is as long as the border
         sky, noise = robust_level_noise(buf, 0.0, False)
         out[_SKY, i] = sky
         out[_NOISE, i] = noise
