@@ -30,7 +30,7 @@ from skyfix.corrections.observation import Observation, apparent_attitude, obser
 from skyfix.errors import CameraError, InputError
 from skyfix.final_fit import final_fit
 from skyfix.identify import PatternDatabase, get_method, method_options
-from skyfix.identify.accept import noise_posterior, precision_failure
+from skyfix.identify.accept import PROB_THRESHOLD, noise_posterior, precision_failure
 from skyfix.identify.catalogue import bands
 from skyfix.identify.catalogue.bands import database_for_fov
 from skyfix.identify.lost import identify_lost, retry_through_preset
@@ -280,7 +280,7 @@ def solve_centroids(
         sol.reason = f"too few stars detected ({len(xy)}; need at least 3)"
         return sol
     fit_options = dict(camera_given=camera is not None, database=database, epoch=epoch,
-                       prob_threshold=identify_options.get("prob_threshold", 1e-9),
+                       prob_threshold=identify_options.get("prob_threshold", PROB_THRESHOLD),
                        n_img=identify_options.get("refine_stars", 200),
                        centroid_sigma_px=identify_options.get("centroid_sigma_px"), observation=obs)
     t0 = _clock()

@@ -73,6 +73,7 @@ from skyfix.camera import Camera
 from skyfix.errors import InputError
 from skyfix.geometry import attitude_from_radec_roll
 from skyfix.identify.accept import (
+    PROB_THRESHOLD,
     focal_allowed,
     is_verified,
     log_prob_false,
@@ -489,7 +490,7 @@ def _frame_px(camera: Camera) -> np.ndarray:
 def identify_near(xy: np.ndarray, camera: Camera, A_hint: np.ndarray, uncertainty_rad: float, *,
                   database: PatternDatabase | None = None, epoch: float | None = None,
                   mag_limit: float | None = None, fit_camera: bool = False,
-                  fov_tolerance_deg: float | None = None, prob_threshold: float = 1e-9,
+                  fov_tolerance_deg: float | None = None, prob_threshold: float = PROB_THRESHOLD,
                   pin_stars: int = 10, verify_stars: int = 60, refine_stars: int = 200,
                   match_radius: float = 0.01, centroid_sigma_px: float = 1.0) -> HintResult:
     """Identify the stars of one frame near a known attitude, and refit it (the module text).

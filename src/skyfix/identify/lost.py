@@ -25,6 +25,7 @@ import numpy as np
 
 from skyfix.camera import PRESETS, Camera, camera_from_preset
 from skyfix.identify import get_method, identify
+from skyfix.identify.accept import PROB_THRESHOLD
 from skyfix.identify.common.result import Identification
 from skyfix.identify.methods import DEFAULT_METHOD
 
@@ -124,7 +125,7 @@ def identify_sparse(failed, xy: np.ndarray, width: int, height: int, fov_deg, fo
     else:
         presets = preset_cameras(width, height)
         k = len(presets)
-        options["prob_threshold"] = options.get("prob_threshold", 1e-9) / k
+        options["prob_threshold"] = options.get("prob_threshold", PROB_THRESHOLD) / k
         options["lone_prob_threshold"] = LONE_PROB_THRESHOLD / k
         tries = {name: dict(camera=cam) for name, cam in presets.items()}
     reasons = []
@@ -167,7 +168,7 @@ def identify_through_presets(xy: np.ndarray, width: int, height: int, database, 
     the camera fitted to its stars is too uncertain."""
     presets = preset_cameras(width, height)
     options = dict(identify_options)
-    options["prob_threshold"] = options.get("prob_threshold", 1e-9) / len(presets)
+    options["prob_threshold"] = options.get("prob_threshold", PROB_THRESHOLD) / len(presets)
     first = None
     for name, cam in presets.items():
         again = identify(xy, width, height, method=identify_method, camera=cam, database=database,
