@@ -44,7 +44,7 @@ from skyfix.errors import unknown_name
 
 __all__ = ["CENTROIDERS", "COM", "IWCOG", "GAUSSIAN", "Centroider", "Refined", "centroid_windows",
            "centroider", "refine_centroids", "refine_kernel", "refined_columns", "cramer_rao_centroid",
-           "measure_psf"]
+           "measure_psf", "Window"]
 
 # The centroiders' codes inside the kernels (numba compiles module-level ints as constants).
 COM, IWCOG, GAUSSIAN = 0, 1, 2
@@ -96,8 +96,9 @@ class Centroider(NamedTuple):
     inv_gain: float  # ADU per electron (0: unknown)
 
 
-class _Window(NamedTuple):
-    """A star's window, rows y0..y1 and columns x0..x1 inclusive, with its sky level and noise σ."""
+class Window(NamedTuple):
+    """A star's window, rows y0..y1 and columns x0..x1 inclusive, with its sky level and noise σ
+    (here and in the streak fit's kernels, :mod:`skyfix.detect.streak_fit`)."""
 
     y0: int
     y1: int
@@ -368,7 +369,7 @@ def refine_kernel(img, xs, ys, bg, nz, half, how):
         x0, x1 = max(cx - hs, 0), min(cx + hs - 1, w - 1)
         if y1 < y0 or x1 < x0:
             continue
-        win = _Window(y0, y1, x0, x1, bg[i], nz[i])
+        win = Window(y0, y1, x0, x1, bg[i], nz[i])
         res = _com(img, win, how.k, how.inv_gain)
         if res[_OK] == 0.0:
             continue

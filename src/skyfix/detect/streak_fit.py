@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit
 
 from skyfix.detect._stats import robust_level_noise, window_border
+from skyfix.detect.centroid import Window
 
 __all__ = ["START_SIGMA_PX", "StreakFit", "fit_streaks"]
 
@@ -75,17 +76,6 @@ class _Shape(NamedTuple):
     cb: float
     cab: float
     inv_cab: float
-
-
-class _Box(NamedTuple):
-    """A streak's window, rows y0..y1 and columns x0..x1 inclusive, with its sky and noise σ."""
-
-    y0: int
-    y1: int
-    x0: int
-    x1: int
-    sky: float
-    noise: float
 
 
 @njit(cache=True, inline="always")
@@ -560,7 +550,7 @@ def fit_streaks(img, xy, motion, half_size, s, ig, sigma_pred):
         sky, noise = robust_level_noise(buf, 0.0, False)
         out[_SKY, i] = sky
         out[_NOISE, i] = noise
-        box = _Box(y0, y1, x0, x1, sky, noise)
+        box = Window(y0, y1, x0, x1, sky, noise)
         half_len = max(0.5 * length, 5e-4)  # a still star: the limit, a Gaussian along too
         ux, uy = (dx / length, dy / length) if length > 0 else (1.0, 0.0)
         shape = _shape(ux, uy, half_len, s)
