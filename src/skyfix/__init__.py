@@ -7,6 +7,8 @@
 
 from __future__ import annotations
 
+import importlib
+
 __version__ = "0.1.0"
 
 # Before any kernel loads from numba's cache: drop the cache if a kernel source changed
@@ -35,7 +37,5 @@ _LAZY = {
 def __getattr__(name: str):
     # Lazy so that `import skyfix` stays cheap for the CLI and for stage-only users.
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'skyfix' has no attribute {name!r}")

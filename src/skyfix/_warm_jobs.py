@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import math
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -88,7 +89,6 @@ def loaded_database():
     """:func:`database` saved and loaded again, as a cached database reaches the kernels: its
     arrays read-only views of the file's mmap (:func:`skyfix.cache.map_npz`)."""
     import tempfile
-    from pathlib import Path
 
     from skyfix.identify.catalogue.database import PatternDatabase
 
@@ -105,7 +105,6 @@ def extract() -> None:
     """Reading a PNG file (its row filters are undone by a kernel) and the default extraction of
     a float32 frame (every image reaches the kernels as float32)."""
     import tempfile
-    from pathlib import Path
 
     from PIL import Image
 

@@ -8,7 +8,7 @@ not fit a 10-parameter lens and a strongly distorted lens is not forced into a p
 
 Either projection of :class:`~skyfix.camera.Camera` is fitted: the starting camera's. A
 pinhole's ``k1 … k3`` are Brown–Conrady's, a Kannala–Brandt (fisheye) camera's ``k1 … k4`` its
-θ polynomial's, each with its own derivatives (:mod:`skyfix._kernels.camera_fit`); ``tangential``
+θ polynomial's, each with its own derivatives (:mod:`skyfix._kernels.camera_jacobian`); ``tangential``
 is a pinhole's only, ``k4`` a fisheye's only (:data:`CAMERA_PARAMETERS`).
 """
 
@@ -36,7 +36,7 @@ _BOTH = ("pinhole", "kannala-brandt")
 
 class CameraParameter(NamedTuple):
     """A camera parameter a fit may free: its kernel code
-    (:mod:`skyfix._kernels.camera_fit`), how many numbers it is, what it moves, and the
+    (:mod:`skyfix._kernels.camera_jacobian`), how many numbers it is, what it moves, and the
     projections (:data:`skyfix.camera.PROJECTIONS`) that have it."""
 
     code: int
@@ -76,7 +76,7 @@ def _check_parameters(params: Sequence[str], camera: Camera) -> None:
 
 def _camera_after_step(camera: Camera, params: Sequence[str], p: np.ndarray) -> Camera:
     """The camera after the parameter step ``p`` (rotations first, then ``params``' numbers, in
-    the scaled units of :mod:`skyfix._kernels.camera_fit`)."""
+    the scaled units of :mod:`skyfix._kernels.camera_jacobian`)."""
     rmax = math.hypot(camera.width, camera.height) / 2.0 / camera.fx
     cam = kernels.apply_step(lens.camera_numbers(camera), rmax, _codes(params),
                              np.asarray(p, dtype=np.float64))
@@ -145,7 +145,7 @@ def _residuals(camera: Camera, params: tuple[str, ...], p: np.ndarray, rays0: np
 def _residuals_fast(camera: Camera, params: tuple[str, ...], ps: np.ndarray, rays0: np.ndarray,
                     xy: np.ndarray) -> np.ndarray:
     """Residuals (K, 2N) of the stars after each parameter step of ``ps`` (K, P)
-    (:func:`skyfix._kernels.camera_fit.residuals_for_steps`)."""
+    (:func:`skyfix._kernels.camera_jacobian.residuals_for_steps`)."""
     cam = lens.camera_numbers(camera)
     rmax = math.hypot(camera.width, camera.height) / 2.0 / camera.fx
     codes = _codes(params)
@@ -455,7 +455,7 @@ class PriorFit(NamedTuple):
         fits the model, twice an F(2, dof − 2) variable, dof = ``2M`` less the model's numbers.
     parameter_covariance : (P, P) — posterior covariance of the parameter step (rotations,
         then the camera's :attr:`parameters` in the scaled units of
-        :mod:`skyfix._kernels.camera_fit`).
+        :mod:`skyfix._kernels.camera_jacobian`).
     largest_move_px : float — the largest distance by which the fit moved a kept star's
         predicted position from where the starting camera and attitude put it.
     parameters : tuple[str, ...] — the camera parameters of the posterior
@@ -507,7 +507,7 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     (:meth:`CameraPrior.uncalibrated`'s), p1, p2; a Kannala–Brandt camera's k1 … k4.
 
     Gauss–Newton on ``Σ w |residual|²/σ² + Σ ((θ − θ₀)/τ)²`` with the analytic Jacobian of
-    :func:`skyfix._kernels.camera_fit.jacobian_rows`, in one numba kernel
+    :func:`skyfix._kernels.camera_jacobian.jacobian_rows`, in one numba kernel
     (:func:`skyfix._kernels.camera_fit.prior_gauss_newton`). σ, the centroid
     noise, is re-estimated at every step: from the residuals (``σ² = RSS / (2N − n_eff)``), or
     with ``robust`` from their median (a
@@ -518,7 +518,7 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
     ``model``: ``"evidence"`` fits only the camera numbers the stars call for — of the models
     that free the focal length and any subset of the other parameters (the principal point as
     ``principal_point`` says), the one of largest marginal likelihood under the prior
-    (:func:`skyfix._kernels.camera_fit.log_evidence`), the others held at the prior's values
+    (:func:`skyfix._kernels.camera_models.log_evidence`), the others held at the prior's values
     (square pixels, no distortion) — so an ordinary lens is fitted as what it is, a pinhole, and
     a distorted one with the terms it needs; ``"all"`` frees every parameter (never chosen with
     ``robust``, which frees all). Either way the covariance is the posterior's with every

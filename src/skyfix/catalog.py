@@ -25,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import time
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -65,8 +66,6 @@ log = logging.getLogger(__name__)
 
 def epoch_now() -> float:
     """The current date as a Julian year (e.g. 2026.89)."""
-    import time
-
     return 2000.0 + (time.time() - 946728000.0) / (365.25 * 86400.0)
 
 

@@ -31,7 +31,8 @@ from skyfix.attitude import CENTROID_NOISE_FLOOR_PX, attitude_covariance, solve_
 from skyfix.calibrate import CameraPrior, fit_camera_with_prior
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
-from skyfix.identify.accept import chance_log_probability
+from skyfix.identify import default_database
+from skyfix.identify.accept import PROB_THRESHOLD, chance_log_probability
 
 __all__ = ["FinalFit", "final_fit"]
 
@@ -90,7 +91,8 @@ def inliers(resid: np.ndarray, floor: float) -> np.ndarray:
 
 
 def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch: float | None = None,
-              method: str = "svd", prob_threshold: float = 1e-9, n_img: int = 200, seen=None) -> FinalFit:
+              method: str = "svd", prob_threshold: float = PROB_THRESHOLD, n_img: int = 200,
+              seen=None) -> FinalFit:
     """Refine a successful identification into the final attitude (see the module text).
 
     Parameters
@@ -191,8 +193,6 @@ def _fit_unknown_camera(xy: np.ndarray, ident, database, epoch: float | None, me
     if database is None:
         database = ident.database
     if database is None:
-        from skyfix.identify import default_database
-
         database = default_database()
     verified = _Matches(np.asarray(ident.star_index), np.asarray(ident.catalog_ids),
                         np.ascontiguousarray(ident.catalog_vectors, dtype=np.float64),

@@ -42,6 +42,7 @@ import logging
 import mmap
 import os
 import struct
+import warnings
 import zlib
 from collections.abc import Callable
 from pathlib import Path
@@ -564,8 +565,6 @@ def _fits_metadata(header: dict[str, object], primary: dict[str, object] | None)
 
 def _fits_astropy(p: Path) -> tuple[np.ndarray, dict]:
     """First HDU with 2-D (or squeezable) image data, by astropy (any FITS astropy reads)."""
-    import warnings
-
     from astropy.io import fits
 
     try:

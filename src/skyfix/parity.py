@@ -27,6 +27,8 @@ reported ``prob_false`` is doubled: the safety argument of one hypothesis holds 
 
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 
 from skyfix.errors import InputError
@@ -75,8 +77,6 @@ def unmirror_solution(sol, width: int) -> None:
 
 def _method_parameters(identify_method: str):
     """The identification method's parameters (``inspect.signature``), by name."""
-    import inspect
-
     from skyfix.identify import get_method
 
     return inspect.signature(get_method(identify_method)).parameters

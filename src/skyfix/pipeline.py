@@ -29,7 +29,10 @@ from skyfix.camera import Camera
 from skyfix.corrections.observation import Observation, apparent_attitude, observe, time_of_image
 from skyfix.errors import CameraError, InputError
 from skyfix.final_fit import final_fit
-from skyfix.identify.accept import noise_posterior, precision_failure
+from skyfix.identify import PatternDatabase, get_method, method_options
+from skyfix.identify.accept import PROB_THRESHOLD, noise_posterior, precision_failure
+from skyfix.identify.catalogue import bands
+from skyfix.identify.catalogue.bands import database_for_fov
 from skyfix.identify.lost import identify_lost, retry_through_preset
 from skyfix.parity import check_parity, solve_with_parity
 from skyfix.solution import MatchTable, Solution
@@ -306,7 +309,7 @@ def solve_centroids(
         sol.reason = f"too few stars detected ({len(xy)}; need at least 3)"
         return sol
     fit_options = dict(camera_given=camera is not None, database=database, epoch=epoch,
-                       prob_threshold=identify_options.get("prob_threshold", 1e-9),
+                       prob_threshold=identify_options.get("prob_threshold", PROB_THRESHOLD),
                        n_img=identify_options.get("refine_stars", 200),
                        centroid_sigma_px=identify_options.get("centroid_sigma_px"), observation=obs)
     t0 = _clock()
@@ -406,8 +409,6 @@ def _warm(database, fov_deg: float | None, camera: Camera | None) -> None:
         return
     alongside, also = None, ""
     if database is None:
-        from skyfix.identify.catalogue import bands
-
         fov = camera.fov_deg if camera is not None else fov_deg
         band = (bands.bands_for(fov, fov) or bands.BANDS)[0] if fov is not None else bands.STANDARD
         if not band.path.exists():
@@ -509,8 +510,6 @@ def _solve_near(sol: Solution, xy: np.ndarray, width: int, height: int, hint, fo
     t0 = _clock()
     cam = camera if camera is not None else Camera.from_fov(width, height, fov_deg)
     if database is None:
-        from skyfix.identify.catalogue.bands import database_for_fov
-
         database = database_for_fov(cam.fov_deg)
     near = identify_near(xy, cam, hint.A_icrs_to_cam, hint.uncertainty_rad, database=database, epoch=epoch,
                          fit_camera=camera is None, fov_tolerance_deg=fov_tolerance_deg,
@@ -530,8 +529,6 @@ def _check_options(fov_deg, fov_tolerance_deg, camera, database, epoch, attitude
                    identify_options: dict) -> None:
     """The checks :func:`solve` and :func:`solve_centroids` share (:mod:`skyfix.validate`; the
     identification method and its options: :mod:`skyfix.identify.methods`)."""
-    from skyfix.identify import PatternDatabase, get_method, method_options
-
     check_solve_options(fov_deg, fov_tolerance_deg, epoch, attitude_method)
     if camera is not None and not isinstance(camera, Camera):
         raise InputError(f"camera must be a Camera (Camera.load(path)), got {type(camera).__name__}")

@@ -148,11 +148,28 @@ class Solution:
 
     def radec_of_pixel(self, x: float, y: float) -> tuple[float, float]:
         """RA, Dec (degrees) of the pixel ``(x, y)`` (e.g. the image centre, which is not the
-        boresight when the principal point was fitted off it)."""
+        boresight when the principal point was fitted off it), against the catalogue places: where
+        the WCS of ``--wcs`` puts it, so that a matched star's pixel gives its catalogue RA/Dec
+        (:meth:`radec_of_pixels`)."""
+        ra, dec = self.radec_of_pixels(np.array([[x, y]], dtype=np.float64))[0]
+        return float(ra), float(dec)
+
+    def radec_of_pixels(self, xy: np.ndarray) -> np.ndarray:
+        """RA, Dec (degrees, (N, 2)) of the pixels ``xy`` (N, 2) against the catalogue places —
+        through ``A_apparent_to_cam``, as the WCS and the plot's grid (docs/time-and-corrections.md,
+        "Which attitude"). With an observation time the reported attitude (``ra_deg``, ``dec_deg``,
+        ``roll_deg``, the ``center_*``, ``attitude_frame`` "ICRS") is the true one, the camera's
+        physical axes: ``radec_of_pixel(*boresight_px)`` then differs from ``(ra_deg, dec_deg)``
+        by the aberration (up to ~25″) and, at a site, the refraction. Without a time the two
+        attitudes are one."""
         from skyfix.geometry import vector_to_radec
 
-        ra, dec = vector_to_radec(self.attitude_at_pixel(x, y)[2])
-        return math.degrees(float(ra)), math.degrees(float(dec))
+        A = self.A_apparent_to_cam if self.A_apparent_to_cam is not None else self.A_icrs_to_cam
+        xy = np.array(xy, dtype=np.float64).reshape(-1, 2)
+        if self.mirrored:  # the camera and attitude are the flipped frame's (skyfix.parity)
+            xy[:, 0] = (self.camera.width - 1) - xy[:, 0]
+        ra, dec = vector_to_radec(self.camera.pixel_to_ray(xy) @ np.asarray(A, dtype=np.float64))
+        return np.degrees(np.column_stack([ra, dec]))
 
     def flip_match_columns(self, width: int) -> None:
         """The matches' x flipped left-right, ``x' = (W − 1) − x``, in place (for

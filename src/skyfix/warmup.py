@@ -38,6 +38,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
+from skyfix._kernels import kernel_cache_folder, kernels_digest
 from skyfix.errors import unknown_name
 
 __all__ = ["JOBS", "PATHS", "Job", "default_workers", "ensure", "estimate_s", "is_warm", "pending", "warm"]
@@ -418,8 +419,6 @@ def _stamp_key() -> str:
         import hashlib
         from importlib.metadata import version
 
-        from skyfix._kernels import kernels_digest
-
         here = Path(__file__)
         jobs = hashlib.sha256(here.read_bytes() + here.with_name("_warm_jobs.py").read_bytes()).hexdigest()
         _KEY = (f"{kernels_digest()} jobs {jobs[:16]} numba {version('numba')} "
@@ -432,8 +431,6 @@ _KEY: str | None = None
 
 def _stamp_file() -> Path:
     """Beside the package's kernel-cache stamp; in the user cache for a read-only install."""
-    from skyfix._kernels import kernel_cache_folder
-
     folder = kernel_cache_folder()
     if folder is None:
         from skyfix.cache import cache_dir

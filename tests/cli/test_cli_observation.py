@@ -1,4 +1,4 @@
-"""``skyfix solve`` and ``skyfix track`` with --time, --velocity-kms, --site, --weather,
+"""``skyfix solve`` and ``skyfix track`` with --time, --velocity-kms, --position-km, --site, --weather,
 --mounting, --apparent (issue 24): the fields in the JSON, the WCS against catalogue places, and
 each bad value one line with exit 2, nothing solved."""
 
@@ -60,6 +60,9 @@ def sequence(tmp_path_factory):
     (["--velocity-kms", "7,0,0", "--site", "40,20"], "give one or the other"),
     (["--refraction", "magic", "--site", "40,20"], "refraction model 'magic'"),
     (["--refraction", "bennett"], "--refraction needs a --site"),
+    (["--position-km", "7000,0,0"], "--position-km needs --velocity-kms"),
+    (["--velocity-kms", "0,7.5,0", "--position-km", "7000,0"], "--position-km takes three numbers"),
+    (["--velocity-kms", "0,7.5,0", "--position-km", "100,0,0"], "inside the Earth"),
 ])
 @pytest.mark.parametrize("command", ["solve", "track"])
 def test_bad_observation_options_are_one_line(tmp_path, args, words, command):
@@ -123,3 +126,66 @@ def test_track_with_the_velocity(sequence):
     assert [s["time"] for s in sols] == [f"2026-09-10T03:00:00.{ms:03d}Z" for ms in (0, 100, 200, 300)]
     assert all(s["attitude_frame"] == "ICRS" and s["frames"]["body"] for s in sols)
     assert sols[-1]["mode"] == "tracking"
+
+
+def test_position_gives_the_orbit_frame_and_the_earth_limb(sequence):
+    """--position-km with --velocity-kms: the body's attitude in the orbit frame (the camera file's
+    [mounting]) is ``A_body · A_icrs_to_orbitᵀ`` of the reported attitude to 1e-9, and the Earth
+    limb's angle is reported; the attitude itself is the velocity-only solve's within 1 mas (the
+    position adds only the stars' parallax, ~1e-9 of the aberration's)."""
+    from skyfix.frames import Mounting, orbit_frame
+    from skyfix.geometry import attitude_from_quaternion
+
+    paths, camera, _ = sequence
+    r = (4000.0, 3000.0, 4500.0)  # km: 6.7e3 from the centre, not parallel to V_ORBIT
+    args = ["solve", str(paths[0]), "--camera", str(camera), "--velocity-kms", ",".join(map(str, V_ORBIT)),
+            "--json"]
+    with_r = runner.invoke(app, [*args, "--position-km", ",".join(map(str, r))])
+    assert with_r.exit_code == 0, with_r.output
+    sol = json.loads(with_r.stdout)
+    plain = json.loads(runner.invoke(app, args).stdout)
+    assert "body_in_orbit" not in (plain["frames"] or {}) or plain["frames"]["body_in_orbit"] is None
+    assert plain["bodies"]["earth_limb_deg"] is None and sol["bodies"]["earth_limb_deg"] is not None
+    A = attitude_from_quaternion(sol["quaternion_xyzw"])
+    expected = Mounting.load(camera).body_attitude(A) @ orbit_frame(r, V_ORBIT).T
+    got = attitude_from_quaternion(sol["frames"]["body_in_orbit"]["quaternion_xyzw"])
+    np.testing.assert_allclose(got, expected, atol=1e-9)  # the JSON rounds to 10 digits
+    from skyfix.attitude import attitude_error
+
+    err = attitude_error(A, attitude_from_quaternion(plain["quaternion_xyzw"]))
+    assert np.degrees(np.linalg.norm(err)) * 3600 < 1e-3
+
+
+def _sep_arcsec(a_deg: np.ndarray, b_deg: np.ndarray) -> np.ndarray:
+    from skyfix.geometry import radec_to_vector
+
+    u = radec_to_vector(*np.radians(np.asarray(a_deg)).T)
+    v = radec_to_vector(*np.radians(np.asarray(b_deg)).T)
+    return np.degrees(np.arccos(np.clip(np.sum(u * v, axis=-1), -1, 1))) * 3600
+
+
+def test_radec_of_pixel_is_against_the_catalogue_places_as_the_wcs(sequence):
+    """With a time and a velocity the reported attitude is the true one, while ``radec_of_pixel``
+    (and the plot's grid) maps pixels to catalogue places, as the WCS does: the matched stars'
+    pixels give their catalogue RA/Dec within a quarter pixel (the true attitude's mapping misses
+    them by the aberration, 8″ here), the WCS's own mapping agrees to 0.2″ (its SIP fit's 0.005 px),
+    and the boresight pixel's RA/Dec is not the reported (true) boresight's."""
+    import skyfix
+    from skyfix.geometry import vector_to_radec
+    from skyfix.wcs import solution_wcs
+
+    paths, camera, _ = sequence
+    sol = skyfix.solve(str(paths[0]), camera=Camera.load(camera), observer=V_ORBIT)
+    assert sol.solved and sol.attitude_frame == "ICRS"
+    xy = np.array([(m.x, m.y) for m in sol.matches])
+    catalogue = np.array([(m.ra_deg, m.dec_deg) for m in sol.matches])
+    pixel_arcsec = math.degrees(sol.camera.plate_scale_rad) * 3600
+    got = sol.radec_of_pixels(xy)
+    assert np.median(_sep_arcsec(got, catalogue)) < 0.25 * pixel_arcsec
+    true = np.degrees(np.column_stack(vector_to_radec(sol.camera.pixel_to_ray(xy) @ sol.A_icrs_to_cam)))
+    assert np.median(_sep_arcsec(true, catalogue)) > 0.25 * pixel_arcsec
+    wcs = solution_wcs(sol.A_apparent_to_cam, sol.camera).all_pix2world(xy, 0)
+    assert np.max(_sep_arcsec(got, wcs)) < 0.2
+    assert np.allclose(sol.radec_of_pixel(*xy[0]), got[0], rtol=0, atol=1e-12)
+    boresight = sol.radec_of_pixel(*sol.boresight_px)
+    assert _sep_arcsec(np.array([boresight]), np.array([[sol.ra_deg, sol.dec_deg]]))[0] > 5.0

@@ -142,7 +142,7 @@ def test_precise_predictions_start_the_fit_themselves():
     centre: every one of the 300 synthetic streaks is found, within 0.01 px of the fit from the
     weighted centre (its tolerance is a tenth of σ) and as close to the truth (measured: 0.006 px
     at most, RMS 0.0650 px both); a σ above START_SIGMA_PX keeps the weighted centre."""
-    from skyfix.detect.streak import START_SIGMA_PX
+    from skyfix.detect.streak_fit import START_SIGMA_PX
 
     image, xy, _, motion = synthetic_streaks(7)
     pred = xy + np.random.default_rng(3).normal(0.0, 0.2, xy.shape)
@@ -163,7 +163,7 @@ def test_row_walk_and_erf_match_the_direct_formulas():
     """The fit's profile along a row: its Gaussians by recurrence (re-seeded where they
     underflowed) stay within 1e-12 of exp over 40 px rows, relative where above 1e-30; its erf
     (from the along Gaussians, A&S 7.1.26) within 1.5e-7 of math.erf."""
-    from skyfix.detect.streak import _erf, _row_next, _row_start, _shape
+    from skyfix.detect.streak_fit import _erf, _row_next, _row_start, _shape
 
     rng = np.random.default_rng(4)
     for half_len, s in [(5e-4, 1.04), (4.0, 1.04), (4.0, 2.5), (15.0, 0.8), (30.0, 0.6)]:

@@ -1,4 +1,4 @@
-"""The tracker's streak fit walks its windows by recurrences (skyfix.detect.streak): each row's
+"""The tracker's streak fit walks its windows by recurrences (skyfix.detect.streak_fit): each row's
 Gaussians start from the row above's (the column walk) and step along the row, where they may
 skip the re-seeding (streaks short enough that nothing underflows within the reach). Every
 profile value the walk reaches must still be the direct formula's, and a fit whose window has
@@ -8,15 +8,8 @@ import math
 
 import numpy as np
 
-from skyfix.detect.streak import (
-    _column_next,
-    _column_start,
-    _row_from,
-    _row_next,
-    _shape,
-    fit_streaks,
-    streak_model_sigma,
-)
+from skyfix.detect.streak import streak_model_sigma
+from skyfix.detect.streak_fit import _column_next, _column_start, _row_from, _row_next, _shape, fit_streaks
 
 
 def test_column_walk_matches_exp_over_whole_windows():

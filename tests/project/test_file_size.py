@@ -10,13 +10,7 @@ import skyfix
 
 LIMIT = 700
 SRC = Path(skyfix.__file__).parent
-STILL_OVER = {
-    "detect/streak.py": "its window kernels apart from the streak model",
-    "_kernels/camera_fit.py": "the Jacobian apart from the model scoring and Gauss–Newton",
-    # 729 lines after issues 24 and 25 met in it (the observation's sky.py calls and the
-    # self-calibration's _calibrating/_refine): _recover and _measure into a module of their own
-    "track/tracker.py": "the recovery and the windows' measurement apart from the filter loop",
-}
+STILL_OVER: dict[str, str] = {}
 
 
 def test_no_source_file_over_the_limit_but_the_named_ones():

@@ -22,7 +22,7 @@ from skyfix.errors import CameraError, InputError
 from skyfix.geometry import attitude_from_quaternion, attitude_from_radec_roll
 from skyfix.simulate import render_sequence
 from skyfix.track import Tracker
-from skyfix.track.tracker import window_fit_agrees
+from skyfix.track.frame_steps import window_fit_agrees
 from skyfix.track.windows import pixel_jacobian
 
 CAMERA = Camera.from_fov(1280, 960, 15.0)

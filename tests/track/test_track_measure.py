@@ -16,11 +16,12 @@ import math
 import numpy as np
 import pytest
 
-import skyfix.track.tracker as tracker_module
+import skyfix.track.frame_steps as frame_steps_module
 from skyfix.camera import Camera
 from skyfix.detect.centroid import Centroider, refine_kernel, refined_columns
 from skyfix.detect.centroids import background_snr
-from skyfix.detect.streak import fit_streaks, row_time_offset
+from skyfix.detect.streak import row_time_offset
+from skyfix.detect.streak_fit import fit_streaks
 from skyfix.geometry import attitude_from_radec_roll
 from skyfix.simulate import Sensor, render_sequence
 from skyfix.track import Tracker
@@ -113,7 +114,7 @@ def test_compiled_measurement_is_the_steps_one_by_one(case, monkeypatch):
         compared.append((out, measure_steps(*args)))
         return out
 
-    monkeypatch.setattr(tracker_module, "measure_frame", both)
+    monkeypatch.setattr(frame_steps_module, "measure_frame", both)
     tracker = Tracker(CAMERA, epoch=EPOCH, **options)
     sols = [tracker.update(f.image, f.truth["t_s"]) for f in frames]
     assert [s.mode for s in sols[2:]] == ["tracking"] * 6

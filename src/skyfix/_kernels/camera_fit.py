@@ -1,21 +1,8 @@
-"""The camera fit's kernels, for :mod:`skyfix.calibrate`: the projection's Jacobian for the
-camera parameters, least-squares scoring of camera models, and the Gauss–Newton of the fit
-under a prior. The projection itself is :mod:`skyfix._kernels.lens`'s; rotations and small
-inverses are :mod:`skyfix._kernels.rotation`'s.
-
-Camera parameters are chosen by name in :data:`skyfix.calibrate.CAMERA_PARAMETERS`; inside the
-kernels each has the code below. A parameter step ``p`` is (three rotations of the camera frame,
-then each chosen parameter's numbers) in scaled units, so that a unit step moves the frame's
-corner by about a focal length: ``f`` relative (``fx, fy ← f·(1 + p)``), ``aspect`` relative on
-``fy``, the principal point in focal lengths, ``k_j`` in ``1/rmax^(2j)`` (``k1`` in ``1/rmax²`` …
-``k4`` in ``1/rmax⁸``), ``p1, p2`` in ``1/rmax`` (``rmax`` the half-diagonal over ``fx``: for a
-Kannala–Brandt camera the corner's ``θ_d``, about its angle off axis).
-
-The radial coefficients' derivatives are the camera's projection's: Brown–Conrady's
-``∂(x_d, y_d)/∂k_j = (x, y)·r^(2j)`` for a pinhole (``k4`` is not its), Kannala–Brandt's
-``θ³·(e_x, e_y)·(θ²)^(j−1)`` (:func:`skyfix._kernels.lens.kb_coefficient_terms`, the formula
-``lens.kb_pixel_jacobian`` also uses) for a fisheye; the pinhole's arithmetic is that of before
-the fisheye was added, operation for operation, so its fits are bit-identical.
+"""The camera fit's kernels, for :mod:`skyfix.calibrate`: least-squares scoring of camera models,
+and the Gauss–Newton of the fit under a prior. The model, its parameter codes, steps (in the
+scaled units described there) and Jacobian are :mod:`skyfix._kernels.camera_jacobian`'s (re-exported
+here); the projection itself is :mod:`skyfix._kernels.lens`'s; rotations and small inverses are
+:mod:`skyfix._kernels.rotation`'s.
 """
 
 from __future__ import annotations
@@ -26,25 +13,32 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from skyfix._kernels.lens import (
-    CX,
-    CY,
-    FX,
-    FY,
-    K1,
-    K2,
-    K3,
-    K4,
-    KANNALA_BRANDT,
-    P1,
-    P2,
-    PROJECTION,
-    SKEW,
-    distort,
-    distort_jacobian,
-    kb_coefficient_terms,
+from skyfix._kernels.camera_jacobian import (
+    ASPECT,
+    K1_TERM,
+    K2_TERM,
+    K3_TERM,
+    K4_TERM,
+    PRINCIPAL_POINT,
+    TANGENTIAL,
+    F,
+    apply_step,
+    code_size,
+    jacobian_rows,
+    normal_equations_at_start,
+    residuals_for_steps,
 )
-from skyfix._kernels.rotation import cholesky, rodrigues, spd_inverse
+from skyfix._kernels.camera_models import (
+    ModelScores,
+    choose_model,
+    free_columns,
+    log_evidence,
+    model_step,
+    score_blocks,
+    score_models,
+)
+from skyfix._kernels.lens import CX, CY, FX, FY, K1, K2, K3, K4, KANNALA_BRANDT, P1, P2, PROJECTION
+from skyfix._kernels.rotation import rodrigues, spd_inverse
 
 __all__ = ["ASPECT", "F", "HELD_SHIFT_CHI2", "K1_TERM", "K2_TERM", "K3_TERM", "K4_TERM", "KB_PRIOR_CODES",
            "MODEL_CHANGES", "OUTLIER_CHI2", "PP_AUTO", "PP_CHI2", "PP_FIT", "PP_HOLD", "PRINCIPAL_POINT",
@@ -54,9 +48,6 @@ __all__ = ["ASPECT", "F", "HELD_SHIFT_CHI2", "K1_TERM", "K2_TERM", "K3_TERM", "K
            "jacobian_rows", "log_evidence", "normal_equations_at_start", "outlier_limit", "prior_codes",
            "prior_gauss_newton", "prior_terms", "residuals_for_steps", "score_blocks", "score_models"]
 
-# Kernel codes of the camera parameters (skyfix.calibrate.CAMERA_PARAMETERS names them).
-# The radial terms are consecutive: k_j's code is K1_TERM + j − 1.
-F, ASPECT, PRINCIPAL_POINT, K1_TERM, K2_TERM, K3_TERM, K4_TERM, TANGENTIAL = range(8)
 
 # The prior's numbers as prior_gauss_newton takes them (skyfix.calibrate.CameraPrior's fields),
 # and their indices.
@@ -90,22 +81,6 @@ MODEL_CHANGES = 3
 # Numbers held at the prior's values that move the attitude beyond this χ² of their noise
 # (held_shift_chi2; 3 dof: 1e-3 by chance) are all freed.
 HELD_SHIFT_CHI2 = 16.3
-
-
-
-class ModelScores(NamedTuple):
-    """:func:`score_models`'s result: which models were scored (K,) bool, their BIC (K,), RSS
-    (K,) px² and attitude covariances (K, 3, 3) rad², whether every block inverted by Cholesky
-    (else the caller redoes them with numpy), and the union's ``JᵀJ``, ``Jᵀr``, ``rᵀr``."""
-
-    chosen: np.ndarray
-    bic: np.ndarray
-    rss: np.ndarray
-    covariance: np.ndarray
-    ok: bool
-    JtJ: np.ndarray
-    Jtr: np.ndarray
-    rr: float
 
 
 class PriorFitOptions(NamedTuple):
@@ -148,35 +123,6 @@ class GaussNewtonResult(NamedTuple):
 
 
 @numba.njit(cache=True)
-def apply_step(cam, rmax, codes, p):
-    """The camera numbers (:data:`skyfix._kernels.lens.CAMERA_NUMBERS`) after the parameter
-    step ``p`` (rotations first, then ``codes``, in the scaled units of the module text)."""
-    out = cam.copy()
-    j = 3
-    for c in codes:
-        if c == F:
-            out[FX], out[FY] = cam[FX] * (1.0 + p[j]), cam[FY] * (1.0 + p[j])
-        elif c == ASPECT:
-            out[FY] = out[FY] * (1.0 + p[j])
-        elif c == PRINCIPAL_POINT:
-            out[CX], out[CY] = cam[CX] + p[j] * cam[FX], cam[CY] + p[j + 1] * cam[FX]
-            j += 1
-        elif c == K1_TERM:
-            out[K1] = cam[K1] + p[j] / rmax**2
-        elif c == K2_TERM:
-            out[K2] = cam[K2] + p[j] / rmax**4
-        elif c == K3_TERM:
-            out[K3] = cam[K3] + p[j] / rmax**6
-        elif c == K4_TERM:
-            out[K4] = cam[K4] + p[j] / rmax**8
-        else:  # TANGENTIAL
-            out[P1], out[P2] = cam[P1] + p[j] / rmax, cam[P2] + p[j + 1] / rmax
-            j += 1
-        j += 1
-    return out
-
-
-@numba.njit(cache=True)
 def prior_codes(cam, tangential):
     """The parameter codes of the fit under a prior for the camera ``cam``'s projection
     (:data:`PRIOR_CODES`, with ``tangential`` :data:`TANGENTIAL_PRIOR_CODES`, or a Kannala–Brandt
@@ -186,189 +132,6 @@ def prior_codes(cam, tangential):
     if tangential:
         return np.array(TANGENTIAL_PRIOR_CODES, dtype=np.int64)
     return np.array(PRIOR_CODES, dtype=np.int64)
-
-
-@numba.njit(cache=True)
-def residuals_for_steps(cam, rmax, codes, ps, rays0, xy):
-    """Residuals (K, 2N), (u, v) of each star in turn, of the stars ``xy`` against the rays
-    ``rays0`` rotated and projected through the camera ``cam`` after each parameter step of
-    ``ps`` (K, P) (parameters ``codes``)."""
-    n = xy.shape[0]
-    out = np.empty((ps.shape[0], 2 * n))
-    for k in range(ps.shape[0]):
-        p = ps[k]
-        R = rodrigues(p)
-        c = apply_step(cam, rmax, codes, p)
-        for i in range(n):
-            X = R[0, 0] * rays0[i, 0] + R[0, 1] * rays0[i, 1] + R[0, 2] * rays0[i, 2]
-            Y = R[1, 0] * rays0[i, 0] + R[1, 1] * rays0[i, 1] + R[1, 2] * rays0[i, 2]
-            Z = R[2, 0] * rays0[i, 0] + R[2, 1] * rays0[i, 1] + R[2, 2] * rays0[i, 2]
-            xd, yd = distort(X / Z, Y / Z, c)
-            out[k, 2 * i] = c[FX] * xd + c[SKEW] * yd + c[CX] - xy[i, 0]
-            out[k, 2 * i + 1] = c[FY] * yd + c[CY] - xy[i, 1]
-    return out
-
-
-@numba.njit(cache=True)
-def jacobian_rows(xy, rays0, cam, rmax, codes):
-    """The Jacobian ``J`` (N, 2, P) and residuals (N, 2) at ``p = 0`` (the camera ``cam`` and the
-    rays ``rays0``) for the parameters ``codes``, in the scaled units of the module text
-    (``tests/_kernels/test_final_fit_kernels.py`` holds it to finite differences of
-    :func:`residuals_for_steps`)."""
-    fx, fy, cx, cy, s = cam[FX], cam[FY], cam[CX], cam[CY], cam[SKEW]
-    P = 3
-    for c in codes:
-        P += 2 if (c == PRINCIPAL_POINT or c == TANGENTIAL) else 1
-    c1, c2, c4 = 1.0 / rmax, 1.0 / rmax**2, 1.0 / rmax**4
-    c6 = 1.0 / rmax**6
-    fisheye = cam[PROJECTION] == KANNALA_BRANDT
-    tx = ty = t2 = 0.0
-    J = np.empty((xy.shape[0], 2, P))
-    res = np.empty((xy.shape[0], 2))
-    for i in range(xy.shape[0]):
-        X, Y, Z = rays0[i, 0], rays0[i, 1], rays0[i, 2]
-        iz = 1.0 / Z
-        xn = X * iz
-        yn = Y * iz
-        # (xd, yd) and d(xd, yd) / d(xn, yn)
-        xd, yd, dxx, dxy, dyx, dyy, r2 = distort_jacobian(xn, yn, cam)
-        res[i, 0] = fx * xd + s * yd + cx - xy[i, 0]
-        res[i, 1] = fy * yd + cy - xy[i, 1]
-        if fisheye:  # ∂(x_d, y_d)/∂k1 = θ³·(e_x, e_y); each next k_j another θ²
-            tx, ty, t2 = kb_coefficient_terms(xn, yn)
-        ju = J[i, 0]
-        jv = J[i, 1]
-        # Rotations ω = e_x, e_y, e_z of the camera frame (δray = ω × ray): d(xn, yn).
-        for k in range(3):
-            if k == 0:
-                dxn, dyn = -xn * yn, -1.0 - yn * yn
-            elif k == 1:
-                dxn, dyn = 1.0 + xn * xn, yn * xn
-            else:
-                dxn, dyn = -yn, xn
-            dxd = dxx * dxn + dxy * dyn
-            dyd = dyx * dxn + dyy * dyn
-            ju[k] = fx * dxd + s * dyd
-            jv[k] = fy * dyd
-        j = 3
-        for c in codes:
-            if c == F:
-                ju[j], jv[j] = fx * xd + s * yd, fy * yd
-            elif c == ASPECT:
-                ju[j], jv[j] = 0.0, fy * yd
-            elif c == PRINCIPAL_POINT:
-                ju[j], jv[j] = fx, 0.0
-                j += 1
-                ju[j], jv[j] = 0.0, fx
-            elif fisheye and K1_TERM <= c <= K4_TERM:  # θ³·(e_x, e_y)·(θ²)^(j−1) / rmax^(2j)
-                ax, ay, scale = tx, ty, c2
-                for _ in range(c - K1_TERM):
-                    ax *= t2
-                    ay *= t2
-                    scale *= c2
-                ju[j], jv[j] = (fx * ax + s * ay) * scale, fy * ay * scale
-            elif c == K1_TERM:
-                ju[j], jv[j] = (fx * xn + s * yn) * r2 * c2, fy * yn * r2 * c2
-            elif c == K2_TERM:
-                ju[j], jv[j] = (fx * xn + s * yn) * r2 * r2 * c4, fy * yn * r2 * r2 * c4
-            elif c == K3_TERM:  # a pinhole's r⁶ term (K4_TERM is not a pinhole's)
-                ju[j], jv[j] = (fx * xn + s * yn) * r2 * r2 * r2 * c6, fy * yn * r2 * r2 * r2 * c6
-            else:  # TANGENTIAL
-                ta, tb = 2.0 * xn * yn, r2 + 2.0 * yn * yn
-                ju[j], jv[j] = (fx * ta + s * tb) * c1, fy * tb * c1
-                j += 1
-                ta, tb = r2 + 2.0 * xn * xn, 2.0 * xn * yn
-                ju[j], jv[j] = (fx * ta + s * tb) * c1, fy * tb * c1
-            j += 1
-    return J, res
-
-
-@numba.njit(cache=True)
-def normal_equations_at_start(xy, rays0, cam, rmax, codes):
-    """``JᵀJ`` (P, P), ``Jᵀr`` (P,) and ``rᵀr`` at ``p = 0`` for the parameters ``codes``
-    from :func:`jacobian_rows`."""
-    J, res = jacobian_rows(xy, rays0, cam, rmax, codes)
-    P = J.shape[2]
-    JtJ = np.zeros((P, P))
-    Jtr = np.zeros(P)
-    rr = 0.0
-    for i in range(J.shape[0]):
-        u, v = res[i, 0], res[i, 1]
-        for a in range(P):
-            Jtr[a] += J[i, 0, a] * u + J[i, 1, a] * v
-            for b in range(a, P):
-                JtJ[a, b] += J[i, 0, a] * J[i, 0, b] + J[i, 1, a] * J[i, 1, b]
-        rr += u * u + v * v
-    for a in range(P):
-        for b in range(a):
-            JtJ[a, b] = JtJ[b, a]
-    return JtJ, Jtr, rr
-
-
-@numba.njit(cache=True)
-def score_models(xy, r, A, cam, rmax, codes, cols, n_cols, min_stars_per_number):
-    """Which models the stars support (see :func:`skyfix.calibrate.score_camera_models`; the
-    first scorable always), and their BIC, RSS and covariance (filled for those only): a
-    :class:`ModelScores`."""
-    n_stars = xy.shape[0]
-    rays0 = np.empty((n_stars, 3))
-    for i in range(n_stars):
-        for j in range(3):
-            rays0[i, j] = r[i, 0] * A[j, 0] + r[i, 1] * A[j, 1] + r[i, 2] * A[j, 2]
-    JtJ, Jtr, rr = normal_equations_at_start(xy, rays0, cam, rmax, codes)
-    chosen = np.zeros(n_cols.shape[0], dtype=np.bool_)
-    any_chosen = False
-    for m in range(n_cols.shape[0]):
-        k = n_cols[m]
-        if 2 * n_stars <= k or (n_stars < min_stars_per_number * k and any_chosen):
-            continue
-        chosen[m] = True
-        any_chosen = True
-    bic, rss, cov, ok = score_blocks(JtJ, Jtr, rr, 2 * n_stars, cols, n_cols, chosen)
-    return ModelScores(chosen, bic, rss, cov, ok, JtJ, Jtr, rr)
-
-
-@numba.njit(cache=True)
-def score_blocks(JtJ, Jtr, rr, n, cols, n_cols, chosen):
-    """BIC, RSS and attitude covariance of each chosen model's linear step (see
-    :func:`skyfix.calibrate.score_camera_models`); model ``m`` uses the columns ``cols[m, :n_cols[m]]``."""
-    K = n_cols.shape[0]
-    bic = np.empty(K)
-    rss = np.empty(K)
-    cov = np.empty((K, 3, 3))
-    for m in range(K):
-        if not chosen[m]:
-            continue
-        k = n_cols[m]
-        sub = np.empty((k, k))
-        g = np.empty(k)
-        for a in range(k):
-            g[a] = Jtr[cols[m, a]]
-            for b in range(k):
-                sub[a, b] = JtJ[cols[m, a], cols[m, b]]
-        inv, ok = spd_inverse(sub)
-        if not ok:  # not numerically positive definite: the caller redoes it with numpy
-            return bic, rss, cov, False
-        # Normal equations on the sub-block: step = −(JᵀJ)⁻¹Jᵀr, RSS = rᵀr + stepᵀJᵀr.
-        dot = 0.0
-        for a in range(k):
-            step = 0.0
-            for b in range(k):
-                step -= inv[a, b] * g[b]
-            dot += step * g[a]
-        rss[m] = max(rr + dot, 1e-300)
-        bic[m] = n * math.log(rss[m] / n) + k * math.log(n)
-        scale = rss[m] / max(n - k, 1)
-        for a in range(3):
-            for b in range(3):
-                cov[m, a, b] = scale * inv[a, b]
-    return bic, rss, cov, True
-
-
-@numba.njit(cache=True)
-def code_size(c):
-    """How many numbers (step columns) the parameter of code ``c`` is."""
-    return 2 if (c == PRINCIPAL_POINT or c == TANGENTIAL) else 1
 
 
 @numba.njit(cache=True)
@@ -428,26 +191,6 @@ def hold_at_prior(cam, prior, c):
         cam[K4] = prior[PRIOR_K4]
     elif c == TANGENTIAL:
         cam[P1], cam[P2] = prior[PRIOR_P1], prior[PRIOR_P2]
-
-
-@numba.njit(cache=True)
-def free_columns(codes, free):
-    """The step columns, in the layout of all ``codes``, of the rotations and of each code that
-    ``free`` (bool, one per code) frees."""
-    n = 3
-    for k in range(codes.shape[0]):
-        if free[k]:
-            n += code_size(codes[k])
-    cols = np.empty(n, dtype=np.int64)
-    cols[0], cols[1], cols[2] = 0, 1, 2
-    i, j = 3, 3
-    for k in range(codes.shape[0]):
-        for _ in range(code_size(codes[k])):
-            if free[k]:
-                cols[i] = j
-                i += 1
-            j += 1
-    return cols
 
 
 @numba.njit(cache=True)
@@ -572,128 +315,6 @@ def outlier_limit(dof):
 
 
 @numba.njit(cache=True)
-def _model_normal_equations(JtJ, g, rr, sigma2, lam, dev, cols):
-    """The normal equations of the linearised fit (``JᵀJ``, ``Jᵀr``, ``rᵀr`` at the current
-    point, σ² known) with the step columns ``cols`` free — each under its Gaussian prior
-    (precision ``λ``, the current value ``dev`` from the prior's; flat where ``λ`` = 0) — and
-    every other column held at the prior's value (its step ``−dev``): ``N = JᵀJ/σ² + Λ`` (k, k),
-    ``c = Jᵀr'/σ² + Λ·dev`` (k,) (``r'`` the residuals with the held columns moved; the step is
-    ``−N⁻¹c``), ``r'ᵀr'/σ² + devᵀΛ dev`` and ``Σ log λ`` over the free columns with a prior."""
-    P = lam.shape[0]
-    k = cols.shape[0]
-    held = np.ones(P, dtype=np.bool_)
-    for a in cols:
-        held[a] = False
-    const = rr
-    for h in range(P):
-        if held[h] and dev[h] != 0.0:
-            const -= 2.0 * g[h] * dev[h]
-            for h2 in range(P):
-                if held[h2]:
-                    const += dev[h] * JtJ[h, h2] * dev[h2]
-    const /= sigma2
-    N = np.empty((k, k))
-    c = np.empty(k)
-    log_lam = 0.0
-    for ia in range(k):
-        a = cols[ia]
-        acc = g[a]
-        for h in range(P):
-            if held[h]:
-                acc -= JtJ[a, h] * dev[h]
-        c[ia] = acc / sigma2 + lam[a] * dev[a]
-        const += lam[a] * dev[a] * dev[a]
-        if lam[a] > 0.0:
-            log_lam += math.log(lam[a])
-        for ib in range(k):
-            N[ia, ib] = JtJ[a, cols[ib]] / sigma2
-        N[ia, ia] += lam[a]
-    return N, c, const, log_lam
-
-
-@numba.njit(cache=True)
-def log_evidence(JtJ, g, rr, sigma2, lam, dev, cols):
-    """The log marginal likelihood, up to a constant common to every model, of the linearised fit
-    with the step columns ``cols`` free and the others held at the prior's values
-    (:func:`_model_normal_equations`)::
-
-        log Z = −½ (r'ᵀr'/σ² + devᵀΛ dev − cᵀN⁻¹c) − ½ log det N + ½ Σ log λ
-
-    the evidence of a linear model under a Gaussian prior: the fit's χ² against the Occam
-    factor of each number freed (the prior's width over the posterior's). −inf when ``N`` is
-    not positive definite."""
-    N, c, const, log_lam = _model_normal_equations(JtJ, g, rr, sigma2, lam, dev, cols)
-    L, ok = cholesky(N)
-    if not ok:
-        return -math.inf
-    log_det = 0.0
-    quad = 0.0
-    z = np.empty(cols.shape[0])
-    for i in range(cols.shape[0]):  # z = L⁻¹c, cᵀN⁻¹c = zᵀz
-        log_det += 2.0 * math.log(L[i, i])
-        t = c[i]
-        for p in range(i):
-            t -= L[i, p] * z[p]
-        z[i] = t / L[i, i]
-        quad += z[i] * z[i]
-    return -0.5 * (const - quad) - 0.5 * log_det + 0.5 * log_lam
-
-
-@numba.njit(cache=True)
-def _model_step(JtJ, g, sigma2, lam, dev, cols):
-    """The Gauss–Newton step (k,) of the model with the step columns ``cols`` free, from the
-    linearisation whose held columns are moved to the prior's values
-    (:func:`_model_normal_equations`), and that model's effective number of fitted numbers."""
-    N, c, _, _ = _model_normal_equations(JtJ, g, 0.0, sigma2, lam, dev, cols)
-    k = cols.shape[0]
-    inv, ok = spd_inverse(N)
-    if not ok:
-        inv = np.linalg.pinv(N)
-    step = np.zeros(k)
-    n_eff = 0.0
-    for a in range(k):
-        for b in range(k):
-            step[a] -= inv[a, b] * c[b]
-            n_eff += inv[a, b] * JtJ[cols[b], cols[a]]
-    return step, n_eff / sigma2
-
-
-@numba.njit(cache=True)
-def choose_model(JtJ, g, rr, sigma2, lam, dev, codes, free):
-    """Which of the parameters ``codes`` to fit (bool, one per code): of every model that frees
-    ``f``, the principal point as ``free`` has it, and any subset of the others, the one of
-    largest :func:`log_evidence` (the simpler on a tie: subsets in order of their bit mask). With
-    the principal point free, decentring (p1, p2) is fitted with it: the two trade, and a lens's
-    decentring held at 0 goes into the principal point and the boresight (thesis 003's MT9P031
-    lens: cy 974.0–974.5 against 975.7, the boresight 2–3σ off)."""
-    optional = np.empty(codes.shape[0], dtype=np.int64)
-    n_opt = 0
-    pp_free = False
-    for k in range(codes.shape[0]):
-        if codes[k] == PRINCIPAL_POINT:
-            pp_free = free[k]
-        elif codes[k] != F:
-            optional[n_opt] = k
-            n_opt += 1
-    best = free.copy()
-    best_z = -math.inf
-    trial = free.copy()
-    for mask in range(1 << n_opt):
-        decentring = True
-        for o in range(n_opt):
-            trial[optional[o]] = (mask >> o) & 1 == 1
-            if codes[optional[o]] == TANGENTIAL:
-                decentring = trial[optional[o]]
-        if pp_free and not decentring:
-            continue
-        z = log_evidence(JtJ, g, rr, sigma2, lam, dev, free_columns(codes, trial))
-        if z > best_z:
-            best_z = z
-            best[:] = trial
-    return best
-
-
-@numba.njit(cache=True)
 def _chosen(JtJ, g, res, step, n_eff, lam, dev, codes, free, sigma_floor):
     """:func:`choose_model` at a linearisation (``JᵀJ``, ``Jᵀr``, the residuals (N, 2)) with σ² from
     the residuals of its step with every number free (``step``, ``n_eff``), floored at
@@ -799,7 +420,7 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options, weights):
                 _, n_eff_all, step = _posterior(JtJ, g, sigma2, lam, dev)
                 free = _chosen(JtJ, g, res, step, n_eff_all, lam, dev, codes, free, options.sigma_floor)
                 codes_f = codes[free]
-                step, n_eff = _model_step(JtJ, g, sigma2, lam, dev, free_columns(codes, free))
+                step, n_eff = model_step(JtJ, g, sigma2, lam, dev, free_columns(codes, free))
                 for k in range(n_codes):
                     if not free[k]:
                         hold_at_prior(cam, prior, codes[k])

@@ -30,7 +30,8 @@ from typing import NamedTuple
 import numpy as np
 
 from skyfix.analysis.truth import attitude_error_rad, judge_error
-from skyfix.camera import Camera
+from skyfix.camera import Camera, camera_from_preset
+from skyfix.catalog import load_hipparcos
 
 __all__ = ["Trial", "UncalibratedField", "preset_image_trials",
            "random_uncalibrated_camera", "summarize", "trial_result", "uncalibrated_centroid_trials",
@@ -91,7 +92,6 @@ def uncalibrated_fields(seed: int = 0, *, epoch: float = 2025.0) -> Iterator[Unc
     a :func:`random_uncalibrated_camera`, a random attitude, 8–40 catalogue stars to a random
     limit 5–8 mag, 5% missed, 0–5 false stars, centroid noise 0.1–1 px."""
     from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
-    from skyfix.catalog import load_hipparcos
 
     catalog = load_hipparcos(epoch=epoch)
     rng = np.random.default_rng(seed)
@@ -125,7 +125,6 @@ def preset_image_trials(preset: str, n: int, seed: int = 0, *, false_stars: int 
     """``n`` blind solves of images rendered with ``preset`` (its realistic exposure and noise)
     at uniformly random attitudes."""
     from skyfix.analysis.synthetic_centroids import random_attitudes
-    from skyfix.camera import camera_from_preset
     from skyfix.pipeline import solve
     from skyfix.simulate import render
 

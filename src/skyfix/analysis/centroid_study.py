@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from scipy.special import erf
 
-from skyfix.detect import METHODS, centroid_windows, cramer_rao_centroid, refine_centroids
+from skyfix.detect import METHODS, centroid_windows, cramer_rao_centroid, extract_centroids, refine_centroids
 
 __all__ = [
     "CellResult",
@@ -219,8 +219,6 @@ def centroid_stamps(stamps: np.ndarray, method: str, sigma_px: float | None = No
 
 def _extract_stamps(stamps: np.ndarray, method: str = "components") -> tuple[np.ndarray, np.ndarray]:
     """Run a full-frame extraction method on a square mosaic of the stamps; centroids per stamp."""
-    from skyfix.detect import extract_centroids
-
     n, k, _ = stamps.shape
     side = int(math.ceil(math.sqrt(n)))
     # empty slots get a copy of a star-free border row so the sky statistics stay uniform

@@ -18,6 +18,7 @@ deeper than any case's limit, so the fields are the sky, not the solver's catalo
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -28,6 +29,7 @@ import numpy as np
 
 from skyfix.analysis.blind_campaign import Trial, summarize, trial_result
 from skyfix.camera import Camera
+from skyfix.catalog import load_gaia
 
 __all__ = ["CASES", "FieldCase", "FieldTrial", "case_camera", "field_trials", "main", "summarize_case",
            "write_campaign"]
@@ -89,7 +91,6 @@ def field_trials(case: FieldCase, n: int, seed: int = 0, *, epoch: float = 2025.
     """``n`` frames of ``case`` at uniformly random attitudes (reproducible from ``seed``), each
     solved with no hint."""
     from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
-    from skyfix.catalog import load_gaia
     from skyfix.pipeline import solve_centroids
 
     catalog = load_gaia(epoch=epoch)
@@ -130,8 +131,6 @@ def write_campaign(results: list[tuple[FieldCase, list[FieldTrial]]], out: Path,
                    command: str) -> list[Path]:
     """Write ``fields.json`` (every case's summary), ``fields.md`` (the table) and ``fields.png``
     (boresight error and normalised error histograms per case) into ``out``."""
-    import json
-
     out.mkdir(parents=True, exist_ok=True)
     rows = [summarize_case(case, trials) for case, trials in results]
     (out / "fields.json").write_text(json.dumps({"command": command, "cases": rows}, indent=1))

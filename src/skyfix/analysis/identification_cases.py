@@ -17,6 +17,7 @@ docs/identification-study.md has a full run's numbers beside the theses'.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Callable
@@ -26,7 +27,12 @@ import numpy as np
 
 from skyfix.analysis.identification_jobs import EPOCH, HEIGHT, WIDTH, judge_identification, upper_bound_95
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
-from skyfix.camera import Camera
+from skyfix.attitude import solve_attitude
+from skyfix.camera import Camera, camera_from_preset
+from skyfix.catalog import load_hipparcos
+from skyfix.geometry import attitude_from_radec_roll, normalize, rotation_angle_between, vector_to_radec
+from skyfix.identify import Identification, PatternDatabase, default_database, identify
+from skyfix.identify.common.hypothesis import chance_log_probability, frame_for, hypothesis
 
 __all__ = ["CASES", "MatchingRow", "SHIFTS_PX", "TABLE_3_7_ROWS", "perturbation_sweep", "quest_catalogue",
            "sparse_fields", "table_3_7", "three_star_frames"]
@@ -58,10 +64,6 @@ def quest_catalogue(n_stars: int = 513, max_angle_deg: float = 21.25) -> dict:
     BSC cut of ~V 4: 513 stars) with all sides ≤ ``max_angle_deg`` (≈ 26,500 clusters, as
     000's 26,437), each fed to QUEST as image and reference: success when the attitude is the
     identity to 1″. 000: 25,564 of 26,437 (96.7 %)."""
-    from skyfix.attitude import solve_attitude
-    from skyfix.catalog import load_hipparcos
-    from skyfix.geometry import rotation_angle_between
-
     cat = load_hipparcos(epoch=EPOCH)
     v = cat.vectors[:n_stars]
     tri = _clusters(v, math.radians(max_angle_deg))
@@ -93,11 +95,6 @@ def perturbation_sweep(shifts_px: tuple[float, ...] = SHIFTS_PX, n_stars: int = 
     thesis, the catalogue is identified against itself: the database is built from the same
     stars. (The thesis's frames held the cluster alone; skyfix rejects a match that leaves a
     catalogue star in view undetected, so such a frame is not a frame it can be given.)"""
-    from skyfix.camera import camera_from_preset
-    from skyfix.catalog import load_hipparcos
-    from skyfix.geometry import attitude_from_radec_roll, normalize, vector_to_radec
-    from skyfix.identify import PatternDatabase, identify
-
     cat = load_hipparcos(epoch=EPOCH)
     v = cat.vectors[:n_stars]
     tri = _clusters(v, math.radians(max_angle_deg))
@@ -212,13 +209,7 @@ def table_3_7(trials: int = 1000, method: str = "van-bezooijen", seed: int = 0,
     (3.1) and (3.2) for every pair — a group the thesis's largest-group rule could take, refused
     here as not beyond chance (``refused_log10_p``: the verification's chance of each such true
     group proposed alone, with its first four stars as the core)."""
-    import itertools
-
     from skyfix.analysis import coverage as cv
-    from skyfix.camera import camera_from_preset
-    from skyfix.catalog import load_hipparcos
-    from skyfix.identify import PatternDatabase, identify
-    from skyfix.identify.common.hypothesis import chance_log_probability, frame_for, hypothesis
 
     camera = camera_from_preset("sunsat")
     f = math.sqrt(camera.fx * camera.fy)
@@ -312,9 +303,6 @@ def sparse_fields(fov_deg: float = 30.0, n_fields: int = 200, n_bright: int = 3,
     the ``n_bright``-th and the next), noise-free, identified by each of ``methods`` with the FOV
     told to ±10 % (``calibrated``: the camera given): right, wrong, refused (reasons counted;
     "ambiguous" when the stars are not unique enough to name)."""
-    from skyfix.catalog import load_hipparcos
-    from skyfix.identify import Identification, default_database, identify
-
     catalog = load_hipparcos(epoch=EPOCH)
     db = default_database(progress=False)
     camera = Camera.from_fov(WIDTH, HEIGHT, fov_deg)

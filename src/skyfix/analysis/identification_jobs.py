@@ -17,6 +17,8 @@ import numpy as np
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
 from skyfix.analysis.truth import Judgement, judge
 from skyfix.camera import Camera
+from skyfix.catalog import load_hipparcos
+from skyfix.identify import METHODS, default_database, get_method, identify
 
 __all__ = ["CONDITIONS", "Condition", "EPOCH", "HEIGHT", "MAG_LIMIT", "WIDTH", "condition_key",
            "judge_identification", "method_names", "run_pool", "study_field", "table_nbytes",
@@ -52,8 +54,6 @@ CONDITIONS = (
 def method_names(methods: tuple[str, ...] | list[str] = ()) -> list[str]:
     """The methods to run: those named (checked), or every registered one; a name that is an
     alias of an earlier one's function (``hash`` of ``quad-hash``) is run once."""
-    from skyfix.identify import METHODS, get_method
-
     names = [m.strip().lower() for m in methods if m.strip()] or list(METHODS)
     seen: dict[int, str] = {}
     out = []
@@ -103,9 +103,6 @@ def warm_methods(methods: list[str], fovs_deg: tuple[float, ...] = (8.0, 15.0, 3
     its first calls' time beyond the second's (the build). With ``cameras``, then one call per
     method and FOV with the camera given (the tables a calibrated camera's search builds), not
     counted."""
-    from skyfix.catalog import load_hipparcos
-    from skyfix.identify import default_database, identify
-
     catalog = load_hipparcos(epoch=EPOCH, mag_limit=MAG_LIMIT + 1.0)
     db = default_database(progress=False)
     fields = [(fov, study_field(fov, CONDITIONS[0], 10**6 + 1, 12345, catalog)[1]) for fov in fovs_deg]

@@ -36,6 +36,7 @@ from skyfix.analysis.identification_jobs import (
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
 from skyfix.analysis.truth import judge
 from skyfix.camera import Camera
+from skyfix.catalog import load_hipparcos
 
 __all__ = ["SAFETY_BOUNDS", "SAFETY_FULL", "SAFETY_MIX", "SAFETY_QUICK", "SAFETY_STUDY", "SafetyDraw",
            "SafetyMix", "SafetySettings", "SafetyTrial", "read_checkpoint", "replay_safety", "run_safety",
@@ -188,8 +189,6 @@ def safety_trial(method: str, draw: SafetyDraw, camera: Camera, field, bounds: d
 def run_safety_block(trials: range, methods: list[str], seed: int = 0, mix: SafetyMix = SAFETY_MIX,
                      bounds: dict[str, dict] | None = None) -> list[SafetyTrial]:
     """Every method on the safety frames ``trials`` (a worker's job), interleaved frame by frame."""
-    from skyfix.catalog import load_hipparcos
-
     catalog = load_hipparcos(epoch=EPOCH, mag_limit=MAG_LIMIT + 1.0)
     out = []
     for t in trials:

@@ -67,6 +67,8 @@ from skyfix.analysis.identification_safety import (
     safety_result,
     safety_summary,
 )
+from skyfix.catalog import load_hipparcos
+from skyfix.identify import Identification, default_database, default_database_path, identify
 
 __all__ = ["FULL", "QUICK", "StudySettings", "TrialRecord", "cell_summary", "markdown", "plots", "run_block",
            "run_study", "summarize", "write_study"]
@@ -106,9 +108,6 @@ class TrialRecord(NamedTuple):
 def run_block(fov: float, cond: Condition, trials: range, methods: list[str], seed: int,
               fov_tolerance: float = 0.1) -> list[TrialRecord]:
     """Every method on the fields ``trials`` of one FOV and condition (a worker's job)."""
-    from skyfix.catalog import load_hipparcos
-    from skyfix.identify import Identification, default_database, identify
-
     catalog = load_hipparcos(epoch=EPOCH, mag_limit=MAG_LIMIT + 1.0)
     db = default_database(progress=False)
     kw = dict(fov_deg=fov, fov_tolerance_deg=fov * fov_tolerance, database=db, epoch=EPOCH)
@@ -137,8 +136,6 @@ def run_study(settings: StudySettings = FULL, progress: Callable[[str], None] | 
     names of :data:`CASES` with their defaults), all as jobs of one pool of ``settings.workers``
     processes. Returns ``{"settings", "records", "tables"}`` (records as :class:`TrialRecord`),
     with ``"safety"`` (as :func:`run_safety`'s) and ``"cases"`` (name → result) when run."""
-    from skyfix.identify import default_database_path
-
     methods = method_names(settings.methods)
     tables = warm_methods(methods, settings.fovs_deg)  # in this process: the tables' sizes and build times
     path = default_database_path()

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from skyfix.detect import Centroids, extract_centroids
+from skyfix.io import read_image
 
 __all__ = [
     "FieldCalibration",
@@ -257,7 +258,6 @@ def frame_photometry(image: str | Path | np.ndarray, *, epoch: float | None = No
         Centroids extracted (as :func:`skyfix.pipeline.solve` does, so the matches' positions
         are these centroids).
     """
-    from skyfix.io import read_image
     from skyfix.pipeline import solve
 
     label = name or (Path(image).name if isinstance(image, (str, Path)) else "<array>")

@@ -38,6 +38,9 @@ import numpy as np
 from skyfix.analysis._json import strict_json
 from skyfix.analysis.preset_check import THESIS_FIGURES, detection_snr
 from skyfix.analysis.truth import judge
+from skyfix.camera import Camera
+from skyfix.identify import PatternDatabase
+from skyfix.identify.catalogue.bands import served_fov_deg
 
 if TYPE_CHECKING:
     from skyfix.identify import PatternDatabase
@@ -128,9 +131,6 @@ def _outcome(sol, A_true: np.ndarray, camera_true, seconds: float) -> SolveOutco
 def _databases(camera, database: PatternDatabase | None, epoch: float) -> dict:
     """The databases a preset is solved with: {label: database or None (skyfix's bands)}. With
     ``database`` given, it, and one built for the preset's field when it does not serve it."""
-    from skyfix.identify import PatternDatabase
-    from skyfix.identify.catalogue.bands import served_fov_deg
-
     if database is None:
         return {"bands": None}
     dbs = {f"given {database.fov_min_deg:g}–{database.fov_max_deg:g}°": database}
@@ -150,7 +150,6 @@ def run_campaign(n: int = 100, seed: int = 0, *, rows: tuple[CampaignRow, ...] =
     with skyfix's databases or, given one, with ``database`` and, for fields it does not serve,
     one built for the field. ``progress`` is called once per frame."""
     from skyfix.analysis.synthetic_centroids import random_attitudes
-    from skyfix.camera import Camera
     from skyfix.pipeline import solve
     from skyfix.simulate import render
 

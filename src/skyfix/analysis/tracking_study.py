@@ -52,6 +52,7 @@ from skyfix.analysis.window_timing import THESIS_TABLE_5_1, TimingRow, run_timin
 from skyfix.attitude import attitude_covariance, attitude_error, svd_attitude
 from skyfix.camera import Camera
 from skyfix.geometry import attitude_from_quaternion, attitude_from_radec_roll, normalize, radec_to_vector
+from skyfix.simulate import render_sequence
 from skyfix.simulate.profiles import Profile, make_profile
 
 __all__ = [
@@ -162,8 +163,6 @@ class _Jumped(Profile):
 
 def _frames(spec: SequenceSpec) -> Iterator[tuple[float, str, object, Profile, float]]:
     """(time, event, frame, profile, profile time) of every frame of a sequence."""
-    from skyfix.simulate import render_sequence
-
     ra, dec, roll = np.radians(spec.radec_roll_deg)
     base = make_profile(spec.profile, attitude_from_radec_roll(ra, dec, roll), **spec.params)
     n1 = spec.n_frames if spec.jump_frame is None else min(spec.jump_frame, spec.n_frames)

@@ -5,10 +5,10 @@ decentring trade off against that field's pointing, and twenty stars cannot carr
 numbers. Over many images the camera is shared and only the attitudes are each image's own,
 so the camera is pinned down by every star at once.
 
-The model and its derivatives are :mod:`skyfix._kernels.camera_fit`'s, written once:
-:func:`~skyfix._kernels.camera_fit.jacobian_rows` gives each image's rows (its three rotations
+The model and its derivatives are :mod:`skyfix._kernels.camera_jacobian`'s, written once:
+:func:`~skyfix._kernels.camera_jacobian.jacobian_rows` gives each image's rows (its three rotations
 and the shared camera's columns, in that module's scaled units) and
-:func:`~skyfix._kernels.camera_fit.apply_step` moves the camera. Only the skew, which no
+:func:`~skyfix._kernels.camera_jacobian.apply_step` moves the camera. Only the skew, which no
 per-image fit frees, has its column here: ``∂u/∂skew = y_d`` (``y_d`` read from the predicted
 ``v = fy·y_d + cy``), ``∂v/∂skew = 0``.
 
@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from skyfix._kernels import camera_fit as kernels
+from skyfix._kernels import camera_jacobian as kernels
 from skyfix._kernels import lens, rotation
 from skyfix.calibrate import CAMERA_PARAMETERS
 from skyfix.camera import Camera
@@ -185,7 +185,7 @@ def _check(params: Sequence[str], camera: Camera) -> None:
 def _rows(images: Sequence[MatchedImage], attitudes: np.ndarray, cam: np.ndarray, rmax: float,
           codes: np.ndarray, skew: bool) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Each image's Jacobian rows (N_i, 2, 3 + P) and residuals (N_i, 2) at the camera ``cam``
-    and the attitudes: :func:`skyfix._kernels.camera_fit.jacobian_rows`, with the skew's column
+    and the attitudes: :func:`skyfix._kernels.camera_jacobian.jacobian_rows`, with the skew's column
     appended when it is free."""
     Js, rs = [], []
     for img, A in zip(images, attitudes, strict=True):

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+import skyfix
 from skyfix.calibration.camera_file import camera_file
 from skyfix.calibration.joint import SKEW, JointFit, MatchedImage, fit_joint, numbers_of_parameters
 from skyfix.camera import Camera
@@ -164,7 +165,6 @@ def prepare_frames(images: Sequence[str | Path | np.ndarray], *, max_stars: int 
 
     Raises :class:`~skyfix.errors.CalibrationError` naming the image for too few images, images
     of different sizes, an image that does not solve or matches fewer than :data:`MIN_STARS`."""
-    import skyfix
     from skyfix.detect import extract_centroids
 
     if len(images) < MIN_IMAGES:

@@ -31,7 +31,7 @@ from skyfix.cli.common import (
     load_database,
     prepare_outputs,
 )
-from skyfix.errors import unknown_name
+from skyfix.errors import InputError, SkyfixError, unknown_name
 from skyfix.validate import check_count, check_epoch, check_fov, check_positive
 
 analyze_app = typer.Typer(cls=OneLineErrors, no_args_is_help=True, pretty_exceptions_enable=False,
@@ -495,7 +495,6 @@ def mounting(
 
     from skyfix.analysis.mounting import estimate_mounting, image_to_enu
     from skyfix.corrections.refraction import check_site_weather
-    from skyfix.errors import InputError, SkyfixError
 
     add_verbosity(verbose)
     try:

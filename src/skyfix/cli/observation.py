@@ -1,17 +1,19 @@
 """The observation options ``skyfix solve`` and ``skyfix track`` share (issue 24), read in one
-place: ``--time``, ``--velocity-kms``, ``--site``, ``--weather``, ``--refraction``, ``--mounting``
-and ``--apparent``, with the camera file's ``[mounting]`` and ``[exclusion]`` tables and a
-preset's exclusion angles (docs/time-and-corrections.md#in-a-solve).
+place: ``--time``, ``--velocity-kms``, ``--position-km``, ``--site``, ``--weather``, ``--refraction``,
+``--mounting`` and ``--apparent``, with the camera file's ``[mounting]`` and ``[exclusion]`` tables
+and a preset's exclusion angles (docs/time-and-corrections.md#in-a-solve).
 
 :func:`observation_options` checks them all before any work — each bad value is one line and
 exit 2 (a time outside 1900–2100, a latitude of 100°, ``--weather`` without ``--site``, a speed of
-c or more, a malformed mounting) — and returns the keywords of :func:`skyfix.solve` and
-:class:`skyfix.track.Tracker`.
+c or more, ``--position-km`` without ``--velocity-kms`` or inside the Earth, a malformed mounting)
+— and returns the keywords of :func:`skyfix.solve` and :class:`skyfix.track.Tracker`.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+
+import typer
 
 from skyfix.cli.common import checking, fail
 from skyfix.errors import InputError
@@ -25,6 +27,9 @@ OBSERVATION_HELP = {
               "the true attitude.",
     "--velocity-kms": "The camera's velocity relative to the Earth's centre, km/s, GCRS axes (vx,vy,vz): "
                       "its aberration is removed with the Earth's.",
+    "--position-km": "The camera's position from the Earth's centre, km, GCRS axes (x,y,z), with "
+                     "--velocity-kms: the orbit frame (the body's attitude in it, with a mounting) and the "
+                     "Earth's limb.",
     "--site": "A camera on the ground: latitude, east longitude (degrees), height (m). Refraction per "
               "star; the boresight's Alt/Az and place of date are reported.",
     "--weather": "The air at --site: temperature (°C), pressure (hPa), relative humidity (0-1).",
@@ -35,15 +40,14 @@ OBSERVATION_HELP = {
                   "instead of the true one.",
 }
 
-_METAVARS = {"--time": "ISO8601", "--velocity-kms": "VX,VY,VZ", "--site": "LAT,LON,HEIGHT_M",
-             "--weather": "T_C,P_HPA,RH", "--refraction": "MODEL", "--mounting": "X,Y,Z,W|PHI,THETA,PSI"}
+_METAVARS = {"--time": "ISO8601", "--velocity-kms": "VX,VY,VZ", "--position-km": "X,Y,Z",
+             "--site": "LAT,LON,HEIGHT_M", "--weather": "T_C,P_HPA,RH", "--refraction": "MODEL",
+             "--mounting": "X,Y,Z,W|PHI,THETA,PSI"}
 
 
 def observation_option(flag: str):
     """The typer declaration of one observation option (its flag, metavar, help; ``--apparent`` a
     flag, the others text, default None)."""
-    import typer
-
     if flag == "--apparent":
         return typer.Option(False, flag, help=OBSERVATION_HELP[flag])
     return typer.Option(None, flag, metavar=_METAVARS[flag], help=OBSERVATION_HELP[flag])
@@ -51,12 +55,17 @@ def observation_option(flag: str):
 
 def observation_options(time: str | None, velocity_kms: str | None, site: str | None, weather: str | None,
                         refraction: str | None, mounting: str | None, apparent: bool,
-                        camera: str | None = None, epoch: float | None = None) -> dict:
+                        camera: str | None = None, epoch: float | None = None,
+                        position_km: str | None = None) -> dict:
     """The checked keywords for :func:`skyfix.solve` / :class:`skyfix.track.Tracker` (``time``,
     ``observer``, ``site``, ``weather``, ``refraction``, ``apparent``, ``mounting``,
-    ``exclusion``); ``camera`` is ``--camera``'s value (a file's ``[mounting]`` and
+    ``exclusion``); ``position_km`` is ``--position-km``'s value (it needs ``velocity_kms``: with it
+    the observer's state, whose orbit frame the body's attitude is also given in);
+    ``camera`` is ``--camera``'s value (a file's ``[mounting]`` and
     ``[exclusion]``, or a preset's exclusion angles). A bad value: one line, exit 2."""
+    # the corrections load astropy/ERFA: not at every CLI start (tests/cli/test_cli_start.py)
     from skyfix.corrections.observation import observe
+    from skyfix.corrections.observer import parse_state, parse_velocity
     from skyfix.corrections.refraction import check_site_weather
     from skyfix.frames import Mounting
     from skyfix.obstime import parse_time
@@ -65,9 +74,12 @@ def observation_options(time: str | None, velocity_kms: str | None, site: str | 
         the_time = None if time is None else parse_time(time, "--time")
     try:
         out = dict(time=the_time, observer=None, refraction=refraction or "erfa", apparent=bool(apparent))
-        if velocity_kms is not None:
-            from skyfix.corrections import parse_velocity
-
+        if position_km is not None and velocity_kms is None:
+            raise InputError("--position-km needs --velocity-kms: the orbit frame is made from the camera's "
+                             "position and velocity")
+        if position_km is not None:
+            out["observer"] = parse_state(velocity_kms, position_km)
+        elif velocity_kms is not None:
             out["observer"] = parse_velocity(velocity_kms)
         out["site"], out["weather"] = check_site_weather(site, weather, names=("--site", "--weather"))
         if refraction is not None and site is None:

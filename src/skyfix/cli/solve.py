@@ -109,6 +109,7 @@ def solve(
              "exposure): stars are found in the frame averaged along it."),
     obs_time: str = observation_option("--time"),
     velocity_kms: str = observation_option("--velocity-kms"),
+    position_km: str = observation_option("--position-km"),
     site: str = observation_option("--site"),
     weather: str = observation_option("--weather"),
     refraction: str = observation_option("--refraction"),
@@ -145,7 +146,7 @@ def solve(
     with checking("--camera", camera_file):
         camera = load_camera(camera_file) if camera_file is not None else None
     observation = observation_options(obs_time, velocity_kms, site, weather, refraction, mounting, apparent,
-                                      camera_file, epoch)  # after --camera: its [mounting] and [exclusion]
+                                      camera_file, epoch, position_km)  # after --camera: its tables
     database = load_database(database_file, _solve_paths(identify_method, method, hint is not None))
     if hint is not None and camera is None and fov is None:
         typer.echo("skyfix: note: --attitude-hint needs the image scale (--camera or --fov); "

@@ -75,6 +75,7 @@ def track(
                               help="Write a PNG: attitude error bars, rate and star count vs time."),
     obs_time: str = observation_option("--time"),
     velocity_kms: str = observation_option("--velocity-kms"),
+    position_km: str = observation_option("--position-km"),
     site: str = observation_option("--site"),
     weather: str = observation_option("--weather"),
     refraction: str = observation_option("--refraction"),
@@ -94,7 +95,7 @@ def track(
         fail(f"--predictor: {unknown_name('predictor', predictor, PREDICTORS)}")
     times = frame_times(frames, fps)
     observation = observation_options(obs_time, velocity_kms, site, weather, refraction, mounting,
-                                      apparent, camera_file, epoch)  # after --camera: its tables
+                                      apparent, camera_file, epoch, position_km)  # after --camera: its tables
     if observation["time"] is None:  # the first frame's own time is the time of t = 0
         observation["time"] = _first_frame_time(frames[0])
     samples = read_gyro(gyro) if gyro is not None else None

@@ -56,7 +56,15 @@ from skyfix.corrections.bodies import (
 )
 from skyfix.corrections.observer import GEOCENTRE, Observer, observer_from_state, parse_velocity
 from skyfix.errors import InputError
-from skyfix.obstime import NO_TIME, ObservationTime, jd_utc, julian_year, parse_time
+from skyfix.obstime import (
+    NO_TIME,
+    ObservationTime,
+    jd_utc,
+    julian_year,
+    parse_time,
+    time_from_exif,
+    time_from_fits_header,
+)
 
 if TYPE_CHECKING:
     from skyfix.corrections.refraction import GroundFrame, Site, Weather
@@ -217,8 +225,6 @@ def time_of_image(image, header: dict | None = None, image_format: str = "") -> 
     read it), else the EXIF of a JPEG or TIFF file; :data:`NO_TIME` for an array, a PNG, or a
     file that says nothing (a malformed value: one warning line, never an exception but for a
     time outside 1900–2100)."""
-    from skyfix.obstime import time_from_exif, time_from_fits_header
-
     if image_format == "fits" and header is not None:
         return time_from_fits_header(header)
     if isinstance(image, (str, os.PathLike)) and image_format in ("jpeg", "tiff", "image"):

@@ -6,10 +6,11 @@ added to the Earth's barycentric velocity for aberration (:mod:`skyfix.correctio
 the position moves the Moon and the Sun by their parallax and places the Earth's limb
 (:mod:`skyfix.corrections.bodies`). Without one the observer is at the geocentre, at rest.
 
-Made from ``--velocity-kms vx,vy,vz`` (:func:`parse_velocity`) or from an orbit state
-(:func:`observer_from_state`, e.g. a propagated orbit's GCRS/J2000 position and velocity; J2000
-mean-equator axes differ from GCRS's by 23 mas, nothing here). A TLE is not read: no SGP4
-library is installed (propagate it elsewhere and pass the state).
+Made from ``--velocity-kms vx,vy,vz`` (:func:`parse_velocity`), with ``--position-km x,y,z``
+too (:func:`parse_state`), or from an orbit state (:func:`observer_from_state`, e.g. a
+propagated orbit's GCRS/J2000 position and velocity; J2000 mean-equator axes differ from GCRS's
+by 23 mas, nothing here). A TLE is not read: no SGP4 library is installed (propagate it elsewhere
+and pass the state).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numpy as np
 
 from skyfix.errors import InputError
 
-__all__ = ["Observer", "GEOCENTRE", "parse_velocity", "observer_from_state", "check_speed",
+__all__ = ["Observer", "GEOCENTRE", "parse_velocity", "parse_state", "observer_from_state", "check_speed",
            "SPEED_OF_LIGHT_KM_S", "EARTH_EQUATORIAL_RADIUS_KM", "EARTH_POLAR_RADIUS_KM"]
 
 SPEED_OF_LIGHT_KM_S = 299792.458
@@ -89,11 +90,30 @@ def parse_velocity(text: str) -> Observer:
     >>> parse_velocity("7.5,0,-0.2").velocity_km_s.tolist()
     [7.5, 0.0, -0.2]
     """
+    return observer_from_state(None, _three_numbers(text, "--velocity-kms", "vx,vy,vz in km/s"),
+                               "--velocity-kms")
+
+
+def parse_state(velocity_text: str, position_text: str) -> Observer:
+    """The :class:`Observer` of ``--velocity-kms vx,vy,vz --position-km x,y,z``: the camera's
+    geocentric state, GCRS axes — what the orbit frame (:func:`skyfix.frames.orbit_frame`) and
+    the Earth's limb need. A position inside the Earth is an :class:`~skyfix.errors.InputError`.
+
+    >>> parse_state("0,7.5,0", "6878,0,0").position_km.tolist()
+    [6878.0, 0.0, 0.0]
+    """
+    v = _three_numbers(velocity_text, "--velocity-kms", "vx,vy,vz in km/s")
+    r = _three_numbers(position_text, "--position-km", "x,y,z in km from the Earth's centre")
+    return observer_from_state(r, v, "--velocity-kms, --position-km")
+
+
+def _three_numbers(text: str, flag: str, what: str) -> list[float]:
+    """Three finite numbers ``a,b,c`` of the option ``flag``, else an InputError naming it."""
     parts = [p.strip() for p in str(text).split(",")]
     try:
         numbers = [float(p) for p in parts]
     except ValueError:
         numbers = []
     if len(numbers) != 3 or not all(math.isfinite(x) for x in numbers):
-        raise InputError(f"--velocity-kms takes three numbers vx,vy,vz in km/s (GCRS axes), got {text!r}")
-    return observer_from_state(None, numbers, "--velocity-kms")
+        raise InputError(f"{flag} takes three numbers {what} (GCRS axes), got {text!r}")
+    return numbers

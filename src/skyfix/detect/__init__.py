@@ -24,6 +24,7 @@ Typical use::
   :func:`save_calibration` / :func:`load_calibration`.
 """
 
+import importlib
 from typing import TYPE_CHECKING
 
 from skyfix.detect.background import Background, estimate_background
@@ -86,8 +87,6 @@ _LAZY = {"centroid_streaks": "skyfix.detect.streak", "star_times": "skyfix.detec
 
 def __getattr__(name: str):
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'skyfix.detect' has no attribute {name!r}")
 

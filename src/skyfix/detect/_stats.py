@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["CLIP", "median", "median_inplace", "robust_level_noise", "tile_level_noise", "clipped_rms",
-           "percentile_linear", "argsort_descending", "sum_sq_dev"]
+           "percentile_linear", "argsort_descending", "sum_sq_dev", "window_border"]
 
 #: Half-width of the clip of :func:`clipped_rms`, in σ.
 CLIP = 3.0
@@ -75,6 +75,23 @@ def robust_level_noise(v, quantum=0.0, lower=False, guess=np.nan):
     scratch = dev.copy()
     s0 = max(1.4826 * median_inplace(scratch, dev.size, np.nan), quantum)
     return med, clipped_rms(dev, dev.size, s0)
+
+
+@njit(cache=True, inline="always")
+def window_border(img, y0, y1, x0, x1, buf):
+    """The pixels of the border of the window rows ``y0..y1``, columns ``x0..x1`` (inclusive) of
+    ``img`` into ``buf`` (at least ``2·(x1 − x0 + 1) + 2·(y1 − y0 − 1)`` long), top and bottom
+    rows in pairs, then the left and right columns; returns how many: a window's sky sample."""
+    m = 0
+    for x in range(x0, x1 + 1):
+        buf[m] = img[y0, x]
+        buf[m + 1] = img[y1, x]
+        m += 2
+    for y in range(y0 + 1, y1):
+        buf[m] = img[y, x0]
+        buf[m + 1] = img[y, x1]
+        m += 2
+    return m
 
 
 @njit(cache=True)

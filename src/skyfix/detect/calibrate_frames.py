@@ -22,6 +22,7 @@ import numpy as np
 
 from skyfix.detect._stats import robust_level_noise
 from skyfix.errors import ImageReadError, unknown_name
+from skyfix.io import read_image
 
 __all__ = [
     "COMBINES", "master_frame", "master_dark", "master_flat", "hot_pixel_map", "dead_pixel_map",
@@ -30,8 +31,6 @@ __all__ = [
 
 
 def _stack(frames: Iterable[np.ndarray] | np.ndarray) -> np.ndarray:
-    from skyfix.io import read_image
-
     if isinstance(frames, np.ndarray) and frames.ndim == 3:
         stack = frames.astype(np.float32, copy=False)
     else:

@@ -38,13 +38,13 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from skyfix.detect._stats import robust_level_noise
+from skyfix.detect._stats import robust_level_noise, window_border
 from skyfix.detect.centroids import Centroids, background_snr
 from skyfix.errors import unknown_name
 
 __all__ = ["CENTROIDERS", "COM", "IWCOG", "GAUSSIAN", "Centroider", "Refined", "centroid_windows",
            "centroider", "refine_centroids", "refine_kernel", "refined_columns", "cramer_rao_centroid",
-           "measure_psf"]
+           "measure_psf", "Window"]
 
 # The centroiders' codes inside the kernels (numba compiles module-level ints as constants).
 COM, IWCOG, GAUSSIAN = 0, 1, 2
@@ -96,8 +96,9 @@ class Centroider(NamedTuple):
     inv_gain: float  # ADU per electron (0: unknown)
 
 
-class _Window(NamedTuple):
-    """A star's window, rows y0..y1 and columns x0..x1 inclusive, with its sky level and noise σ."""
+class Window(NamedTuple):
+    """A star's window, rows y0..y1 and columns x0..x1 inclusive, with its sky level and noise σ
+    (here and in the streak fit's kernels, :mod:`skyfix.detect.streak_fit`)."""
 
     y0: int
     y1: int
@@ -343,15 +344,7 @@ def _windows(img, xs, ys, hs, how):
         x0, x1 = max(cx - hs, 0), min(cx + hs - 1, w - 1)
         if y1 - y0 < 2 or x1 - x0 < 2:
             continue
-        m = 0
-        for x in range(x0, x1 + 1):
-            buf[m] = img[y0, x]
-            buf[m + 1] = img[y1, x]
-            m += 2
-        for y in range(y0 + 1, y1):
-            buf[m] = img[y, x0]
-            buf[m + 1] = img[y, x1]
-            m += 2
+        m = window_border(img, y0, y1, x0, x1, buf)
         bg[i], nz[i] = robust_level_noise(buf[:m].copy(), 0.0, False)
     return refine_kernel(img, xs, ys, bg, nz, half, how)
 
@@ -376,7 +369,7 @@ def refine_kernel(img, xs, ys, bg, nz, half, how):
         x0, x1 = max(cx - hs, 0), min(cx + hs - 1, w - 1)
         if y1 < y0 or x1 < x0:
             continue
-        win = _Window(y0, y1, x0, x1, bg[i], nz[i])
+        win = Window(y0, y1, x0, x1, bg[i], nz[i])
         res = _com(img, win, how.k, how.inv_gain)
         if res[_OK] == 0.0:
             continue

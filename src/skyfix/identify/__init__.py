@@ -14,13 +14,16 @@
 - :mod:`skyfix.identify.accept` — the rules that decide that a match is an identification.
 """
 
+import importlib
+import warnings
+
 from skyfix.identify.catalogue.bands import (
-           BANDS,
-           DEEP,
-           Band,
-           band_database,
-           default_database,
-           default_database_path,
+    BANDS,
+    DEEP,
+    Band,
+    band_database,
+    default_database,
+    default_database_path,
 )
 from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.common.result import Identification
@@ -40,9 +43,6 @@ _MOVED = {**dict.fromkeys(("database", "bands", "hashing", "pairs", "kernel_data
 
 def __getattr__(name: str):
     if name in _MOVED:
-        import importlib
-        import warnings
-
         new = f"skyfix.identify.{_MOVED[name]}.{name}"
         warnings.warn(f"skyfix.identify.{name} is now {new}; the old name goes in the next release",
                       DeprecationWarning, stacklevel=2)

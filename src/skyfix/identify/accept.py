@@ -106,7 +106,8 @@ import numpy as np
 
 from skyfix._kernels.probability import log_binom_sf
 
-__all__ = ["MAX_WRONG_PROBABILITY", "MIN_REFIT_PAIRS", "NOISE_PRIOR_DOF", "NoiseEstimate",
+__all__ = ["CENTROID_SIGMA_PX", "MAX_WRONG_PROBABILITY", "PROB_THRESHOLD", "QUAD_CENTROID_SIGMA_PX",
+           "MIN_REFIT_PAIRS", "NOISE_PRIOR_DOF", "NoiseEstimate",
            "QUICK_CATALOG_STARS", "QUICK_CENTROIDS", "QUICK_LOG_P", "WRONG_BORESIGHT_ARCSEC",
            "WRONG_ROLL_DEG", "chance_log_probability", "focal_allowed", "is_beyond_chance",
            "is_verified", "log_prob_false", "no_rotation_fits", "noise_posterior", "pattern_fits",
@@ -340,6 +341,20 @@ def _beta_fraction(a: float, b: float, x: float) -> float:
         if abs(d * c - 1.0) < 1e-16:
             break
     return h
+
+
+#: The largest chance of a false match accepted (rule 5): every method's ``prob_threshold``
+#: default, the hint's and the final fit's.
+PROB_THRESHOLD = 1e-9
+#: The centroid noise per axis (pixels) a method assumes when told none (``centroid_sigma_px``):
+#: every correspondence method's angle tolerance (``n_sigma``·σ·√2) and the refit's noise prior.
+CENTROID_SIGMA_PX = 0.5
+#: ``quad``'s own default for ``centroid_sigma_px``: there it also widens the 4-star hash's
+#: edge-ratio tolerance tiers, which were tuned with 1 px. Measured on the solve-from-centroids
+#: sets (``benchmarks/suite_synthetic.py``'s four configurations, σ 0.5 and 1 px, 200 sets each,
+#: FOV given and not): 0.5 solves the same 1600/1600 with 0 wrong, so the difference costs
+#: nothing there; it is kept so that the default solve's results stay bit for bit those before.
+QUAD_CENTROID_SIGMA_PX = 1.0
 
 
 # A centroid noise stated a priori (solve's ``centroid_sigma_px`` beside a calibrated camera) is

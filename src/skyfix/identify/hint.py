@@ -71,7 +71,9 @@ from skyfix._kernels.lens import offset_ray
 from skyfix._kernels.rotation import det3, triad
 from skyfix.camera import Camera
 from skyfix.errors import InputError
+from skyfix.geometry import attitude_from_radec_roll
 from skyfix.identify.accept import (
+    PROB_THRESHOLD,
     focal_allowed,
     is_verified,
     log_prob_false,
@@ -138,8 +140,6 @@ def check_attitude_hint(value: object, name: str = "attitude_hint") -> AttitudeH
     skyfix.errors.InputError
         One line naming ``name`` (``--attitude-hint`` from the command line) and what it takes.
     """
-    from skyfix.geometry import attitude_from_radec_roll
-
     if isinstance(value, AttitudeHint):
         unc_deg = _degrees_or_nan(value.uncertainty_rad)
         _check_uncertainty(unc_deg, name)
@@ -490,7 +490,7 @@ def _frame_px(camera: Camera) -> np.ndarray:
 def identify_near(xy: np.ndarray, camera: Camera, A_hint: np.ndarray, uncertainty_rad: float, *,
                   database: PatternDatabase | None = None, epoch: float | None = None,
                   mag_limit: float | None = None, fit_camera: bool = False,
-                  fov_tolerance_deg: float | None = None, prob_threshold: float = 1e-9,
+                  fov_tolerance_deg: float | None = None, prob_threshold: float = PROB_THRESHOLD,
                   pin_stars: int = 10, verify_stars: int = 60, refine_stars: int = 200,
                   match_radius: float = 0.01, centroid_sigma_px: float = 1.0) -> HintResult:
     """Identify the stars of one frame near a known attitude, and refit it (the module text).

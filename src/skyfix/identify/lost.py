@@ -23,8 +23,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from skyfix.camera import Camera
+from skyfix.camera import PRESETS, Camera, camera_from_preset
+from skyfix.identify import get_method, identify
+from skyfix.identify.accept import PROB_THRESHOLD
 from skyfix.identify.common.result import Identification
+from skyfix.identify.methods import DEFAULT_METHOD
 
 __all__ = ["LostInSpace", "SPARSE_FIELD_STARS", "identify_by_preset", "identify_lost", "identify_sparse",
            "identify_through_presets", "is_default_method", "preset_cameras", "preset_retry",
@@ -44,8 +47,6 @@ def identify_lost(xy: np.ndarray, width: int, height: int, *, fov_deg: float | N
                   fov_tolerance_deg: float | None, camera: Camera | None, database, epoch: float | None,
                   identify_method: str, identify_options: dict) -> LostInSpace:
     """The frame identified by ``identify_method``, then by the fallback chain (the module text)."""
-    from skyfix.identify import identify
-
     ident = identify(xy, width, height, method=identify_method, fov_deg=fov_deg,
                      fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database, epoch=epoch,
                      **identify_options)
@@ -83,8 +84,6 @@ _SPARSE_OPTIONS = ("prob_threshold", "centroid_sigma_px")
 
 def preset_cameras(width: int, height: int) -> dict[str, Camera]:
     """The seed cameras (:data:`skyfix.camera.PRESETS`) whose image is ``width`` × ``height``."""
-    from skyfix.camera import PRESETS, camera_from_preset
-
     return {name: camera_from_preset(name) for name, spec in PRESETS.items()
             if (spec["width"], spec["height"]) == (width, height)}
 
@@ -92,9 +91,6 @@ def preset_cameras(width: int, height: int) -> dict[str, Camera]:
 def is_default_method(identify_method: str) -> bool:
     """Whether ``identify_method`` names the default method (a method named explicitly is used
     alone, with no fallback)."""
-    from skyfix.identify import get_method
-    from skyfix.identify.methods import DEFAULT_METHOD
-
     return get_method(identify_method) is get_method(DEFAULT_METHOD)
 
 
@@ -121,7 +117,6 @@ def identify_sparse(failed, xy: np.ndarray, width: int, height: int, fov_deg, fo
     ``lone_prob_threshold`` and ``prob_threshold`` over their number): a frame from another
     camera of that size is then a random triangle to them, and the final fit's precision rule
     still judges the attitude through the camera assumed."""
-    from skyfix.identify import identify
     from skyfix.identify.common.angle_match import LONE_PROB_THRESHOLD
 
     options = {k: identify_options[k] for k in _SPARSE_OPTIONS if k in identify_options}
@@ -130,7 +125,7 @@ def identify_sparse(failed, xy: np.ndarray, width: int, height: int, fov_deg, fo
     else:
         presets = preset_cameras(width, height)
         k = len(presets)
-        options["prob_threshold"] = options.get("prob_threshold", 1e-9) / k
+        options["prob_threshold"] = options.get("prob_threshold", PROB_THRESHOLD) / k
         options["lone_prob_threshold"] = LONE_PROB_THRESHOLD / k
         tries = {name: dict(camera=cam) for name, cam in presets.items()}
     reasons = []
@@ -171,11 +166,9 @@ def identify_through_presets(xy: np.ndarray, width: int, height: int, database, 
     the name of the preset that identified it (None: none did — the first result is returned
     failed). For a frame the default method identified with no camera but whose attitude through
     the camera fitted to its stars is too uncertain."""
-    from skyfix.identify import identify
-
     presets = preset_cameras(width, height)
     options = dict(identify_options)
-    options["prob_threshold"] = options.get("prob_threshold", 1e-9) / len(presets)
+    options["prob_threshold"] = options.get("prob_threshold", PROB_THRESHOLD) / len(presets)
     first = None
     for name, cam in presets.items():
         again = identify(xy, width, height, method=identify_method, camera=cam, database=database,

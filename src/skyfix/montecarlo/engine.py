@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import skyfix
 from skyfix.errors import CampaignError
 from skyfix.montecarlo.campaign import Campaign
 
@@ -146,8 +147,6 @@ def completed_table(campaign: Campaign, output: Path) -> pa.Table | None:
 
 def _worker_env() -> dict[str, str]:
     """The worker processes' environment additions: this skyfix's folder first on PYTHONPATH."""
-    import skyfix
-
     src = str(Path(skyfix.__file__).resolve().parents[1])
     path = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
     return {"PYTHONPATH": os.pathsep.join([src, *(p for p in path if p != src)])}

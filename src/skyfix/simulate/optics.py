@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skyfix.errors import SimulationError
+from skyfix.simulate.presets import load_preset
 
 __all__ = ["Optics", "FWHM_TO_SIGMA"]
 
@@ -100,8 +101,6 @@ class Optics:
 
     @classmethod
     def from_preset(cls, name: str) -> Optics:
-        from skyfix.simulate.presets import load_preset
-
         return cls.from_dict(load_preset(name).get("optics", {}))
 
     def to_dict(self) -> dict:

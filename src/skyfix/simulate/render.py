@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import tomllib
 
 from skyfix.camera import PRESETS as CAMERA_PRESETS
 from skyfix.camera import Camera, camera_from_preset
@@ -66,8 +67,6 @@ class SimulatedFrame:
 
 
 def _camera_table(camera: Camera) -> dict:
-    import tomllib
-
     return tomllib.loads(camera.to_toml())["camera"]
 
 
@@ -129,8 +128,6 @@ def resolve_setup(camera: Camera | str | Path, sensor: Sensor | str | None, opti
 def _read_setup_file(path: Path) -> dict:
     """Tables of a camera TOML file: ``[camera]`` and optionally ``[sensor]``, ``[optics]``,
     ``[defaults]``."""
-    import tomllib
-
     try:
         tables = tomllib.loads(path.read_text())
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:

@@ -35,6 +35,7 @@ import numpy as np
 import tomllib
 
 from skyfix.errors import SimulationError
+from skyfix.simulate.presets import load_preset
 
 __all__ = [
     "Sensor",
@@ -194,8 +195,6 @@ class Sensor:
     @classmethod
     def from_preset(cls, name: str) -> Sensor:
         """Sensor of a bundled preset (``skyfix/presets/<name>.toml``)."""
-        from skyfix.simulate.presets import load_preset
-
         return cls.from_dict(load_preset(name)["sensor"])
 
     def to_dict(self) -> dict:

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from skyfix.errors import SimulationError
+from skyfix.obstime import later, parse_time
 
 __all__ = ["write_frame", "truth_path", "read_truth"]
 
@@ -32,8 +33,6 @@ def read_truth(path: str | Path) -> dict:
 
 def _fits_header(truth: dict):
     from astropy.io import fits
-
-    from skyfix.obstime import later, parse_time
 
     hdr = fits.Header()
     # FITS: DATE-OBS is the exposure's start, DATE-AVG its middle (what skyfix reads first); the

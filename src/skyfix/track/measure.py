@@ -10,7 +10,7 @@ Python between them:
    (:func:`skyfix.detect.streak.row_time_offset`), ``J ω Δt`` (the windows' docstring);
 3. :func:`~skyfix.track.windows.cut_tiles` — the tiles in one mosaic, and each one's sky and
    noise from its border (not for the streak fit, which takes its own);
-4. the centroids: the streak fit (:func:`skyfix.detect.streak.fit_streaks`) when the tracker's
+4. the centroids: the streak fit (:func:`skyfix.detect.streak_fit.fit_streaks`) when the tracker's
    centroider is ``"streak"``, the tiles are centred on the predictions and the streaks are at
    least ``streak_px`` long; else the round-star centroider of
    :func:`skyfix.detect.centroid.refine_kernel` (the centre of mass for ``"streak"``) with each
@@ -32,7 +32,8 @@ import numpy as np
 
 from skyfix.detect.centroid import Centroider, refine_kernel, refined_columns
 from skyfix.detect.centroids import background_snr
-from skyfix.detect.streak import fit_streaks, row_time_offset
+from skyfix.detect.streak import row_time_offset
+from skyfix.detect.streak_fit import fit_streaks
 from skyfix.track.windows import (
     Local,
     MatchSettings,

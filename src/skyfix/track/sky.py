@@ -31,6 +31,7 @@ import math
 
 import numpy as np
 
+from skyfix._kernels.rotation import pointing, radec_of_vectors
 from skyfix.corrections.observation import Observation, apparent_attitude, observer_of, time_of_image
 from skyfix.identify.catalogue.database import readonly_view
 from skyfix.obstime import later
@@ -149,7 +150,6 @@ class TrackedSky:
         is returned (``A`` itself but for ``apparent``)."""
         if not self.corrected:
             return A
-        from skyfix._kernels.rotation import pointing, radec_of_vectors
 
         ra, dec = radec_of_vectors(np.ascontiguousarray(stars.vectors[index]))
         table[2], table[3] = np.degrees(ra), np.degrees(dec)

@@ -23,8 +23,9 @@ returns a :class:`~skyfix.solution.Solution` whose ``mode`` says which of three 
     its covariance (``track.fit.fit_attitude``, :mod:`skyfix.attitude`'s formulas), outliers
     dropped; the fit is verified (at least ``min_stars`` stars, residuals consistent with the
     centroids, at least half of the windows that found a star in it:
-    :func:`window_fit_agrees`, the filter's NIS) and updates the predictor — or, when at least 6 stars agree
-    with each other but not with the prediction (a manoeuvre), restarts it from the fit. The
+    :func:`~skyfix.track.frame_steps.window_fit_agrees`, the filter's NIS) and updates the
+    predictor — or, when at least 6 stars agree with each other but not with the prediction (a
+    manoeuvre), restarts it from the fit. The
     Solution reports the filter's attitude, covariance and rate.
 
 A frame the windows cannot track (blank, clouded, a jump, too few stars) is solved lost in
@@ -68,20 +69,25 @@ import numpy as np
 from skyfix.attitude import CENTROID_NOISE_FLOOR_PX
 from skyfix.camera import Camera
 from skyfix.corrections.observation import observe
+from skyfix.detect import CENTROIDERS
 from skyfix.detect.centroid import centroider
-from skyfix.detect.streak import streak_model_sigma
+from skyfix.detect.streak import streak_model_sigma, streak_motion
 from skyfix.errors import CameraError, InputError
+from skyfix.identify import PatternDatabase
+from skyfix.identify.catalogue.bands import database_for_fov
 from skyfix.identify.catalogue.database import readonly_view
 from skyfix.identify.catalogue.kernel_data import StarIndex
+from skyfix.io import read_image_with_header
 from skyfix.obstime import julian_year
 from skyfix.solution import Match, Solution
 from skyfix.track import inputs
 from skyfix.track import windows as win
-from skyfix.track.filter import innovation
-from skyfix.track.measure import CentroidSettings, measure_frame
+from skyfix.track.frame_steps import STREAK_PX, FrameSteps, WindowFit
+from skyfix.track.measure import CentroidSettings
 from skyfix.track.sky import TrackedSky
+from skyfix.validate import check_count, check_epoch, check_positive
 
-__all__ = ["DEFAULT_ACCEL_PSD", "MODES", "TrackSettings", "Tracker", "window_fit_agrees"]
+__all__ = ["DEFAULT_ACCEL_PSD", "MODES", "TrackSettings", "Tracker"]
 
 #: The tracker's states, the ``mode`` of its Solutions.
 MODES = ("calibrating", "lost", "acquiring", "tracking")
@@ -95,25 +101,8 @@ _DEG = math.pi / 180
 #: miss implies (:meth:`Tracker._track`). ``predictor_options={"accel_psd": …}`` overrides it.
 DEFAULT_ACCEL_PSD = 1e-6
 _VIEW_CAP = 4096  # catalogue stars projected per frame at most (the selection needs the brightest)
-_LOCAL_MARGIN_RAD = math.radians(2.0)  # the local catalogue reaches this far beyond the frame
-_LOCAL_COS = math.cos(0.5 * _LOCAL_MARGIN_RAD)  # ... and is made again when the boresight moves half that
-_OUTLIER_SIGMA = 5.0  # a fitted star whose residual exceeds this many σ is dropped
-_STREAK_PX = 2.0  # the streak centroider for streaks at least this long (a round star: the CoM)
 _GATE_FLOOR_PX = 0.3  # the gate's allowance for what the motion model leaves out (an acceleration)
 _STRONG_FIT = 6  # stars in a fit that outvote the prediction (a manoeuvre, not a wrong match)
-#: After a jump solved along the predicted streaks, the rate is kept with at least this
-#: fraction of its size as σ: windows then hold a streak 4σ = 40 % longer or shorter than
-#: predicted; a rate further off fails the next frame's windows, which is solved again.
-_JUMP_RATE_SIGMA = 0.1
-
-
-def window_fit_agrees(n_fit: int, n_found: int) -> bool:
-    """Whether a windows' fit speaks for the frame: at least half of the windows that found a
-    star are in it. Tracking, nearly every window's star fits; when most do not, the prediction
-    has put the windows where the stars are not quite (a manoeuvre, a wrong rate): the few that
-    agree may agree on a biased attitude — in one simulated slew, 7 of 16 agreed on one 65″ off
-    at 6σ — so the frame is solved lost in space instead."""
-    return 2 * n_fit >= n_found
 
 
 class TrackSettings(NamedTuple):
@@ -138,21 +127,7 @@ class TrackSettings(NamedTuple):
     nis_gate: float
 
 
-class _Fit(NamedTuple):
-    """A frame's star fit: the attitude, its covariance and the stars in it."""
-
-    A_icrs_to_cam: np.ndarray
-    covariance_rad2: np.ndarray
-    xy: np.ndarray          # (n, 2) centroids
-    index: np.ndarray       # (n,) catalogue indices
-    ids: np.ndarray         # (n,) their catalogue ids
-    b: np.ndarray           # (n, 3) rays at the frame time
-    n_found: int            # windows with a centroid
-    n_windows: int
-    prob_false: float
-
-
-class Tracker:
+class Tracker(FrameSteps):
     """Track a camera's attitude over a sequence of frames (module docstring).
 
     Parameters
@@ -229,10 +204,7 @@ class Tracker:
                  solve_options: dict | None = None, calibration_options: dict | None = None, time=None,
                  observer=None, site=None, weather=None, refraction: str = "erfa", apparent: bool = False,
                  mounting=None, exclusion=None) -> None:
-        from skyfix.detect import CENTROIDERS
-        from skyfix.identify import PatternDatabase
         from skyfix.track.predictors import make_predictor
-        from skyfix.validate import check_count, check_epoch, check_positive
 
         if camera is not None and not isinstance(camera, Camera):
             raise InputError(f"camera must be a Camera (Camera.load(path)), got {type(camera).__name__}")
@@ -303,7 +275,7 @@ class Tracker:
         how = centroider("com" if centroid == "streak" else centroid, 3.0, self.settings.psf_sigma_px,
                          self.settings.gain)
         self._centroid_t = tuple(CentroidSettings(
-            centroid == "streak", _STREAK_PX, int(math.ceil(r_star)) + 1,  # the star and a pixel
+            centroid == "streak", STREAK_PX, int(math.ceil(r_star)) + 1,  # the star and a pixel
             streak_model_sigma(self.settings.psf_sigma_px), tuple(how)))
         self._no_xy, self._no_b, self._no_index = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64)
         self._n_frames = 0
@@ -314,8 +286,6 @@ class Tracker:
     def _use_camera(self, camera: Camera) -> None:
         """Track through ``camera`` from now on: its numbers, plate scale, the catalogue cone that
         holds its frame, and (none given) the database that serves its field."""
-        from skyfix.identify.catalogue.bands import database_for_fov
-
         if self.database is None:
             self.database = database_for_fov(camera.fov_deg)
         self.camera = camera
@@ -361,8 +331,6 @@ class Tracker:
     # --- input checks (skyfix.track.inputs) ---------------------------------------------
     def _check_image(self, image, t: float) -> np.ndarray:
         if not isinstance(image, np.ndarray) and isinstance(image, (str, os.PathLike)):
-            from skyfix.io import read_image_with_header
-
             got = read_image_with_header(image)
             if self.sky.time_from_frames and self._t_last is None and self.sky.first_frame(got, image, t):
                 self.epoch = julian_year(self.sky.observation.time)  # the catalogue at the frames' epoch
@@ -475,7 +443,7 @@ class Tracker:
     # --- lost in space ---------------------------------------------------------------------
     def _solve_lost(self, img: np.ndarray, rate=None, t: float | None = None) -> tuple[Solution, bool]:
         """Lost in space; with a body rate ``rate`` (rad/s, camera frame) whose streaks are at
-        least :data:`_STREAK_PX` long, first in the frame averaged along them (``solve``'s
+        least :data:`STREAK_PX` long, first in the frame averaged along them (``solve``'s
         ``smear_px``: the streaks' matched filter), then as it is. The Solution, and whether
         the smeared frame solved it (the streaks bore the rate out)."""
         from skyfix.pipeline import solve
@@ -484,7 +452,7 @@ class Tracker:
                        **self.sky.solve_options(), **self._solve_options)
         if rate is not None:
             smear = self._smear_px(np.asarray(rate, dtype=np.float64), t)
-            if math.hypot(smear[0], smear[1]) >= _STREAK_PX:
+            if math.hypot(smear[0], smear[1]) >= STREAK_PX:
                 sol = solve(img, smear_px=smear, **options)
                 if sol.solved:
                     return sol, True
@@ -492,8 +460,6 @@ class Tracker:
 
     def _smear_px(self, rate: np.ndarray, t: float | None) -> np.ndarray:
         """A star's streak at the frame's centre under the body rate ``rate`` over the exposure."""
-        from skyfix.detect.streak import streak_motion
-
         cam = self.camera
         return streak_motion(cam, np.array([[cam.cx, cam.cy]]), rate, self._exposure(t))[0]
 
@@ -572,7 +538,7 @@ class Tracker:
             why = f"the star fit disagrees with the prediction (NIS {inn.nis:.3g})"
         return self._recover(img, t, gyro, pred, why, t0)
 
-    def _tracked(self, post, fit: _Fit, times) -> Solution:
+    def _tracked(self, post, fit: WindowFit, times) -> Solution:
         """The Solution of a frame tracked in windows (``post``: the predictor's estimate after it)."""
         mode = self.mode
         self.mode = "tracking"
@@ -584,118 +550,8 @@ class Tracker:
                        "filter": 1e3 * (t_end - t_fit)}
         return sol
 
-    def _recover(self, img: np.ndarray, t: float, gyro, pred, why: str, t0: float) -> Solution:
-        """A frame the windows could not track: lost in space at once (along the predicted
-        streaks first, :meth:`_solve_lost`); an attitude that agrees with the prediction updates
-        the predictor (the rate survives), one that does not is a jump: start again from it,
-        keeping the rate when the streaks bore it out. No attitude: coast, while allowed, only
-        on a frame that shows no stars (blank, covered, blinded) — stars the prediction does not
-        explain mean it is wrong — else lost."""
-        lis, aided = self._solve_lost(img, pred.rate_rad_s, t)
-        if lis.solved:
-            P = np.asarray(lis.covariance_arcsec2) * _ARCSEC ** 2
-            nis = innovation(pred.A_icrs_to_cam, pred.attitude_cov_rad2, lis.A_icrs_to_cam, P).nis
-            if nis <= self.settings.nis_gate:
-                xy = np.array([(m.x, m.y) for m in lis.matches]).reshape(-1, 2)
-                ids = np.array([m.id for m in lis.matches], np.int64)
-                post = self._predictor.update(t, lis.A_icrs_to_cam, P, xy=xy, ids=ids, camera=self.camera,
-                                              gyro_rate_rad_s=gyro)
-                lis.mode = self.mode
-                self.mode = "tracking"
-                self._coast = 0
-                lis.rate_dps = (np.asarray(post.rate_rad_s) / _DEG).tolist()
-                lis.rate_covariance_dps2 = (np.asarray(post.rate_cov_rad2_s2) / _DEG ** 2).tolist()
-                return lis
-            lis.mode = "lost"  # a jump: start again from here
-            if aided:
-                rate = np.asarray(pred.rate_rad_s, dtype=np.float64)
-                sigma = max(math.sqrt(float(np.max(np.diagonal(pred.rate_cov_rad2_s2)))),
-                            _JUMP_RATE_SIGMA * float(np.linalg.norm(rate)))
-                self._start(lis, t, gyro, rate, sigma)
-            else:
-                self._start(lis, t, gyro)
-            return lis
-        dark = lis.n_detected < self.settings.min_stars  # nothing in the frame contradicts the prediction
-        coast = dark and self.mode == "tracking" and self._coast < self.settings.max_coast_frames
-        if coast and self._windows_fit(pred):
-            self._coast += 1
-            sol = self._solution(pred, "tracking", None)
-            sol.reason = (f"coasting on the prediction ({self._coast} of {self.settings.max_coast_frames}): "
-                          f"{why}; lost in space: {lis.reason}")
-            sol.time_ms = dict(lis.time_ms)
-            return sol
-        lis.mode = self.mode
-        self.mode = "lost"
-        self._predictor = None
-        lis.reason = f"{why}; lost in space: {lis.reason}"
-        if not dark:
-            lis.reason += f" ({lis.n_detected} stars the prediction does not explain: not coasting)"
-        return lis
-
-    def _windows_fit(self, pred) -> bool:
-        """Whether windows of ``max_window_px`` still reach ``k_sigma`` predicted σ of the
-        boresight's error: the prediction is good enough to coast on and track from."""
-        P = pred.attitude_cov_rad2
-        sigma_px = math.sqrt(max(P[0, 0] + P[1, 1], 0.0)) / self._plate
-        return self.settings.k_sigma * sigma_px + self.settings.star_radius_px <= self.settings.max_window_px
-
-    def _measure(self, img: np.ndarray, t: float, pred) -> tuple[_Fit | None, str]:
-        """The star fit of one frame from windows around the predicted stars (module
-        docstring; :func:`skyfix.track.measure.measure_frame`), or None and why not."""
-        s = self.settings
-        c = np.ascontiguousarray
-        A = c(pred.A_icrs_to_cam)
-        rate = c(pred.rate_rad_s, dtype=np.float64)
-        exposure = self._exposure(t)
-        local = self._local_catalog(A[2])
-        vectors = self.sky.vectors(local, self._stars, self._star_ids)  # as seen, with a time
-        wx, wy, _ = rate.tolist()  # the streak at the boresight, px: fewer windows when it is long
-        streaking = s.centroid == "streak" and exposure * math.hypot(wx, wy) >= _STREAK_PX * self._plate
-        n_max = s.streak_windows if streaking else s.n_windows
-        windows = self._streak_window_settings_t if streaking else self._window_settings_t
-        (n, too_wide, faintest, ok, n_found, n_gated, n_fit, A_fit, P_fit, zero_point, log_chance, index, xy,
-         b) = measure_frame(img, A, c(pred.attitude_cov_rad2), rate, c(pred.rate_cov_rad2_s2), exposure,
-                            s.line_time_s, self._local_t, min(self._select_mag, self._faintest + 1.0),
-                            self._cam, windows, self._view_t, self._tiles, self._max_tile,
-                            vectors, self._zero_point, self._match_settings_t, self._centroid_t,
-                            s.min_stars, _OUTLIER_SIGMA)
-        # next frame: stars down to a magnitude fainter than the faintest chosen (all, when short)
-        self._faintest = faintest if n == n_max else math.inf
-        if n < s.min_stars:
-            if too_wide:
-                return None, (f"attitude too uncertain for windows ({too_wide} stars need more than "
-                              f"{s.max_window_px:g} px)")
-            return None, f"{n} catalogue stars to track in the frame (need {s.min_stars})"
-        if not ok:
-            if n_gated < s.min_stars:
-                return None, f"{n_gated} of {n} windows hold their star ({n_found} found a star)"
-            return None, (f"{n_fit} of {n_gated} stars agree in the pair check and the fit "
-                          f"(need {s.min_stars})")
-        if not window_fit_agrees(n_fit, n_found):
-            return None, f"only {n_fit} of the {n_found} windows that found a star agree on the attitude"
-        if zero_point == zero_point:  # not NaN
-            zp = self._zero_point
-            self._zero_point = zero_point if zp != zp else 0.8 * zp + 0.2 * zero_point
-        index = index[:n_fit]
-        return _Fit(A_fit, P_fit, xy[:n_fit], index, self._star_ids[index], b[:n_fit], n_found, n,
-                    math.exp(log_chance)), ""
-
-    def _local_catalog(self, z: np.ndarray) -> win.Local:
-        """The catalogue within the frame's cone plus :data:`_LOCAL_MARGIN_RAD` of the boresight
-        ``z``, down to what the windows can choose or be crowded by; made again when the
-        boresight has moved half that margin."""
-        x, y, w = z.tolist()  # Python floats: a 3-vector's dot in numpy costs a microsecond
-        lx, ly, lw = self._local_z
-        if self._local is None or x * lx + y * ly + w * lw < _LOCAL_COS:
-            limit = int(np.searchsorted(self._mags, self._select_mag + self._window_settings.neighbour_dmag,
-                                        side="right"))
-            self._local = win.local_catalog(z, self._cone + _LOCAL_MARGIN_RAD, limit, self._stars, self._mags)
-            self._local_t = tuple(self._local)
-            self._local_z = (x, y, w)
-        return self._local
-
     # --- the Solution ----------------------------------------------------------------------
-    def _solution(self, est, mode: str, fit: _Fit | None) -> Solution:
+    def _solution(self, est, mode: str, fit: WindowFit | None) -> Solution:
         """A Solution for the estimate ``est`` (a Prediction: attitude, covariances, rate) and
         the fit that made it (None: coasting on the prediction)."""
         A = np.ascontiguousarray(est.A_icrs_to_cam)

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from skyfix.cache import cache_dir, exclusive_lock, has_index, notice
+from skyfix.catalog import epoch_now, load_gaia
 from skyfix.errors import DatabaseError, unknown_name
 from skyfix.identify.catalogue.database import DATABASE_VERSION, PatternDatabase, ProgressCallback
 
@@ -186,8 +187,6 @@ def default_database(fov_min_deg: float = 10.0, fov_max_deg: float = 30.0, *,
 def _build(band: Band, progress: bool | ProgressCallback) -> PatternDatabase:
     catalog = None
     if band.catalog == "gaia":
-        from skyfix.catalog import epoch_now, load_gaia
-
         catalog = load_gaia(epoch=epoch_now())
     elif band.catalog != "hipparcos":
         raise unknown_name("catalogue", band.catalog, ("hipparcos", "gaia"))

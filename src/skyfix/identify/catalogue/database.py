@@ -34,6 +34,7 @@ from skyfix.catalog import Catalog, epoch_now, fibonacci_sphere, load_hipparcos,
 from skyfix.errors import DatabaseError
 from skyfix.identify.catalogue.hashing import build_table, edge_ratios, key_codes
 from skyfix.identify.catalogue.kernel_data import PatternTable, StarIndex
+from skyfix.validate import check_fov_range  # the range solve and the CLI accept too
 
 __all__ = ["PatternDatabase", "DATABASE_VERSION", "ProgressCallback", "brightest_per_field", "readonly_view"]
 
@@ -225,8 +226,6 @@ class PatternDatabase:
             What ``catalog`` is, recorded in ``meta`` (``"hipparcos"``, ``"gaia"``): a cached
             database built from another is rebuilt (:mod:`skyfix.identify.catalogue.bands`).
         """
-        from skyfix.validate import check_fov_range  # the range solve and the CLI accept too
-
         check_fov_range(fov_min_deg, fov_max_deg)
         if not (0 < fov_min_deg <= fov_max_deg < 120):
             raise DatabaseError(f"bad FOV range {fov_min_deg}–{fov_max_deg}°")

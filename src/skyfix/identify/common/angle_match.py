@@ -33,9 +33,9 @@ from skyfix.identify.common.lone import AMBIGUITY_RATIO, LONE_MAX_STARS, judge_l
 from skyfix.identify.common.result import Identification
 
 __all__ = ["LONE_PROB_THRESHOLD", "AngleSettings", "TableRows", "angle_range", "angle_settings",
-           "angle_tolerance", "consistent_set", "focal_for_angle", "frame_pair_table", "frame_table",
-           "longest_side_first", "ray_angle", "recorded", "sparse_identification", "star_angle",
-           "star_chord2", "triple_product"]
+           "angle_tolerance", "consistent_set", "focal_for_angle", "frame_diagonal_rad", "frame_pair_table",
+           "frame_table", "longest_side_first", "ray_angle", "recorded", "sparse_identification",
+           "star_angle", "star_chord2", "triple_product"]
 
 _MAX_ANGLE_MARGIN = 1.02  # the pair table holds pairs a little wider than the frame's diagonal
 LONE_PROB_THRESHOLD = 1e-4
@@ -115,14 +115,19 @@ def angle_tolerance(theta, theta_pair, f, noise_px, calibrated):
     return tol
 
 
+def frame_diagonal_rad(frame: Frame, focal_px: float) -> float:
+    """The larger of the angles between the frame's opposite corners (its diagonals) at the
+    focal length ``focal_px``: the widest angle two of its stars can be apart."""
+    p = frame.image.frame_px
+    corners = np.array([[p[0], p[2]], [p[1], p[3]], [p[0], p[3]], [p[1], p[2]]])
+    return max(ray_angle(corners, 0, 1, focal_px), ray_angle(corners, 2, 3, focal_px))
+
+
 def frame_pair_table(frame: Frame, per_field: int = 12) -> PairTable:
     """The pair table (:func:`skyfix.identify.catalogue.pairs.pair_table`) of ``frame``'s database that
     holds every angle the frame can measure: fields of the camera's FOV, pairs up to the frame's
     diagonal at the shortest focal length allowed."""
-    p = frame.image.frame_px
-    corners = np.array([[p[0], p[2]], [p[1], p[3]], [p[0], p[3]], [p[1], p[2]]])
-    f_lo = float(frame.focal_range_px[0])
-    diagonal = max(ray_angle(corners, 0, 1, f_lo), ray_angle(corners, 2, 3, f_lo))
+    diagonal = frame_diagonal_rad(frame, float(frame.focal_range_px[0]))
     return pair_table(frame.database, frame.camera.fov_deg, math.degrees(diagonal) * _MAX_ANGLE_MARGIN,
                       per_field=per_field)
 
@@ -289,12 +294,7 @@ class TableRows(NamedTuple):
 def frame_table(frame: Frame) -> tuple[PairTable, TableRows]:
     """The pair table for ``frame`` (pairs up to its diagonal at the widest focal range) and its
     :class:`TableRows`, both kept with the database."""
-    x_lo, x_hi, y_lo, y_hi = frame.image.frame_px
-    f = float(frame.camera.fx)
-    corners = np.array([[x_lo, y_lo, f], [x_hi, y_hi, f], [x_hi, y_lo, f], [x_lo, y_hi, f]])
-    corners /= np.sqrt((corners * corners).sum(axis=1))[:, None]
-    chord = max(np.linalg.norm(corners[0] - corners[1]), np.linalg.norm(corners[2] - corners[3]))
-    diag = float(chord_angle(chord))
+    diag = frame_diagonal_rad(frame, float(frame.camera.fx))
     max_deg = math.degrees(diag) * (1.0 + frame.scale_tolerance) * 1.01
     db = frame.database
     table = pair_table(db, float(frame.camera.fov_deg), max_deg)

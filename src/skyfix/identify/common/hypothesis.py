@@ -44,6 +44,8 @@ from skyfix.attitude import solve_attitude
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
 from skyfix.identify.accept import (
+    CENTROID_SIGMA_PX,
+    PROB_THRESHOLD,
     focal_allowed,
     log_prob_false,
     pattern_fits,
@@ -130,8 +132,8 @@ def _focal_from_fov(width: int, fov_deg: float) -> float:
 def frame_for(method: str, xy: np.ndarray, width: int, height: int, *, fov_deg: float | None,
               fov_tolerance_deg: float | None, camera: Camera | None, database: PatternDatabase | None,
               epoch: float | None, min_stars: int = 3, verify_stars: int = 60, refine_stars: int = 200,
-              match_radius: float = 0.01, prob_threshold: float = 1e-9,
-              centroid_sigma_px: float = 1.0) -> Frame | Identification:
+              match_radius: float = 0.01, prob_threshold: float = PROB_THRESHOLD,
+              centroid_sigma_px: float = CENTROID_SIGMA_PX) -> Frame | Identification:
     """The :class:`Frame` of one identification by ``method`` (the interface's arguments, see
     :mod:`skyfix.identify.methods`; the rest as :func:`skyfix.identify.methods.quad.identify`'s), or a
     failed Identification saying why it cannot be tried: fewer than ``min_stars`` centroids, or

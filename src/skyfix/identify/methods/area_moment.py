@@ -38,6 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from skyfix.camera import Camera
+from skyfix.identify.accept import CENTROID_SIGMA_PX, PROB_THRESHOLD
 from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.catalogue.triangles import (
     AREA,
@@ -78,9 +79,9 @@ def _tolerances(frame: Frame, image: ImageTriangles, n_sigma: float):
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None,
-             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, triangle_stars: int = 10,
+             centroid_sigma_px: float = CENTROID_SIGMA_PX, n_sigma: float = 3.0, triangle_stars: int = 10,
              confirm_stars: int = 20, per_field: int = 8, max_candidates: int = 2000,
-             max_matches: int = 200_000, prob_threshold: float = 1e-9) -> Identification:
+             max_matches: int = 200_000, prob_threshold: float = PROB_THRESHOLD) -> Identification:
     """Identify the stars of one frame by the area and polar moment of its star triangles,
     confirmed by a fourth star (module text).
 

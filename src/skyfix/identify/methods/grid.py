@@ -51,6 +51,7 @@ import numpy as np
 from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
 from skyfix.errors import InputError
+from skyfix.identify.accept import CENTROID_SIGMA_PX, PROB_THRESHOLD
 from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.catalogue.pairs import PairTable, neighbours_in_range
 from skyfix.identify.common.angle_match import consistent_set, frame_table
@@ -299,8 +300,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              pattern_radius_deg: float | None = None, buffer_deg: float | None = None,
              pattern_stars: int = 32, image_stars: int = 20, n_orient: int = 3,
              n_references: int = 8, min_score: int = 4, top: int = 3, min_agree: int = 2,
-             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0,
-             max_candidates: int = 100, prob_threshold: float = 1e-9) -> Identification:
+             centroid_sigma_px: float = CENTROID_SIGMA_PX, n_sigma: float = 3.0,
+             max_candidates: int = 100, prob_threshold: float = PROB_THRESHOLD) -> Identification:
     """Identify the stars of one frame by the grid method (the module text).
 
     Parameters

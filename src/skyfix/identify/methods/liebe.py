@@ -44,6 +44,7 @@ import numpy as np
 from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
 from skyfix.errors import InputError
+from skyfix.identify.accept import CENTROID_SIGMA_PX, PROB_THRESHOLD
 from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.catalogue.triangles import (
     SIDES,
@@ -171,10 +172,10 @@ def _proposals(frame: Frame, table: StarTriangleTable, patterns: StarPatterns, c
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None,
-             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, k_nearest: int = 4,
+             centroid_sigma_px: float = CENTROID_SIGMA_PX, n_sigma: float = 3.0, k_nearest: int = 4,
              buffer_deg: float = 0.0, pivots: int = 12, neighbour_stars: int | None = None,
              confirm_stars: int = 20, per_field: int | None = None, max_candidates: int = 2000,
-             max_matches: int = 100_000, prob_threshold: float = 1e-9) -> Identification:
+             max_matches: int = 100_000, prob_threshold: float = PROB_THRESHOLD) -> Identification:
     """Identify the stars of one frame by Liebe's star patterns (module text).
 
     Parameters

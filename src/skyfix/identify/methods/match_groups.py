@@ -66,6 +66,7 @@ import numpy as np
 from skyfix._kernels.rotation import chord_angle, det3
 from skyfix.camera import Camera
 from skyfix.errors import InputError
+from skyfix.identify.accept import CENTROID_SIGMA_PX, PROB_THRESHOLD
 from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.catalogue.pairs import PairTable, pairs_in_range
 from skyfix.identify.common.angle_match import LONE_PROB_THRESHOLD, TableRows, frame_table, judged
@@ -148,8 +149,9 @@ class Subgroups(NamedTuple):
     complete: bool
 
 
-def match_setup(frame: Frame, *, pair_stars: int = 8, centroid_sigma_px: float = 0.5, n_sigma: float = 3.0,
-                magnitudes: np.ndarray | None = None, magnitude_tolerance: float = 0.5) -> MatchSetup:
+def match_setup(frame: Frame, *, pair_stars: int = 8, centroid_sigma_px: float = CENTROID_SIGMA_PX,
+                n_sigma: float = 3.0, magnitudes: np.ndarray | None = None,
+                magnitude_tolerance: float = 0.5) -> MatchSetup:
     """The :class:`MatchSetup` of the ``pair_stars`` brightest centroids of ``frame``.
     ``magnitudes`` are those of :attr:`Frame.xy`'s rows (NaN where unknown)."""
     n = min(len(frame.xy), pair_stars)
@@ -516,12 +518,13 @@ def geometry_test(frame: Frame, setup: MatchSetup, table: PairTable, groups: Mat
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None, pair_stars: int = 8,
-             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, magnitudes: np.ndarray | None = None,
-             magnitude_tolerance: float = 0.5, check_mirror: bool = True, min_group: int = 3,
+             centroid_sigma_px: float = CENTROID_SIGMA_PX, n_sigma: float = 3.0,
+             magnitudes: np.ndarray | None = None, magnitude_tolerance: float = 0.5,
+             check_mirror: bool = True, min_group: int = 3,
              max_candidates: int = 200, max_pair_matches: int = 1_000_000,
              max_splits: int = 50_000, scale_step: float = 0.01, prompt_group: int = 5,
              time_limit_s: float = 2.0, lone_prob_threshold: float = LONE_PROB_THRESHOLD,
-             prob_threshold: float = 1e-9) -> Identification:
+             prob_threshold: float = PROB_THRESHOLD) -> Identification:
     """Identify the stars of one frame by van Bezooijen's match groups (the module text).
 
     Parameters

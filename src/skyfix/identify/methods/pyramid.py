@@ -36,6 +36,7 @@ import numba
 import numpy as np
 
 from skyfix.camera import Camera
+from skyfix.identify.accept import CENTROID_SIGMA_PX, PROB_THRESHOLD
 from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.catalogue.pairs import neighbours_in_range, pairs_in_range
 from skyfix.identify.common.angle_match import (
@@ -260,9 +261,9 @@ def _pyramids(frame, s, table, n, max_triangles, max_pairs, max_matches, time_li
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None, pattern_stars: int = 20,
-             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, max_triangles: int = 2000,
+             centroid_sigma_px: float = CENTROID_SIGMA_PX, n_sigma: float = 3.0, max_triangles: int = 2000,
              max_side_share: float = 0.004, max_triangle_matches: int = 64, max_candidates: int = 200,
-             time_limit_s: float = 2.0, per_field: int = 12, prob_threshold: float = 1e-9,
+             time_limit_s: float = 2.0, per_field: int = 12, prob_threshold: float = PROB_THRESHOLD,
              lone_prob_threshold: float = LONE_PROB_THRESHOLD) -> Identification:
     """Identify the stars of one frame, lost in space, by the Pyramid method (module text).
 

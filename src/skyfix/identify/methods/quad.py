@@ -35,7 +35,7 @@ import numpy as np
 from skyfix._kernels import lens
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
-from skyfix.identify.accept import refit_accepted, refit_focal_allowed
+from skyfix.identify.accept import PROB_THRESHOLD, QUAD_CENTROID_SIGMA_PX, refit_accepted, refit_focal_allowed
 from skyfix.identify.catalogue.bands import band_database, bands_for, served_fov_deg, served_range_deg
 from skyfix.identify.catalogue.database import PatternDatabase, readonly_view
 from skyfix.identify.catalogue.kernel_data import (
@@ -52,6 +52,7 @@ from skyfix.identify.common.hypothesis import failure
 from skyfix.identify.common.refine import refine_entry
 from skyfix.identify.common.result import Identification, finite_centroids
 from skyfix.identify.common.search import breadth_first_combinations, centre_first_combinations, search_entry
+from skyfix.validate import FOV_RANGE_DEG
 
 __all__ = ["METHOD", "MIRROR_NOTE", "REFUSED_HIT_COST_S", "SEARCH_COST_S", "identify", "search_work",
            "warm_kernels"]
@@ -125,8 +126,8 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
              database: PatternDatabase | None = None, max_patterns: int = 4000,
              time_limit_s: float = 2.0, epoch: float | None = None, pattern_stars: int = 24,
              verify_stars: int = 60, refine_stars: int = 200, match_radius: float = 0.01,
-             prob_threshold: float = 1e-9,
-             centroid_sigma_px: float = 1.0, ratio_tolerance: float | None = None,
+             prob_threshold: float = PROB_THRESHOLD,
+             centroid_sigma_px: float = QUAD_CENTROID_SIGMA_PX, ratio_tolerance: float | None = None,
              key_tolerance: float | None = None, check_mirror: bool = True) -> Identification:
     """Identify the stars of one frame, lost in space, by 4-star hashing, and fit the attitude.
 
@@ -531,8 +532,6 @@ def _outside_reason(fov: float | None, fov_lo: float | None, fov_hi: float | Non
     database given, or every default band when ``sources`` is empty), with the commands that
     build and use one that can: below the default bands, from a deeper catalogue (the bundled
     ones hold too few stars in so narrow a field)."""
-    from skyfix.validate import FOV_RANGE_DEG
-
     lo_band, hi_band = served_range_deg()
     narrow = fov_hi < lo_band
     if narrow:  # two significant digits: 0.5–0.75°, not 0–1°

@@ -36,8 +36,10 @@ from skyfix._kernels.robust import rayleigh_inliers
 from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
 from skyfix.errors import InputError
+from skyfix.identify.accept import CENTROID_SIGMA_PX, PROB_THRESHOLD
 from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.catalogue.pairs import PairTable, pair_table, pairs_in_range
+from skyfix.identify.common.angle_match import LONE_PROB_THRESHOLD
 from skyfix.identify.common.hypothesis import (
     Frame,
     Hypothesis,
@@ -167,9 +169,10 @@ def _lone_identification(frame: Frame, h: Hypothesis, judgement: LoneJudgement, 
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None, triangle_stars: int = 8,
-             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, mag_margin: float = 1.0,
-             missing_margin: float = 0.75, min_error_px: float = 0.05, lone_prob_threshold: float = 1e-4,
-             prob_threshold: float = 1e-9, max_candidates: int = 2000, max_per_triangle: int = 64,
+             centroid_sigma_px: float = CENTROID_SIGMA_PX, n_sigma: float = 3.0, mag_margin: float = 1.0,
+             missing_margin: float = 0.75, min_error_px: float = 0.05,
+             lone_prob_threshold: float = LONE_PROB_THRESHOLD,
+             prob_threshold: float = PROB_THRESHOLD, max_candidates: int = 2000, max_per_triangle: int = 64,
              per_field: int = 12) -> Identification:
     """Identify a frame's stars from triangles of its brightest centroids (the module text).
 

@@ -43,6 +43,7 @@ import numpy as np
 
 from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
+from skyfix.identify.accept import CENTROID_SIGMA_PX, PROB_THRESHOLD
 from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.catalogue.pairs import PairTable, pairs_in_range
 from skyfix.identify.common.angle_match import (
@@ -240,10 +241,10 @@ def _proposals(frame: Frame, s: AngleSettings, table: PairTable, n: int, n_candi
 def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None = None,
              fov_tolerance_deg: float | None = None, camera: Camera | None = None,
              database: PatternDatabase | None = None, epoch: float | None = None, vote_stars: int = 24,
-             centroid_sigma_px: float = 0.5, n_sigma: float = 3.0, candidate_nodes: int = 240,
+             centroid_sigma_px: float = CENTROID_SIGMA_PX, n_sigma: float = 3.0, candidate_nodes: int = 240,
              min_set: int = 4, sets_per_scale: int = 3,
              max_candidates: int = 200, time_limit_s: float = 2.0, per_field: int = 12,
-             prob_threshold: float = 1e-9,
+             prob_threshold: float = PROB_THRESHOLD,
              lone_prob_threshold: float = LONE_PROB_THRESHOLD) -> Identification:
     """Identify the stars of one frame, lost in space, by geometric voting (module text).
 
