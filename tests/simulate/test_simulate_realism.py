@@ -66,7 +66,8 @@ def test_seeing_3_arcsec_widens_the_measured_fwhm_as_predicted():
     cam = Camera.from_fov(1280, 960, 1.0)  # 2.81″ a pixel
     kw = dict(epoch=2025.0, seed=3, false_stars=60, false_star_mags=(4.0, 7.0))
     still = measure_psf_field(render(A, cam, **kw).image).summary()["median_fwhm_px"]
-    seen = measure_psf_field(render(A, cam, atmosphere=Atmosphere(3.0), **kw).image).summary()["median_fwhm_px"]
+    seen = measure_psf_field(render(A, cam, atmosphere=Atmosphere(3.0), **kw).image
+                             ).summary()["median_fwhm_px"]
     seeing_fwhm_px = 3.0 / (cam.plate_scale_rad * 206264.806)
     assert seeing_sigma_px(3.0, cam.plate_scale_rad) == pytest.approx(seeing_fwhm_px / 2.3548, rel=1e-4)
     predicted = math.hypot(1.8, seeing_fwhm_px)  # the generic PSF's 1.8 px in quadrature: 2.09 px

@@ -212,7 +212,8 @@ def _realism(seeing: float, scintillation: bool, airmass: float, site_altitude: 
         fail(f"--psf-growth {psf_growth:g} must be 0 or more")
     if jpeg_quality is not None and not 1 <= jpeg_quality <= 95:
         fail(f"--jpeg-quality {jpeg_quality} must be from 1 to 95")
-    return dict(atmosphere=Atmosphere(seeing, scintillation, airmass, site_altitude), jpeg_quality=jpeg_quality)
+    return dict(atmosphere=Atmosphere(seeing, scintillation, airmass, site_altitude),
+                jpeg_quality=jpeg_quality)
 
 
 #: Each profile's options on the command line, with their defaults (None: required).
