@@ -164,6 +164,11 @@ PARAMETERS: dict[str, Parameter] = {
                             "the site's altitude, m (scintillation)"),
     "psf_growth": Parameter(float, 0.0, ("image",), _nonnegative, "≥ 0",
                             "PSF σ growth at the field corner, (1 + g·ρ²) on both axes"),
+    "max_stars": Parameter(int, 200, ("image",), lambda v: 3 <= v <= 10000, "3–10000",
+                           "the brightest detections the solver uses (thesis 003's threshold kept ~16)"),
+    "render_mag_limit": Parameter(float, 0.0, ("image",), lambda v: v == 0 or 0 < v <= 15, "0 (all) or 0–15",
+                                  "render only the stars brighter than this (0: the whole catalogue; a "
+                                  "wide field's thousands of faint stars cost seconds and add no signal)"),
     "jpeg_quality": Parameter(int, 0, ("image",), lambda v: v == 0 or 1 <= v <= 95, "0 (raw) or 1–95",
                               "the frame delivered as 8-bit JPEG of this quality (0: the sensor's ADU)"),
 }

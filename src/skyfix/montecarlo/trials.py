@@ -288,10 +288,12 @@ def _image_solve(t: TrialInput) -> Simulated:
     frame = render(A, camera, sensor=setup.sensor, optics=optics,
                    exposure_s=values["exposure_s"] or setup.exposure_s, epoch=campaign.epoch, rate_rad_s=rate,
                    seed=t.seed, false_stars=values["false_stars"], hot_pixels=values["hot_pixels"],
-                   atmosphere=air, jpeg_quality=values["jpeg_quality"] or None)
+                   atmosphere=air, jpeg_quality=values["jpeg_quality"] or None,
+                   mag_limit=values["render_mag_limit"] or None)
     t_sim = 1e3 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
-    sol = solve(frame.image, **_solver_options(campaign, values, camera, t.told))
+    sol = solve(frame.image, max_stars=values["max_stars"],
+                **_solver_options(campaign, values, camera, t.told))
     sol.time_ms["wall"] = 1e3 * (time.perf_counter() - t0)
     return Simulated(sol, t_sim, len(frame.truth["stars"]), (math.nan,) * 3)
 
