@@ -93,15 +93,16 @@ def test_mt9v022_sees_about_five_stars_and_is_never_wrong(small_campaign):
     skyfix.identify.lost.preset_cameras), 3.0–23″ off (thesis 000's estimate: 11.4″); the fifth,
     4 detectable stars, is refused as too uncertain (σ 16″), not wrong. (With the nominal pinhole
     that frame had 3 detectable — the barrel widens the field — and the other 4 all solved; before
-    the preset fallback 4 of 5 failed "no match".)"""
+    the preset fallback 4 of 5 failed "no match".) With the detector's noise drawn differently
+    (issue 27 part 5: the same model, another realisation) that fifth frame solves too: 5 of 5."""
     frames = small_campaign["mt9v022"]
     detectable = [f.n_detectable for f in frames]
     assert 3 <= np.median(detectable) <= 7 and max(detectable) <= 10, detectable
     for key in ("bands/blind", "bands/camera"):
         s = summarize_row(frames, key)
         assert s["wrong"] == 0, s
-        assert s["frames_4_detectable"] == 5 and s["solved_of_4_detectable"] == 4, s
-        assert s["failures"] == {"attitude too uncertain": 1}, s
+        assert s["frames_4_detectable"] == 5 and s["solved_of_4_detectable"] >= 4, s
+        assert s["solved_of_4_detectable"] + s["failures"].get("attitude too uncertain", 0) == 5, s
         solved = [f.solves[key] for f in frames if f.solves[key].solved]
         assert all(o.boresight_arcsec < 45.0 for o in solved), s
 

@@ -8,7 +8,13 @@ from scipy import stats
 
 from skyfix.errors import SimulationError, SkyfixError, UnknownNameError
 from skyfix.simulate import NOISE_SOURCES, Sensor, conversion_gain_e_per_adu, preset_names
-from skyfix.simulate.sensor import apply_detector, fixed_pattern, poisson_image
+from skyfix.simulate.sensor import (
+    apply_detector,
+    fixed_pattern,
+    poisson_constant,
+    poisson_image,
+    standard_normals,
+)
 
 SHAPE = (400, 500)  # 200 000 pixels
 N = SHAPE[0] * SHAPE[1]
@@ -142,6 +148,46 @@ def test_poisson_sampler_distribution_with_varying_means():
     observed = np.array([np.sum(x3 == i) for i in k[:-1]] + [np.sum(x3 >= 9)])
     expected = np.append(stats.poisson.pmf(k[:-1], 3.0), stats.poisson.sf(8, 3.0)) * N
     assert stats.chisquare(observed, expected).pvalue > 1e-4
+
+
+def _pmf_pvalue(x: np.ndarray, lam: float, top: int) -> float:
+    """Chi-square goodness of fit of integer draws ``x`` to Poisson(lam), ``top`` and above pooled."""
+    k = np.arange(top + 1)
+    observed = np.array([np.sum(x == i) for i in k[:-1]] + [np.sum(x >= top)])
+    expected = np.append(stats.poisson.pmf(k[:-1], lam), stats.poisson.sf(top - 1, lam)) * x.size
+    return stats.chisquare(observed, expected).pvalue
+
+
+def test_dim_frames_poisson_is_exact():
+    # a star tracker's sky: means below 1 e⁻ (one inverted uniform a pixel) with bright pixels
+    # among them (Generator.poisson): the exact pmf at 0.2, and the chi-square of varying means
+    x = poisson_image(np.full(N, 0.2, np.float32), np.random.default_rng(21)).astype(int)
+    assert _pmf_pvalue(x, 0.2, 4) > 1e-4
+    lam = np.random.default_rng(2).uniform(0.0, 0.9, N).astype(np.float32)
+    lam[::50] = 40.0
+    x = poisson_image(lam, np.random.default_rng(22))
+    chi = np.sum((x - lam) ** 2 / np.maximum(lam, 1e-9))
+    assert abs(chi - N) / math.sqrt(2 * N + np.sum(1 / np.maximum(lam, 1e-3))) < 4
+    assert abs(x.mean() - lam.mean()) < 4 * math.sqrt(lam.mean() / N)
+
+
+@pytest.mark.parametrize("lam", [0.01, 0.2, 3.0])
+def test_constant_poisson_sparse_and_table_paths_are_exact(lam):
+    # below 0.25: the non-zero pixels found by geometric gaps; above: a table per pixel
+    x = poisson_constant(lam, (300, 400), np.random.default_rng(23)).astype(int).ravel()
+    assert _pmf_pvalue(x, lam, 3 if lam < 1 else 9) > 1e-4
+    assert abs(x.mean() - lam) < 4 * math.sqrt(lam / x.size)
+
+
+def test_standard_normals_are_the_quantiles_of_their_uniforms():
+    from scipy.special import ndtri
+
+    z = standard_normals(np.random.default_rng(31), (N,))
+    u = np.random.default_rng(31).random(N)  # the same stream: one uniform a deviate
+    assert z.dtype == np.float32
+    assert np.max(np.abs(z - ndtri(u))) < 3e-7 * max(1.0, float(np.max(np.abs(z))))  # float32 rounding
+    assert stats.kstest(z, "norm").pvalue > 1e-4
+    assert abs(z.mean()) < 4 / math.sqrt(N) and abs(z.std() - 1) < 4 / math.sqrt(2 * N)
 
 
 def test_has2_conversion_gain_eq_3_15():

@@ -178,7 +178,11 @@ def test_jump_while_turning_at_2_deg_s_recovers_at_once():
     assert jump.solved and jump.mode == "lost" and jump.method == "quad-hash", jump.reason
     assert nxt.mode == "tracking" and nxt.method == "track" and nxt.n_matched >= 8, nxt.reason
     assert sols[8].mode == "tracking" and sols[8].method == "track"
-    np.testing.assert_allclose(nxt.rate_dps, np.degrees(rate), atol=0.05)
+    # the rate from one tracked frame after the jump: the cross axes to 0.05 °/s (σ 0.02), the roll
+    # rate within 3 of its own σ (0.13 °/s: measured 0.17 °/s off with the detector's noise draws of
+    # issue 27 part 5, 0.0 before — one realisation either way)
+    err, sigma = nxt.rate_dps - np.degrees(rate), np.sqrt(np.diag(nxt.rate_covariance_dps2))
+    assert np.all(np.abs(err[:2]) < 0.05) and abs(err[2]) < 3 * sigma[2], (err, sigma)
     for f, s in zip(frames, sols, strict=True):
         if s.solved:  # never a wrong attitude: the jump frame is not coasted on the old pointing
             assert np.hypot(*_error_arcsec(f, s)[:2]) < 60.0, (s.mode, s.method, s.reason)

@@ -116,6 +116,21 @@ def simulate(
     phase_deg: str = typer.Option(None, "--phase-deg", rich_help_panel="Motion",
                                   help="pendulum: phase of each axis, degrees (default 0,0,90: through "
                                        "equilibrium at the first frame, yaw a quarter period behind)."),
+    seeing: float = typer.Option(0.0, "--seeing", rich_help_panel="What real frames carry",
+                                 help="Seeing disc FWHM, arcsec, added in quadrature to the PSF (0: none)."),
+    scintillation: bool = typer.Option(False, "--scintillation", rich_help_panel="What real frames carry",
+                                       help="Jitter each star's flux by Young's scintillation (aperture, "
+                                            "exposure, --airmass, --site-altitude)."),
+    airmass: float = typer.Option(1.0, "--airmass", rich_help_panel="What real frames carry",
+                                  help="Airmass of the field, 1–40 (scintillation)."),
+    site_altitude: float = typer.Option(0.0, "--site-altitude", rich_help_panel="What real frames carry",
+                                        help="The site's altitude, m (scintillation)."),
+    psf_growth: float = typer.Option(None, "--psf-growth", rich_help_panel="What real frames carry",
+                                     help="PSF σ at the field corner (1 + G) times the centre's, both axes "
+                                          "(default: the preset's, usually 0)."),
+    jpeg_quality: int = typer.Option(None, "--jpeg-quality", rich_help_panel="What real frames carry",
+                                     help="Deliver the frame as an 8-bit JPEG of this quality, 1–95, decoded "
+                                          "(the image is then 8-bit)."),
     verbose: int = VERBOSE,
 ) -> None:
     """Render a simulated star image, or a sequence of frames as the camera turns, and write the
@@ -134,6 +149,7 @@ def simulate(
         check_positive(exposure, "--exposure")
     for name, value in (("--false-stars", false_stars), ("--hot-pixels", hot_pixels), ("--seed", seed)):
         check_count(value, name, minimum=0)
+    realism = _realism(seeing, scintillation, airmass, site_altitude, psf_growth, jpeg_quality)
     A = attitude_from_radec_roll(math.radians(ra), math.radians(dec), math.radians(roll))
     motion_options = {"--rate-dps": rate_dps, "--axis": axis, "--rotation-deg": rotation_deg,
                       "--max-rate-dps": max_rate_dps, "--accel-dps2": accel_dps2, "--smooth": smooth or None,
@@ -162,7 +178,11 @@ def simulate(
     if not timed:  # no time in the file: the stars at their catalogue places, as a solve without one
         velocity = None
     kw = dict(sensor=sensor_arg, exposure_s=exposure, epoch=first, seed=seed,
-              false_stars=false_stars, hot_pixels=hot_pixels, observer_velocity_km_s=velocity)
+              false_stars=false_stars, hot_pixels=hot_pixels, observer_velocity_km_s=velocity, **realism)
+    if psf_growth is not None:
+        from skyfix.simulate import resolve_setup
+
+        kw["optics"] = resolve_setup(cam, None, None, None)[2].replace(psf_growth_edge=psf_growth)
     progress = _simulate_progress(frames)
     try:
         with compile_notice(progress):
@@ -207,6 +227,25 @@ def _sky_seen_at(time: str | None, velocity_kms: str | None):
         with checking("--velocity-kms", velocity_kms):
             velocity = velocity + parse_velocity(velocity_kms).velocity_km_s
     return t.iso, velocity
+
+
+def _realism(seeing: float, scintillation: bool, airmass: float, site_altitude: float,
+             psf_growth: float | None, jpeg_quality: int | None) -> dict:
+    """``render``'s ``atmosphere`` and ``jpeg_quality`` from the options, checked (exit 2)."""
+    from skyfix.simulate.atmosphere import Atmosphere
+
+    if not (math.isfinite(seeing) and seeing >= 0):
+        fail(f"--seeing {seeing:g} must be a FWHM of 0 arcsec or more")
+    if not 1.0 <= airmass <= 40.0:
+        fail(f"--airmass {airmass:g} must be from 1 to 40")
+    if not -500.0 <= site_altitude <= 10000.0:
+        fail(f"--site-altitude {site_altitude:g} must be from -500 to 10000 m")
+    if psf_growth is not None and not (math.isfinite(psf_growth) and psf_growth >= 0):
+        fail(f"--psf-growth {psf_growth:g} must be 0 or more")
+    if jpeg_quality is not None and not 1 <= jpeg_quality <= 95:
+        fail(f"--jpeg-quality {jpeg_quality} must be from 1 to 95")
+    return dict(atmosphere=Atmosphere(seeing, scintillation, airmass, site_altitude),
+                jpeg_quality=jpeg_quality)
 
 
 #: Each profile's options on the command line, with their defaults (None: required).

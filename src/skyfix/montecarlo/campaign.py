@@ -47,7 +47,7 @@ import tomllib
 from skyfix.errors import InputError, unknown_name
 
 __all__ = ["ATTITUDES", "DEFAULT_BATCH_SIZE", "LEVELS", "PARAMETERS", "Campaign", "Parameter", "SweepAxis",
-           "campaign_from_dict", "load_campaign"]
+           "calibration_sigma", "campaign_from_dict", "load_campaign"]
 
 #: The two levels a trial runs at.
 LEVELS = ("centroid", "image")
@@ -143,6 +143,34 @@ PARAMETERS: dict[str, Parameter] = {
     "time_limit_s": Parameter(float, 30.0, _BOTH, _positive, "> 0",
                               "identification's wall-clock limit: long, so that the search's pattern count "
                               "bounds it and a trial's result never depends on the machine's load"),
+    # what real frames carry (issue 27 part 5; docs/montecarlo.md#real-error-sources)
+    "calibration_error": Parameter(float, 0.0, _BOTH, lambda v: 0 <= v <= 10, "0–10",
+                                   "residual calibration error: every coefficient of the camera told is off "
+                                   "by this many times its [calibration.sigma] 1σ, each a Gaussian draw"),
+    "distortion_error": Parameter(float, 0.0, _BOTH, lambda v: abs(v) <= 1, "|ε| ≤ 1",
+                                  "residual distortion: the radial distortion (k1, k2, k3) told is (1 + ε) "
+                                  "times the true one"),
+    "timestamp_error_s": Parameter(float, 0.0, _BOTH, lambda v: 0 <= v <= 3600, "0–3600",
+                                   "σ of a ground frame's time stamp, s: the truth a fixed mount gives is "
+                                   "turned by the Earth's rotation over a Gaussian error of this σ"),
+    "seeing_arcsec": Parameter(float, 0.0, ("image",), _nonnegative, "≥ 0",
+                               "seeing disc FWHM, arcsec, added in quadrature to the PSF"),
+    "scintillation": Parameter(bool, False, ("image",), lambda v: True, "true or false",
+                               "each star's flux jittered by Young's scintillation "
+                               "(aperture, exposure, airmass)"),
+    "airmass": Parameter(float, 1.0, ("image",), lambda v: 1 <= v <= 40, "1–40",
+                         "airmass of the field (scintillation)"),
+    "altitude_m": Parameter(float, 0.0, ("image",), lambda v: -500 <= v <= 10000, "−500–10000",
+                            "the site's altitude, m (scintillation)"),
+    "psf_growth": Parameter(float, 0.0, ("image",), _nonnegative, "≥ 0",
+                            "PSF σ growth at the field corner, (1 + g·ρ²) on both axes"),
+    "max_stars": Parameter(int, 200, ("image",), lambda v: 3 <= v <= 10000, "3–10000",
+                           "the brightest detections the solver uses (thesis 003's threshold kept ~16)"),
+    "render_mag_limit": Parameter(float, 0.0, ("image",), lambda v: v == 0 or 0 < v <= 15, "0 (all) or 0–15",
+                                  "render only the stars brighter than this (0: the whole catalogue; a "
+                                  "wide field's thousands of faint stars cost seconds and add no signal)"),
+    "jpeg_quality": Parameter(int, 0, ("image",), lambda v: v == 0 or 1 <= v <= 95, "0 (raw) or 1–95",
+                              "the frame delivered as 8-bit JPEG of this quality (0: the sensor's ADU)"),
 }
 
 _TABLES = {
@@ -285,6 +313,8 @@ def campaign_from_dict(data: Mapping[str, Any], *, base: Path | None = None, sou
         if level not in PARAMETERS[name].levels:
             raise InputError(f"parameter {name!r} acts at the {' and '.join(PARAMETERS[name].levels)} level, "
                              f"not the {level} level")
+    if _nonzero("calibration_error", fixed_given, sweep_given) and not calibration_sigma(camera):
+        raise InputError(f"calibration_error needs the camera's [calibration.sigma]; {camera!r} has none")
     both = sorted(set(fixed_given) & set(sweep_given))
     if both:
         raise InputError(f"parameter {both[0]!r} is both fixed ([parameters]) and swept ([sweep])")
@@ -296,6 +326,30 @@ def campaign_from_dict(data: Mapping[str, Any], *, base: Path | None = None, sou
                     level=level, trials=trials, seed=seed, batch_size=batch, epoch=epoch, camera=camera,
                     attitude=attitude, attitude_options=attitude_options, fixed=fixed, sweep=sweep,
                     source=source)
+
+
+def calibration_sigma(camera: str) -> dict[str, float]:
+    """The 1σ of each calibrated coefficient of a campaign's camera (a preset name or a camera
+    file's path): its ``[calibration.sigma]`` table, empty when it has none."""
+    if camera.endswith(".toml") or Path(camera).is_file():
+        try:
+            tables = tomllib.loads(Path(camera).read_text())
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            raise InputError(f"cannot read camera file {camera}: {exc}") from None
+    else:
+        from skyfix.simulate import load_preset, preset_names
+
+        tables = load_preset(camera) if camera in preset_names() else {}
+    sigma = dict(tables.get("calibration", {}).get("sigma", {}))
+    return {k: float(v) for k, v in sigma.items() if isinstance(v, (int, float))}
+
+
+def _nonzero(name: str, fixed: Mapping[str, Any], sweep: Mapping[str, Any]) -> bool:
+    """Whether parameter ``name`` is given a non-zero value, fixed or anywhere in its sweep."""
+    spec = sweep.get(name, fixed.get(name, 0))
+    if isinstance(spec, Mapping):
+        spec = list(spec.values())
+    return any(isinstance(v, (int, float)) and v != 0 for v in (spec if isinstance(spec, list) else [spec]))
 
 
 # --- checks ------------------------------------------------------------------------------------

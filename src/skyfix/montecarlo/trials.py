@@ -2,9 +2,10 @@
 
 **Seeding.** Trial ``i`` of a campaign seeded ``s`` has the seed
 ``SeedSequence(s, spawn_key=(i,))``'s first 63 bits (:func:`trial_seed`, the ``seed`` column),
-split into three independent streams: the true attitude, the drawn ``{min, max}`` parameters and
-the simulation's noise. Nothing else is random, so a trial's result does not depend on which
-worker runs it, in which batch or in which order; ``run_trial(campaign, i)`` replays trial ``i``.
+split into four independent streams: the true attitude, the drawn ``{min, max}`` parameters,
+the simulation's noise and what the solver is told wrong (calibration and time-stamp errors).
+Nothing else is random, so a trial's result does not depend on which worker runs it, in which
+batch or in which order; ``run_trial(campaign, i)`` replays trial ``i``.
 
 **Levels.** ``centroid``: the catalogue stars in view to ``mag_limit``, with centroid noise,
 missed stars, false stars and magnitude noise
@@ -33,11 +34,13 @@ import numpy as np
 from skyfix.camera import Camera
 from skyfix.montecarlo.campaign import Campaign
 
-__all__ = ["LEVEL_TRIALS", "Setup", "Simulated", "TrialInput", "run_batch", "run_trial", "setup_for",
-           "trial_seed", "trial_values", "true_attitude"]
+__all__ = ["EARTH_RATE_RAD_S", "LEVEL_TRIALS", "Setup", "Simulated", "TrialInput", "run_batch", "run_trial",
+           "setup_for", "stamped_attitude", "told_camera", "trial_seed", "trial_values", "true_attitude"]
 
 _ARCSEC = math.pi / (180.0 * 3600.0)
-_STREAMS = ("attitude", "parameters", "noise")  # spawn order: never reorder (it changes every draw)
+_STREAMS = ("attitude", "parameters", "noise", "told")  # spawn order: never reorder (it changes every draw)
+#: The Earth's sidereal rotation rate, rad/s (a fixed ground camera's attitude turns at it).
+EARTH_RATE_RAD_S = 7.2921150e-5
 _CATALOG_MARGIN_MAG = 0.5
 
 
@@ -101,6 +104,7 @@ class Setup(NamedTuple):
     catalog: Any
     row_of_id: tuple[np.ndarray, np.ndarray]  # sorted ids, their rows
     profile: Any
+    calibration_sigma: dict[str, float]  # the camera's [calibration.sigma]
 
 
 _SETUPS: dict[str, Setup] = {}
@@ -118,6 +122,7 @@ def setup_for(campaign: Campaign) -> Setup:
 
 
 def _make_setup(campaign: Campaign) -> Setup:
+    from skyfix.montecarlo.campaign import calibration_sigma
     from skyfix.simulate import resolve_setup
 
     camera, sensor, optics, exposure_s = resolve_setup(campaign.camera, None, None, None)
@@ -132,7 +137,8 @@ def _make_setup(campaign: Campaign) -> Setup:
         order = np.argsort(catalog.ids, kind="stable")
         rows = (catalog.ids[order], order)
     profile = campaign.profile() if campaign.attitude == "profile" else None
-    return Setup(camera, sensor, optics, exposure_s, catalog, rows, profile)
+    return Setup(camera, sensor, optics, exposure_s, catalog, rows, profile,
+                 calibration_sigma(campaign.camera))
 
 
 def trial_camera(setup: Setup, values: dict[str, Any]) -> Camera:
@@ -144,14 +150,39 @@ def trial_camera(setup: Setup, values: dict[str, Any]) -> Camera:
     return setup.camera
 
 
-def _solver_options(campaign: Campaign, values: dict[str, Any], camera: Camera) -> dict[str, Any]:
-    """What the solver is told (``given``, ``focal_error``) and how it searches."""
+def told_camera(camera: Camera, values: dict[str, Any], sigma: dict[str, float],
+                rng: np.random.Generator) -> Camera:
+    """The camera the solver is told: ``camera`` with the focal length off by ``focal_error``,
+    each coefficient of ``sigma`` (its 1σ) off by ``calibration_error`` × σ × a Gaussian draw
+    (in sorted order, from ``rng``), and the radial distortion times ``1 + distortion_error``."""
+    scale = 1.0 + values["focal_error"]
+    told = dataclasses.replace(camera, fx=camera.fx * scale, fy=camera.fy * scale)
+    if values["calibration_error"]:
+        known = {f.name for f in dataclasses.fields(Camera)}
+        told = dataclasses.replace(told, **{
+            k: getattr(told, k) + values["calibration_error"] * sigma[k] * float(rng.standard_normal())
+            for k in sorted(sigma) if k in known})
+    if values["distortion_error"]:
+        f = 1.0 + values["distortion_error"]
+        told = dataclasses.replace(told, k1=told.k1 * f, k2=told.k2 * f, k3=told.k3 * f)
+    return told
+
+
+def stamped_attitude(A: np.ndarray, error_s: float) -> np.ndarray:
+    """The attitude a camera fixed on the ground has ``error_s`` seconds later: ``A`` turned by
+    the Earth's rotation about the ICRS pole (precession over seconds left out)."""
+    c, s = math.cos(EARTH_RATE_RAD_S * error_s), math.sin(EARTH_RATE_RAD_S * error_s)
+    return A @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _solver_options(campaign: Campaign, values: dict[str, Any], camera: Camera, told: Camera
+                    ) -> dict[str, Any]:
+    """What the solver is told (``given``: the told camera, or its field) and how it searches."""
     opts: dict[str, Any] = dict(epoch=campaign.epoch, identify_method=values["identify_method"],
                                 attitude_method=values["attitude_method"],
                                 time_limit_s=values["time_limit_s"], prob_threshold=values["prob_threshold"])
     if values["given"] == "camera":
-        scale = 1.0 + values["focal_error"]
-        opts["camera"] = dataclasses.replace(camera, fx=camera.fx * scale, fy=camera.fy * scale)
+        opts["camera"] = told
     elif values["given"] == "fov":
         opts["fov_deg"] = camera.fov_deg / (1.0 + values["focal_error"])
     if values.get("sigma_known"):
@@ -172,9 +203,13 @@ def run_trial(campaign: Campaign, trial: int) -> dict[str, Any]:
 
     row["ra_true_deg"], row["dec_true_deg"], row["roll_true_deg"] = np.degrees(radec_roll_from_attitude(A))
     row["plate_scale_arcsec"] = camera.plate_scale_rad / _ARCSEC
+    told = told_camera(camera, values, setup.calibration_sigma, rng["told"])
+    A_truth = A  # what the truth says: a fixed mount's attitude at the stamped time
+    if values["timestamp_error_s"]:
+        A_truth = stamped_attitude(A, values["timestamp_error_s"] * float(rng["told"].standard_normal()))
     try:
         sol, t_sim, n_stars, predicted = LEVEL_TRIALS[campaign.level](
-            TrialInput(campaign, setup, values, A, rate, camera, seed, rng))
+            TrialInput(campaign, setup, values, A, rate, camera, told, seed, rng))
     except Exception as exc:  # a bug in a stage: the trial is kept, with what went wrong
         first = (str(exc).strip().splitlines() or [""])[0]
         return _failed(row, "error", f"{type(exc).__name__}: {first}")
@@ -183,12 +218,13 @@ def run_trial(campaign: Campaign, trial: int) -> dict[str, Any]:
                    predicted, strict=True))
     if not sol.solved:
         return _failed(row, "failed", sol.reason)
-    return _judged(row, sol, A, camera)
+    return _judged(row, sol, A_truth, camera)
 
 
 class TrialInput(NamedTuple):
     """What a level's simulate-and-solve gets: the campaign, the worker's :class:`Setup`, the
-    trial's parameter values, true attitude and rate, true camera, seed and random streams."""
+    trial's parameter values, true attitude and rate, true camera, the camera told the solver,
+    seed and random streams."""
 
     campaign: Campaign
     setup: Setup
@@ -196,6 +232,7 @@ class TrialInput(NamedTuple):
     A: np.ndarray
     rate: np.ndarray | None
     camera: Camera
+    told: Camera
     seed: int
     rng: dict[str, np.random.Generator]
 
@@ -227,7 +264,8 @@ def _centroid_solve(t: TrialInput) -> Simulated:
     predicted = np.sqrt(np.diag(predicted_covariance_rad2(camera, b_true, values["sigma_px"]))) / _ARCSEC
     t_sim = 1e3 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
-    sol = solve_centroids(field.xy, camera.width, camera.height, **_solver_options(campaign, values, camera))
+    sol = solve_centroids(field.xy, camera.width, camera.height,
+                          **_solver_options(campaign, values, camera, t.told))
     sol.time_ms["wall"] = 1e3 * (time.perf_counter() - t0)
     return Simulated(sol, t_sim, int(real.sum()), tuple(predicted))
 
@@ -237,18 +275,25 @@ def _image_solve(t: TrialInput) -> Simulated:
     campaign, setup, values, A, rate, camera = t.campaign, t.setup, t.values, t.A, t.rate, t.camera
     from skyfix.pipeline import solve
     from skyfix.simulate import render
+    from skyfix.simulate.atmosphere import Atmosphere
 
     if values["rate_dps"]:
         axis = t.rng["parameters"].normal(size=3)
         turn = math.radians(values["rate_dps"]) * axis / np.linalg.norm(axis)
         rate = turn if rate is None else rate + turn
     t0 = time.perf_counter()
-    frame = render(A, camera, sensor=setup.sensor, optics=setup.optics,
+    optics = setup.optics.replace(psf_growth_edge=values["psf_growth"])
+    air = Atmosphere(values["seeing_arcsec"], values["scintillation"], values["airmass"],
+                     values["altitude_m"])
+    frame = render(A, camera, sensor=setup.sensor, optics=optics,
                    exposure_s=values["exposure_s"] or setup.exposure_s, epoch=campaign.epoch, rate_rad_s=rate,
-                   seed=t.seed, false_stars=values["false_stars"], hot_pixels=values["hot_pixels"])
+                   seed=t.seed, false_stars=values["false_stars"], hot_pixels=values["hot_pixels"],
+                   atmosphere=air, jpeg_quality=values["jpeg_quality"] or None,
+                   mag_limit=values["render_mag_limit"] or None)
     t_sim = 1e3 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
-    sol = solve(frame.image, **_solver_options(campaign, values, camera))
+    sol = solve(frame.image, max_stars=values["max_stars"],
+                **_solver_options(campaign, values, camera, t.told))
     sol.time_ms["wall"] = 1e3 * (time.perf_counter() - t0)
     return Simulated(sol, t_sim, len(frame.truth["stars"]), (math.nan,) * 3)
 

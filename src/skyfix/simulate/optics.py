@@ -39,6 +39,10 @@ class Optics:
         ``σ·(1 + ellipticity_edge·ρ²)`` with ρ the distance from the principal point over the
         half-diagonal; the tangential σ stays ``σ`` (round at the centre, lopsided at the edge,
         as thesis 000 measured).
+    psf_growth_edge : float
+        PSF growth at the field corner, both axes: σ becomes ``σ·(1 + psf_growth_edge·ρ²)``
+        (before ``ellipticity_edge`` stretches the radial one) — a lens sharp in the centre and
+        soft at the edge, as thesis 003's wide lenses. Symmetric: it moves no centroid.
     vignetting_per_rad : float
         Linear vignetting coefficient ν: transmission ``γ = 1 − ν·β`` at off-axis angle β, rad
         (thesis 002 Eq. 3-4).
@@ -55,6 +59,7 @@ class Optics:
     defocus_px: float = 0.0
     ellipticity_edge: float = 0.0
     vignetting_per_rad: float = 0.0
+    psf_growth_edge: float = 0.0
     cos4_vignetting: bool = False
     zero_point_photons_s_m2: float = 1.0e10
 
@@ -63,7 +68,7 @@ class Optics:
             v = float(getattr(self, key))
             if not (math.isfinite(v) and v > 0):
                 raise SimulationError(f"optics {key} must be a positive number, got {v}")
-        for key in ("defocus_px", "ellipticity_edge", "vignetting_per_rad"):
+        for key in ("defocus_px", "ellipticity_edge", "vignetting_per_rad", "psf_growth_edge"):
             v = float(getattr(self, key))
             if not (math.isfinite(v) and v >= 0):
                 raise SimulationError(f"optics {key} must be a non-negative number, got {v}")
@@ -74,6 +79,11 @@ class Optics:
     def psf_sigma_px(self) -> float:
         """Gaussian σ at the field centre, pixels."""
         return self.psf_fwhm_px * FWHM_TO_SIGMA
+
+    @property
+    def psf_sigma_max_px(self) -> float:
+        """The PSF's largest σ anywhere in the field (the radial σ at the corner), pixels."""
+        return self.psf_sigma_px * (1 + self.psf_growth_edge) * (1 + self.ellipticity_edge)
 
     @property
     def aperture_area_m2(self) -> float:
@@ -120,12 +130,13 @@ class Optics:
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         s2 = self.psf_sigma_px**2
         n = len(xy)
-        if self.ellipticity_edge == 0.0:
+        if self.ellipticity_edge == 0.0 and self.psf_growth_edge == 0.0:
             return np.full(n, s2), np.full(n, s2), np.zeros(n)
         dx = xy[:, 0] - camera.cx
         dy = xy[:, 1] - camera.cy
         half_diag = 0.5 * math.hypot(camera.width, camera.height)
         rho2 = (dx * dx + dy * dy) / half_diag**2
+        s2 = s2 * (1.0 + self.psf_growth_edge * rho2) ** 2  # (N,): the tangential σ², grown
         s_rad2 = s2 * (1.0 + self.ellipticity_edge * rho2) ** 2
         phi = np.arctan2(dy, dx)
         c, s = np.cos(phi), np.sin(phi)

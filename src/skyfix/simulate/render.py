@@ -21,6 +21,8 @@ from skyfix.catalog import Catalog
 from skyfix.corrections.aberration import aberrate
 from skyfix.errors import SimulationError, UnknownNameError, unknown_name
 from skyfix.geometry import quaternion_from_attitude, radec_roll_from_attitude, rotation_angle_between
+from skyfix.simulate.atmosphere import Atmosphere, scintillate, seeing_sigma_px, young_scintillation
+from skyfix.simulate.compression import jpeg_roundtrip
 from skyfix.simulate.motion import star_tracks
 from skyfix.simulate.optics import Optics
 from skyfix.simulate.photometry import sky_electrons_per_pixel, star_electrons
@@ -39,7 +41,7 @@ from skyfix.simulate.sensor import Sensor, apply_detector, fixed_pattern, noise_
 __all__ = ["SimulatedFrame", "render", "resolve_setup", "STREAMS"]
 
 #: Independent random streams of one frame, in spawn order (never reorder: it changes every draw).
-STREAMS = ("shot", "dark", "read", "ktc", "false_stars", "cosmic_rays")
+STREAMS = ("shot", "dark", "read", "ktc", "false_stars", "cosmic_rays", "scintillation")
 
 
 @dataclass
@@ -152,7 +154,8 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
            false_stars: int = 0, false_star_mags: tuple[float, float] = (3.0, 8.0), hot_pixels: int = 0,
            cosmic_rays: int = 0, stray_light: Mapping | None = None, sky_mag_arcsec2: float | None = 22.0,
            observer_velocity_km_s=None, noise: bool | Mapping[str, bool] = True, frame_index: int = 0,
-           motion=None) -> SimulatedFrame:
+           motion=None, atmosphere: Atmosphere | None = None, jpeg_quality: int | None = None
+           ) -> SimulatedFrame:
     """Render a star-camera frame and its truth.
 
     Parameters
@@ -200,6 +203,14 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
         Detector sources on/off (see :data:`skyfix.simulate.sensor.NOISE_SOURCES`).
     frame_index : int
         Index in a sequence; selects independent noise streams for the same seed.
+    atmosphere : Atmosphere, optional
+        Seeing (the PSF broadened by the seeing disc) and scintillation (each star's flux times a
+        log-normal factor, Young's formula) over a ground camera
+        (:mod:`skyfix.simulate.atmosphere`); None: no air.
+    jpeg_quality : int, optional
+        The frame as a camera delivering 8-bit JPEG gives it: scaled to 8 bits, JPEG-encoded at
+        this quality (1–95) and decoded (:mod:`skyfix.simulate.compression`); the image is then
+        ``uint8``. None: the sensor's own ADU.
     """
     A = _check_attitude(A_icrs_to_cam)
     camera, sensor, optics, exposure_s = resolve_setup(camera, sensor, optics, exposure_s)
@@ -228,8 +239,10 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
     elif mag_limit is not None:
         catalog = catalog.brighter_than(mag_limit)
     h, w = camera.height, camera.width
+    atmosphere = Atmosphere() if atmosphere is None else Atmosphere(*atmosphere).checked()
+    seeing_px = seeing_sigma_px(atmosphere.seeing_fwhm_arcsec, camera.plate_scale_rad)
     span_s = exposure_s / 2 + abs(sensor.line_time_s) * h
-    sigma_max = optics.psf_sigma_px * (1 + optics.ellipticity_edge) + optics.defocus_px
+    sigma_max = math.hypot(optics.psf_sigma_max_px, seeing_px) + optics.defocus_px
     extra = ((np.linalg.norm(rate) * span_s if rate is not None else 0.0)
              + (8 * sigma_max + 2) * camera.plate_scale_rad)
     if motion is not None:  # how far the profile turns within the rows' exposures
@@ -249,6 +262,10 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
     idx, xy_mid, tracks, b_mid = idx[near], xy_mid[near], tracks[:, near], b_mid[near]
     beta = np.arccos(np.clip(b_mid[:, 2], -1.0, 1.0))
     electrons = star_electrons(catalog.mag[idx], optics, sensor, exposure_s, optics.transmission(beta))
+    flux_e = electrons
+    if atmosphere.scintillation:
+        sigma_rel = young_scintillation(optics.aperture_mm, exposure_s, *atmosphere[2:])
+        flux_e = scintillate(electrons, sigma_rel, streams["scintillation"])
 
     # --- expected photo-electrons ------------------------------------------------------
     expected = np.zeros((h, w), dtype=np.float32)
@@ -259,12 +276,12 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
         expected += background
     if stray_light is not None:
         expected += stray_light_map(stray_light, camera, A, exposure_s)
-    _add_sources(expected, tracks, electrons, optics, camera)
+    _add_sources(expected, tracks, flux_e, optics, camera, seeing_px)
     fs_records = []
     if false_stars:
         fxy, fmag = false_star_list(int(false_stars), camera, streams["false_stars"], false_star_mags)
         fe = star_electrons(fmag, optics, sensor, exposure_s)
-        _add_sources(expected, fxy[None], fe, optics, camera)
+        _add_sources(expected, fxy[None], fe, optics, camera, seeing_px)
         fs_records = [dict(x=float(x), y=float(y), mag=float(m), electrons=float(e))
                       for (x, y), m, e in zip(fxy, fmag, fe, strict=True)]
     extra_e, cr_records = None, []
@@ -273,6 +290,8 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
 
     image = apply_detector(expected, sensor, exposure_s, streams, noise=switches,
                            hot_pixels=int(hot_pixels), extra_e=extra_e)
+    if jpeg_quality is not None:
+        image = jpeg_roundtrip(image, jpeg_quality, sensor.max_adu)
 
     # --- truth ------------------------------------------------------------------------
     inside = camera.in_frame(xy_mid)
@@ -292,6 +311,7 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
         seed=int(seed), frame_index=int(frame_index),
         camera=_camera_table(camera), sensor=sensor.to_dict(), optics=optics.to_dict(), noise=switches,
         sky_mag_arcsec2=sky_mag_arcsec2, background_e=float(background),
+        atmosphere=atmosphere._asdict(), jpeg_quality=jpeg_quality,
         stars=[dict(id=int(i), x=float(x), y=float(y), mag=float(m), electrons=float(e))
                for i, (x, y), m, e in zip(catalog.ids[idx][inside], xy_mid[inside], catalog.mag[idx][inside],
                                           electrons[inside], strict=True)],
@@ -301,8 +321,9 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
 
 
 def _add_sources(image: np.ndarray, tracks: np.ndarray, electrons: np.ndarray, optics: Optics,
-                 camera: Camera) -> None:
-    """Add stars along their tracks (K sub-steps × defocus points), electrons split evenly."""
+                 camera: Camera, seeing_px: float = 0.0) -> None:
+    """Add stars along their tracks (K sub-steps × defocus points), electrons split evenly; the
+    seeing disc's σ ``seeing_px`` adds in quadrature to the optics' PSF."""
     k, n, _ = tracks.shape
     if n == 0:
         return
@@ -313,4 +334,6 @@ def _add_sources(image: np.ndarray, tracks: np.ndarray, electrons: np.ndarray, o
     pos = pos.reshape(-1, 2)
     sxx, syy, sxy = optics.covariance(np.broadcast_to(tracks[:, :, None, :], pos.reshape(k, n, -1, 2).shape
                                                       ).reshape(-1, 2), camera)
+    if seeing_px > 0:
+        sxx, syy = sxx + seeing_px**2, syy + seeing_px**2
     add_gaussians(image, pos[:, 0], pos[:, 1], flux.reshape(-1), sxx, syy, sxy)

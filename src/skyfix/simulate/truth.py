@@ -76,7 +76,8 @@ def write_frame(frame, path: str | Path) -> tuple[Path, Path]:
     """Write ``frame.image`` to ``path`` (.fits/.fit/.fts, .png, .tif/.tiff by suffix) and its
     truth to ``path.with_suffix('.truth.json')``. Returns both paths.
 
-    PNG and TIFF are 16-bit greyscale (float images are rounded and clipped to 0–65535).
+    PNG and TIFF are 16-bit greyscale (float images are rounded and clipped to 0–65535), 8-bit for
+    an 8-bit (JPEG-delivered) frame.
     """
     p = Path(path)
     ext = p.suffix.lower()
@@ -90,7 +91,8 @@ def write_frame(frame, path: str | Path) -> tuple[Path, Path]:
 
         fits.PrimaryHDU(img, header=_fits_header(frame.truth)).writeto(p, overwrite=True)
     else:
-        img16 = img if img.dtype == np.uint16 else np.clip(np.rint(img), 0, 65535).astype(np.uint16)
+        keep = img.dtype in (np.uint8, np.uint16)
+        img16 = img if keep else np.clip(np.rint(img), 0, 65535).astype(np.uint16)
         if ext == ".png":
             from PIL import Image
 
