@@ -32,8 +32,9 @@ from skyfix.errors import DatabaseError, ImageReadError, InputError, SkyfixError
 
 __all__ = [
     "EPOCH_HELP", "VERBOSE", "LineProgress", "OneLineErrors", "add_verbosity", "calibration_maps",
-    "checking", "compile_notice", "counter_bar", "error_line", "fail", "guarded", "input_error_line",
-    "load_camera", "load_database", "output_names", "output_paths", "prepare_outputs", "reset_verbosity",
+    "check_cluster", "checking", "compile_notice", "counter_bar", "error_line", "fail", "guarded",
+    "input_error_line", "load_camera", "load_database", "output_names", "output_paths", "prepare_outputs",
+    "reset_verbosity",
 ]
 
 #: ``-v`` / ``-vv``: a counted flag (it takes no value), on ``skyfix`` itself and on commands.
@@ -393,6 +394,21 @@ def load_camera(value: str) -> Any:
     if value.endswith(".toml") and not Path(value).is_file():
         raise InputError(f"no such file {value}")
     return Camera.load(value)  # a file, or a preset name (Camera.load says which names it knows)
+
+
+#: A scheduler's address as Dask takes it: an optional protocol, a host, a port.
+_ADDRESS = re.compile(r"(?:[a-z][a-z0-9+.-]*://)?(?:\[[0-9a-fA-F:]+\]|[^\s/:\[\]]+):\d+/?")
+
+
+def check_cluster(workers: int | None, scheduler: str | None) -> None:
+    """``--workers N`` (≥ 1) or ``--scheduler [PROTOCOL://]HOST:PORT``, not both (InputError)."""
+    if workers is not None and scheduler is not None:
+        raise InputError("give --workers or --scheduler, not both")
+    if workers is not None and workers < 1:
+        raise InputError(f"--workers must be ≥ 1, got {workers}")
+    if scheduler is not None and not _ADDRESS.fullmatch(scheduler):
+        raise InputError(f"--scheduler {scheduler!r} is not a Dask scheduler's address: give "
+                         "[PROTOCOL://]HOST:PORT (tcp://10.0.0.5:8786)")
 
 
 def calibration_maps(calibration: Path | None, dark: Path | None, flat: Path | None) -> dict:

@@ -12,20 +12,15 @@ it); the campaign machinery (dask, pyarrow, numpy) is imported when the command 
 from __future__ import annotations
 
 import os
-import re
 import sys
 from pathlib import Path
 
 import typer
 
-from skyfix.cli.common import VERBOSE, add_verbosity, guarded, prepare_outputs
+from skyfix.cli.common import VERBOSE, add_verbosity, check_cluster, guarded, prepare_outputs
 from skyfix.errors import InputError
 
 __all__ = ["montecarlo"]
-
-#: A scheduler's address as Dask takes it: an optional protocol, a host, a port.
-_ADDRESS = re.compile(r"(?:[a-z][a-z0-9+.-]*://)?(?:\[[0-9a-fA-F:]+\]|[^\s/:\[\]]+):\d+/?")
-
 
 @guarded
 def montecarlo(
@@ -44,13 +39,7 @@ def montecarlo(
     add_verbosity(verbose)
     from skyfix.montecarlo.campaign import load_campaign
 
-    if workers is not None and scheduler is not None:
-        raise InputError("give --workers or --scheduler, not both")
-    if workers is not None and workers < 1:
-        raise InputError(f"--workers must be ≥ 1, got {workers}")
-    if scheduler is not None and not _ADDRESS.fullmatch(scheduler):
-        raise InputError(f"--scheduler {scheduler!r} is not a Dask scheduler's address: give "
-                         "[PROTOCOL://]HOST:PORT (tcp://10.0.0.5:8786)")
+    check_cluster(workers, scheduler)
     if output.suffix.lower() != ".parquet":
         raise InputError(f"--output {output}: the results are Parquet: name it *.parquet")
     campaign = load_campaign(campaign_file)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import itertools
 import json
 import math
 import re
@@ -26,6 +27,7 @@ from skyfix.cli.common import (
     VERBOSE,
     add_verbosity,
     calibration_maps,
+    check_cluster,
     checking,
     compile_notice,
     counter_bar,
@@ -87,6 +89,12 @@ def solve(
     calibration: Path = typer.Option(None, "--calibration", help="Maps from `skyfix calibrate frames`."),
     dark: Path = typer.Option(None, "--dark", help="Master dark image to subtract."),
     flat: Path = typer.Option(None, "--flat", help="Master flat image to divide by (normalised to 1)."),
+    workers: int = typer.Option(1, "--workers", metavar="N",
+                                help="Solve the inputs on N local worker processes (Dask), in batches; "
+                                     "the records still come in input order."),
+    scheduler: str = typer.Option(None, "--scheduler", metavar="ADDRESS",
+                                  help="Solve on a running Dask scheduler's workers (tcp://HOST:8786); "
+                                       "they must import the same skyfix and see the same files."),
     mask: Path = typer.Option(None, "--mask", metavar="FILE",
                               help="Image of the frame's size: white (non-zero) = sky to use, black = "
                                    "ignore (horizon, trees, a caption, outside an all-sky lens)."),
@@ -123,6 +131,7 @@ def solve(
     check_solve_options(fov, fov_tolerance, epoch, method,
                         ("--fov", "--fov-tolerance", "--epoch", "--attitude"))
     hint = _attitude_hint(attitude_hint)
+    check_cluster(None if workers == 1 else workers, scheduler)
     if parity is not None:
         from skyfix.parity import check_parity
 
@@ -161,11 +170,22 @@ def solve(
     elif maps or smear_px is not None:
         fail("--calibration, --dark, --flat and --smear work on an image; a --centroids table has none")
 
+    items = [(source, InputOutputs(*paths))
+             for source, *paths in zip(sources, *outputs.values(), strict=True)]
+    if workers > 1 or scheduler is not None:
+        from skyfix.cli.batch import solve_on_cluster
+
+        with checking("--scheduler", scheduler):
+            outcomes = solve_on_cluster(items, options, workers=workers, scheduler=scheduler,
+                                        database_file=database_file)
+            first = next(outcomes, None)  # connects (an unreachable scheduler fails here, one line)
+        outcomes = itertools.chain([first] if first is not None else [], outcomes)
+    else:
+        outcomes = (solve_input(source, paths, options) for source, paths in items)
     any_failed = any_error = False
     progress = _progress(len(sources), json_out)
     with compile_notice(progress):
-        for source, *paths in zip(sources, *outputs.values(), strict=True):
-            record, sol = solve_input(source, InputOutputs(*paths), options)
+        for record, sol in outcomes:
             any_error |= sol is None
             any_failed |= sol is not None and not sol.solved
             if sol is None:  # on stderr with --json too, where a reader watching the batch sees it

@@ -39,7 +39,7 @@ from skyfix.montecarlo.campaign import Campaign
 if TYPE_CHECKING:
     import pyarrow as pa
 
-__all__ = ["CONNECT_TIMEOUT_S", "RunResult", "parts_folder", "run_campaign"]
+__all__ = ["CONNECT_TIMEOUT_S", "RunResult", "connect", "parts_folder", "run_campaign"]
 
 #: How long to try reaching a scheduler before the run is refused.
 CONNECT_TIMEOUT_S = 10.0
@@ -152,8 +152,10 @@ def _worker_env() -> dict[str, str]:
     return {"PYTHONPATH": os.pathsep.join([src, *(p for p in path if p != src)])}
 
 
-def _connect(workers: int, scheduler: str | None, processes: bool):
-    """A client (and the LocalCluster it owns, or None)."""
+def connect(workers: int, scheduler: str | None, processes: bool = True):
+    """A Dask client and the LocalCluster it owns (None when ``scheduler``, an address, is given):
+    ``workers`` single-threaded worker processes importing this skyfix (campaigns, and ``skyfix
+    solve --workers``). An unreachable scheduler is a CampaignError naming it."""
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
@@ -203,7 +205,7 @@ def run_campaign(campaign: Campaign, output: str | Path, *, workers: int = 2, sc
             _warm(campaign)
         owned = client is None
         if owned:
-            client, cluster = _connect(workers, scheduler, processes)
+            client, cluster = connect(workers, scheduler, processes)
         try:
             n_workers = len(client.scheduler_info().get("workers", {}))
             ran = _run_batches(client, campaign, todo, parts, max_batches, progress, len(done))
