@@ -33,7 +33,7 @@ EXAMPLE = EXAMPLES / "sky.png"
 
 #: A valid value for each of solve's options, by its type (the command checks them later).
 VALUES = {float: ["10", "17.5", "1e1", "-2.5", "+3", ".5", "5.", "1E-3"], str: ["quest", "a,b", "x.toml"],
-          Path: ["out/{stem}.png", "a b.fits", "x"]}
+          Path: ["out/{stem}.png", "a b.fits", "x"], int: ["1", "2", "16"]}
 
 
 @functools.cache
@@ -95,7 +95,8 @@ def test_random_mixtures_match_typer():
     ["solve", "a.png", "--fov", "1", "--fov", "2"], ["solve", "a.png", "--json=1"],
     ["solve", "a.png", "--no-such"], ["solve", "--", "a.png"], ["solve", "-"], ["solve", ""],
     ["solve", "a.png", "--camera", "-x"], ["solve", "a.png", "-x"], ["--json", "solve", "a.png"],
-    ["solve", "a.png", "--plot", "--json"],
+    ["solve", "a.png", "--plot", "--json"], ["solve", "a.png", "--workers", "+2"],
+    ["solve", "a.png", "--workers", "2.0"],
 ])
 def test_anything_else_goes_to_typer(argv):
     assert plain_solve(argv) is None

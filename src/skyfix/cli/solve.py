@@ -261,6 +261,10 @@ def plain_solve(argv: list[str]) -> tuple[int, dict] | None:
             if not _NUMBER.fullmatch(value):
                 return None
             options[name] = float(value)
+        elif kind is int:
+            if not value.isdigit():  # plain decimal digits; anything else is typer's to judge
+                return None
+            options[name] = int(value)
         else:
             options[name] = kind(value)
     if not images:
@@ -278,7 +282,7 @@ def solve_parameters() -> dict[str, tuple[tuple[str, ...], type, object]] | None
     """solve's options as ``{parameter: (flags, type, default)}`` (images and -v apart), read
     from its signature (annotations are strings here: ``from __future__ import annotations``);
     None if one is of a kind :func:`plain_solve` does not read."""
-    kinds = {"float": float, "str": str, "Path": Path, "bool": bool}
+    kinds = {"float": float, "int": int, "str": str, "Path": Path, "bool": bool}
     out = {}
     for name, p in inspect.signature(solve).parameters.items():
         info = p.default
