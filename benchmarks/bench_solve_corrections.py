@@ -93,7 +93,8 @@ def speed(repeat: int) -> None:
     from astropy.io import fits
 
     with fits.open(plain_path, mode="update") as hdul:  # the same file, but no time
-        del hdul[0].header["DATE-OBS"]
+        for key in ("DATE-OBS", "DATE-AVG"):  # a simulated frame carries both (c5a6aae)
+            hdul[0].header.pop(key, None)
     velocity = parse_velocity(",".join(f"{v:.6f}" for v in v_orbit))  # as the command line gives it
 
     def fresh():  # each image a new time: the Earth's state computed anew
@@ -107,7 +108,9 @@ def speed(repeat: int) -> None:
         return skyfix.solve(plain_path, camera=camera, observer=velocity)
 
     sol = with_time()
-    assert sol.solved and sol.time_source == "DATE-OBS" and without().solved
+    plain = without()
+    assert sol.solved and sol.time_source in ("DATE-OBS", "DATE-AVG") and plain.solved
+    assert plain.time_source == "none"
     a, b = medians([with_time, without], repeat)
     print(f"solve, 8° frame, {sol.n_matched} stars: median {a:.0f} µs with DATE-OBS, {b:.0f} µs without "
           f"({a - b:+.0f} µs; {repeat} each, alternating, on a shared machine)")
