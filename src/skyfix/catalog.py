@@ -218,14 +218,22 @@ def propagate(vectors: np.ndarray, pm_ra: np.ndarray, pm_dec: np.ndarray, dt: fl
 
 def _moved(vectors: np.ndarray, pm_ra: np.ndarray, pm_dec: np.ndarray, rate: np.ndarray | None,
            dt: float) -> np.ndarray:
-    """The straight-line step of :func:`propagate`, renormalised."""
-    ra, dec = vector_to_radec(vectors)
-    east = np.stack([-np.sin(ra), np.cos(ra), np.zeros_like(ra)], axis=-1)
-    north = np.stack([-np.sin(dec) * np.cos(ra), -np.sin(dec) * np.sin(ra), np.cos(dec)], axis=-1)
-    velocity = pm_ra[:, None] * east + pm_dec[:, None] * north
+    """The straight-line step of :func:`propagate`, renormalised. East and north at ``u = (x, y,
+    z)`` from the vector itself, no angles: ``e = (−y, x, 0) / ρ``, ``n = (−z x, −z y, ρ²) / ρ``
+    with ``ρ = √(x² + y²)`` (at a pole, where RA is 0 by convention, ``x/ρ = 1``, ``y/ρ = 0``)."""
+    x, y, z = vectors[:, 0], vectors[:, 1], vectors[:, 2]
+    rho = np.hypot(x, y)
+    pole = rho == 0.0
+    safe = np.where(pole, 1.0, rho)
+    cos_ra, sin_ra = np.where(pole, 1.0, x / safe), np.where(pole, 0.0, y / safe)
+    a, d = pm_ra * dt, pm_dec * dt
+    step = np.empty_like(vectors)
+    step[:, 0] = -a * sin_ra - d * z * cos_ra
+    step[:, 1] = a * cos_ra - d * z * sin_ra
+    step[:, 2] = d * rho
     if rate is not None:
-        velocity = velocity + rate[:, None] * vectors
-    return normalize(vectors + dt * velocity)
+        step += (rate * dt)[:, None] * vectors
+    return normalize(vectors + step)
 
 
 # --- magnitudes: Gaia G and Hipparcos Hp ---------------------------------------------------------
