@@ -209,23 +209,19 @@ def solve(
     t_extract = _clock()
     log.info("%s: %d×%d image, %d centroids (noise %.3g)", label, data.shape[1], data.shape[0],
              len(centroids), getattr(centroids, "noise", float("nan")))
-    sol = solve_centroids(
-        centroids.xy, data.shape[1], data.shape[0], fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
-        camera=camera, database=database, epoch=epoch, attitude_method=attitude_method,
-        identify_method=identify_method, name=label, attitude_hint=hint, parity=parity, observation=obs,
-        **identify_options,
-    )
+    solve_stars = functools.partial(
+        solve_centroids, width=data.shape[1], height=data.shape[0], fov_deg=fov_deg,
+        fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database, epoch=epoch,
+        attitude_method=attitude_method, identify_method=identify_method, name=label, parity=parity,
+        observation=obs, **identify_options)
+    sol = solve_stars(centroids.xy, attitude_hint=hint)
     problem = frame_problem(raw) if not sol.solved else ""
     if not sol.solved and not problem and look_fainter(len(centroids), hint):
         # A sparse frame that failed: the stars a solve needs may lie between the fainter
         # threshold and the default one. A second extraction and solve; kept only if it solves.
         faint = _extract(data, FAINT_SIGMA, max_stars, usable)
         if len(faint) > len(centroids):
-            again = solve_centroids(
-                faint.xy, data.shape[1], data.shape[0], fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
-                camera=camera, database=database, epoch=epoch, attitude_method=attitude_method,
-                identify_method=identify_method, name=label, parity=parity, observation=obs,
-                **identify_options)
+            again = solve_stars(faint.xy)  # no hint: look_fainter is for lost in space
             if again.solved:
                 log.info("%s: solved from %d stars above %g σ (%d above %g σ did not)", label, len(faint),
                          FAINT_SIGMA, len(centroids), DETECT_SIGMA)

@@ -52,15 +52,6 @@ def _sensor_arg(value: str | None):
     return value
 
 
-def _check_time(value: str | None) -> None:
-    """``--time``: a time (:func:`skyfix.obstime.parse_time`, as solve's), checked before any work."""
-    if value is not None:
-        from skyfix.obstime import parse_time
-
-        with checking("--time", value):
-            parse_time(value)
-
-
 @guarded
 def simulate(
     out_dir: Path = typer.Argument(None, metavar="[OUT_DIR]",
@@ -157,7 +148,7 @@ def simulate(
                       "--damping": damping, "--phase-deg": phase_deg}
     motion = _simulate_profile(profile, A, {k: v for k, v in motion_options.items() if v is not None})
     cam, sensor_arg = _camera_arg(camera), _sensor_arg(sensor)
-    _check_time(time)
+    first, velocity = _sky_seen_at(time, velocity_kms)  # --time and --velocity-kms checked now
     if (out_dir is None) == (output is None):
         fail("give an output folder (OUT_DIR) or an image file (-o FILE), not both" if out_dir is not None
              else "give an output folder (OUT_DIR) or an image file (-o FILE)")
@@ -169,12 +160,11 @@ def simulate(
         paths = [output]
     else:
         paths = [output.with_name(f"{output.stem}-{k:04d}{output.suffix}") for k in range(frames)]
-    prepare_outputs({"--output" if out_dir is None else "OUT_DIR": paths})
     timed = all(p.suffix.lower() in (".fits", ".fit", ".fts") for p in paths)
     if velocity_kms is not None and not timed:
         fail("--velocity-kms needs FITS frames: a PNG or TIFF frame carries no time, so a solve could "
              "not remove the aberration it would show")
-    first, velocity = _sky_seen_at(time, velocity_kms)
+    prepare_outputs({"--output" if out_dir is None else "OUT_DIR": paths})
     if not timed:  # no time in the file: the stars at their catalogue places, as a solve without one
         velocity = None
     kw = dict(sensor=sensor_arg, exposure_s=exposure, epoch=first, seed=seed,
