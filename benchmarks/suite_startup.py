@@ -9,9 +9,10 @@ first on ``PYTHONPATH``; medians over ``n`` runs (≥ 5), the sides alternating 
   untimed run first compiles what is missing);
 - ``in-process``: one process importing skyfix and solving the same image six times: the import,
   the first solve, the second, and a later one (median of the 3rd–6th), and first / later;
-- ``cold`` (opt-in, ``--cold``; about two minutes a side): the first ``skyfix solve`` after an
-  install — a copy of the side's sources with no compiled kernels (``.pyc`` compiled, as pip
-  does) and an empty ``SKYFIX_CACHE`` (catalogue, pattern database, kernels all from scratch);
+- ``cold`` (opt-in, ``--cold``; minutes a side): the first ``skyfix solve`` after an install — a
+  copy of the side's sources with no compiled kernels (``.pyc`` compiled, as pip does) and an
+  empty ``SKYFIX_CACHE`` (catalogue, pattern database, kernels all from scratch); for a side with
+  ``skyfix.aot`` the README's setup runs ``skyfix warmup`` first, timed on its own row;
 - ``first-use`` (opt-in, ``--first-use``; a few minutes a side): the first use of each other
   path (a JPEG, a uint16 array, an attitude hint, the tracker, each centroider, each
   identification method) in a process whose solve path is already compiled: a copy of the
@@ -135,7 +136,7 @@ def fresh_copy(src: Path, dest: Path) -> Path:
     """``src`` (the package's parent folder) copied without compiled kernels or bytecode, then
     byte-compiled as ``pip install`` does: what a new install holds."""
     shutil.copytree(src, dest / "src", ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc", "*.pyc",
-                                                                     "*.egg-info"))
+                                                                     "*.egg-info", "_aot"))
     compileall.compile_dir(str(dest / "src"), quiet=1)
     return dest / "src"
 
@@ -150,12 +151,18 @@ def cold(sides: list, n: int = 1) -> dict:
                 src = fresh_copy(s.src, tmp)
                 (tmp / "cache").mkdir()
                 env = _env(src, SKYFIX_CACHE=str(tmp / "cache"))
+                install = None
+                if (src / "skyfix" / "aot.py").exists():  # the README's setup runs `skyfix warmup`
+                    install = timed_run(cli_command(s.root, "warmup"), env)
+                    say(f"  {s.label}: setup's skyfix warmup {install['wall_s']:.1f} s (rc {install['rc']})")
                 r = timed_run(cli_command(s.root, "solve", str(IMAGE)), env)
+                r["warmup_s"] = install["wall_s"] if install else None
                 say(f"  {s.label}: cold first solve {r['wall_s']:.1f} s (rc {r['rc']})")
                 out[s.label].append(r)
             finally:
                 shutil.rmtree(tmp, ignore_errors=True)
     return {label: {"wall_s": median([r["wall_s"] for r in rs]), "rc": [r["rc"] for r in rs],
+                    "warmup_s": rs[-1]["warmup_s"] if rs else None,
                     "messages": rs[-1]["stderr"][-1000:] if rs else ""} for label, rs in out.items()}
 
 
@@ -235,6 +242,8 @@ def _print(results: dict, sides: list) -> None:
                       ("first_over_later", "first / later")):
         rows.append([what] + [w[label][key] for label in labels])
     if "cold" in results:
+        rows.append(["cold: the setup's skyfix warmup (compile ahead of time + database), s"]
+                    + [results["cold"][label].get("warmup_s") or "—" for label in labels])
         rows.append(["cold: first solve, fresh install, empty cache, s"]
                     + [results["cold"][label]["wall_s"] for label in labels])
     if "first_use" in results:

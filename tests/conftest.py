@@ -8,6 +8,12 @@ from pathlib import Path
 
 import pytest
 
+# The tests run the kernels through numba, as a fresh checkout (CI) does, whether or not
+# `skyfix warmup` compiled them ahead of time here: the same results either way, and tests of the
+# warm-up and of start-up assume numba's path. tests/core/test_aot.py runs the exports in
+# processes of their own.
+os.environ.setdefault("SKYFIX_AOT", "0")
+
 ROOT = Path(__file__).resolve().parents[1]  # the repository
 EXAMPLES = ROOT / "examples"
 DATA_DIR = ROOT / "tests" / "data"

@@ -16,7 +16,8 @@ assignments, compiled 3× longer for the same speed.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from skyfix._jit import njit
 
 __all__ = ["unfilter_rows"]
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels import lens, rotation
 from skyfix.identify.common.verify import cell_band
 
@@ -128,7 +128,7 @@ class CatalogueCone:
         return self._vectors[rows]
 
 
-@numba.njit(inline="always")
+@njit(inline="always")
 def _chord2(points, i, axis) -> float:
     """The squared distance from ``points[i]`` to ``axis``."""
     dx = points[i, 0] - axis[0]
@@ -137,7 +137,7 @@ def _chord2(points, i, axis) -> float:
     return dx * dx + dy * dy + dz * dz
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def within(points, axis, chord2, limit):
     """The first ``limit`` rows of ``points`` (N, 3) whose squared distance to ``axis`` is at most
     ``chord2`` (the scan stops there)."""
@@ -152,7 +152,7 @@ def within(points, axis, chord2, limit):
     return rows[:n]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def cone_stars(vectors, cell_centres, cell_start, cell_stars, cell_radius, axis, half_angle, chord2):
     """Indices (ascending: brightest first) of the stars ``vectors`` (S, 3) whose squared distance
     to ``axis`` is at most ``chord2`` (the squared chord of ``half_angle``, rad), read from the sky
@@ -247,7 +247,7 @@ def match_catalogue(xy: np.ndarray, fit, stars: CatalogueCone, max_radius_px: fl
     return Rematched(Matches(cen.astype(np.int64), ids, v[star], mag), len(near), rms_radius, complete)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def equidistant_consensus(xy, r, cam, n_stars, tol_px):
     """The equidistant camera (the Kannala–Brandt camera numbers ``cam``, every k 0, at another
     focal length) and attitude that most of the matched stars ``xy`` (N, 2) ↔ ``r`` (N, 3) agree with (a miss
@@ -297,7 +297,7 @@ def equidistant_consensus(xy, r, cam, n_stars, tol_px):
     return best_f, best_A, agree
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def rotated(r, A):
     """The vectors ``r`` (N, 3) rotated by ``A``: ``(A r_i)`` (N, 3)."""
     out = np.empty_like(r)

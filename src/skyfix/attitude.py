@@ -26,9 +26,9 @@ The covariance is the QUEST measurement model (Shuster & Oh 1981) in the camera 
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.rotation import proper_rotation, rotation_vector, triad
 from skyfix._kernels.wahba import information_matrix, profile_matrix
 from skyfix.errors import unknown_name
@@ -92,7 +92,7 @@ _PREPARE_ERRORS = {
 }
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _checked_unit_vectors(b, r, w):
     """The checks of :func:`_prepare` in one pass: (error code of ``_PREPARE_ERRORS`` or 0,
     vectors kept, unit ``b``, unit ``r``, weights of the kept vectors normalised to sum 1)."""
@@ -231,7 +231,7 @@ def svd_attitude(b_cam: np.ndarray, r_icrs: np.ndarray, weights: np.ndarray | No
     return A
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _checked_profile_polar(b, r, w):
     """The checks of :func:`_prepare`, the profile matrix ``B = Σ w b rᵀ`` of the unit vectors
     and its orthogonal polar factor (:func:`_polar_newton`), in one call: (error code, vectors
@@ -243,7 +243,7 @@ def _checked_profile_polar(b, r, w):
     return code, n_kept, B, _polar_newton(B)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _polar_newton(B):
     """Orthogonal polar factor of a 3×3 ``B`` with ``det B > 0``, or an empty (0, 3) array when
     ``B`` is ill-conditioned, improper or the iteration does not converge.

@@ -20,9 +20,9 @@ import math
 from dataclasses import dataclass, replace
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels import lens, robust, rotation
 from skyfix._kernels.camera_fit import OUTLIER_CHI2
 from skyfix._rematch import CatalogueCone, equidistant_consensus, match_catalogue
@@ -418,7 +418,7 @@ def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> Fin
                     fit.fitted, log_p, residual_dof=2 * len(cur.idx) - fit.n_effective)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _magnitude_noise(d2, mag, floor2):
     """The centroid noise of each star from its squared residual ``d2`` (N,) px² and catalogue
     magnitude ``mag`` (N,): the per-axis variance ``v = a + b·10^(0.4 (m − m_faintest))``, a, b ≥ 0
@@ -524,7 +524,7 @@ def _robust_prior_fit(xy: np.ndarray, m: _Matches, camera: Camera, A: np.ndarray
     return _fit_without_outliers(xy, m, camera, A, prior)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _rays_and_inliers(xy, r, A, cam):
     """``camera.pixel_to_ray(xy)`` for the camera ``cam`` (:func:`skyfix._kernels.lens.pixel_rays`), and the
     :func:`inliers` of their :func:`angles` to ``r`` rotated by ``A`` (σ floored at a tenth of

@@ -21,9 +21,9 @@ import os
 import time
 from pathlib import Path
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels import rotation
 from skyfix.camera import Camera
 from skyfix.corrections.observation import Observation, apparent_attitude, observe, time_of_image
@@ -624,7 +624,7 @@ def solution_numbers(A: np.ndarray, xy: np.ndarray, idx: np.ndarray, v: np.ndarr
                              np.ascontiguousarray(mag, dtype=f64), np.ascontiguousarray(resid, dtype=f64))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _solution_numbers(A, xy, idx, v, mag, resid):
     """:func:`solution_numbers`, compiled (its arguments contiguous, float64 but ``idx``)."""
     n = v.shape[0]

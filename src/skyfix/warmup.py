@@ -105,8 +105,10 @@ _warm_here: set[str] = set()  # paths this process has seen warm (no second look
 
 def is_warm(path: str) -> bool:
     """Whether every job of ``path`` has run to the end since skyfix's sources last changed
-    (with this numba and Python)."""
-    if path in _warm_here:
+    (with this numba and Python), or every kernel is compiled ahead of time (:mod:`skyfix.aot`)."""
+    from skyfix._jit import aot_modules
+
+    if path in _warm_here or aot_modules():
         return True
     stamp = _read_stamp()
     done = stamp.get("jobs", {}) if stamp.get("key") == _stamp_key() else {}
@@ -185,7 +187,8 @@ def ensure(path: str | Iterable[str], *, alongside: Callable[[], object] | None 
 
 def pending(paths: Iterable[str]) -> list[str]:
     """The jobs :func:`ensure` would compile for ``paths`` now: none when they are warm, or when
-    compiling up front is off (``SKYFIX_WARMUP=0``, inside a worker)."""
+    compiling up front is off (``SKYFIX_WARMUP=0``, inside a worker), or when every kernel is
+    compiled ahead of time (:mod:`skyfix.aot`)."""
     names = [p for p in paths if not is_warm(p)]
     if not names or not _enabled():
         return []
@@ -354,6 +357,8 @@ class _Display:
 
     def start(self) -> None:
         line = f"{self.title} (once; about {_duration(self.eta_s)} on {default_workers()} cores)…"
+        if self.title.startswith("first use"):
+            line += " (`skyfix warmup` compiles every kernel ahead of time instead, for fast starts)"
         log.info("%s", line)
         console = self._console()
         if not console.is_terminal:

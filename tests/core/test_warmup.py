@@ -21,14 +21,14 @@ SKY = EXAMPLES / "sky.png"
 
 def _kernel_signatures() -> dict[str, set[str]]:
     """Every skyfix numba kernel loaded in this process and the signatures it holds."""
-    from numba.core.registry import CPUDispatcher
+    from skyfix._jit import Kernel
 
     out = {}
     for name, module in list(sys.modules.items()):
         if not name.startswith("skyfix") or module is None:
             continue
         for attr, value in list(vars(module).items()):
-            if isinstance(value, CPUDispatcher) and value.py_func.__module__ == name:
+            if isinstance(value, Kernel) and value.n_compiled and value.py_func.__module__ == name:
                 out[f"{name}.{attr}"] = {str(s) for s in value.signatures}
     return out
 

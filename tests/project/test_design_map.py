@@ -39,9 +39,11 @@ def map_entries(text: str) -> set[str]:
 
 
 def code_entries() -> set[str]:
-    modules = {p.relative_to(SRC).as_posix() for p in SRC.rglob("*.py") if "__pycache__" not in p.parts}
+    skip = {"__pycache__", "_aot"}  # numba's cache; the modules `skyfix warmup` generates (git-ignored)
+    modules = {p.relative_to(SRC).as_posix() for p in SRC.rglob("*.py") if not skip & set(p.parts)}
     packages = {p.relative_to(SRC).as_posix() + "/" for p in SRC.rglob("*")
-                if p.is_dir() and p.name != "__pycache__" and (any(p.glob("*.py")) or any(p.glob("*.toml")))}
+                if p.is_dir() and not skip & set(p.relative_to(SRC).parts)
+                and (any(p.glob("*.py")) or any(p.glob("*.toml")))}
     return modules | packages
 
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.camera_jacobian import (
     ASPECT,
     K1_TERM,
@@ -122,7 +122,7 @@ class GaussNewtonResult(NamedTuple):
     fitted: np.ndarray
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def prior_codes(cam, tangential):
     """The parameter codes of the fit under a prior for the camera ``cam``'s projection
     (:data:`PRIOR_CODES`, with ``tangential`` :data:`TANGENTIAL_PRIOR_CODES`, or a Kannala–Brandt
@@ -134,7 +134,7 @@ def prior_codes(cam, tangential):
     return np.array(PRIOR_CODES, dtype=np.int64)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def prior_terms(cam, rmax, prior, codes):
     """The prior's precision ``λ`` (P,) and the camera's deviation from the prior's value (P,),
     for each step column of the parameters ``codes`` (rotations and ``f`` flat: 0), in the
@@ -173,7 +173,7 @@ def prior_terms(cam, rmax, prior, codes):
     return lam, dev
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def hold_at_prior(cam, prior, c):
     """Set the camera numbers ``cam`` of the parameter of code ``c`` to the prior's values, in
     place (the pixel aspect ``fy/fx`` by ``fy``)."""
@@ -193,7 +193,7 @@ def hold_at_prior(cam, prior, c):
         cam[P1], cam[P2] = prior[PRIOR_P1], prior[PRIOR_P2]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _noise(res, n_eff, robust, sigma_floor, w, vw):
     """σ² (px², of a star of weight 1) from the residuals (N, 2) and the stars' inverse variances
     ``vw`` (N,): their weighted sum of squares over ``2N − n_eff``, or with ``robust`` from their
@@ -214,7 +214,7 @@ def _noise(res, n_eff, robust, sigma_floor, w, vw):
     return max(ss / max(2 * n - n_eff, 1.0), sigma_floor**2)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _normal_equations(J, res, w):
     """``JᵀWJ`` (P, P) and ``JᵀWr`` (P,) of the Jacobian (N, 2, P), residuals (N, 2) and
     weights (2N,)."""
@@ -238,7 +238,7 @@ def _normal_equations(J, res, w):
     return JtJ, g
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _posterior(JtJ, g, sigma2, lam, dev):
     """The posterior covariance ``(JᵀWJ/σ² + Λ)⁻¹`` of the step, its effective number of fitted
     numbers (the hat matrix's trace) and the Gauss–Newton step from here."""
@@ -261,7 +261,7 @@ def _posterior(JtJ, g, sigma2, lam, dev):
     return inv, n_eff, step
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _studentised(J, res, inv, cols, w, vw, sigma2, n_eff, robust, sigma_floor):
     """Each star's residual against what the others predict for it (N,): ``v rᵀ (σ² (I − H))⁻¹ r``
     with ``H`` its 2×2 block of the hat matrix ``J (JᵀWJ/σ² + Λ)⁻¹ JᵀW / σ²`` of the model
@@ -305,7 +305,7 @@ def _studentised(J, res, inv, cols, w, vw, sigma2, n_eff, robust, sigma_floor):
     return chi2
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def outlier_limit(dof):
     """The externally studentised χ² a good star exceeds with probability 3.4e-4 (the tail of
     :data:`OUTLIER_CHI2`): twice the F(2, m) quantile, m = dof − 2, in closed form
@@ -314,7 +314,7 @@ def outlier_limit(dof):
     return m * (math.exp(OUTLIER_CHI2 / m) - 1.0)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _chosen(JtJ, g, res, step, n_eff, lam, dev, codes, free, sigma_floor):
     """:func:`choose_model` at a linearisation (``JᵀJ``, ``Jᵀr``, the residuals (N, 2)) with σ² from
     the residuals of its step with every number free (``step``, ``n_eff``), floored at
@@ -331,7 +331,7 @@ def _chosen(JtJ, g, res, step, n_eff, lam, dev, codes, free, sigma_floor):
     return choose_model(JtJ, g, rr, sigma2, lam, dev, codes, free)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _rotated(r, A):
     """The vectors ``r`` (N, 3) rotated by ``A``."""
     out = np.empty((r.shape[0], 3))
@@ -341,7 +341,7 @@ def _rotated(r, A):
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options, weights):
     """The fit of :func:`skyfix.calibrate.fit_camera_with_prior`: attitude and the camera's
     :func:`prior_codes` (a pinhole's :data:`PRIOR_CODES`, with p1, p2 when ``prior``'s tangential
@@ -539,7 +539,7 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options, weights):
                              chi2, step, moved_px, kept, free)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def frame_step(step, fx_over_fy):
     """The rotation (3,) of the frame at the principal point's pixel that a prior fit's ``step``
     (P,) makes (:func:`frame_covariance`'s ``T step``)."""
@@ -550,7 +550,7 @@ def frame_step(step, fx_over_fy):
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def frame_covariance(inv, fx_over_fy):
     """The attitude covariance (3, 3) of the frame at the principal point's pixel from the
     posterior ``inv`` (P, P) of a prior fit's step: a shift (δcx, δcy) of the principal point
@@ -565,7 +565,7 @@ def frame_covariance(inv, fx_over_fy):
     return T @ np.ascontiguousarray(inv) @ T.T
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def held_shift_chi2(inv, inv_f, cols, step, fx_over_fy):
     """How far, in its own noise, holding camera numbers at the prior's values moves the attitude
     at the principal point's pixel: ``δᵀ D⁺ δ``, δ the frame's rotation to the mean of the

@@ -21,9 +21,9 @@ the fisheye was added, operation for operation, so its fits are bit-identical.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.lens import (
     CX,
     CY,
@@ -52,13 +52,13 @@ __all__ = ["ASPECT", "F", "K1_TERM", "K2_TERM", "K3_TERM", "K4_TERM", "PRINCIPAL
 F, ASPECT, PRINCIPAL_POINT, K1_TERM, K2_TERM, K3_TERM, K4_TERM, TANGENTIAL = range(8)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def code_size(c):
     """How many numbers (step columns) the parameter of code ``c`` is."""
     return 2 if (c == PRINCIPAL_POINT or c == TANGENTIAL) else 1
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def apply_step(cam, rmax, codes, p):
     """The camera numbers (:data:`skyfix._kernels.lens.CAMERA_NUMBERS`) after the parameter
     step ``p`` (rotations first, then ``codes``, in the scaled units of the module text)."""
@@ -87,7 +87,7 @@ def apply_step(cam, rmax, codes, p):
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def residuals_for_steps(cam, rmax, codes, ps, rays0, xy):
     """Residuals (K, 2N), (u, v) of each star in turn, of the stars ``xy`` against the rays
     ``rays0`` rotated and projected through the camera ``cam`` after each parameter step of
@@ -108,7 +108,7 @@ def residuals_for_steps(cam, rmax, codes, ps, rays0, xy):
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def jacobian_rows(xy, rays0, cam, rmax, codes):
     """The Jacobian ``J`` (N, 2, P) and residuals (N, 2) at ``p = 0`` (the camera ``cam`` and the
     rays ``rays0``) for the parameters ``codes``, in the scaled units of the module text
@@ -182,7 +182,7 @@ def jacobian_rows(xy, rays0, cam, rmax, codes):
     return J, res
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def normal_equations_at_start(xy, rays0, cam, rmax, codes):
     """``JᵀJ`` (P, P), ``Jᵀr`` (P,) and ``rᵀr`` at ``p = 0`` for the parameters ``codes``
     from :func:`jacobian_rows`."""

@@ -11,9 +11,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.camera_jacobian import (
     PRINCIPAL_POINT,
     TANGENTIAL,
@@ -42,7 +42,7 @@ class ModelScores(NamedTuple):
     rr: float
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def score_models(xy, r, A, cam, rmax, codes, cols, n_cols, min_stars_per_number):
     """Which models the stars support (see :func:`skyfix.calibrate.score_camera_models`; the
     first scorable always), and their BIC, RSS and covariance (filled for those only): a
@@ -65,7 +65,7 @@ def score_models(xy, r, A, cam, rmax, codes, cols, n_cols, min_stars_per_number)
     return ModelScores(chosen, bic, rss, cov, ok, JtJ, Jtr, rr)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def score_blocks(JtJ, Jtr, rr, n, cols, n_cols, chosen):
     """BIC, RSS and attitude covariance of each chosen model's linear step (see
     :func:`skyfix.calibrate.score_camera_models`); model ``m`` uses the columns ``cols[m, :n_cols[m]]``."""
@@ -102,7 +102,7 @@ def score_blocks(JtJ, Jtr, rr, n, cols, n_cols, chosen):
     return bic, rss, cov, True
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def free_columns(codes, free):
     """The step columns, in the layout of all ``codes``, of the rotations and of each code that
     ``free`` (bool, one per code) frees."""
@@ -122,7 +122,7 @@ def free_columns(codes, free):
     return cols
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def model_normal_equations(JtJ, g, rr, sigma2, lam, dev, cols):
     """The normal equations of the linearised fit (``JᵀJ``, ``Jᵀr``, ``rᵀr`` at the current
     point, σ² known) with the step columns ``cols`` free — each under its Gaussian prior
@@ -162,7 +162,7 @@ def model_normal_equations(JtJ, g, rr, sigma2, lam, dev, cols):
     return N, c, const, log_lam
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def log_evidence(JtJ, g, rr, sigma2, lam, dev, cols):
     """The log marginal likelihood, up to a constant common to every model, of the linearised fit
     with the step columns ``cols`` free and the others held at the prior's values
@@ -190,7 +190,7 @@ def log_evidence(JtJ, g, rr, sigma2, lam, dev, cols):
     return -0.5 * (const - quad) - 0.5 * log_det + 0.5 * log_lam
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def model_step(JtJ, g, sigma2, lam, dev, cols):
     """The Gauss–Newton step (k,) of the model with the step columns ``cols`` free, from the
     linearisation whose held columns are moved to the prior's values
@@ -209,7 +209,7 @@ def model_step(JtJ, g, sigma2, lam, dev, cols):
     return step, n_eff / sigma2
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def choose_model(JtJ, g, rr, sigma2, lam, dev, codes, free):
     """Which of the parameters ``codes`` to fit (bool, one per code): of every model that frees
     ``f``, the principal point as ``free`` has it, and any subset of the others, the one of

@@ -61,8 +61,9 @@ from __future__ import annotations
 import math
 import operator
 
-import numba
 import numpy as np
+
+from skyfix._jit import njit
 
 __all__ = ["CAMERA_NUMBERS", "CX", "CY", "FX", "FY", "K1", "K2", "K3", "K4", "KANNALA_BRANDT", "P1", "P2",
            "PINHOLE", "PROJECTION", "SKEW", "brown_conrady", "camera_numbers", "distort",
@@ -95,7 +96,7 @@ KB_ITERATIONS = 100
 _numbers_of = operator.attrgetter(*CAMERA_NUMBERS)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def offset_ray(x, y, f):
     """Unit camera ray of the pixel offset ``(x, y)`` from the principal point at focal length
     ``f`` (identification's square-pixel pinhole): ``(x/f, y/f, 1) / |(x/f, y/f, 1)|``."""
@@ -105,7 +106,7 @@ def offset_ray(x, y, f):
     return xn / n, yn / n, 1.0 / n
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def k1_offset(xn, yn, f, k1):
     """Pixel offset from the principal point of normalised ``(xn, yn)`` under identification's
     reduced model — one focal length, radial ``k1`` only: ``(x, y) = f·(xn, yn)·(1 + k1 r²)``."""
@@ -118,7 +119,7 @@ def camera_numbers(camera) -> np.ndarray:
     return np.array(_numbers_of(camera), dtype=np.float64)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def kb_theta_d(theta, cam):
     """Kannala–Brandt's ``θ_d = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸)`` and ``dθ_d/dθ``."""
     t2 = theta * theta
@@ -127,7 +128,7 @@ def kb_theta_d(theta, cam):
     return theta * poly, slope
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def kb_theta(rd, cam):
     """The angle ``θ`` from the boresight whose ``θ_d`` is ``rd`` (≥ 0): the root in ``[0, π]``
     in the first step of a grid of :data:`KB_GRID` where ``θ_d`` reaches ``rd``, by Newton's
@@ -164,7 +165,7 @@ def kb_theta(rd, cam):
     return theta
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def kb_coefficient_terms(x, y):
     """Kannala–Brandt: ``θ³·(e_x, e_y)`` and ``θ²`` at normalised ``(x, y)``, so that
     ``∂(x_d, y_d)/∂k_j = θ³·(e_x, e_y)·(θ²)^(j−1)`` (``(e_x, e_y) = (x, y)/r``; 0 at ``r = 0``)."""
@@ -177,14 +178,14 @@ def kb_coefficient_terms(x, y):
     return x * t3, y * t3, theta * theta
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def pixel_to_distorted(u, v, cam):
     """Distorted normalised ``(x_d, y_d)`` of the pixel ``(u, v)`` (``K`` inverted)."""
     yd = (v - cam[CY]) / cam[FY]
     return (u - cam[CX] - cam[SKEW] * yd) / cam[FX], yd
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def brown_conrady(x, y, cam):
     """The pinhole's distorted normalised coordinates of undistorted ``(x, y)``."""
     r2 = x * x + y * y
@@ -194,7 +195,7 @@ def brown_conrady(x, y, cam):
     return xd, yd
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def kannala_brandt(x, y, cam):
     """Kannala–Brandt's distorted normalised coordinates ``(θ_d/r)·(x, y)`` of ``(x, y)``."""
     r2 = x * x + y * y
@@ -205,7 +206,7 @@ def kannala_brandt(x, y, cam):
     return x * s, y * s
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def distort(x, y, cam):
     """Distorted normalised coordinates of undistorted ``(x, y)``: the camera's projection's
     (:func:`brown_conrady` or :func:`kannala_brandt`)."""
@@ -214,7 +215,7 @@ def distort(x, y, cam):
     return brown_conrady(x, y, cam)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def kannala_brandt_jacobian(x, y, cam):
     """:func:`kannala_brandt` and its derivatives, as :func:`distort_jacobian` gives them."""
     r2 = x * x + y * y
@@ -227,7 +228,7 @@ def kannala_brandt_jacobian(x, y, cam):
     return x * s, y * s, s + x * x * g, x * y * g, x * y * g, s + y * y * g, r2
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def distort_jacobian(x, y, cam):
     """:func:`distort` and its derivatives: ``(xd, yd, ∂xd/∂x, ∂xd/∂y, ∂yd/∂x, ∂yd/∂y, r²)``."""
     if cam[PROJECTION] == KANNALA_BRANDT:
@@ -244,7 +245,7 @@ def distort_jacobian(x, y, cam):
     return xd, yd, dxx, dxy, dxy, dyy, r2
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def distort_points(x, y, cam):
     """:func:`distort` for arrays ``x``, ``y`` (N,): new arrays ``(xd, yd)`` (the projection
     chosen once, so that the pinhole's loop vectorises)."""
@@ -260,7 +261,7 @@ def distort_points(x, y, cam):
     return xd, yd
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _kb_undistort(xd, yd, cam):
     """Kannala–Brandt's :func:`undistort`: ``(x, y) = tan θ·(x_d, y_d)/r_d``, NaN at ``θ ≥ 90°``."""
     n = xd.shape[0]
@@ -280,7 +281,7 @@ def _kb_undistort(xd, yd, cam):
     return x, y
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def undistort(xd, yd, cam):
     """Invert :func:`distort` for arrays ``xd``, ``yd`` (N,); returns new arrays ``(x, y)``.
     Brown–Conrady by fixed-point iteration, stopped when no point moves by
@@ -314,7 +315,7 @@ def undistort(xd, yd, cam):
     return xn, yn
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def pixels_to_normalized(xy, cam):
     """Undistorted normalised coordinates ``(x, y)`` (two (N,) arrays) of pixels ``xy`` (N, 2)."""
     n = xy.shape[0]
@@ -325,7 +326,7 @@ def pixels_to_normalized(xy, cam):
     return undistort(xd, yd, cam)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def pixel_rays(xy, cam):
     """Unit camera-frame rays (N, 3) of pixels ``xy`` (N, 2); Kannala–Brandt's at any ``θ < π``
     (NaN where the polynomial does not reach the pixel)."""
@@ -350,7 +351,7 @@ def pixel_rays(xy, cam):
     return b
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def project_rays(rays, cam):
     """Pixels (N, 2) of camera-frame rays (N, 3) and whether each is in front (``Z > 1e-9``);
     a ray behind the camera is projected as if its ``Z`` were 1."""
@@ -367,7 +368,7 @@ def project_rays(rays, cam):
     return uv, front
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def kb_pixel_jacobian(rays, cam):
     """Kannala–Brandt: ``∂(u, v)/∂(k1, k2, k3, k4)`` (N, 2, 4) of camera-frame rays (N, 3) in
     front: ``∂u/∂k_j = (fx e_x + skew e_y) θ^(2j+1)``, ``∂v/∂k_j = fy e_y θ^(2j+1)``."""

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from skyfix._jit import njit
 
 __all__ = ["log_binom_sf"]
 
@@ -16,12 +17,12 @@ _N_LOG_FACT = 4096
 _LOG_FACT = np.array([math.lgamma(j + 1.0) for j in range(_N_LOG_FACT)])
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _log_fact(j: int) -> float:
     return _LOG_FACT[j] if j < _N_LOG_FACT else math.lgamma(j + 1.0)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def log_binom_sf(k: int, n: int, p: float) -> float:
     """log P(X >= k) for X ~ Binomial(n, p)."""
     if k <= 0:

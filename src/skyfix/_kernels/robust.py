@@ -4,13 +4,14 @@ triangle holds among the stars that verify it (:mod:`skyfix.identify.methods.tri
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from skyfix._jit import njit
 
 __all__ = ["rayleigh_inliers", "sorted_copy"]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def sorted_copy(a):
     """A sorted copy of a short 1-D array (Shell sort: compiles in a fraction of np.sort's time)."""
     out = a.copy()
@@ -26,7 +27,7 @@ def sorted_copy(a):
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def rayleigh_inliers(resid, floor):
     """Stars to keep: residual lengths of 2-D Gaussian errors are Rayleigh distributed (median
     1.177 σ); those beyond 4 σ (P = 3e-4 by chance; σ floored at ``floor``) are blends or

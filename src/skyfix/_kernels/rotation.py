@@ -10,14 +10,15 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from skyfix._jit import njit
 
 __all__ = ["angles", "cholesky", "chord_angle", "det3", "pointing", "proper_rotation", "radec_of_vectors",
            "rodrigues", "rotation_vector", "spd_inverse", "triad", "vector_radec"]
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def vector_radec(x, y, z):
     """RA in [0, 2π) and Dec (radians) of the vector ``(x, y, z)`` (any length)."""
     norm = np.sqrt(x * x + y * y + z * z)
@@ -29,7 +30,7 @@ def vector_radec(x, y, z):
     return ra, dec
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def radec_of_vectors(v):
     """RA and Dec (two (N,) arrays, radians) of vectors ``v`` (N, 3): :func:`vector_radec`."""
     n = v.shape[0]
@@ -40,7 +41,7 @@ def radec_of_vectors(v):
     return ra, dec
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def pointing(A):
     """RA, Dec, roll (radians, RA and roll in [0, 2π)) and the quaternion ``[x, y, z, w]``
     (``w ≥ 0``) of an attitude matrix, as a (7,) array."""
@@ -82,14 +83,14 @@ def pointing(A):
     return out
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def chord_angle(chord):
     """Angle (radians) between unit vectors a chord ``|a − b|`` apart: ``2·asin(chord / 2)``,
     accurate at small angles where ``acos(a·b)`` is not. Scalars or arrays."""
     return 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def angles(b, r, A):
     """Angles (rad) between rays ``b`` (N, 3) and catalogue vectors ``r`` (N, 3) rotated by
     ``A``: ``2·asin(|b − A r| / 2)``, accurate at small angles."""
@@ -103,7 +104,7 @@ def angles(b, r, A):
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def rodrigues(p):
     """Rotation matrix of the rotation vector ``p[:3]``: ``I + a K + b K²`` with ``K = [p×]``,
     ``a = sin θ/θ``, ``b = (1 − cos θ)/θ²`` (their limits 1 and ½ below θ = 1e-12), written out."""
@@ -124,7 +125,7 @@ def rodrigues(p):
     return R
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def rotation_vector(A):
     """Rotation vector ``v`` (3,), ``|v| ≤ π``, of a rotation matrix: the inverse of
     :func:`rodrigues`, ``R(v) = A``. From :func:`pointing`'s quaternion ``[q, w]`` (``w ≥ 0``):
@@ -138,7 +139,7 @@ def rotation_vector(A):
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def cholesky(M):
     """The lower triangular ``L`` with ``L Lᵀ = M`` of a small symmetric positive definite
     matrix, and whether it was (a pivot ≤ 0 returns False)."""
@@ -159,7 +160,7 @@ def cholesky(M):
     return L, True
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def spd_inverse(M):
     """Inverse of a small symmetric positive definite matrix by Cholesky (:func:`cholesky`), and
     whether it was (a pivot ≤ 0 returns False); a tenth of a LAPACK call's overhead at these sizes."""
@@ -186,7 +187,7 @@ def spd_inverse(M):
     return inv, True
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def det3(M):
     """Determinant of a 3 × 3 matrix, written out."""
     return (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
@@ -194,7 +195,7 @@ def det3(M):
             + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def proper_rotation(B):
     """The proper rotation nearest the attitude profile matrix ``B = Σ w b rᵀ`` (Markley's SVD
     solution of Wahba's problem): ``U diag(1, 1, det U · det V) Vᵀ``, so det = +1 even for a
@@ -208,7 +209,7 @@ def proper_rotation(B):
     return A
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def triad(b1, b2, r1, r2, min_sin):
     """TRIAD (Black 1963; thesis 004 §4.5): the attitude ``A`` with ``b1 = A r1`` exactly and
     ``b2`` in the plane of ``A r1``, ``A r2``, from the triads ``(v1, v1×v2/|v1×v2|, v1×t2)``

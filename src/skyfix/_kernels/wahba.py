@@ -4,13 +4,14 @@ matrix behind the QUEST measurement-model covariance."""
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from skyfix._jit import njit
 
 __all__ = ["information_matrix", "profile_matrix"]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def profile_matrix(b, r, w):
     """Attitude profile matrix ``B = Σ w_i b_i r_iᵀ`` (3, 3) of observed ``b`` (N, 3) and
     catalogue ``r`` (N, 3) with weights ``w`` (N,) (a zero weight drops a pair)."""
@@ -23,7 +24,7 @@ def profile_matrix(b, r, w):
     return B
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def information_matrix(b, info_w):
     """``F = Σ w_i (I − b̂_i b̂_iᵀ)`` (3, 3) with ``b̂ = b / |b|``, in one pass: the inverse of the
     QUEST measurement-model covariance when ``w_i = σ_i⁻²`` (a zero weight drops a star)."""

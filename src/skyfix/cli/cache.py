@@ -4,8 +4,8 @@ and removing it.
 Two places: the user cache (:func:`skyfix.cache.cache_dir`, ``$SKYFIX_CACHE`` overrides it) with
 the parsed star catalogues and the pattern databases, each rebuilt on first need; and numba's
 compiled kernels, ``*.nbi``/``*.nbc`` in the ``__pycache__`` folders beside skyfix's sources
-(and under ``$NUMBA_CACHE_DIR`` when set), recompiled on first use (``skyfix warmup`` does it
-up front).
+(and under ``$NUMBA_CACHE_DIR`` when set), recompiled on first use, and the modules ``skyfix
+warmup`` compiles ahead of time (:func:`skyfix._jit.aot_folder`).
 """
 
 from __future__ import annotations
@@ -43,19 +43,24 @@ class CacheArea(NamedTuple):
 def cache_areas() -> list[CacheArea]:
     """The user cache (catalogues, pattern databases) and the compiled kernels, as they are now."""
     import skyfix
+    from skyfix._jit import aot_folder
     from skyfix.cache import cache_dir
 
     user = cache_dir()
-    data = tuple(sorted(p for p in user.rglob("*") if p.is_file())) if user.is_dir() else ()
+    ahead = aot_folder()  # the kernels compiled ahead of time (beside the sources, or in the user cache)
+    data = tuple(sorted(p for p in user.rglob("*") if p.is_file() and ahead not in p.parents)) \
+        if user.is_dir() else ()
     package = Path(skyfix.__file__).resolve().parent
-    folders = [package]
+    folders = [package] + ([ahead] if package not in ahead.parents else [])
     kernels = [p for p in package.rglob("__pycache__/*") if p.suffix in (".nbi", ".nbc")]
+    kernels += [p for p in ahead.glob("*") if p.is_file()] if ahead.is_dir() else []
     extra = os.environ.get("NUMBA_CACHE_DIR")
     if extra and Path(extra).is_dir():
         folders.append(Path(extra))
         kernels += [p for p in Path(extra).rglob("*") if p.suffix in (".nbi", ".nbc")]
     return [CacheArea("data", "star catalogues and pattern databases", (user,), data),
-            CacheArea("kernels", "numba's compiled kernels", tuple(folders), tuple(sorted(kernels)))]
+            CacheArea("kernels", "compiled kernels (numba's cache and skyfix warmup's modules)",
+                      tuple(folders), tuple(sorted(kernels)))]
 
 
 def _size(path: Path) -> int:

@@ -550,23 +550,31 @@ def compile_notice(progress: Any = None, console: Any = None) -> Iterator[None]:
     ``progress``: a running :class:`rich.progress.Progress` to add the line to (one display);
     ``console``: the :class:`rich.console.Console` for a display of its own (default: stderr).
     """
-    from numba.core import event
+    from skyfix._jit import on_numba_import
 
     notice = _CompileNotice(progress, console)
+    registered: list[Any] = []
 
-    class Listener(event.Listener):
-        def on_start(self, ev: Any) -> None:
-            notice.start()
+    def listen() -> None:  # numba is imported only when a kernel is not compiled ahead of time
+        from numba.core import event
 
-        def on_end(self, ev: Any) -> None:
-            notice.end()
+        class Listener(event.Listener):
+            def on_start(self, ev: Any) -> None:
+                notice.start()
 
-    listener = Listener()
-    event.register("numba:compile", listener)
+            def on_end(self, ev: Any) -> None:
+                notice.end()
+
+        registered.append((event, Listener()))
+        event.register("numba:compile", registered[0][1])
+
+    cancel = on_numba_import(listen)
     try:
         yield
     finally:
-        event.unregister("numba:compile", listener)
+        cancel()
+        for event, listener in registered:
+            event.unregister("numba:compile", listener)
         notice.close()
 
 

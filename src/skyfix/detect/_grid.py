@@ -20,7 +20,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+
+from skyfix._jit import njit
 
 __all__ = ["GridWeights", "SkyGrid", "interp_weights", "grid_weights", "sky_grid", "grid_at", "bilinear",
            "value_near", "values_near", "grid_rows"]

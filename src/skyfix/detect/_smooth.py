@@ -13,7 +13,8 @@ whose 3×3 weighted sums stay below 2²⁴.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from skyfix._jit import njit
 
 __all__ = ["F2", "F3", "F16", "column_sum", "smooth_at", "smooth_row"]
 

@@ -27,7 +27,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from skyfix._jit import njit
 
 __all__ = ["CLIP", "median", "median_inplace", "robust_level_noise", "tile_level_noise", "clipped_rms",
            "percentile_linear", "argsort_descending", "sum_sq_dev", "window_border"]

@@ -30,8 +30,8 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from skyfix._jit import njit
 from skyfix.detect._grid import bilinear, grid_weights
 from skyfix.detect._smooth import column_sum, smooth_at, smooth_row
 from skyfix.detect._stats import CLIP, median, median_inplace, robust_level_noise, tile_level_noise

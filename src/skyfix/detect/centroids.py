@@ -5,7 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+
+from skyfix._jit import njit
 
 __all__ = ["Centroids", "background_snr"]
 

@@ -41,8 +41,8 @@ import threading
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from skyfix._jit import njit
 from skyfix.detect._grid import sky_grid
 from skyfix.detect._stats import argsort_descending
 from skyfix.detect.background import Background, estimate_background, frame_f32

@@ -14,8 +14,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from skyfix._jit import njit
 from skyfix.detect._grid import grid_at
 from skyfix.detect.labelling import CANDIDATE
 from skyfix.detect.measure import residual, sharpness

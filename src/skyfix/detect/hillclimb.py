@@ -24,8 +24,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from skyfix._jit import njit
 from skyfix.detect._stats import robust_level_noise, sum_sq_dev
 from skyfix.detect.centroids import Centroids, background_snr
 from skyfix.detect.saturation import saturation_level

@@ -21,8 +21,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from skyfix._jit import njit
 from skyfix.detect._grid import grid_at, grid_rows
 from skyfix.detect._smooth import column_sum, smooth_row
 from skyfix.detect._stats import argsort_descending

@@ -11,8 +11,8 @@ left out and the star measured again.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from skyfix._jit import njit
 from skyfix.detect._grid import grid_at
 from skyfix.detect._stats import sum_sq_dev
 

@@ -13,8 +13,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from skyfix._jit import njit
 from skyfix.detect._grid import value_near
 from skyfix.detect._stats import median, percentile_linear
 from skyfix.detect.centroids import background_snr

@@ -45,8 +45,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from skyfix._jit import njit
 from skyfix._kernels.rotation import rodrigues
 from skyfix.detect.centroid import CENTROIDERS, centroid_windows
 from skyfix.detect.centroids import Centroids, background_snr

@@ -11,8 +11,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from skyfix._jit import njit
 from skyfix.detect._stats import robust_level_noise, window_border
 from skyfix.detect.centroid import Window
 

@@ -101,9 +101,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.probability import log_binom_sf
 
 __all__ = ["CENTROID_SIGMA_PX", "MAX_WRONG_PROBABILITY", "PROB_THRESHOLD", "QUAD_CENTROID_SIGMA_PX",
@@ -145,7 +145,7 @@ def is_beyond_chance(n_pairs: int, n_cat: int, n_img: int, radius_px: float, are
     return chance_log_probability(n_pairs, n_cat, n_img, radius_px, area_px2, n_extra) <= log_threshold
 
 # --- 1–5: each candidate pattern, inside the compiled search ---------------------------------
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def ratio_tolerance(sigma_px: float, largest_edge_rad: float, f_px: float, model_err: float) -> float:
     """Rule 1: how far a candidate's edge ratios may be from the image pattern's (each of the
     five, after the focal length is estimated).
@@ -162,7 +162,7 @@ def ratio_tolerance(sigma_px: float, largest_edge_rad: float, f_px: float, model
     return 4.0 * 1.4142 * sigma_px / (largest_edge_rad * f_px) + model_err
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def focal_allowed(f_px: float, lo_px: float, hi_px: float) -> bool:
     """Rule 2: the focal length a candidate implies (from its largest edge) is in the allowed
     range — the FOV hint ± its tolerance, a calibrated camera's ± 3 %, or what the database
@@ -177,7 +177,7 @@ def focal_allowed(f_px: float, lo_px: float, hi_px: float) -> bool:
     return not (f_px < lo_px or f_px > hi_px)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def pattern_fits(max_residual_rad: float, f_px: float, radius_px: float) -> bool:
     """Rule 3: the candidate's four stars, in their best vertex correspondence, fit one proper
     rotation (``det = +1``) with every star within the match radius.
@@ -202,7 +202,7 @@ QUICK_CENTROIDS = 30
 QUICK_LOG_P = -3.0
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def quick_check_fails(n_catalog: int, log_p: float) -> bool:
     """Rule 4: the quick verification — the :data:`QUICK_CATALOG_STARS` brightest catalogue
     stars in view against the :data:`QUICK_CENTROIDS` brightest centroids — fails when at least
@@ -216,7 +216,7 @@ def quick_check_fails(n_catalog: int, log_p: float) -> bool:
     return n_catalog >= 3 and log_p > QUICK_LOG_P
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def log_prob_false(log_p_match: float, n_trials: int) -> float:
     """Rule 5, the number: log P(a wrong candidate matches as well), ``log_p_match`` from
     :func:`skyfix.identify.common.verify.verify_attitude` (the best of five match radii, binomial
@@ -226,7 +226,7 @@ def log_prob_false(log_p_match: float, n_trials: int) -> float:
     return log_p_match + np.log(n_trials)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def is_verified(log_prob: float, log_threshold: float) -> bool:
     """Rule 5: a candidate is accepted when :func:`log_prob_false` is at most ``log_threshold``
     (``prob_threshold`` of :func:`skyfix.identify.identify`, 1e-9 by default).
@@ -428,7 +428,7 @@ def precision_failure(covariance_rad2: np.ndarray, plate_scale_rad: float, dof: 
     return ""
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _cross_norm(u: np.ndarray, v: np.ndarray) -> float:
     cx = u[1] * v[2] - u[2] * v[1]
     cy = u[2] * v[0] - u[0] * v[2]
@@ -436,13 +436,13 @@ def _cross_norm(u: np.ndarray, v: np.ndarray) -> float:
     return np.sqrt(cx * cx + cy * cy + cz * cz)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _triple(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> float:
     return (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
             + u[2] * (v[0] * w[1] - v[1] * w[0]))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def no_rotation_fits(b: np.ndarray, r: np.ndarray, eps: float) -> bool:
     """True if no proper rotation A brings every ``r[a]`` within ``eps`` (chord) of ``b[a]``: the
     search's shortcut of rule 3 (:func:`pattern_fits`), rejecting nothing that rule would keep.

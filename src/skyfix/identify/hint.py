@@ -64,9 +64,9 @@ import time
 from collections.abc import Sequence
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.lens import offset_ray
 from skyfix._kernels.rotation import det3, triad
 from skyfix.camera import Camera
@@ -197,7 +197,7 @@ def _rotation_matrix(A: object, name: str) -> np.ndarray:
     return M
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _is_rotation(M, tol):
     """Whether ``M`` (3, 3) is a proper rotation: finite, ``M·Mᵀ = I`` within ``tol``, det > 0
     (a kernel: the numpy checks cost 20 µs, a tenth of a good hint's identification)."""
@@ -270,18 +270,18 @@ class HintSearch(NamedTuple):
     n_catalog: int
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _ray(p, i, f, out):
     """The unit camera ray of offset ``p[i]`` at focal length ``f`` into ``out``."""
     out[0], out[1], out[2] = offset_ray(p[i, 0], p[i, 1], f)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _chord(u, v):
     return np.sqrt((u[0] - v[0]) ** 2 + (u[1] - v[1]) ** 2 + (u[2] - v[2]) ** 2)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def search_near(image, A_hint, settings, stars):
     """Steps 1–4 of the module text: the catalogue stars near the hint ``A_hint`` (of the
     :class:`StarIndex` ``stars``), the pairings the gate allows, each consistent pairing's
@@ -402,7 +402,7 @@ def search_near(image, A_hint, settings, stars):
                       n_cat)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def near_entry(image, A_hint, settings, refine_settings, stars):
     """:func:`search_near` and, when it verified an attitude, the refit on all stars
     (:func:`skyfix.identify.common.refine.refine`): ``(HintSearch, Refit)``. The NamedTuple arguments

@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 from scipy.special import erf
+
+from skyfix._jit import njit
 
 __all__ = ["pixel_integrated_stamps", "add_gaussians"]
 
@@ -81,7 +82,7 @@ def pixel_integrated_stamps(x: np.ndarray, y: np.ndarray, sxx: np.ndarray, syy: 
     return stamps, row0, col0
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _scatter(image, stamps, flux, row0, col0):
     h, w = image.shape
     n, s, _ = stamps.shape

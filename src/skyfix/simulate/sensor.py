@@ -30,10 +30,10 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-import numba
 import numpy as np
 import tomllib
 
+from skyfix._jit import njit
 from skyfix.errors import SimulationError
 from skyfix.simulate.presets import load_preset
 
@@ -300,7 +300,7 @@ def _poisson_table(lam0: float) -> tuple[np.ndarray, int, np.ndarray]:
     return cdf, lo, guide
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _draw_table(u, cdf, lo, guide):
     m = cdf.size
     j = guide[int(u * m)]
@@ -314,7 +314,7 @@ def _draw_table(u, cdf, lo, guide):
 _SEARCH_MAX = 12.0
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _invert_small(u, lam):
     # Poisson(lam) of the uniform u by sequential search of the CDF: about lam + 1 steps.
     if u <= 1.0 - lam:  # exp(-lam) >= 1 - lam: certainly 0 (skips exp for the faint majority)
@@ -332,12 +332,12 @@ def _invert_small(u, lam):
     return k
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _poisson_small(rng, lam):
     return _invert_small(rng.random(), lam)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _poisson_dim(lam, u, rng, out):
     """out[i] = Poisson(lam[i]): the uniform u[i] inverted where lam[i] < _SEARCH_MAX (u drawn in
     bulk beforehand), ``rng.poisson`` in pixel order elsewhere (star cores)."""
@@ -352,7 +352,7 @@ def _poisson_dim(lam, u, rng, out):
             o[i] = rng.poisson(m)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _poisson_image(lam, lam0, cdf, lo, guide, rng, out):
     """out[i] = Poisson(lam[i]) drawn as Poisson(lam0) (table) + Poisson(lam[i] - lam0)."""
     flat = lam.ravel()
@@ -397,7 +397,7 @@ def poisson_image(lam: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _fill_nonzero(out, gaps, u, p0, lam):
     """Pixels ``cumsum(gaps) - 1`` get Poisson(lam) given ≥ 1 (u[j] mapped above P(0) = p0 and
     inverted); returns how many fell inside ``out``."""
@@ -411,7 +411,7 @@ def _fill_nonzero(out, gaps, u, p0, lam):
     return gaps.size
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _invert_table(u, cdf, lo, guide, out):
     o = out.ravel()
     for i in range(o.size):
@@ -477,7 +477,7 @@ def _quantile_table() -> np.ndarray:
     return ndtri(np.linspace(_Q_LO, 1.0 - _Q_LO, _Q_STEPS + 1))
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _horner(c, r):
     v = c[7]
     for j in range(6, -1, -1):
@@ -485,7 +485,7 @@ def _horner(c, r):
     return v
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _normal_tail(u):
     """AS241's quantile of ``u`` beyond ±0.425 from the middle."""
     r = math.sqrt(-math.log(max(min(u, 1.0 - u), 1e-300)))
@@ -498,7 +498,7 @@ def _normal_tail(u):
     return -v if u < 0.5 else v
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _normals_of_uniforms(u, table, out):
     # pass 1, branch-free: the table's linear interpolation (clamped at its ends) for every u;
     # pass 2: the 4 % of u in the tails again, by AS241
@@ -523,7 +523,7 @@ def standard_normals(rng: np.random.Generator, shape: tuple[int, ...]) -> np.nda
 
 
 # --- the chain ---------------------------------------------------------------------------
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _readout(charge, dsnu, read_sigma, ktc_sigma, z_read, z_ktc, inv_gain, bias, max_adu,
              full_well, do_dsnu, do_read, do_ktc, do_round, out):
     # z_read, z_ktc: standard normal deviates, one a pixel (when on)

@@ -51,9 +51,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.rotation import rodrigues, rotation_vector, spd_inverse
 from skyfix.errors import InputError
 
@@ -116,7 +116,7 @@ class Innovation(NamedTuple):
 
 
 # --- kernels -----------------------------------------------------------------------------------
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _coefficients(theta):
     """``c₁ = sin θ/θ``, ``c₂ … c₅`` of the module docstring."""
     if theta == 0.0:
@@ -140,7 +140,7 @@ def _coefficients(theta):
     return c1, c2, c3, c4, c5
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def interval_model(rate_rad_s, dt_s):
     """The four 3 × 3 matrices of the exact discretisation over ``dt_s`` at rate ``ω̂``, as a
     (4, 3, 3) array: ``R(−ω̂ T)``, ``M(T)``, ``∫₀ᵀ M`` and ``∫₀ᵀ M Mᵀ`` (module docstring); each
@@ -165,7 +165,7 @@ def interval_model(rate_rad_s, dt_s):
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _propagate(A, P, omega, dt, q_rate, q_att, sign):
     """``(R(−ω̂ T) A, Φ P Φᵀ + Q)`` over ``dt`` (``sign`` −1: rate model, +1: gyro model)."""
     m = interval_model(omega, dt)
@@ -202,7 +202,7 @@ def _propagate(A, P, omega, dt, q_rate, q_att, sign):
     return A_new, P_new
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _innovation(A_pred, P, A_meas, R):
     """``z`` (rotation vector of ``A_meas A_predᵀ``), ``S = P[:3, :3] + R``, ``S⁻¹``, whether
     ``S`` is positive definite, and ``zᵀ S⁻¹ z``."""
@@ -221,7 +221,7 @@ def _innovation(A_pred, P, A_meas, R):
     return z, S, S_inv, ok, nis
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _correct(A_pred, P, A_meas, R):
     """The measurement update: (whether S was positive definite, corrected attitude, state
     correction dx (6,), Joseph-form covariance, NIS)."""
@@ -267,7 +267,7 @@ def _correct(A_pred, P, A_meas, R):
     return True, A_new, dx, P_new, nis
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _rotation_code(A):
     """0 for a finite proper rotation (orthonormal to 1e-6, det > 0), else an error code."""
     for i in range(3):
@@ -285,7 +285,7 @@ def _rotation_code(A):
     return _OK if det > 0.0 else _NOT_ROTATION
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _symmetrize_code(C):
     """Symmetrise ``C`` in place; 0 when it is finite and positive definite, else an error code."""
     for i in range(3):
@@ -300,7 +300,7 @@ def _symmetrize_code(C):
     return _OK if spd_inverse(C)[1] else _NOT_SPD
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _gated_correct(A_pred, P, A_meas, R, nis_gate):
     """:meth:`AttitudeFilter.update_gated` in one kernel: the checks of :func:`as_rotation` on
     ``A_meas`` and of :func:`as_covariance` on ``R`` (symmetrised in place), the innovation, and

@@ -6,16 +6,16 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.rotation import angles, proper_rotation, spd_inverse
 from skyfix._kernels.wahba import information_matrix, profile_matrix
 
 __all__ = ["fit_attitude", "pair_check"]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def pair_check(b, r, sigma_rad, keep, k):
     """Thesis 004's distance check over every pair of kept stars: the angle between rays
     ``b[i]``, ``b[j]`` must equal that between catalogue vectors ``r[i]``, ``r[j]`` within
@@ -55,7 +55,7 @@ def pair_check(b, r, sigma_rad, keep, k):
         dropped += 1
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def fit_attitude(b, r, sigma_rad, keep, pair_k, outlier_k, min_stars):
     """Steps 5–6 of the module docstring in one call, for the tracking loop: the pair check
     (:func:`pair_check`), then the weighted SVD solution of Wahba's problem

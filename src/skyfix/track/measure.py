@@ -27,9 +27,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix.detect.centroid import Centroider, refine_kernel, refined_columns
 from skyfix.detect.centroids import background_snr
 from skyfix.detect.streak import row_time_offset
@@ -69,7 +69,7 @@ class CentroidSettings(NamedTuple):
     round: Centroider
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def measure_frame(img, A, P, rate, P_rate, exposure_s, line_time_s, local_t, select_mag, cam, settings_t,
                   view_t, tiles, max_tile, vectors, zero_point, match_t, centroid_t, min_stars, outlier_k):
     """The steps of the module docstring for the frame ``img`` (H, W; any real dtype, never
@@ -140,7 +140,7 @@ def measure_frame(img, A, P, rate, P_rate, exposure_s, line_time_s, local_t, sel
     return _flat(plan, fit)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _flat(plan, fit):
     """:func:`measure_frame`'s tuple."""
     return (plan.n, plan.too_wide, plan.faintest_mag, fit.success, fit.n_found, fit.n_gated, fit.n_fit,

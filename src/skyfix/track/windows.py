@@ -41,9 +41,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.lens import CX, CY, FX, FY, SKEW, distort, distort_jacobian, pixel_rays
 from skyfix._kernels.probability import log_binom_sf
 from skyfix._kernels.rotation import angles, pointing, vector_radec
@@ -205,7 +205,7 @@ class WindowFit(NamedTuple):
     sigma_rad: np.ndarray
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def new_selection(n_max):
     """An empty :class:`Selection` for ``n_max`` windows (``Selection.empty``, also in kernels)."""
     return Selection(np.zeros(n_max, np.int64), np.zeros(n_max), np.zeros(n_max), np.zeros(n_max),
@@ -213,14 +213,14 @@ def new_selection(n_max):
                      np.zeros(n_max))
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def no_fit(n_found, n_gated, zero_point):
     """The :class:`WindowFit` of a frame with too few stars for a fit."""
     return WindowFit(False, n_found, n_gated, np.eye(3), np.zeros((3, 3)), zero_point, 0.0, 0,
                      np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0))
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def pixel_jacobian(b0, b1, b2, cam, J):
     """``J = ∂(u, v)/∂δθ`` (2, 3) into ``J`` for a camera-frame ray ``b`` (module docstring):
     the pixel shift of a star for a small rotation vector about camera x, y, z."""
@@ -244,7 +244,7 @@ def pixel_jacobian(b0, b1, b2, cam, J):
     J[1, 2] = c0 * b1 - c1 * b0
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _propagate(J, P):
     """``J P Jᵀ`` (2 × 2) of a (2, 3) ``J`` and a (3, 3) ``P``, as ``(xx, xy, yy)``."""
     cxx = cxy = cyy = 0.0
@@ -257,7 +257,7 @@ def _propagate(J, P):
     return cxx, cxy, cyy
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def local_catalog(z, cone, limit, stars, mags):
     """The stars ``< limit`` (a brightness rank) of the
     :class:`~skyfix.identify.catalogue.kernel_data.StarIndex` ``stars`` within ``cone`` radians of
@@ -273,7 +273,7 @@ def local_catalog(z, cone, limit, stars, mags):
     return Local(near, vectors, local_mags, np.full(m, np.nan))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def crowding(local, j, dmag):
     """The chord from star ``j`` of the :class:`Local` catalogue to its nearest neighbour less
     than ``dmag`` fainter (``local.crowd[j]``, computed on first use)."""
@@ -294,7 +294,7 @@ def crowding(local, j, dmag):
     return local.crowd[j]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def project_view(A, cam, width, height, margin_px, max_mag, local, view):
     """Project the stars of the :class:`Local` catalogue down to ``max_mag`` at attitude ``A``;
     keep, brightest first, those within ``margin_px`` of the frame (a negative margin reaches
@@ -331,7 +331,7 @@ def project_view(A, cam, width, height, margin_px, max_mag, local, view):
     return n
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def select_windows(view, n_view, local, select_mag, P, rate, P_rate, exposure_s, width, height, cam, settings,
                    sel):
     """Choose and size the windows (module docstring, step 2) among the ``n_view`` projected
@@ -406,7 +406,7 @@ def select_windows(view, n_view, local, select_mag, P, rate, P_rate, exposure_s,
     return n, too_wide
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def tile_layout(sel, n, max_half):
     """The tiles of :func:`cut_tiles` for the first ``n`` windows of the :class:`Selection`
     ``sel``: ``(tile_half, recentred, longest streak component in pixels)``."""
@@ -422,7 +422,7 @@ def tile_layout(sel, n, max_half):
     return min(int(math.ceil(tile if recentre else half)) + 1, max_half), recentre, streak
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def cut_tiles(img, sel, n, max_half, tiles, origin, local, sky, noise, border_stats):
     """Step 3 of the module docstring for the first ``n`` windows of the :class:`Selection`
     ``sel``: one tile size for all, ``2·tile_half`` pixels square — centred on the prediction
@@ -488,7 +488,7 @@ def cut_tiles(img, sel, n, max_half, tiles, origin, local, sky, noise, border_st
     return tile_half, recentre, streak
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def match_windows(n, cx, cy, csx, csy, cflux, csnr, sel, zero_point, settings, keep, chi2, m_inst):
     """Step 4 of the module docstring up to the pair check: ``keep[i]`` for window ``i < n``
     whose centroid ``(cx, cy)`` (σ ``csx``, ``csy``, flux, SNR) is found, inside the gate
@@ -533,7 +533,7 @@ def match_windows(n, cx, cy, csx, csy, cflux, csnr, sel, zero_point, settings, k
     return count, frame_zp, area
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def plan_windows(A, P, rate, P_rate, exposure_s, local, select_mag, cam, width, height, settings, view, sel):
     """Steps 1–2 of the module docstring in one call: the stars of the :class:`Local` catalogue
     down to ``select_mag`` projected into the frame (:func:`project_view` into the :class:`View`
@@ -548,7 +548,7 @@ def plan_windows(A, P, rate, P_rate, exposure_s, local, select_mag, cam, width, 
     return Plan(n, too_wide, n_view, faintest)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def fit_windows(n, x, y, sx, sy, flux, snr, origin, size, sel, vectors, zero_point, settings, cam, rate, dt,
                 n_view, frame_area, min_stars, outlier_k):
     """Steps 4–6 of the module docstring in one call, from the centroids of the ``n`` tiles
@@ -614,7 +614,7 @@ _DEG_PER_RAD = 1.0 / (np.pi / 180.0)
 _DEG2_PER_RAD2 = _DEG_PER_RAD ** 2
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def solution_numbers(A, P, rate, P_rate, xy, b, index, vectors, mags):
     """A tracked frame's Solution numbers in one call, for the estimate ``A`` (covariance
     ``P``, rad²; body rate ``rate``, rad/s, covariance ``P_rate``) and its stars (centroids

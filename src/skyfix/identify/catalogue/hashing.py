@@ -14,9 +14,9 @@ collisions are resolved by linear probing, and the slot holds the code's index i
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.rotation import chord_angle
 
 __all__ = [
@@ -73,13 +73,13 @@ def key_codes(ratios: np.ndarray, n_bins: int) -> np.ndarray:
     return bins @ weights
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _home_slot(code: np.int64, mask: np.int64) -> np.int64:
     h = np.uint64(code) * np.uint64(0x9E3779B97F4A7C15)
     return np.int64(h >> np.uint64(20)) & mask
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _insert_all(codes: np.ndarray, table: np.ndarray) -> None:
     mask = np.int64(len(table) - 1)
     for k in range(len(codes)):
@@ -115,7 +115,7 @@ def build_table(codes: np.ndarray, load_factor: float = 0.5
     return order, unique.astype(np.int64), start, table
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def lookup_run(code: np.int64, table: np.ndarray, key_codes: np.ndarray, key_start: np.ndarray):
     """The run ``(start, stop)`` of sorted patterns whose key code is ``code`` (empty if none)."""
     mask = np.int64(len(table) - 1)

@@ -25,9 +25,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.rotation import chord_angle
 from skyfix.identify.catalogue.database import PatternDatabase, brightest_per_field
 
@@ -126,13 +126,13 @@ def pair_table(database: PatternDatabase, fov_deg: float, max_angle_deg: float, 
     return database.derived(("pairs", fov_key, max_key, per_field), make)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def pairs_in_range(angle_rad, lo, hi):
     """The run ``[start, stop)`` of a sorted ``angle_rad`` with ``lo <= angle <= hi``."""
     return np.searchsorted(angle_rad, lo, side="left"), np.searchsorted(angle_rad, hi, side="right")
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def neighbours_in_range(table, star, lo, hi):
     """The run ``[start, stop)`` of :attr:`PairTable.neighbour` holding the neighbours of
     ``star`` between ``lo`` and ``hi`` radians from it."""

@@ -51,9 +51,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.rotation import chord_angle
 from skyfix.identify.catalogue.database import PatternDatabase
 from skyfix.identify.catalogue.pairs import (
@@ -90,21 +90,21 @@ BY_ANGLE = (ANGLES, ANGLES + 1, SIDES + 2)  # planar: two interior angles, the l
 
 # ---- each formula once ---------------------------------------------------------------------
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def chord(u, v):
     """``|u − v|``: the chord between two unit vectors."""
     dx, dy, dz = u[0] - v[0], u[1] - v[1], u[2] - v[2]
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def chord_sides(v0, v1, v2):
     """The planar triangle's sides, chords ``(|v1 − v2|, |v0 − v2|, |v0 − v1|)``: side ``i``
     opposite vertex ``i`` (thesis 000 §2.6.2, corrected: chords, not ``|v1| − |v2|``)."""
     return chord(v1, v2), chord(v0, v2), chord(v0, v1)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def heron_area(a, b, c):
     """Heron's area ``√(s(s−a)(s−b)(s−c))`` of the triangle with sides ``a, b, c``, in Kahan's
     arrangement (sides sorted, parentheses as written), accurate for needle-thin triangles."""
@@ -118,13 +118,13 @@ def heron_area(a, b, c):
     return 0.25 * math.sqrt(max(p, 0.0))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def polar_moment(a, b, c, area):
     """The polar moment of the planar triangle about its centroid, ``A·(a² + b² + c²)/36``."""
     return area * (a * a + b * b + c * c) / 36.0
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def interior_angles(a, b, c):
     """The interior angles opposite sides ``a, b, c`` (law of cosines), radians."""
     ca = (b * b + c * c - a * a) / (2.0 * b * c)
@@ -134,7 +134,7 @@ def interior_angles(a, b, c):
             math.acos(min(max(cc, -1.0), 1.0)))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def triple_product(u, v, w):
     """``u·(v × w)``: positive when ``u, v, w`` turn counter-clockwise seen from outside the
     sphere; a rotation keeps its sign, a mirror image flips it."""
@@ -142,7 +142,7 @@ def triple_product(u, v, w):
             + u[2] * (v[0] * w[1] - v[1] * w[0]))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def included_angle(p, a, b):
     """The signed spherical angle at ``p`` from the great circle towards ``a`` to the one
     towards ``b``, radians in (−π, π]: ``atan2(p·(a × b), a·b − (p·a)(p·b))`` (the sign is
@@ -153,22 +153,22 @@ def included_angle(p, a, b):
     return math.atan2(triple_product(p, a, b), ab - pa * pb)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _sub(u, v):
     return u[0] - v[0], u[1] - v[1], u[2] - v[2]
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _cross(u, v):
     return u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _dot(u, v):
     return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def area_moment_sigma(v0, v1, v2, sigma_rad):
     """Standard deviations ``(σ_A, σ_J, σ_K)`` of the area, the polar moment and the
     scale-free shape ``K = J/A²`` of the planar triangle of unit vectors ``v0, v1, v2``, each
@@ -214,7 +214,7 @@ def area_moment_sigma(v0, v1, v2, sigma_rad):
 
 # ---- describing triangles (catalogue and image alike) ---------------------------------------
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def describe_triangles(vectors, triangles):
     """The features of ``triangles`` (T, 3) (rows of unit ``vectors``), vertices reordered so
     that side ``i`` (opposite vertex ``i``) is the ``i``-th shortest.
@@ -251,7 +251,7 @@ def describe_triangles(vectors, triangles):
     return stars, features, hand
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def describe_star_triangles(vectors, triangles):
     """Liebe's features of ``triangles`` (T, 3) = (star, nearer neighbour, farther neighbour):
     (T, 3) columns θ1, θ2 (the angles from the star to each, radians) and φ (the signed
@@ -422,7 +422,7 @@ class FeatureMatches(NamedTuple):
     n_found: int
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _feature_matches(key, features, table_hand, centre, tolerance, image_hand, out_image, out_row, out_score):
     n = 0
     for m in range(centre.shape[0]):
@@ -475,7 +475,7 @@ def feature_matches(index: FeatureIndex, centre: np.ndarray, tolerance: np.ndarr
     return FeatureMatches(out_image[:k], index.order[out_row[:k]].astype(np.int64), out_score[:k], int(n))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def confirm_fourth(pairs, vectors, rays, triangle_stars, triangle_catalog, scale, tolerance, relative,
                    candidates, out):
     """Fourth stars that confirm a triangle match: image stars (rows of ``rays``, in the order

@@ -20,9 +20,9 @@ import math
 from collections.abc import Callable, Iterator
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.rotation import chord_angle
 from skyfix.attitude import attitude_covariance
 from skyfix.geometry import rotation_angle_between
@@ -74,7 +74,7 @@ def angle_settings(frame: Frame, centroid_sigma_px: float, n_sigma: float) -> An
                          float(n_sigma) * float(centroid_sigma_px) * math.sqrt(2.0))
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def ray_angle(p, i, j, f):
     """The angle (rad) between the rays of offsets ``p[i]`` and ``p[j]`` (pixels) at focal
     length ``f``."""
@@ -86,14 +86,14 @@ def ray_angle(p, i, j, f):
     return chord_angle(math.sqrt(dx * dx + dy * dy + dz * dz))
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def angle_range(p, i, j, f_lo, f_hi, noise_px):
     """The catalogue angles (lo, hi) rad that the image pair ``(i, j)`` can be at a focal
     length in ``[f_lo, f_hi]``, its noise tolerance included."""
     return ray_angle(p, i, j, f_hi) - noise_px / f_hi, ray_angle(p, i, j, f_lo) + noise_px / f_lo
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def focal_for_angle(p, i, j, target, f, f_lo, f_hi):
     """The focal length in ``[f_lo, f_hi]`` (from ``f``) at which the pair ``(i, j)`` is
     ``target`` rad apart (secant steps on ``θ ∝ 1/f``; clipped to the range)."""
@@ -105,7 +105,7 @@ def focal_for_angle(p, i, j, target, f, f_lo, f_hi):
     return min(max(f, f_lo), f_hi)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def angle_tolerance(theta, theta_pair, f, noise_px, calibrated):
     """The tolerance (rad) of an angle ``theta`` measured at focal length ``f`` — fixed by a pair
     ``theta_pair`` apart when not ``calibrated``."""
@@ -132,7 +132,7 @@ def frame_pair_table(frame: Frame, per_field: int = 12) -> PairTable:
                       per_field=per_field)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def star_chord2(vectors, a, b):
     """The squared chord ``|v_a − v_b|²`` between catalogue stars ``a`` and ``b`` (rows of
     ``vectors``): it grows with their angle θ as ``(2 sin(θ/2))²``."""
@@ -142,13 +142,13 @@ def star_chord2(vectors, a, b):
     return dx * dx + dy * dy + dz * dz
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def star_angle(vectors, a, b):
     """The angle (rad) between catalogue stars ``a`` and ``b`` (rows of ``vectors``)."""
     return chord_angle(math.sqrt(star_chord2(vectors, a, b)))
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def triple_product(vectors, a, b, c):
     """``(v_a × v_b) · v_c`` of rows ``a``, ``b``, ``c`` of ``vectors``: its sign is the
     handedness of the triangle (a proper rotation keeps it; a mirror image flips it)."""
@@ -310,7 +310,7 @@ def frame_table(frame: Frame) -> tuple[PairTable, TableRows]:
     return table, db.derived(("table-rows", id(table)), make)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def consistent_set(agree, order, seed, out):
     """Grow a set from centroid ``seed``: each centroid of ``order`` (best-validated first) whose
     row of ``agree`` (n, n) bool is true for every member joins. The members, in joining

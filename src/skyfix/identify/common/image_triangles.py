@@ -10,9 +10,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix.errors import InputError
 from skyfix.identify.catalogue.triangles import (
     AREA,
@@ -76,7 +76,7 @@ def frame_angles_deg(frame: Frame) -> tuple[float, float]:
 
 # ---- the image's triangles -------------------------------------------------------------------
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def area_moment_sigmas(vectors, triangles, sigma_rad):
     """:func:`area_moment_sigma` of each of ``triangles`` (T, 3): (T, 3) columns σ_A, σ_J, σ_K."""
     out = np.empty((triangles.shape[0], 3))
@@ -132,7 +132,7 @@ VERTEX_ORDERS = np.array([[0, 1, 2], [1, 0, 2], [0, 2, 1], [1, 2, 0], [2, 0, 1],
 ORDER_PARITY = np.array([1, -1, -1, 1, 1, -1], np.int64)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def order_allowed(o, ambiguous01, ambiguous12, flat, image_hand, table_hand):
     """Whether vertex order ``o`` (a row of :data:`VERTEX_ORDERS`) of an image triangle is tried
     against a catalogue triangle of handedness ``table_hand``: the sorted-side order, the swaps
@@ -174,7 +174,7 @@ def ranked(matches: FeatureMatches) -> np.ndarray:
     return np.lexsort((matches.score, matches.image))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def confirmed_matches(image_rows, table_rows, image_stars, ambiguous, flat, image_hand, image_sides,
                       table_stars, table_hand, table_sides, pairs, vectors, rays, candidates, noise,
                       calibrated, out):

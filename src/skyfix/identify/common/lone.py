@@ -41,9 +41,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.rotation import chord_angle
 from skyfix.identify.accept import chance_log_probability as binomial_log_probability
 from skyfix.identify.catalogue.pairs import PairTable, neighbours_in_range, pairs_in_range
@@ -63,14 +63,14 @@ _WINDOW_MAX = 4096  # catalogue triangles near a sparse frame's match tested by 
 
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _angle(u, v):
     """The angle between unit vectors ``u`` and ``v`` from their chord (accurate when small)."""
     chord = math.sqrt((u[0] - v[0]) ** 2 + (u[1] - v[1]) ** 2 + (u[2] - v[2]) ** 2)
     return 2.0 * math.asin(min(chord / 2.0, 1.0))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _confirming_star(table, vectors, a, b, c, s, confirm, tol, theta01, spread, need):
     """The first extra image star (row of ``confirm``: its angles to vertices 0, 1, 2 at the
     nominal focal length) that a catalogue neighbour ``e`` of ``a`` matches at scale ``s``
@@ -100,7 +100,7 @@ def _confirming_star(table, vectors, a, b, c, s, confirm, tol, theta01, spread, 
     return -1, -1
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def triangle_matches(table, vectors, sides, tol, calibrated, rank_limit, confirm, out, err):
     """Catalogue triangles ``(a, b, c)`` whose sides match the image triangle's ``sides`` =
     (θ01, θ02, θ12) (radians), stars below ``rank_limit`` only.
@@ -265,7 +265,7 @@ def judge_lone(frame: Frame, h: Hypothesis, table: PairTable, star_mag: np.ndarr
                          np.array(catalog, np.int64), n_missing)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _count_unrefuted(table, vectors, star_mag, tris, A, faint, f, frame_px, radius_px, offsets):
     """How many of the triangles ``tris`` (K, 3) at attitudes ``A`` (K, 3, 3) have no pair-table
     neighbour of their first vertex brighter than ``faint`` (K,) in the frame (``radius_px``

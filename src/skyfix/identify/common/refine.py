@@ -11,9 +11,9 @@ match radius that shrinks to the fit's own scatter. It takes and returns the nam
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.lens import k1_offset
 from skyfix._kernels.rotation import rodrigues
 from skyfix.identify.catalogue.kernel_data import ImageStars, RefineSettings, Refit, StarIndex, ViewBuffers
@@ -30,7 +30,7 @@ _DV = 8  # the same for v
 _J_ROWS = 13
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _solve_spd(N, g):
     """Solve ``N x = g`` for a small symmetric positive-definite ``N`` (Cholesky, no LAPACK)."""
     n = len(g)
@@ -61,7 +61,7 @@ def _solve_spd(N, g):
     return x, True
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _residuals(A, f, k1, v, q, out):
     """Pixel residuals (2M,) of projected catalogue vectors ``v`` against offsets ``q``."""
     for t in range(len(v)):
@@ -73,7 +73,7 @@ def _residuals(A, f, k1, v, q, out):
         out[2 * t + 1] = y - q[t, 1]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
     """Robust least-squares fit of attitude (3), focal length and k1 (``n_params`` = 3, 4 or 5)
     to pixel offsets ``q`` of catalogue vectors ``v``.
@@ -166,14 +166,14 @@ def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
     return A, f, k1
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def refine_entry(image, A, f, settings, stars):
     """:func:`refine` with its NamedTuple arguments as plain tuples (``tuple(nt)``): the entry
     for Python callers (:mod:`skyfix.identify.catalogue.kernel_data` says why)."""
     return refine(ImageStars(*image), A, f, RefineSettings(*settings), StarIndex(*stars))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def refine(image, A, f, settings, stars):
     """Match all stars with the accepted attitude ``A`` at focal length ``f``, refit, re-match
     (``settings.iterations`` times).

@@ -15,9 +15,9 @@ from __future__ import annotations
 import math
 from itertools import permutations
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.lens import offset_ray
 from skyfix._kernels.rotation import chord_angle, proper_rotation
 from skyfix.identify.accept import (
@@ -87,7 +87,7 @@ def centre_first_combinations(central: np.ndarray, count: int | None = None) -> 
     return _interleaved(base, order, binom, rows, len(base) if count is None else min(count, len(base)))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _interleaved(base, order, binom, rows, count):
     """The first ``count`` of ``base``'s rows in the order ``base[0], other[0], base[1], other[1],
     ...`` without repeats, ``other[j]`` the row of ``base`` holding the stars ``order[base[j]]``
@@ -124,7 +124,7 @@ def _colex_rank(combos: np.ndarray, binom: np.ndarray) -> np.ndarray:
             + binom[combos[:, 3], 4])
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _pattern_edges(p: np.ndarray, combo: np.ndarray, f: float, out: np.ndarray) -> None:
     """Sorted six edge angles (radians) of image stars ``combo`` at focal length ``f`` (pixels)."""
     rays = np.empty((4, 3))
@@ -141,7 +141,7 @@ def _pattern_edges(p: np.ndarray, combo: np.ndarray, f: float, out: np.ndarray) 
     out.sort()
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _kabsch(b: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Proper rotation A minimising Σ|b − A r|² (det A = +1, so mirror images fit badly).
 
@@ -157,7 +157,7 @@ def _kabsch(b: np.ndarray, r: np.ndarray) -> np.ndarray:
     return proper_rotation(B)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _angle_matrix(v: np.ndarray, out: np.ndarray) -> None:
     for a in range(4):
         out[a, a] = 0.0
@@ -169,7 +169,7 @@ def _angle_matrix(v: np.ndarray, out: np.ndarray) -> None:
             out[a, b] = out[b, a] = chord_angle(d)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def search_entry(image, combos, start, stop, focal, tolerances, patterns, stars, verification, cand_before):
     """:func:`search` with its NamedTuple arguments as plain tuples (``tuple(nt)``): the entry
     for Python callers (:mod:`skyfix.identify.catalogue.kernel_data` says why)."""
@@ -177,7 +177,7 @@ def search_entry(image, combos, start, stop, focal, tolerances, patterns, stars,
                   PatternTable(*patterns), StarIndex(*stars), VerifySettings(*verification), cand_before)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def search(image, combos, start, stop, focal, tolerances, patterns, stars, verification, cand_before):
     """Search image combinations ``start:stop`` for a verified catalogue pattern.
 

@@ -18,9 +18,9 @@ Whether the match counted here is beyond chance is decided in :mod:`skyfix.ident
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.lens import k1_offset
 from skyfix._kernels.probability import log_binom_sf
 from skyfix.identify.catalogue.kernel_data import CentroidGrid
@@ -32,14 +32,14 @@ __all__ = ["cell_band", "star_limit", "stars_in_view", "gather_stars", "project_
            "match_greedy", "grid_index", "match_grid", "verify_attitude"]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def star_limit(n_stars, n_img, frame, f, depth):
     """Catalogue depth (a brightness rank) with ~``depth``·``n_img`` stars in the frame on average."""
     frame_sr = (frame[1] - frame[0]) * (frame[3] - frame[2]) / (f * f)
     return min(n_stars, int(depth * n_img * 4.0 * np.pi / frame_sr) + 1)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def cell_band(cell_centres, u, cone):
     """Index range ``lo:hi`` of the cells whose centres can lie within ``cone`` radians of ``u``.
 
@@ -69,7 +69,7 @@ def cell_band(cell_centres, u, cone):
     return lo, a
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _edge_plane(A, f_signed, axis, offset):
     """The camera-frame vector ``(f_signed, 0, offset)`` (``axis`` 0) or ``(0, f_signed, offset)``
     (``axis`` 1), normalised and rotated to ICRS by ``Aᵀ``: the inner normal of a frame edge's plane
@@ -82,7 +82,7 @@ def _edge_plane(A, f_signed, axis, offset):
             (ex * A[0, 2] + ey * A[1, 2] + offset * A[2, 2]) / norm)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def stars_in_view(A, f, k1, frame, limit, stars, view):
     """Catalogue stars (index < ``limit``) of the :class:`StarIndex` ``stars`` that project into
     the frame, brightest first.
@@ -160,7 +160,7 @@ def stars_in_view(A, f, k1, frame, limit, stars, view):
     return n
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def sorted_indices(a, top):
     """Non-negative integers ``a`` (all ``<= top``) sorted ascending: LSD radix in two passes of
     half the bits of ``top`` each (small count tables for the thousand-odd stars of a field)."""
@@ -188,7 +188,7 @@ def sorted_indices(a, top):
     return src
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def gather_stars(z, cone, limit, stars):
     """Indices (sorted: brightest first) of the stars ``< limit`` of the :class:`StarIndex`
     ``stars`` within ``cone`` radians of ``z``. No star vector is read in cells that lie wholly
@@ -234,7 +234,7 @@ def gather_stars(z, cone, limit, stars):
     return sorted_indices(out[:n], top)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def project_stars(near, A, f, k1, frame, n_max, stars, view):
     """Project stars ``near`` (brightest first) of the :class:`StarIndex` ``stars``; keep the
     first ``n_max`` in the frame in ``view.index``, ``view.x_px``, ``view.y_px`` and return how
@@ -262,7 +262,7 @@ def project_stars(near, A, f, k1, frame, n_max, stars, view):
     return n
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def match_greedy(view, n_cat, p, n_img, radius_px):
     """Greedy one-to-one matching of the first ``n_cat`` stars of ``view`` (:class:`ViewBuffers`)
     to the first ``n_img`` centroids ``p``, brightest catalogue star first, nearest free centroid
@@ -289,7 +289,7 @@ def match_greedy(view, n_cat, p, n_img, radius_px):
     return n_match
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def grid_index(p, n_img, frame, cell):
     """Bucket the first ``n_img`` points of ``p`` into square cells of side ``cell`` over the
     frame: the :class:`CentroidGrid` that :func:`match_grid` searches."""
@@ -311,7 +311,7 @@ def grid_index(p, n_img, frame, cell):
     return CentroidGrid(frame[0], frame[2], cell, nx, ny, start, items)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def match_grid(view, n_cat, p, n_use, grid, radius_px):
     """:func:`match_greedy` against centroids ``< n_use`` bucketed in ``grid`` (:func:`grid_index`).
     Needs ``radius_px <= grid.cell_px / 2``: a match circle then reaches only the 2×2 cells on
@@ -350,7 +350,7 @@ def match_grid(view, n_cat, p, n_use, grid, radius_px):
     return n_match
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def verify_attitude(A, f, image, n_cat_max, n_img, radius_px, pattern, combo, stars, view):
     """log P(a wrong attitude matches as well) and the counts, for the ``n_cat_max`` brightest
     catalogue stars in view (of the :class:`StarIndex` ``stars``) matched to the ``n_img``

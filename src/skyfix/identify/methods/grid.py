@@ -45,9 +45,9 @@ import time
 from collections.abc import Iterator
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
 from skyfix.errors import InputError
@@ -93,7 +93,7 @@ class GridPatterns(NamedTuple):
     n_cells: np.ndarray
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def pattern_cells(center, neighbours, settings, scale, orient, out):
     """The cells of the pattern of unit vector ``center`` among ``neighbours`` ((M, 3) unit
     vectors, brightest first; the centre itself may be among them): the first
@@ -153,7 +153,7 @@ def pattern_cells(center, neighbours, settings, scale, orient, out):
     return n_out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _catalogue_cells(table, vectors, settings, cells, counts):
     """Each table star's pattern cells into ``cells[t, :counts[t]]``."""
     stars = table.stars
@@ -186,7 +186,7 @@ def catalogue_patterns(frame: Frame, table: PairTable, settings: GridSettings) -
     return frame.database.derived(key, make)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _candidates(rays, references, settings, scales, n_orient, patterns, min_score, top, out_ref, out_star,
                 out_score):
     """For each reference centroid, the ``top`` table stars sharing the most cells (at least
@@ -253,7 +253,7 @@ def image_candidates(frame: Frame, table: PairTable, patterns: GridPatterns, set
     return Candidates(ref[:k], table.stars[star[:k]].astype(np.int64), score[:k])
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _agreeing_sets(agree, order):
     """For each candidate ``u``: ``u`` and, greedily in ``order``, every candidate that agrees
     with all those taken so far (:func:`~skyfix.identify.common.angle_match.consistent_set`, seeded

@@ -60,9 +60,9 @@ import time
 from collections.abc import Iterator
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.rotation import chord_angle, det3
 from skyfix.camera import Camera
 from skyfix.errors import InputError
@@ -181,7 +181,7 @@ def scale_ranges(scale_lo: float, scale_hi: float, step: float) -> list[tuple[fl
     return [pieces[i] for i in order]
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _popcount(x):
     n = 0
     while x:
@@ -190,7 +190,7 @@ def _popcount(x):
     return n
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _magnitude_ok(setup, cat_mag, a, b, ga, gb):
     """Magnitude test (thesis 004 (3.1)) of centroids ``a`` < ``b`` as stars ``ga``, ``gb`` (of
     magnitudes ``cat_mag``)."""
@@ -203,7 +203,7 @@ def _magnitude_ok(setup, cat_mag, a, b, ga, gb):
     return not (mb == mb and abs(mb - cat_mag[gb]) > tol)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _pair_matches(setup, angle_rad, rows, records):
     """Step 1: every pair match (centroid a < b, table rows la, lb) written to ``records`` while
     it has room. Returns the number of pair matches (each orientation counted)."""
@@ -228,7 +228,7 @@ def _pair_matches(setup, angle_rad, rows, records):
     return count
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _run_lengths(setup, angle_rad):
     """The catalogue pairs step 1 examines (an upper bound on half its pair matches)."""
     n = setup.angle_rad.shape[0]
@@ -242,7 +242,7 @@ def _run_lengths(setup, angle_rad):
     return total
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _confidence(records, n_stars, n_local, alive):
     """Each match's confidence: the other centroids it is paired with among ``records`` whose
     both matches are ``alive`` (all when ``alive`` is empty); and those records."""
@@ -263,7 +263,7 @@ def _confidence(records, n_stars, n_local, alive):
     return conf, keep
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _eliminate(records, conf, limit):
     """Step 2's elimination: drop matches of confidence ≤ ``limit`` and the pair matches that
     hold them, recount, until nothing changes. Returns the records kept and the confidences."""
@@ -354,7 +354,7 @@ def match_groups(matches: PairMatches, *, ic_lim: int | None = None) -> MatchGro
                        conf[kernel_star, kernel_local], limit, matches.n_estimated, matches.n_pair_matches)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _cat_angle(vectors, g1, g2):
     d = 0.0
     for i in range(3):
@@ -363,7 +363,7 @@ def _cat_angle(vectors, g1, g2):
     return chord_angle(math.sqrt(d))
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _scale_interval(measured, catalogued, tol, lo, hi):
     """Narrow [lo, hi] to the scales at which ``measured`` becomes ``catalogued`` within ``tol``."""
     if measured <= 0.0:
@@ -371,7 +371,7 @@ def _scale_interval(measured, catalogued, tol, lo, hi):
     return max(lo, (catalogued - tol) / measured), min(hi, (catalogued + tol) / measured)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _mirrored(setup, vectors, k, gk, x, gx, y, gy, c_kx, c_ky, c_xy):
     """The mirror test (thesis 004 (3.3)) on unit vectors: the triangle (k, x, y) is mirrored when
     the triple products of rays and of catalogue vectors differ in sign by more than the
@@ -388,7 +388,7 @@ def _mirrored(setup, vectors, k, gk, x, gx, y, gy, c_kx, c_ky, c_xy):
     return t_obs * t_cat < 0.0 and abs(t_obs) > thr and abs(t_cat) > thr
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _consistent(setup, vectors, k, gk, x, gx, y, gy, check_mirror):
     """Step 3's test of two associated matches (x, gx), (y, gy) of the kernel (k, gk)."""
     if x == y or gx == gy:
@@ -403,7 +403,7 @@ def _consistent(setup, vectors, k, gk, x, gx, y, gy, check_mirror):
     return not (check_mirror and _mirrored(setup, vectors, k, gk, x, gx, y, gy, c_kx, c_ky, c_xy))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _residual(setup, vectors, row):
     """Sum over the matched pairs of |scale · measured − catalogued| at the best single scale."""
     n = row.shape[0]
@@ -422,7 +422,7 @@ def _residual(setup, vectors, row):
     return r
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _subgroups(setup, vectors, stars, kernel_star, kernel_local, start, member_star, member_local,
                check_mirror, min_size, max_nodes, out, out_size, out_residual):
     """Steps 3: each group's maximal consistent subgroups (Bron–Kerbosch with pivoting on bit

@@ -32,9 +32,9 @@ import dataclasses
 import functools
 import time
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix.camera import Camera
 from skyfix.identify.accept import CENTROID_SIGMA_PX, PROB_THRESHOLD
 from skyfix.identify.catalogue.database import PatternDatabase
@@ -79,7 +79,7 @@ def triangle_order(n: int) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _labelled(p, f, a, b, c):
     """The triangle ``a, b, c`` labelled ``(i, j, k)``: ``(i, j)`` its shortest side (searched in
     the pair table: the fewest pairs), ``(i, k)`` its longest (with only a FOV known, it fixes
@@ -96,7 +96,7 @@ def _labelled(p, f, a, b, c):
     return y, x, k
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _apex(s, table, vectors, i, j, k, cat, focal, ref, n_match, n, out_stars, out_cat):
     """The first centroid ``r`` below ``n`` (not i, j, k) that makes exactly one pyramid: over the
     ``n_match`` catalogue triangles ``cat[m]`` of image triangle ``(i, j, k)`` (each at focal
@@ -136,7 +136,7 @@ def _apex(s, table, vectors, i, j, k, cat, focal, ref, n_match, n, out_stars, ou
     return False
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def pyramid_search(s, table, vectors, triangles, start, stop, n, min_pairs, max_pairs, max_matches, out_stars,
                    out_cat):
     """Search triangles ``start:stop`` of ``triangles`` (image rows of the ``n`` stars used) for

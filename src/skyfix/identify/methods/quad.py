@@ -298,11 +298,11 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 t_load = time.perf_counter()
                 plain = search.plain()
                 loading_s += time.perf_counter() - t_load
-                known = len(search_entry.signatures)
+                known = search_entry.n_compiled
                 t_call = time.perf_counter()
                 hit = search_entry(plain.image, search.combos(stop), start, stop, plain.focal,
                                    tier_tolerances, plain.patterns, plain.stars, verification, n_cand)
-                if len(search_entry.signatures) != known:  # compiled or loaded from numba's cache just now
+                if search_entry.n_compiled != known:  # compiled or loaded from numba's cache just now
                     loading_s += time.perf_counter() - t_call
                 search.pos[tier] = start + hit.n_done
                 search.work_s += search_work(hit)

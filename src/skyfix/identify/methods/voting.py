@@ -38,9 +38,9 @@ import itertools
 import math
 import time
 
-import numba
 import numpy as np
 
+from skyfix._jit import njit
 from skyfix._kernels.rotation import chord_angle
 from skyfix.camera import Camera
 from skyfix.identify.accept import CENTROID_SIGMA_PX, PROB_THRESHOLD
@@ -65,7 +65,7 @@ __all__ = ["METHOD", "cast_votes", "focal_steps", "identify", "top_voted", "vali
 METHOD = "voting"
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def cast_votes(s, table, local, n, f_a, f_b, votes):
     """Add the votes of the ``n`` brightest centroids' pairs at a focal length in
     ``[f_a, f_b]`` into ``votes`` (n, T) int32: centroid row × table star (``local`` maps a
@@ -108,7 +108,7 @@ def focal_steps(s: AngleSettings, n: int) -> np.ndarray:
     return np.column_stack([lo, hi])
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def top_voted(votes, table_stars, out):
     """Each row's ``K = out.shape[1]`` most-voted columns of ``votes`` (n, T), most votes first
     (the lower column on ties), as the table's stars ``table_stars[column]``, into ``out`` (n, K);
@@ -131,7 +131,7 @@ def top_voted(votes, table_stars, out):
             out[a, e] = table_stars[best[e]] if e < size else -1
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def validate(s, vectors, nodes, f_a, f_b, candidate, agree):
     """The validation (module text, step 3) of centroids' candidates ``nodes`` (n, K) at a focal
     length in ``[f_a, f_b]``: each centroid's ``candidate`` (n,) is the one whose angles agree
