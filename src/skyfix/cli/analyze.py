@@ -326,8 +326,9 @@ def budget(
 @analyze_app.command()
 @guarded
 def coverage(
-    fov: str = typer.Option(..., "--fov", help="Field width,height in degrees, e.g. 11.17,8.32 "
-                            "(one number: a square field)."),
+    fov: str = typer.Option(..., "--fov", metavar="W,H",
+                            help="Field width,height in degrees, e.g. 11.17,8.32 (one number: a square "
+                                 "field)."),
     mag: float = typer.Option(None, "--mag", help="Faintest catalogue magnitude (Hipparcos Hp)."),
     n: int = typer.Option(100_000, "--n", min=1, help="Random pointings (uniform attitudes: pointing and "
                           "roll)."),
