@@ -169,6 +169,8 @@ def test_options_show_a_readable_metavar_in_help():
     runner = CliRunner()
     for path in COMMANDS:
         text = runner.invoke(app, [*path, "-h"], terminal_width=250).stdout
+        arguments = text.split("Arguments:")[1].split("Options:")[0] if "Arguments:" in text else ""
+        assert not re.search(r"<\w", arguments), (path, arguments)  # not "images... <list[Path]>"
         first_columns = re.findall(r"^  (-\S.*?)(?:\s{2,}|$)", text, re.M)
         for declared in first_columns:
             words = declared.split(", ")[-1].split(" ", 1)

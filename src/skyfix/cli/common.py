@@ -212,7 +212,10 @@ def readable_metavar(param: Any) -> None:
     ``DIR`` for a path, ``N`` for an integer, a float's unit from its help (``DEG``, ``S``,
     ``YEAR``, ``PX``, …; else ``X``), ``FILE|NAME`` for a file or preset name, ``NAME,...`` for
     a comma-separated list, ``ISO8601`` for a time, ``NAME`` for a name, ``TEXT`` otherwise.
-    Flags stay bare."""
+    Flags stay bare, and an argument shows its name alone (typer would add its Python type)."""
+    if param.param_type_name == "argument":  # its name says what it is: no "<list[Path]>" after it
+        param.display_type_rich = _no_type
+        return
     if param.param_type_name != "option" or param.metavar or param.is_flag or param.count:
         return
     desc = getattr(param, "type_descriptor", None)  # typer's (its click type is made lazily)
@@ -237,6 +240,10 @@ def readable_metavar(param: Any) -> None:
     else:
         meta = "TEXT"
     param.metavar = meta
+
+
+def _no_type(ctx: Any = None) -> str:
+    return ""
 
 
 def _words(ctx: Any) -> list[str]:
