@@ -136,6 +136,22 @@ def write_npz(path: str | Path, arrays: Mapping[str, np.ndarray]) -> None:
         digest = _sha256(fh, size - _HEX)
         fh.seek(size - _HEX)
         fh.write(digest.encode())
+    _tell_cached(Path(path), size)
+
+
+def _tell_cached(path: Path, size: int) -> None:
+    """One line on stderr — a terminal or not — when a file has been written into the user cache
+    (:func:`cache_dir`): its path and size, so that no command fills the cache silently."""
+    try:
+        inside = path.resolve().parent == cache_dir().resolve()
+    except OSError:
+        return
+    if inside:
+        message = (f"wrote {path} ({size / 1e6:.1f} MB) into the user cache "
+                   "(`skyfix cache info` lists it, `skyfix cache clear` removes it)")
+        log.info("%s", message)
+        if sys.stderr is not None:
+            print(f"skyfix: {message}", file=sys.stderr, flush=True)
 
 
 def map_npz(fh: BinaryIO) -> dict[str, np.ndarray]:

@@ -10,6 +10,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from skyfix.failures import next_step
+
 __all__ = ["Match", "MatchTable", "Pointing", "Solution"]
 
 
@@ -134,6 +136,12 @@ class Solution:
     def solved(self) -> bool:
         return self.status == "solved"
 
+    @property
+    def next_step(self) -> str:
+        """What to try when it failed (:func:`skyfix.failures.next_step` of ``reason``; ``""``
+        when solved or when there is nothing to say)."""
+        return "" if self.solved else next_step(self.reason)
+
     def attitude_at_pixel(self, x: float, y: float, along: str = "column") -> np.ndarray:
         """The attitude (3, 3) of the frame at pixel ``(x, y)``: z along its sky direction, x
         along the growing column there — or, with ``along="row"``, y along the growing row, so
@@ -252,6 +260,8 @@ class Solution:
         out = {}
         for key, value in d.items():
             out[key] = value
+            if key == "reason":
+                out["next_step"] = self.next_step
             if key == "boresight_px":
                 out["center_ra_deg"] = _finite_or_none(centre.ra_deg)
                 out["center_dec_deg"] = _finite_or_none(centre.dec_deg)

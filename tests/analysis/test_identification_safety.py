@@ -118,3 +118,26 @@ def test_one_definition_of_a_wrong_attitude():
     verdict = judge_error(np.array([3.0, 4.0, 0.01]) * 20.0 * _ARCSEC)  # 100″ off the boresight
     assert verdict.wrong and verdict.boresight_arcsec == pytest.approx(100.0, rel=1e-12)
     assert verdict.roll_deg == pytest.approx(0.2 / 3600.0, rel=1e-9)
+
+
+def test_quick_safety_searches_the_standard_database_alone(monkeypatch, catalog):
+    """--quick's frames: 15°, the FOV told, the standard band's database given to every solve (no
+    other band built); the full study's: every band (no database given)."""
+    from skyfix.identify import default_database
+
+    seen = []
+
+    def fake(xy, width, height, **kw):
+        seen.append((kw.get("database"), kw.get("camera"), kw.get("fov_deg")))
+        raise RuntimeError("not solved here")
+
+    monkeypatch.setattr("skyfix.pipeline.solve_centroids", fake)
+    quick = sf.SAFETY_QUICK
+    assert quick.trials == 20 and not quick.bands and quick.mix.fovs_deg == (15.0,)
+    recs = sf.run_safety_block(range(6), ["quad-hash"], mix=quick.mix, bands=quick.bands)
+    assert [r.fov_deg for r in recs] == [15.0] * 6 and not any(r.camera_given for r in recs)
+    standard = default_database(progress=False)
+    assert all(db is standard and cam is None and fov == 15.0 for db, cam, fov in seen)
+    seen.clear()
+    sf.run_safety_block(range(2), ["quad-hash"], mix=sf.SAFETY_STUDY.mix, bands=sf.SAFETY_STUDY.bands)
+    assert [db for db, _, _ in seen] == [None, None]

@@ -78,6 +78,10 @@ def test_cli_case_and_bad_names(tmp_path):
     res = CliRunner().invoke(app, ["analyze", "identification", "--quick", "--methods", "quad-hash",
                                    "--trials", "5", "--safety-trials", "4", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
+    # off a terminal, a line per stage: the start, the warm-up, the two cells, the safety block
+    steps = [line for line in res.output.splitlines() if line.startswith("skyfix: identification study")]
+    assert len(steps) == 5 and "methods warmed" in steps[1] and steps[-1].startswith(
+        "skyfix: identification study 4/4: safety frames 0–3")
     data = json.loads((tmp_path / "identification_study.json").read_text())
     assert len(data["records"]) == 10
     safety = data["safety"]

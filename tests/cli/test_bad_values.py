@@ -161,3 +161,20 @@ def test_flags_show_as_flags_in_help():
         declared = {d.split(", ")[-1].split()[0]: d for d in first_columns}
         for p in flags:
             assert re.fullmatch(r"(-\w, )?--[\w-]+", declared[p.opts[0]]), (path, declared[p.opts[0]])
+
+
+def test_options_show_a_readable_metavar_in_help():
+    """An option that takes a value shows what it takes in capitals (``--fov DEG``, ``--camera
+    FILE|NAME``, ``--workers N``), not a Python type (``<float>``, ``<str>``, ``<path>``)."""
+    runner = CliRunner()
+    for path in COMMANDS:
+        text = runner.invoke(app, [*path, "-h"], terminal_width=250).stdout
+        arguments = text.split("Arguments:")[1].split("Options:")[0] if "Arguments:" in text else ""
+        assert not re.search(r"<\w", arguments), (path, arguments)  # not "images... <list[Path]>"
+        first_columns = re.findall(r"^  (-\S.*?)(?:\s{2,}|$)", text, re.M)
+        for declared in first_columns:
+            words = declared.split(", ")[-1].split(" ", 1)
+            if len(words) == 2:
+                # DEG, FILE.csv, RA,DEC,ROLL[,UNCERTAINTY_DEG], data|kernels
+                shown = r"[A-Z][A-Za-z0-9_,.|/²x\[\]]*|[a-z]+(\|[a-z]+)+"
+                assert re.fullmatch(shown, words[1]), (path, declared)

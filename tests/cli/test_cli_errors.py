@@ -203,11 +203,16 @@ def test_unusable_files_one_line(tmp_path, kind, expected):
 def test_featureless_frames_fail_saying_which(tmp_path, pixels, reason, database):
     from PIL import Image
 
+    from skyfix.failures import step_to_add
+
     path = tmp_path / "frame.png"
     Image.fromarray(pixels).save(path)
     result = _run("solve", path)
     assert result.exit_code == 1
-    assert result.stdout == f"{path}: failed: too few stars detected (0; need at least 3): {reason}\n"
+    why = f"too few stars detected (0; need at least 3): {reason}"
+    step = step_to_add(why)  # the tiny frame's reason says it; a blank or saturated frame's does not
+    assert result.stdout == f"{path}: failed: {why}" + (f" — try: {step}" if step else "") + "\n"
+    assert bool(step) == ("too small" not in reason)
 
 
 # --- calibrate frames -----------------------------------------------------------------------------

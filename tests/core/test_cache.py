@@ -75,6 +75,17 @@ def test_write_npz_is_a_plain_npz_with_a_checksum(tmp_path):
     _no_temporaries(tmp_path)
 
 
+def test_a_write_into_the_user_cache_is_announced(cold_cache, tmp_path, capsys):
+    """One line on stderr (a terminal or not) naming the file and its size; elsewhere, none."""
+    write_npz(tmp_path / "mine.npz", {"x": np.arange(1000)})
+    assert capsys.readouterr().err == ""
+    path = skyfix.cache.cache_dir() / "a.npz"
+    write_npz(path, {"x": np.zeros(250_000)})  # 2.0 MB
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1
+    assert lines[0].startswith(f"skyfix: wrote {path} (2.0 MB) into the user cache")
+
+
 @pytest.mark.parametrize("damage", ["middle", "truncate", "last byte", "no trailer"])
 def test_verify_detects_damage(tmp_path, damage):
     path = tmp_path / "a.npz"

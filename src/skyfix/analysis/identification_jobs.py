@@ -20,8 +20,8 @@ from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
 from skyfix.identify import METHODS, default_database, get_method, identify
 
-__all__ = ["CONDITIONS", "Condition", "EPOCH", "HEIGHT", "MAG_LIMIT", "WIDTH", "condition_key",
-           "judge_identification", "method_names", "run_pool", "study_field", "table_nbytes",
+__all__ = ["CONDITIONS", "Condition", "EPOCH", "HEIGHT", "MAG_LIMIT", "WARMED", "WIDTH", "condition_key",
+           "judge_identification", "method_names", "pool_steps", "run_pool", "study_field", "table_nbytes",
            "upper_bound_95", "warm_methods"]
 
 EPOCH = 2025.0
@@ -143,16 +143,34 @@ def table_nbytes(value, seen: set | None = None) -> int:
     return 0
 
 
+WARMED = "methods warmed (their tables built)"
+"""The step :func:`run_pool` reports when it has warmed the methods in this process."""
+
+
+def _pool_size(workers: int, n_jobs: int) -> int:
+    return max(1, min(int(workers), n_jobs))
+
+
+def pool_steps(n_jobs: int, workers: int) -> int:
+    """How many times :func:`run_pool` calls ``progress`` for ``n_jobs`` jobs: once a job, and once
+    for the warm-up when it runs them here (one worker)."""
+    return n_jobs + (_pool_size(workers, n_jobs) == 1)
+
+
 def run_pool(jobs: list[tuple], workers: int, methods: list[str], fovs_deg: tuple[float, ...],
           progress: Callable[[str], None] | None, label: Callable[[tuple], str],
-          done: Callable[[object], None] | None = None) -> list:
+          done: Callable[[object], None] | None = None, cameras: bool = True) -> list:
     """Run ``jobs`` — ``(function, *args)`` tuples — in ``workers`` spawned processes (each warmed
-    by :func:`warm_methods`, calibrated cameras included) or, with one worker, here; returns their
-    results in the jobs' order (``done`` is given each result as it comes)."""
+    by :func:`warm_methods`, calibrated cameras included unless ``cameras`` is False: no job gives
+    a camera) or, with one worker, here (then the warm-up is a step of ``progress`` too:
+    :data:`WARMED`); returns their results in the jobs' order (``done`` is given each result as
+    it comes)."""
     results: list = [None] * len(jobs)
-    workers = max(1, min(int(workers), len(jobs)))
+    workers = _pool_size(workers, len(jobs))
     if workers == 1:
-        warm_methods(methods, fovs_deg, cameras=True)
+        warm_methods(methods, fovs_deg, cameras=cameras)
+        if progress is not None:
+            progress(WARMED)
         for i, (fn, *args) in enumerate(jobs):
             results[i] = fn(*args)
             if done is not None:
@@ -165,7 +183,7 @@ def run_pool(jobs: list[tuple], workers: int, methods: list[str], fovs_deg: tupl
 
     ctx = mp.get_context("spawn")  # no fork of a process holding numba's and rich's threads
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=warm_methods,
-                             initargs=(methods, fovs_deg, True)) as pool:
+                             initargs=(methods, fovs_deg, cameras)) as pool:
         futures = {pool.submit(fn, *args): i for i, (fn, *args) in enumerate(jobs)}
         for fut in as_completed(futures):
             i = futures[fut]

@@ -37,6 +37,7 @@ from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_cent
 from skyfix.analysis.truth import judge
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
+from skyfix.identify import default_database
 
 __all__ = ["SAFETY_BOUNDS", "SAFETY_FULL", "SAFETY_MIX", "SAFETY_QUICK", "SAFETY_STUDY", "SafetyDraw",
            "SafetyMix", "SafetySettings", "SafetyTrial", "read_checkpoint", "replay_safety", "run_safety",
@@ -151,12 +152,13 @@ solves lost (40 frames, ``van-bezooijen``). The others run with their defaults �
 solve (``quad-hash``) with its sparse-field fallback to ``triangle`` at the latter's defaults."""
 
 
-def safety_trial(method: str, draw: SafetyDraw, camera: Camera, field, bounds: dict[str, dict] | None = None
-                 ) -> SafetyTrial:
+def safety_trial(method: str, draw: SafetyDraw, camera: Camera, field, bounds: dict[str, dict] | None = None,
+                 database=None) -> SafetyTrial:
     """``method`` on one safety frame, through the solve a user calls
     (:func:`skyfix.pipeline.solve_centroids` with ``identify_method=method``: the final fit, the
     precision rule and — for the default method — the sparse-field fallback included), judged
-    against the truth."""
+    against the truth. ``database``: the one pattern database to search (None: the default FOV
+    bands, as a user's solve)."""
     from skyfix.pipeline import solve_centroids
 
     told = {"camera": camera} if draw.camera_given else {"fov_deg": draw.fov_deg,
@@ -164,7 +166,8 @@ def safety_trial(method: str, draw: SafetyDraw, camera: Camera, field, bounds: d
     options = _safety_options(method, SAFETY_BOUNDS if bounds is None else bounds)
     t0 = time.perf_counter()
     try:
-        sol = solve_centroids(field.xy, WIDTH, HEIGHT, identify_method=method, epoch=EPOCH, **told, **options)
+        sol = solve_centroids(field.xy, WIDTH, HEIGHT, identify_method=method, epoch=EPOCH, database=database,
+                              **told, **options)
         solved, reason = sol.solved, sol.reason
     except Exception as exc:  # a method's bug is its failure here, not the study's end
         sol, solved, reason = None, False, f"error: {type(exc).__name__}: {exc}"
@@ -187,21 +190,24 @@ def safety_trial(method: str, draw: SafetyDraw, camera: Camera, field, bounds: d
 
 
 def run_safety_block(trials: range, methods: list[str], seed: int = 0, mix: SafetyMix = SAFETY_MIX,
-                     bounds: dict[str, dict] | None = None) -> list[SafetyTrial]:
-    """Every method on the safety frames ``trials`` (a worker's job), interleaved frame by frame."""
+                     bounds: dict[str, dict] | None = None, bands: bool = True) -> list[SafetyTrial]:
+    """Every method on the safety frames ``trials`` (a worker's job), interleaved frame by frame;
+    ``bands`` as :class:`SafetySettings`'s."""
     catalog = load_hipparcos(epoch=EPOCH, mag_limit=MAG_LIMIT + 1.0)
+    database = None if bands else default_database(progress=False)
     out = []
     for t in trials:
         draw = safety_draw(t, seed, mix)
         camera, field = safety_field(draw, catalog, seed)
-        out += [safety_trial(m, draw, camera, field, bounds) for m in methods]
+        out += [safety_trial(m, draw, camera, field, bounds, database) for m in methods]
     return out
 
 
 def replay_safety(trial: int, method: str, seed: int = 0, mix: SafetyMix = SAFETY_MIX,
-                  bounds: dict[str, dict] | None = None) -> SafetyTrial:
-    """Replay one safety trial (a wrong one from the JSON's ``safety.wrong``)."""
-    return run_safety_block(range(trial, trial + 1), [method], seed, mix, bounds)[0]
+                  bounds: dict[str, dict] | None = None, bands: bool = True) -> SafetyTrial:
+    """Replay one safety trial (a wrong one from the JSON's ``safety.wrong``; ``bands`` as its
+    settings')."""
+    return run_safety_block(range(trial, trial + 1), [method], seed, mix, bounds, bands)[0]
 
 
 class SafetySettings(NamedTuple):
@@ -214,13 +220,21 @@ class SafetySettings(NamedTuple):
     workers: int = 1
     mix: SafetyMix = SAFETY_MIX
     block: int = 100  # frames per worker job (and per checkpoint)
+    # Solve against the default FOV bands, each built on first need (as a user's solve); False: the
+    # standard band's database alone (nothing else built: the quick run's frames are all 15°).
+    bands: bool = True
 
 
 SAFETY_FULL = SafetySettings()  # 10⁴ frames: ~0.64 CPU-s a frame for the nine methods (~53 min on 2 cores)
 # The whole study's share: 10³ frames (~5 min of 2 cores), so that grid, safety sample and seed
 # experiments run in one command; the 10⁴ frames are `--case safety` alone (SAFETY_FULL).
 SAFETY_STUDY = SafetySettings(trials=1_000)
-SAFETY_QUICK = SafetySettings(trials=20, block=10)
+# The quick run's: 15° frames with the FOV told (the grid's tables serve them: none built for other
+# fields or for a calibrated camera, ~130 MB) against the standard band's database alone (the
+# narrow, wide and fine bands and the Gaia catalogue, ~290 MB on disk, are neither built nor
+# loaded, and a frame that fails is not searched again in them).
+SAFETY_QUICK = SafetySettings(trials=20, block=10, bands=False,
+                              mix=SAFETY_MIX._replace(fovs_deg=(15.0,), camera_given_share=0.0))
 
 
 def run_safety(settings: SafetySettings = SAFETY_FULL, progress: Callable[[str], None] | None = None,
@@ -241,7 +255,7 @@ def run_safety(settings: SafetySettings = SAFETY_FULL, progress: Callable[[str],
                 fh.writelines(json.dumps(strict_json(r._asdict())) + "\n" for r in part)
 
     parts = run_pool(safety_jobs(settings, methods), settings.workers, methods, settings.mix.fovs_deg,
-                     progress, safety_job_label, done)
+                     progress, safety_job_label, done, cameras=settings.mix.camera_given_share > 0)
     return safety_result(settings, methods, parts)
 
 
@@ -252,8 +266,8 @@ def safety_job_label(job: tuple) -> str:
 
 def safety_jobs(settings: SafetySettings, methods: list[str]) -> list[tuple]:
     step, end = max(1, int(settings.block)), settings.first + settings.trials
-    return [(run_safety_block, range(a, min(a + step, end)), methods, settings.seed, settings.mix)
-            for a in range(settings.first, end, step)]
+    return [(run_safety_block, range(a, min(a + step, end)), methods, settings.seed, settings.mix, None,
+             settings.bands) for a in range(settings.first, end, step)]
 
 
 def safety_result(settings: SafetySettings, methods: list[str], parts: list[list[SafetyTrial]]) -> dict:

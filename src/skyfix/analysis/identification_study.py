@@ -51,6 +51,7 @@ from skyfix.analysis.identification_jobs import (
     Condition,
     judge_identification,
     method_names,
+    pool_steps,
     run_pool,
     study_field,
     upper_bound_95,
@@ -71,7 +72,7 @@ from skyfix.catalog import load_hipparcos
 from skyfix.identify import Identification, default_database, default_database_path, identify
 
 __all__ = ["FULL", "QUICK", "StudySettings", "TrialRecord", "cell_summary", "markdown", "plots", "run_block",
-           "run_study", "summarize", "write_study"]
+           "run_study", "study_steps", "summarize", "write_study"]
 
 
 class StudySettings(NamedTuple):
@@ -146,8 +147,9 @@ def run_study(settings: StudySettings = FULL, progress: Callable[[str], None] | 
                  for fov, c in blocks]
     safety_part = [] if safety is None else safety_jobs(safety, methods)
     warm_fovs = tuple(sorted(set(settings.fovs_deg) | set(() if safety is None else safety.mix.fovs_deg)))
+    cameras = bool(case_jobs) or (safety is not None and safety.mix.camera_given_share > 0)
     parts = run_pool(case_jobs + grid_jobs + safety_part, settings.workers, methods, warm_fovs, progress,
-                  _job_label)
+                     _job_label, cameras=cameras)
     records: list[TrialRecord] = [r for part in parts[len(case_jobs):len(case_jobs) + len(grid_jobs)]
                                   for r in part]
     order = {(fov, c.name): i for i, (fov, c) in enumerate(blocks)}
@@ -161,6 +163,14 @@ def run_study(settings: StudySettings = FULL, progress: Callable[[str], None] | 
     if cases:
         study["cases"] = dict(zip(cases, parts[:len(case_jobs)], strict=True))
     return study
+
+
+def study_steps(settings: StudySettings, safety: SafetySettings | None = None, cases: tuple[str, ...] = ()
+                ) -> int:
+    """How many progress steps :func:`run_study` reports with these arguments."""
+    n_jobs = (len(settings.fovs_deg) * len(settings.conditions) + len(cases)
+              + (len(safety_jobs(safety, [])) if safety is not None else 0))
+    return pool_steps(n_jobs, settings.workers)
 
 
 def _job_label(job: tuple) -> str:

@@ -326,8 +326,9 @@ def budget(
 @analyze_app.command()
 @guarded
 def coverage(
-    fov: str = typer.Option(..., "--fov", help="Field width,height in degrees, e.g. 11.17,8.32 "
-                            "(one number: a square field)."),
+    fov: str = typer.Option(..., "--fov", metavar="W,H",
+                            help="Field width,height in degrees, e.g. 11.17,8.32 (one number: a square "
+                                 "field)."),
     mag: float = typer.Option(None, "--mag", help="Faintest catalogue magnitude (Hipparcos Hp)."),
     n: int = typer.Option(100_000, "--n", min=1, help="Random pointings (uniform attitudes: pointing and "
                           "roll)."),
@@ -380,7 +381,8 @@ def identification(
     out: Path = typer.Option(Path("identification-study"), "--out", help="Output directory (JSON, Markdown, "
                              "PNG)."),
     quick: bool = typer.Option(False, "--quick", help="15° only, noise-free and all-errors cells, 20 fields, "
-                               "20 safety frames, no seed experiments (a smoke run for CI)."),
+                               "20 safety frames against the standard database alone, no seed experiments "
+                               "(a smoke run for CI)."),
     methods: str = typer.Option("", "--methods", help="Comma-separated identification methods (default: "
                                 "every registered one)."),
     trials: int = typer.Option(None, "--trials", min=1, help="Fields per FOV and condition (default 100; "
@@ -405,7 +407,7 @@ def identification(
     from skyfix.analysis import identification_safety as sf
     from skyfix.analysis import identification_study as st
     from skyfix.analysis.identification_cases import CASES
-    from skyfix.analysis.identification_jobs import method_names
+    from skyfix.analysis.identification_jobs import method_names, pool_steps
 
     add_verbosity(verbose)
     names = tuple(m.strip().lower() for m in methods.split(",") if m.strip())
@@ -435,7 +437,7 @@ def identification(
     prepare_outputs({"--out": [out / "identification_study.json"]})
     seed_cases = [c for c in cases if c != "safety"]
     if "safety" in cases and n_safety:
-        n_jobs = -(-n_safety // safety.block)
+        n_jobs = pool_steps(len(sf.safety_jobs(safety, [])), workers)
         with _progress(n_jobs, False) as bar, compile_notice(bar):
             task = bar.add_task("safety", total=n_jobs)
             out.mkdir(parents=True, exist_ok=True)
@@ -461,12 +463,12 @@ def identification(
     if cases:
         return
     all_cases = () if quick else tuple(CASES)
-    n_jobs = (len(settings.fovs_deg) * len(settings.conditions) + len(all_cases)
-              + (-(-n_safety // safety.block) if n_safety else 0))
+    study_safety = safety if n_safety else None
+    n_jobs = st.study_steps(settings, study_safety, all_cases)
     with _progress(n_jobs, False) as bar, compile_notice(bar):
         task = bar.add_task("identification study", total=n_jobs)
         study = st.run_study(settings, progress=lambda what: bar.update(task, advance=1, description=what),
-                             safety=safety if n_safety else None, cases=all_cases)
+                             safety=study_safety, cases=all_cases)
     paths = st.write_study(study, out, command=command)
     typer.echo(paths[1].read_text())
     for p in paths:

@@ -44,7 +44,7 @@ def calibrate_stars_command(
     images: list[Path] = typer.Argument(..., help="Star images of one camera (three or more, at different "
                                         "pointings)."),
     output: Path = typer.Option(..., "--output", "-o", help="Camera file to write (.toml)."),
-    model: str = typer.Option("brown-conrady", "--model",
+    model: str = typer.Option("brown-conrady", "--model", metavar="NAME",
                               help="pinhole | brown-conrady | fisheye: the family; the terms within it are "
                               "chosen by BIC and those the stars cannot constrain are refused."),
     skew: bool = typer.Option(False, "--skew", help="Fit the pixel skew too (off by default)."),
@@ -86,11 +86,11 @@ def calibrate_checkerboard_command(
     images: list[Path] = typer.Argument(..., help="Images of a checkerboard at different poses (three or "
                                         "more; 20–30 filling the frame between them is better)."),
     output: Path = typer.Option(..., "--output", "-o", help="Camera file to write (.toml)."),
-    pattern: str = typer.Option("9x6", "--pattern", help="Inner corners per row x per column (9x6: a board "
-                                "of 10 × 7 squares)."),
+    pattern: str = typer.Option("9x6", "--pattern", metavar="NxM",
+                                help="Inner corners per row x per column (9x6: a board of 10 × 7 squares)."),
     square_mm: float = typer.Option(25.0, "--square-mm", help="Side of a square, mm (sets the boards' "
                                     "distances only; the camera does not depend on it)."),
-    model: str = typer.Option("brown-conrady", "--model",
+    model: str = typer.Option("brown-conrady", "--model", metavar="NAME",
                               help="brown-conrady (OpenCV calibrateCamera) | fisheye (OpenCV "
                               "fisheye.calibrate, Kannala–Brandt)."),
     pixel_pitch_um: float | None = typer.Option(None, "--pixel-pitch-um",
@@ -185,10 +185,11 @@ class _ManyFilesCommand(typer.core.TyperCommand):
 @calibrate_app.command("frames", cls=_ManyFilesCommand)
 @guarded
 def calibrate_frames(
-    darks: list[Path] = typer.Option(None, "--darks",
+    darks: list[Path] = typer.Option(None, "--darks", metavar="FILE...",
                                      help="Dark frames (shutter closed): --darks a.fits b.fits …"),
-    flats: list[Path] = typer.Option(None, "--flats", help="Flat-field frames (uniform illumination): "
-                                     "--flats a.fits b.fits …"),
+    flats: list[Path] = typer.Option(None, "--flats", metavar="FILE...",
+                                     help="Flat-field frames (uniform illumination): --flats a.fits "
+                                          "b.fits …"),
     nsigma: float = typer.Option(5.0, "--nsigma", help="Hot pixel: this many σ above the dark level."),
     output: Path = typer.Option(..., "--output", "-o", help="Maps file (.fits or .npz)."),
     verbose: int = VERBOSE,

@@ -173,6 +173,12 @@ class OneLineErrors(typer.core.TyperGroup):
     what it takes, exit status 2 — not click's usage, hint and message (the one error style of
     every command: tests/cli/test_bad_values.py). Help for a group called alone passes through."""
 
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        for command in self.commands.values():
+            for param in getattr(command, "params", ()):
+                readable_metavar(param)
+
     def make_context(self, info_name, args, parent=None, **extra):
         argv = list(args)
         try:
@@ -191,6 +197,53 @@ class OneLineErrors(typer.core.TyperGroup):
             command = self.get_command(ctx, name) if name else None
             words = _words(ctx) + ([name] if command is not None else [])
             _usage_failure(exc, command or self, words, ctx.meta.get(_ARGV, []))
+
+
+# What -h shows after an option that takes a value, when the option names none itself: the first
+# unit its help names (a float), else what its type is ("--fov DEG", not "--fov <float>").
+_UNITS = (("julian year", "YEAR"), ("mag/arcsec", "MAG/ARCSEC²"), ("deg/s²", "DEG/S²"), ("deg/s", "DEG/S"),
+          ("°/s", "DEG/S"), ("arcsec", "ARCSEC"), ("degrees", "DEG"), ("°", "DEG"), ("pixels", "PX"),
+          ("frames per second", "FPS"), ("hz", "HZ"), ("seconds", "S"), (", s ", "S"), (", m ", "M"),
+          (", mm", "MM"), ("µm", "UM"), ("σ above", "SIGMA"), ("snr", "SNR"), ("magnitude", "MAG"))
+
+
+def readable_metavar(param: Any) -> None:
+    """Give an option that takes a value, and names no metavar, a readable one: ``FILE`` or
+    ``DIR`` for a path, ``N`` for an integer, a float's unit from its help (``DEG``, ``S``,
+    ``YEAR``, ``PX``, …; else ``X``), ``FILE|NAME`` for a file or preset name, ``NAME,...`` for
+    a comma-separated list, ``ISO8601`` for a time, ``NAME`` for a name, ``TEXT`` otherwise.
+    Flags stay bare, and an argument shows its name alone (typer would add its Python type)."""
+    if param.param_type_name == "argument":  # its name says what it is: no "<list[Path]>" after it
+        param.display_type_rich = _no_type
+        return
+    if param.param_type_name != "option" or param.metavar or param.is_flag or param.count:
+        return
+    desc = getattr(param, "type_descriptor", None)  # typer's (its click type is made lazily)
+    kind = getattr(desc, "annotation", None)
+    words = (param.help or "").lower()
+    if getattr(desc, "is_path", False):
+        info = desc.parameter_info
+        folder = getattr(info, "dir_okay", True) and not getattr(info, "file_okay", True)
+        meta = "DIR" if folder or param.name.endswith("dir") or "directory" in words else "FILE"
+    elif kind is int:
+        meta = "N"
+    elif kind is float:
+        meta = next((unit for word, unit in _UNITS if word in words), "X")
+    elif "file" in words and "name" in words:
+        meta = "FILE|NAME"
+    elif "comma-separated" in words:
+        meta = "NAME,..."
+    elif "iso 8601" in words:
+        meta = "ISO8601"
+    elif re.search(r"name|method|^[\w-]+(, [\w-]+)+|: \w[\w-]*, \w", words):
+        meta = "NAME"
+    else:
+        meta = "TEXT"
+    param.metavar = meta
+
+
+def _no_type(ctx: Any = None) -> str:
+    return ""
 
 
 def _words(ctx: Any) -> list[str]:

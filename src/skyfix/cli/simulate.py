@@ -77,15 +77,15 @@ def simulate(
     fps: float = typer.Option(10.0, "--fps", help="Frame rate of a sequence, frames per second."),
     output: Path = typer.Option(None, "--output", "-o",
                                 help="Image file: .fits, .png or .tif (a sequence: NAME-0000.fits …)."),
-    profile: str = typer.Option(None, "--profile", rich_help_panel="Motion",
+    profile: str = typer.Option(None, "--profile", metavar="NAME", rich_help_panel="Motion",
                                 help="How the camera turns: constant (--rate-dps), inertial-axis, slew, "
                                      "pendulum (docs/simulating.md). Default: constant."),
-    rate_dps: str = typer.Option(None, "--rate-dps", rich_help_panel="Motion",
+    rate_dps: str = typer.Option(None, "--rate-dps", metavar="WX,WY,WZ", rich_help_panel="Motion",
                                  help="constant: body rate wx,wy,wz about the camera axes, deg/s; "
                                       "inertial-axis: the rate about --axis, deg/s."),
-    axis: str = typer.Option(None, "--axis", rich_help_panel="Motion",
+    axis: str = typer.Option(None, "--axis", metavar="RA,DEC", rich_help_panel="Motion",
                              help="inertial-axis: the ICRS axis as RA,DEC, degrees."),
-    rotation_deg: str = typer.Option(None, "--rotation-deg", rich_help_panel="Motion",
+    rotation_deg: str = typer.Option(None, "--rotation-deg", metavar="X,Y,Z", rich_help_panel="Motion",
                                      help="slew: the turn as a rotation vector x,y,z in the camera axes, "
                                           "degrees (0,10,0: 10° about camera y). Default 0,10,0."),
     max_rate_dps: float = typer.Option(None, "--max-rate-dps", rich_help_panel="Motion",
@@ -97,14 +97,14 @@ def simulate(
                                      "instead of a trapezoid."),
     start: float = typer.Option(None, "--start", rich_help_panel="Motion",
                                 help="slew: when it starts, seconds after the first frame (default 0)."),
-    amplitude_deg: str = typer.Option(None, "--amplitude-deg", rich_help_panel="Motion",
+    amplitude_deg: str = typer.Option(None, "--amplitude-deg", metavar="X,Y,Z", rich_help_panel="Motion",
                                       help="pendulum: amplitude about camera x,y,z, degrees (default "
                                            "0.5,2,0.2: mostly pitch, as thesis 002's air bearing)."),
     period: float = typer.Option(None, "--period", rich_help_panel="Motion",
                                  help="pendulum: the damped period, seconds (default 8)."),
     damping: float = typer.Option(None, "--damping", rich_help_panel="Motion",
                                   help="pendulum: the damping ratio, 0 to < 1 (default 0.05)."),
-    phase_deg: str = typer.Option(None, "--phase-deg", rich_help_panel="Motion",
+    phase_deg: str = typer.Option(None, "--phase-deg", metavar="X,Y,Z", rich_help_panel="Motion",
                                   help="pendulum: phase of each axis, degrees (default 0,0,90: through "
                                        "equilibrium at the first frame, yaw a quarter period behind)."),
     seeing: float = typer.Option(0.0, "--seeing", rich_help_panel="What real frames carry",

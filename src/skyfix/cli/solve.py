@@ -370,7 +370,10 @@ def _progress(n: int, quiet: bool):
 
 def _summary(sol) -> str:
     if not sol.solved:
-        return f"{sol.image}: failed: {sol.reason}"
+        from skyfix.failures import step_to_add
+
+        step = step_to_add(sol.reason)
+        return f"{sol.image}: failed: {sol.reason}" + (f" — try: {step}" if step else "")
     path = " | near the attitude hint" if sol.method == "attitude-hint" else ""
     sig = [v**0.5 for v in (sol.covariance_arcsec2[0][0], sol.covariance_arcsec2[1][1],
                             sol.covariance_arcsec2[2][2])]
