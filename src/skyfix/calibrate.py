@@ -596,8 +596,8 @@ def frame_at_pixel(A_icrs_to_cam: np.ndarray, camera: Camera, pixel: tuple[float
     if along not in ("column", "row"):
         raise ValueError(f"along must be 'column' or 'row', not {along!r}")
     p0 = np.array([pixel], dtype=np.float64)
-    ray0 = camera.pixel_to_ray(p0)[0]
-    ray1 = camera.pixel_to_ray(p0 + ([0.5, 0.0] if along == "column" else [0.0, 0.5]))[0]
+    step = [0.5, 0.0] if along == "column" else [0.0, 0.5]
+    ray0, ray1 = camera.pixel_to_ray(np.concatenate([p0, p0 + step]))  # one call for both pixels
     z = ray0 / np.linalg.norm(ray0)
     t = ray1 - ray0
     t -= (t @ z) * z
