@@ -5,15 +5,16 @@ Run: ``PYTHONPATH=src .venv/bin/python benchmarks/montecarlo_throughput.py
 [--campaign campaigns/quick.toml] [--trials N] [--against main] [--batch B] [--set KEY=VALUE …]``
 
 One process, no Dask: whole batches (:func:`skyfix.montecarlo.trials.run_batch`) of the
-campaign are run alternately by this tree's trial code and by ``--against``'s — its
-``src/skyfix/montecarlo/{trials,budget}.py`` (``git show REF:…``) loaded as modules of their own
-and swapped in for its calls, so both sides share everything else (catalogue, solver, renderer,
-kernels) — after one warm-up batch each. Printed per side: trials per second (the trials over
-the sum of the batches' wall times), and the median per trial of the whole trial, the
-simulation and the solve, and the rest (seeding, the true attitude, the prediction, the
-judgement). Then whether every row is the same on both sides (the times, and the parameters
-this tree added, left out). ``--set hint=truth`` (any ``[parameters]`` value) changes the
-campaign first. The machine is shared: compare the two columns of one run, not runs.
+campaign are run alternately by this tree's code and by ``--against``'s — its trial code and the
+modules this work changed (:data:`_MODULES`, ``git show REF:…``) loaded as modules of their own
+and swapped in for its calls, with every name other modules imported from them, so both sides
+share everything else (catalogue, solver, kernels) — after one warm-up batch each. Printed per
+side: trials per second (the trials over the sum of the batches' wall times), and the mean per
+trial of the whole trial, the simulation and the solve, and the rest (seeding, the true
+attitude, the prediction, the judgement). Then whether every row is the same on both sides
+(the times, and the parameters this tree added, left out). ``--set hint=truth`` (any
+``[parameters]`` value) changes the campaign first. The machine is shared: compare the two
+columns of one run, not runs.
 """
 
 from __future__ import annotations
@@ -33,20 +34,21 @@ import numpy as np
 import tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
-_MODULES = ("trials", "budget")  # what --against replaces, skyfix/montecarlo/<name>.py
+#: What --against replaces: the trial code and the modules it times that this work changed.
+_MODULES = ("skyfix.montecarlo.trials", "skyfix.montecarlo.budget", "skyfix.simulate.psf", "skyfix.calibrate")
 _TIMES = ("simulate_ms", "time_ms")
 
 
 def modules_at(ref: str) -> dict[str, object]:
-    """``skyfix.montecarlo.{trials,budget}`` as they are at commit ``ref``, as modules of their own."""
+    """The modules of :data:`_MODULES` as they are at commit ``ref``, as modules of their own."""
     folder = Path(tempfile.mkdtemp(prefix="skyfix-montecarlo-"))
     out = {}
     for name in _MODULES:
-        text = subprocess.run(["git", "-C", str(ROOT), "show", f"{ref}:src/skyfix/montecarlo/{name}.py"],
+        text = subprocess.run(["git", "-C", str(ROOT), "show", f"{ref}:src/{name.replace('.', '/')}.py"],
                               check=True, capture_output=True, text=True).stdout
-        path = folder / f"{name}_before.py"
+        path = folder / f"{name.replace('.', '_')}_before.py"
         path.write_text(text)
-        spec = importlib.util.spec_from_file_location(f"skyfix_montecarlo_{name}_before", path)
+        spec = importlib.util.spec_from_file_location(path.stem, path)
         module = importlib.util.module_from_spec(spec)
         sys.modules[spec.name] = module
         spec.loader.exec_module(module)
@@ -54,15 +56,36 @@ def modules_at(ref: str) -> dict[str, object]:
     return out
 
 
+def _bindings(after: dict[str, object], before: dict[str, object]) -> list[tuple[object, str, str, str]]:
+    """Every function another skyfix module imported from a module of ``after`` (``from X import
+    f``) that ``before``'s has too: (that module, the name there, the module it came from, its
+    name there)."""
+    found = []
+    origin = {id(v): (mod, k) for mod, m in after.items() for k, v in vars(m).items()
+              if callable(v) and not isinstance(v, type) and getattr(v, "__module__", None) == mod
+              and hasattr(before[mod], k)}
+    for name, m in list(sys.modules.items()):
+        if not name.startswith("skyfix.") or name in after or m is None:
+            continue
+        for k, v in list(vars(m).items()):
+            if id(v) in origin:
+                found.append((m, k, *origin[id(v)]))
+    return found
+
+
 @contextlib.contextmanager
-def swapped(modules: dict[str, object]):
-    """``skyfix.montecarlo.<name>`` is ``modules[name]`` inside (the trial code imports lazily)."""
-    saved = {n: sys.modules[f"skyfix.montecarlo.{n}"] for n in modules}
-    sys.modules.update({f"skyfix.montecarlo.{n}": m for n, m in modules.items()})
+def swapped(side: dict[str, object], after: dict[str, object], bindings: list):
+    """Inside, the modules of ``side`` are imported (the trial code imports lazily) and every name
+    other modules took from them is ``side``'s."""
+    sys.modules.update(side)
+    for m, k, mod, name in bindings:
+        setattr(m, k, getattr(side[mod], name))
     try:
         yield
     finally:
-        sys.modules.update({f"skyfix.montecarlo.{n}": m for n, m in saved.items()})
+        sys.modules.update(after)
+        for m, k, mod, name in bindings:
+            setattr(m, k, getattr(after[mod], name))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -76,7 +99,6 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     import importlib
 
-    from skyfix.montecarlo import trials
     from skyfix.montecarlo.campaign import campaign_from_dict, load_campaign
 
     data = tomllib.loads(args.campaign.read_text())
@@ -86,18 +108,22 @@ def main(argv: list[str] | None = None) -> int:
     load_campaign(args.campaign)  # the file itself is valid too
     batch = args.batch or campaign.batch_size
     campaign = dataclasses.replace(campaign, trials=args.trials + batch, batch_size=batch)
-    sides = {"before": modules_at(args.against),
-             "after": {n: importlib.import_module(f"skyfix.montecarlo.{n}") for n in _MODULES}}
-    for mod in (trials, sides["before"]["trials"]):  # set-up (catalogue) out of the timing
-        mod.setup_for(campaign)
+    import skyfix.analysis.truth  # noqa: F401 (imports what it binds before the bindings are listed)
+    import skyfix.simulate  # noqa: F401
+
+    after = {n: importlib.import_module(n) for n in _MODULES}
+    sides = {"before": modules_at(args.against), "after": after}
+    bindings = _bindings(after, sides["before"])
+    for side in sides.values():  # set-up (catalogue) out of the timing
+        side["skyfix.montecarlo.trials"].setup_for(campaign)
     walls: dict[str, list[float]] = {s: [] for s in sides}
     rows: dict[str, list[dict]] = {s: [] for s in sides}
     per_trial: dict[str, list[float]] = {s: [] for s in sides}
     for k in range(campaign.n_batches):
         for side in (sides if k % 2 else reversed(list(sides))):
-            with swapped(sides[side]):
+            with swapped(sides[side], after, bindings):
                 t0 = time.perf_counter()
-                got = sides[side]["trials"].run_batch(campaign, k)
+                got = sides[side]["skyfix.montecarlo.trials"].run_batch(campaign, k)
                 wall = time.perf_counter() - t0
             if k == 0:
                 continue  # warm-up
