@@ -142,6 +142,10 @@ PARAMETERS: dict[str, Parameter] = {
     "prob_threshold": Parameter(float, 1e-9, _BOTH, lambda v: 0 < v < 1, "0 < p < 1",
                                 "the largest chance of a coincidence a solution is accepted with (raise it "
                                 "to see wrong solutions and check that prob_false predicts how many)"),
+    "lone_prob_threshold": Parameter(float, 0.0, _BOTH, lambda v: 0 <= v < 1, "0 (the method's) or 0 < p < 1",
+                                     "the largest chance a frame of a few stars is accepted with, for the "
+                                     "methods that judge lone triangles (triangle, pyramid, voting, "
+                                     "van-bezooijen; 1e-4 by default)"),
     "hint": Parameter(str, "none", _BOTH, lambda v: v in HINTS, "none or truth",
                       "the attitude the solver is told: none (lost in space) or the true one (the "
                       "identification near it, ~4× faster: for accuracy studies; its wrong count is "

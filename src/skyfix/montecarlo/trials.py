@@ -203,9 +203,16 @@ def _solver_options(campaign: Campaign, values: dict[str, Any], camera: Camera, 
                     A: np.ndarray) -> dict[str, Any]:
     """What the solver is told (``given``: the told camera, or its field; ``hint``: the true
     attitude ``A`` or none) and how it searches."""
+    from skyfix.identify import method_options
+
     opts: dict[str, Any] = dict(epoch=campaign.epoch, identify_method=values["identify_method"],
                                 attitude_method=values["attitude_method"],
-                                time_limit_s=values["time_limit_s"], prob_threshold=values["prob_threshold"])
+                                prob_threshold=values["prob_threshold"])
+    known = method_options(values["identify_method"])  # a method without a time limit or lone frames
+    if "time_limit_s" in known:
+        opts["time_limit_s"] = values["time_limit_s"]
+    if values["lone_prob_threshold"] and "lone_prob_threshold" in known:
+        opts["lone_prob_threshold"] = values["lone_prob_threshold"]
     if values["given"] == "camera":
         opts["camera"] = told
     elif values["given"] == "fov":
@@ -237,7 +244,7 @@ def run_trial(campaign: Campaign, trial: int, setup: Setup | None = None) -> dic
     if values["timestamp_error_s"]:
         A_truth = stamped_attitude(A, values["timestamp_error_s"] * float(rng["told"].standard_normal()))
     try:
-        sol, t_sim, n_stars, predicted = LEVEL_TRIALS[campaign.level](
+        sol, t_sim, n_stars, predicted, true_ids = LEVEL_TRIALS[campaign.level](
             TrialInput(campaign, setup, values, A, rate, camera, told, seed, rng))
     except Exception as exc:  # a bug in a stage: the trial is kept, with what went wrong
         first = (str(exc).strip().splitlines() or [""])[0]
@@ -247,7 +254,7 @@ def run_trial(campaign: Campaign, trial: int, setup: Setup | None = None) -> dic
                    predicted, strict=True))
     if not sol.solved:
         return _failed(row, "failed", sol.reason)
-    return _judged(row, sol, A_truth, camera)
+    return _judged(row, sol, A_truth, camera, true_ids)
 
 
 class TrialInput(NamedTuple):
@@ -268,12 +275,14 @@ class TrialInput(NamedTuple):
 
 class Simulated(NamedTuple):
     """A level's simulate-and-solve: the Solution (its ``time_ms["wall"]`` the solve's), the
-    simulation's ms, the stars in the frame and the predicted σ (x, y, roll) ″ (NaN: none)."""
+    simulation's ms, the stars in the frame, the predicted σ (x, y, roll) ″ (NaN: none) and each
+    centroid's true star number by its (x, y) (0: a false star; None: not known)."""
 
     solution: Any
     simulate_ms: float
     n_stars: int
     predicted_sigma_arcsec: tuple[float, float, float]
+    true_ids: dict[tuple[float, float], int] | None = None
 
 
 def _centroid_solve(t: TrialInput) -> Simulated:
@@ -296,7 +305,8 @@ def _centroid_solve(t: TrialInput) -> Simulated:
     sol = solve_centroids(field.xy, camera.width, camera.height,
                           **_solver_options(campaign, values, camera, t.told, A))
     sol.time_ms["wall"] = 1e3 * (time.perf_counter() - t0)
-    return Simulated(sol, t_sim, int(real.sum()), tuple(predicted))
+    return Simulated(sol, t_sim, int(real.sum()), tuple(predicted),
+                     dict(zip(map(tuple, field.xy.tolist()), field.star_id.tolist(), strict=True)))
 
 
 def _image_solve(t: TrialInput) -> Simulated:
@@ -337,12 +347,15 @@ def _failed(row: dict[str, Any], status: str, reason: str) -> dict[str, Any]:
     return row
 
 
-def _judged(row: dict[str, Any], sol, A: np.ndarray, camera: Camera) -> dict[str, Any]:
+def _judged(row: dict[str, Any], sol, A: np.ndarray, camera: Camera,
+            true_ids: dict[tuple[float, float], int] | None) -> dict[str, Any]:
     from skyfix.analysis.truth import judge
 
     j = judge(sol.A_icrs_to_cam, sol.camera, A, camera)
     err = j.error_rad / _ARCSEC
     sigma = np.sqrt(np.diag(np.asarray(sol.covariance_arcsec2, dtype=np.float64)))
+    if true_ids is not None:  # the matches whose catalogue star is not the centroid's own
+        row["n_mismatched"] = sum(true_ids.get((m.x, m.y), -1) != m.id for m in sol.matches)
     row.update(status="solved", reason="", wrong=j.wrong, n_matched=sol.n_matched, prob_false=sol.prob_false,
                ra_deg=sol.ra_deg, dec_deg=sol.dec_deg, roll_deg=sol.roll_deg,
                boresight_error_arcsec=j.boresight_arcsec, roll_error_arcsec=j.roll_deg * 3600.0)
