@@ -12,7 +12,7 @@ share everything else (catalogue, solver, kernels) — after one warm-up batch e
 side: trials per second (the trials over the sum of the batches' wall times), and the mean per
 trial of the whole trial, the simulation and the solve, and the rest (seeding, the true
 attitude, the prediction, the judgement). Then whether every row is the same on both sides
-(the times, and the parameters this tree added, left out). ``--set hint=truth`` (any
+(the times, and the columns one side lacks, left out). ``--set hint=truth`` (any
 ``[parameters]`` value) changes the campaign first. The machine is shared: compare the two
 columns of one run, not runs.
 """
@@ -142,14 +142,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{side:8s} {rate[side]:9.1f} {whole:9.3f} {np.nanmean(sim):9.3f} {np.nanmean(solve):9.3f} "
               f"{whole - np.nanmean(sim) - np.nanmean(solve):9.3f}")
     print(f"after / before: {rate['after'] / rate['before']:.2f}× the trials per second (means per trial)")
-    same = all(_comparable(a) == _comparable(b) for a, b in zip(rows["before"], rows["after"], strict=True))
-    print(f"rows equal (times and new columns left out): {same}")
+    pairs = zip(rows["before"], rows["after"], strict=True)
+    same = all(_comparable(a, b) == _comparable(b, a) for a, b in pairs)
+    print(f"rows equal (times and the columns one side lacks left out): {same}")
     return 0 if same or args.set else 1
 
 
-def _comparable(row: dict) -> dict:
+def _comparable(row: dict, other: dict) -> dict:
+    """``row`` without its times and the columns ``other`` lacks, NaN as None."""
     return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()
-            if k not in _TIMES and k != "hint"}
+            if k not in _TIMES and k in other}
 
 
 if __name__ == "__main__":

@@ -148,8 +148,8 @@ PARAMETERS: dict[str, Parameter] = {
                                      "van-bezooijen; 1e-4 by default)"),
     "hint": Parameter(str, "none", _BOTH, lambda v: v in HINTS, "none or truth",
                       "the attitude the solver is told: none (lost in space) or the true one (the "
-                      "identification near it, ~4× faster: for accuracy studies; its wrong count is "
-                      "not lost in space's)"),
+                      "identification near it, for accuracy studies; its wrong count is not lost "
+                      "in space's)"),
     "time_limit_s": Parameter(float, 30.0, _BOTH, _positive, "> 0",
                               "identification's wall-clock limit: long, so that the search's pattern count "
                               "bounds it and a trial's result never depends on the machine's load"),
