@@ -35,7 +35,8 @@ import tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 #: What --against replaces: the trial code and the modules it times that this work changed.
-_MODULES = ("skyfix.montecarlo.trials", "skyfix.montecarlo.budget", "skyfix.simulate.psf", "skyfix.calibrate")
+_MODULES = ("skyfix.montecarlo.trials", "skyfix.montecarlo.budget", "skyfix.simulate.psf",
+            "skyfix.simulate.render", "skyfix.calibrate")
 _TIMES = ("simulate_ms", "time_ms")
 
 
@@ -64,8 +65,9 @@ def _bindings(after: dict[str, object], before: dict[str, object]) -> list[tuple
     origin = {id(v): (mod, k) for mod, m in after.items() for k, v in vars(m).items()
               if callable(v) and not isinstance(v, type) and getattr(v, "__module__", None) == mod
               and hasattr(before[mod], k)}
+    ours = {m.__name__ for m in before.values()}  # REF's modules import from the others too
     for name, m in list(sys.modules.items()):
-        if not name.startswith("skyfix.") or name in after or m is None:
+        if not (name.startswith("skyfix.") or name in ours) or name in after or m is None:
             continue
         for k, v in list(vars(m).items()):
             if id(v) in origin:
