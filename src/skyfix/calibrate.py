@@ -14,6 +14,7 @@ is a pinhole's only, ``k4`` a fisheye's only (:data:`CAMERA_PARAMETERS`).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -595,15 +596,24 @@ def frame_at_pixel(A_icrs_to_cam: np.ndarray, camera: Camera, pixel: tuple[float
     point of a camera without skew both are ``A_icrs_to_cam``."""
     if along not in ("column", "row"):
         raise ValueError(f"along must be 'column' or 'row', not {along!r}")
+    return _frame_axes(camera, (float(pixel[0]), float(pixel[1])), along) @ np.asarray(A_icrs_to_cam,
+                                                                                       dtype=np.float64)
+
+
+@functools.lru_cache(maxsize=64)
+def _frame_axes(camera: Camera, pixel: tuple[float, float], along: str) -> np.ndarray:
+    """:func:`frame_at_pixel`'s axes (3, 3) in ``camera``'s frame (read-only; a campaign's
+    judgements ask for the same camera and pixel every trial)."""
     p0 = np.array([pixel], dtype=np.float64)
-    ray0 = camera.pixel_to_ray(p0)[0]
-    ray1 = camera.pixel_to_ray(p0 + ([0.5, 0.0] if along == "column" else [0.0, 0.5]))[0]
+    step = [0.5, 0.0] if along == "column" else [0.0, 0.5]
+    ray0, ray1 = camera.pixel_to_ray(np.concatenate([p0, p0 + step]))  # one call for both pixels
     z = ray0 / np.linalg.norm(ray0)
     t = ray1 - ray0
     t -= (t @ z) * z
     t /= np.linalg.norm(t)
-    rows = [t, np.cross(z, t), z] if along == "column" else [np.cross(t, z), t, z]
-    return np.vstack(rows) @ np.asarray(A_icrs_to_cam, dtype=np.float64)
+    rows = np.vstack([t, np.cross(z, t), z] if along == "column" else [np.cross(t, z), t, z])
+    rows.flags.writeable = False
+    return rows
 
 
 def frame_rotation_at_pixel(A: np.ndarray, camera: Camera, A_ref: np.ndarray, camera_ref: Camera,

@@ -38,15 +38,20 @@ def predicted_covariance_rad2(camera: Camera, b_cam: np.ndarray, sigma_px: float
     if len(b) < 2 or not sigma_px > 0:
         return np.full((3, 3), np.nan)
     x, y, z = b.T
-    zero = np.zeros_like(x)
-    # e_k × b for the three axes (R(δθ) b ≈ b + δθ × b), stacked: one projection of 6N rays
-    axes = ((zero, -z, y), (z, zero, -x), (-y, x, zero))
-    turned = _STEP_RAD * np.stack([np.stack(c, axis=1) for c in axes])
+    # e_k × b for the three axes (R(δθ) b ≈ b + δθ × b): one projection of 6N rays
+    turned = np.zeros((3, len(b), 3))
+    turned[0, :, 1], turned[0, :, 2] = -z, y
+    turned[1, :, 0], turned[1, :, 2] = z, -x
+    turned[2, :, 0], turned[2, :, 1] = -y, x
+    turned *= _STEP_RAD
     pix, _ = camera.ray_to_pixel(np.concatenate([b + turned, b - turned]).reshape(-1, 3))
     pix = pix.reshape(2, 3, len(b), 2)
     H = (pix[0] - pix[1]) / (2.0 * _STEP_RAD)  # (axis, star, pixel axis)
     F = np.einsum("kni,lni->kl", H, H) / sigma_px**2
-    if not (np.all(np.isfinite(F)) and np.linalg.cond(F) < 1e12):
+    if not np.all(np.isfinite(F)):
+        return np.full((3, 3), np.nan)
+    w = np.linalg.eigvalsh(F)  # F is symmetric: its condition number is its eigenvalues' ratio
+    if not (w[0] > 0 and w[2] < 1e12 * w[0]):
         return np.full((3, 3), np.nan)
     P = np.linalg.inv(F)
     return 0.5 * (P + P.T)

@@ -46,8 +46,8 @@ import tomllib
 
 from skyfix.errors import InputError, unknown_name
 
-__all__ = ["ATTITUDES", "DEFAULT_BATCH_SIZE", "LEVELS", "PARAMETERS", "Campaign", "Parameter", "SweepAxis",
-           "calibration_sigma", "campaign_from_dict", "load_campaign"]
+__all__ = ["ATTITUDES", "DEFAULT_BATCH_SIZE", "HINTS", "LEVELS", "PARAMETERS", "Campaign", "Parameter",
+           "SweepAxis", "calibration_sigma", "campaign_from_dict", "load_campaign"]
 
 #: The two levels a trial runs at.
 LEVELS = ("centroid", "image")
@@ -107,6 +107,8 @@ def _method_ok(registry: str) -> Callable[[str], bool]:
 
 
 _BOTH = LEVELS
+#: What the solver may be told of the attitude (the parameter ``hint``): nothing, or the truth.
+HINTS = ("none", "truth")
 #: Every parameter by name (the columns of the results carry these names).
 PARAMETERS: dict[str, Parameter] = {
     "sigma_px": Parameter(float, 0.2, ("centroid",), _nonnegative, "≥ 0",
@@ -140,6 +142,14 @@ PARAMETERS: dict[str, Parameter] = {
     "prob_threshold": Parameter(float, 1e-9, _BOTH, lambda v: 0 < v < 1, "0 < p < 1",
                                 "the largest chance of a coincidence a solution is accepted with (raise it "
                                 "to see wrong solutions and check that prob_false predicts how many)"),
+    "lone_prob_threshold": Parameter(float, 0.0, _BOTH, lambda v: 0 <= v < 1, "0 (the method's) or 0 < p < 1",
+                                     "the largest chance a frame of a few stars is accepted with, for the "
+                                     "methods that judge lone triangles (triangle, pyramid, voting, "
+                                     "van-bezooijen; 1e-4 by default)"),
+    "hint": Parameter(str, "none", _BOTH, lambda v: v in HINTS, "none or truth",
+                      "the attitude the solver is told: none (lost in space) or the true one (the "
+                      "identification near it, for accuracy studies; its wrong count is not lost "
+                      "in space's)"),
     "time_limit_s": Parameter(float, 30.0, _BOTH, _positive, "> 0",
                               "identification's wall-clock limit: long, so that the search's pattern count "
                               "bounds it and a trial's result never depends on the machine's load"),

@@ -63,6 +63,8 @@ COLUMNS: dict[str, Column] = {
     "reason": Column("string", "why it failed"),
     "wrong": Column("bool", "solved but wrong (skyfix.analysis.truth.is_wrong)"),
     "n_matched": Column("int32", "stars matched"),
+    "n_mismatched": Column("int32", "matches whose catalogue star is not the centroid's true star (a false "
+                                    "star matched counts; centroid level, null at the image level)"),
     "prob_false": Column("float64", "the solution's chance of being a coincidence"),
     "ra_deg": Column("float64", "solved boresight RA, °"),
     "dec_deg": Column("float64", "solved boresight Dec, °"),
@@ -82,6 +84,8 @@ _PARAMETER_TYPES = {float: "float64", int: "int64", str: "string", bool: "bool"}
 _TIMES = ("simulate_ms", "time_ms")
 _PERCENTILES = (50, 90, 99)
 _DRAWN_BINS = 5
+#: The edges of the ``prob_false`` bins of the calibration (the last bin holds 1 too).
+_PROB_FALSE_BINS = (0.0, 1e-9, 1e-6, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 
 
 def schema(campaign: Campaign) -> pa.Schema:
@@ -142,11 +146,47 @@ def _figures(table: pa.Table) -> dict[str, Any]:
     out["rms_over_predicted"] = {a: _ratio(out["rms_arcsec"][a], out["predicted_rms_arcsec"][a])
                                  for a in _AXES}
     solved_mask = status == "solved"
-    expected = float(np.nansum(_column(table, "prob_false")[solved_mask]))
-    out["prob_false"] = {"expected_wrong": expected, "observed_wrong": k,
-                         "p_value": _poisson_tail(k, expected),
-                         "calibrated": bool(_poisson_tail(k, expected) >= 0.05)}
+    mismatched = _column(table, "n_mismatched")
+    # wrong by identification: a wrong star among the matches (not known at the image level: all)
+    by_match = wrong & ~(mismatched == 0)
+    out["wrong_identification"] = int(by_match.sum())
+    out["wrong_precision"] = k - out["wrong_identification"]
+    out["prob_false"] = _calibration(_column(table, "prob_false")[solved_mask], by_match[solved_mask])
     return out
+
+
+def _calibration(prob_false: np.ndarray, wrong: np.ndarray) -> dict[str, Any]:
+    """``prob_false`` against the solutions wrong by identification: overall, Σ ``prob_false``
+    (the wrong ones expected) against those seen with the Poisson chance of seeing as many or
+    more; and per bin of ``prob_false`` (:data:`_PROB_FALSE_BINS`), the wrong rate seen with its
+    one-sided 95 % Clopper–Pearson bounds beside the mean ``prob_false`` — calibrated while the
+    lower bound is not above it (the rate seen is never above the predicted one beyond its
+    bound)."""
+    k, expected = int(wrong.sum()), float(np.nansum(prob_false))
+    bins = []
+    for low, high in zip(_PROB_FALSE_BINS[:-1], _PROB_FALSE_BINS[1:], strict=True):
+        inside = (prob_false >= low) & (prob_false < high) if high < 1 else (prob_false >= low)
+        n, kb = int(inside.sum()), int(wrong[inside].sum())
+        if not n:
+            continue
+        mean = float(np.mean(prob_false[inside]))
+        lower = _lower_bound_95(kb, n)
+        bins.append({"low": low, "high": high, "solved": n,
+                     "expected_wrong": float(np.sum(prob_false[inside])), "mean_prob_false": mean,
+                     "wrong": kb, "rate": kb / n, "rate_lower_95": lower,
+                     "rate_upper_95": _upper_bound_95(kb, n), "calibrated": bool(lower <= mean)})
+    p = _poisson_tail(k, expected)
+    return {"expected_wrong": expected, "observed_wrong": k, "p_value": p, "calibrated": bool(p >= 0.05),
+            "bins_calibrated": all(b["calibrated"] for b in bins), "bins": bins}
+
+
+def _lower_bound_95(k: int, n: int) -> float:
+    """One-sided 95 % Clopper–Pearson lower bound of a rate seen ``k`` times in ``n``."""
+    if k <= 0 or n <= 0:
+        return 0.0
+    from scipy.stats import beta
+
+    return float(beta.ppf(0.05, k, n - k + 1))
 
 
 def _rms(v: np.ndarray) -> float:
@@ -215,9 +255,14 @@ def summary_lines(summary: Mapping[str, Any]) -> list[str]:
                         "; predicted " + "/".join(f"{pred[a]:.3f}" for a in _AXES) + "″ (measured/predicted "
                         + "/".join(f"{s['rms_over_predicted'][a]:.3f}" for a in _AXES) + ")"))
     pf = s["prob_false"]
-    lines.append(f"prob_false: {pf['expected_wrong']:.3g} wrong expected, {pf['observed_wrong']} seen "
-                 f"(P = {pf['p_value']:.3g}: "
-                 f"{'calibrated' if pf['calibrated'] else 'UNDERESTIMATES the risk'})")
+    lines.append(f"prob_false: {pf['expected_wrong']:.3g} wrong identifications expected, "
+                 f"{pf['observed_wrong']} seen (P = {pf['p_value']:.3g}: "
+                 f"{'calibrated' if pf['calibrated'] else 'UNDERESTIMATES the risk'}); "
+                 f"{s['wrong_precision']} wrong with every star right (the precision rule's)")
+    for b in pf["bins"]:
+        lines.append(f"  prob_false {b['low']:.0e}–{b['high']:.0e}: {b['wrong']} wrong of {b['solved']}, "
+                     f"rate ≥ {b['rate_lower_95']:.2g} at 95 % vs mean predicted {b['mean_prob_false']:.2g}"
+                     f"{'' if b['calibrated'] else ': UNDERESTIMATED'}")
     if "timing" in s:
         t = s["timing"]
         lines.append(f"{t['trials_per_s']:.1f} trials/s with {t['workers']} worker(s) "

@@ -27,6 +27,7 @@ import dataclasses
 import math
 import threading
 import time
+from collections.abc import Mapping
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -50,18 +51,37 @@ def trial_seed(campaign_seed: int, trial: int) -> int:
     return int(word >> np.uint64(1))
 
 
-def _streams(seed: int) -> dict[str, np.random.Generator]:
-    children = np.random.SeedSequence(seed).spawn(len(_STREAMS))
-    return {name: np.random.default_rng(ss) for name, ss in zip(_STREAMS, children, strict=True)}
+class _Streams(dict):
+    """A trial's random streams by name (:data:`_STREAMS`), each made when first asked for: child
+    ``k`` is ``SeedSequence(seed).spawn(4)[k]`` (the same ``SeedSequence(seed, spawn_key=(k,))``),
+    so a trial that never draws from a stream does not pay for it (~15 µs each) and the draws
+    are those of spawning all four."""
+
+    def __init__(self, seed: int) -> None:
+        super().__init__()
+        self.seed = seed
+
+    def __missing__(self, name: str) -> np.random.Generator:
+        child = np.random.SeedSequence(self.seed, spawn_key=(_STREAMS.index(name),))
+        self[name] = rng = np.random.default_rng(child)
+        return rng
 
 
-def trial_values(campaign: Campaign, trial: int, rng: np.random.Generator) -> dict[str, Any]:
+def _streams(seed: int) -> _Streams:
+    return _Streams(seed)
+
+
+def trial_values(campaign: Campaign, trial: int, rng: Mapping[str, np.random.Generator] | np.random.Generator
+                 ) -> dict[str, Any]:
     """Every parameter's value in trial ``trial``: fixed, grid point, then the drawn axes in
-    file order from ``rng`` (the trial's parameter stream)."""
+    file order from ``rng`` (the trial's parameter stream, or its streams: the stream is then
+    made only if an axis is drawn)."""
     values = dict(campaign.fixed)
     values.update(campaign.grid_point(trial))
     for axis in campaign.sweep:
         if axis.drawn:
+            if isinstance(rng, Mapping):
+                rng = rng["parameters"]
             values[axis.name] = float(rng.uniform(axis.low, axis.high))
     return {name: values[name] for name in campaign.parameter_names}
 
@@ -151,13 +171,17 @@ def trial_camera(setup: Setup, values: dict[str, Any]) -> Camera:
 
 
 def told_camera(camera: Camera, values: dict[str, Any], sigma: dict[str, float],
-                rng: np.random.Generator) -> Camera:
+                rng: Mapping[str, np.random.Generator] | np.random.Generator) -> Camera:
     """The camera the solver is told: ``camera`` with the focal length off by ``focal_error``,
     each coefficient of ``sigma`` (its 1σ) off by ``calibration_error`` × σ × a Gaussian draw
-    (in sorted order, from ``rng``), and the radial distortion times ``1 + distortion_error``."""
-    scale = 1.0 + values["focal_error"]
-    told = dataclasses.replace(camera, fx=camera.fx * scale, fy=camera.fy * scale)
+    (in sorted order, from ``rng``: the trial's ``told`` stream, or its streams), and the radial
+    distortion times ``1 + distortion_error``."""
+    told, scale = camera, 1.0 + values["focal_error"]
+    if scale != 1.0:
+        told = dataclasses.replace(camera, fx=camera.fx * scale, fy=camera.fy * scale)
     if values["calibration_error"]:
+        if isinstance(rng, Mapping):
+            rng = rng["told"]
         known = {f.name for f in dataclasses.fields(Camera)}
         told = dataclasses.replace(told, **{
             k: getattr(told, k) + values["calibration_error"] * sigma[k] * float(rng.standard_normal())
@@ -175,40 +199,52 @@ def stamped_attitude(A: np.ndarray, error_s: float) -> np.ndarray:
     return A @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _solver_options(campaign: Campaign, values: dict[str, Any], camera: Camera, told: Camera
-                    ) -> dict[str, Any]:
-    """What the solver is told (``given``: the told camera, or its field) and how it searches."""
+def _solver_options(campaign: Campaign, values: dict[str, Any], camera: Camera, told: Camera,
+                    A: np.ndarray) -> dict[str, Any]:
+    """What the solver is told (``given``: the told camera, or its field; ``hint``: the true
+    attitude ``A`` or none) and how it searches."""
+    from skyfix.identify import method_options
+
     opts: dict[str, Any] = dict(epoch=campaign.epoch, identify_method=values["identify_method"],
                                 attitude_method=values["attitude_method"],
-                                time_limit_s=values["time_limit_s"], prob_threshold=values["prob_threshold"])
+                                prob_threshold=values["prob_threshold"])
+    known = method_options(values["identify_method"])  # a method without a time limit or lone frames
+    if "time_limit_s" in known:
+        opts["time_limit_s"] = values["time_limit_s"]
+    if values["lone_prob_threshold"] and "lone_prob_threshold" in known:
+        opts["lone_prob_threshold"] = values["lone_prob_threshold"]
     if values["given"] == "camera":
         opts["camera"] = told
     elif values["given"] == "fov":
         opts["fov_deg"] = camera.fov_deg / (1.0 + values["focal_error"])
+    if values["hint"] == "truth":
+        opts["attitude_hint"] = A
     if values.get("sigma_known"):
         opts["centroid_sigma_px"] = max(values["sigma_px"], 1e-3)
     return opts
 
 
-def run_trial(campaign: Campaign, trial: int) -> dict[str, Any]:
-    """Trial ``trial`` of ``campaign``: one results row (:data:`skyfix.montecarlo.results.COLUMNS`)."""
-    setup = setup_for(campaign)
+def run_trial(campaign: Campaign, trial: int, setup: Setup | None = None) -> dict[str, Any]:
+    """Trial ``trial`` of ``campaign``: one results row (:data:`skyfix.montecarlo.results.COLUMNS`)
+    (``setup``: the campaign's :func:`setup_for`, when the caller has it already)."""
+    setup = setup or setup_for(campaign)
     seed = trial_seed(campaign.seed, trial)
     rng = _streams(seed)
-    values = trial_values(campaign, trial, rng["parameters"])
-    A, rate = true_attitude(campaign, trial, rng["attitude"], setup.profile)
+    values = trial_values(campaign, trial, rng)
+    A, rate = true_attitude(campaign, trial, rng["attitude"] if campaign.attitude == "uniform" else None,
+                            setup.profile)
     camera = trial_camera(setup, values)
     row: dict[str, Any] = {"trial": trial, "seed": seed, **values}
     from skyfix.geometry import radec_roll_from_attitude
 
     row["ra_true_deg"], row["dec_true_deg"], row["roll_true_deg"] = np.degrees(radec_roll_from_attitude(A))
     row["plate_scale_arcsec"] = camera.plate_scale_rad / _ARCSEC
-    told = told_camera(camera, values, setup.calibration_sigma, rng["told"])
+    told = told_camera(camera, values, setup.calibration_sigma, rng)
     A_truth = A  # what the truth says: a fixed mount's attitude at the stamped time
     if values["timestamp_error_s"]:
         A_truth = stamped_attitude(A, values["timestamp_error_s"] * float(rng["told"].standard_normal()))
     try:
-        sol, t_sim, n_stars, predicted = LEVEL_TRIALS[campaign.level](
+        sol, t_sim, n_stars, predicted, true_ids = LEVEL_TRIALS[campaign.level](
             TrialInput(campaign, setup, values, A, rate, camera, told, seed, rng))
     except Exception as exc:  # a bug in a stage: the trial is kept, with what went wrong
         first = (str(exc).strip().splitlines() or [""])[0]
@@ -218,7 +254,7 @@ def run_trial(campaign: Campaign, trial: int) -> dict[str, Any]:
                    predicted, strict=True))
     if not sol.solved:
         return _failed(row, "failed", sol.reason)
-    return _judged(row, sol, A_truth, camera)
+    return _judged(row, sol, A_truth, camera, true_ids)
 
 
 class TrialInput(NamedTuple):
@@ -239,12 +275,14 @@ class TrialInput(NamedTuple):
 
 class Simulated(NamedTuple):
     """A level's simulate-and-solve: the Solution (its ``time_ms["wall"]`` the solve's), the
-    simulation's ms, the stars in the frame and the predicted σ (x, y, roll) ″ (NaN: none)."""
+    simulation's ms, the stars in the frame, the predicted σ (x, y, roll) ″ (NaN: none) and each
+    centroid's true star number by its (x, y) (0: a false star; None: not known)."""
 
     solution: Any
     simulate_ms: float
     n_stars: int
     predicted_sigma_arcsec: tuple[float, float, float]
+    true_ids: dict[tuple[float, float], int] | None = None
 
 
 def _centroid_solve(t: TrialInput) -> Simulated:
@@ -265,9 +303,10 @@ def _centroid_solve(t: TrialInput) -> Simulated:
     t_sim = 1e3 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
     sol = solve_centroids(field.xy, camera.width, camera.height,
-                          **_solver_options(campaign, values, camera, t.told))
+                          **_solver_options(campaign, values, camera, t.told, A))
     sol.time_ms["wall"] = 1e3 * (time.perf_counter() - t0)
-    return Simulated(sol, t_sim, int(real.sum()), tuple(predicted))
+    return Simulated(sol, t_sim, int(real.sum()), tuple(predicted),
+                     dict(zip(map(tuple, field.xy.tolist()), field.star_id.tolist(), strict=True)))
 
 
 def _image_solve(t: TrialInput) -> Simulated:
@@ -293,7 +332,7 @@ def _image_solve(t: TrialInput) -> Simulated:
     t_sim = 1e3 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
     sol = solve(frame.image, max_stars=values["max_stars"],
-                **_solver_options(campaign, values, camera, t.told))
+                **_solver_options(campaign, values, camera, t.told, A))
     sol.time_ms["wall"] = 1e3 * (time.perf_counter() - t0)
     return Simulated(sol, t_sim, len(frame.truth["stars"]), (math.nan,) * 3)
 
@@ -308,12 +347,15 @@ def _failed(row: dict[str, Any], status: str, reason: str) -> dict[str, Any]:
     return row
 
 
-def _judged(row: dict[str, Any], sol, A: np.ndarray, camera: Camera) -> dict[str, Any]:
+def _judged(row: dict[str, Any], sol, A: np.ndarray, camera: Camera,
+            true_ids: dict[tuple[float, float], int] | None) -> dict[str, Any]:
     from skyfix.analysis.truth import judge
 
     j = judge(sol.A_icrs_to_cam, sol.camera, A, camera)
     err = j.error_rad / _ARCSEC
     sigma = np.sqrt(np.diag(np.asarray(sol.covariance_arcsec2, dtype=np.float64)))
+    if true_ids is not None:  # the matches whose catalogue star is not the centroid's own
+        row["n_mismatched"] = sum(true_ids.get((m.x, m.y), -1) != m.id for m in sol.matches)
     row.update(status="solved", reason="", wrong=j.wrong, n_matched=sol.n_matched, prob_false=sol.prob_false,
                ra_deg=sol.ra_deg, dec_deg=sol.dec_deg, roll_deg=sol.roll_deg,
                boresight_error_arcsec=j.boresight_arcsec, roll_error_arcsec=j.roll_deg * 3600.0)
@@ -326,4 +368,5 @@ def _judged(row: dict[str, Any], sol, A: np.ndarray, camera: Camera) -> dict[str
 
 def run_batch(campaign: Campaign, batch: int) -> list[dict[str, Any]]:
     """The rows of batch ``batch`` (trials :meth:`Campaign.batch_trials`), in trial order."""
-    return [run_trial(campaign, i) for i in campaign.batch_trials(batch)]
+    setup = setup_for(campaign)
+    return [run_trial(campaign, i, setup) for i in campaign.batch_trials(batch)]

@@ -53,6 +53,17 @@ def pixel_integrated_stamps(x: np.ndarray, y: np.ndarray, sxx: np.ndarray, syy: 
     row0, col0 : (N,) int64
         Row and column of each stamp's top-left pixel.
     """
+    p, wx, row0, col0 = _shares(x, y, sxx, syy, sxy, half, strips)
+    size = 2 * half + 1
+    stamps = (p[:, :, None] * wx).reshape(len(p), size, strips, size).sum(axis=2)
+    return stamps, row0, col0
+
+
+def _shares(x: np.ndarray, y: np.ndarray, sxx: np.ndarray, syy: np.ndarray, sxy: np.ndarray, half: int,
+            strips: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The factors of :func:`pixel_integrated_stamps`: each strip's share ``p`` (N, S·strips) and
+    the x shares ``wx`` within it (N, S·strips, S) — (N, 1, S) for round Gaussians, the same in
+    every row — with the stamps' top-left rows and columns; a stamp is their product."""
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     size = 2 * half + 1
@@ -73,13 +84,12 @@ def pixel_integrated_stamps(x: np.ndarray, y: np.ndarray, sxx: np.ndarray, syy: 
             ey = sy * (pdf[:, :-1] - pdf[:, 1:]) / p  # E[y - μy | strip]
         ey = np.where(p > 1e-300, ey, mid)
         mx = x[:, None] + k * ey  # (N, S·strips) conditional means of x
-    else:
-        mx = np.repeat(x[:, None], size * strips, axis=1)
+    else:  # a round Gaussian: x's profile is the same in every row, computed once (S× fewer erfs)
+        mx = x[:, None]
     xe = (col0[:, None] - 0.5 + np.arange(size + 1)[None, :]).astype(np.float64)  # (N, S+1)
-    cx = _cdf((xe[:, None, :] - mx[:, :, None]) / sc[:, :, None])  # (N, S·strips, S+1)
-    wx = np.diff(cx, axis=2)  # (N, S·strips, S)
-    stamps = (p[:, :, None] * wx).reshape(len(x), size, strips, size).sum(axis=2)
-    return stamps, row0, col0
+    cx = _cdf((xe[:, None, :] - mx[:, :, None]) / sc[:, :, None])  # (N, S·strips or 1, S+1)
+    wx = np.diff(cx, axis=2)  # (N, S·strips or 1, S)
+    return p, wx, row0, col0
 
 
 @njit(cache=True, nogil=True)
@@ -98,6 +108,27 @@ def _scatter(image, stamps, flux, row0, col0):
                 c = c0 + b
                 if 0 <= c < w:
                     image[r, c] += f * stamps[i, a, b]
+
+
+@numba.njit(cache=True, nogil=True)
+def _scatter_round(image, p, wx, flux, row0, col0):
+    """:func:`_scatter` of round stamps given as their factors: pixel (a, b) of stamp ``i`` is
+    ``p[i, a] * wx[i, b]``, the product :func:`pixel_integrated_stamps` forms (the same numbers)
+    without making the (N, S, S) stamps."""
+    h, w = image.shape
+    n, s = p.shape
+    for i in range(n):
+        f = flux[i]
+        r0 = row0[i]
+        c0 = col0[i]
+        for a in range(s):
+            r = r0 + a
+            if r < 0 or r >= h:
+                continue
+            for b in range(s):
+                c = c0 + b
+                if 0 <= c < w:
+                    image[r, c] += f * (p[i, a] * wx[i, b])
 
 
 def add_gaussians(image: np.ndarray, x: np.ndarray, y: np.ndarray, flux: np.ndarray,
@@ -128,7 +159,11 @@ def add_gaussians(image: np.ndarray, x: np.ndarray, y: np.ndarray, flux: np.ndar
         j = idx[start:start + chunk]
         half = int(math.ceil(n_sigma * math.sqrt(float(max(sxx[j].max(), syy[j].max())))))
         half = max(half, 1)
-        stamps, row0, col0 = pixel_integrated_stamps(x[j], y[j], sxx[j], syy[j], sxy[j], half,
-                                                     strips if elliptical else 1)
-        _scatter(image, stamps, np.ascontiguousarray(flux[j]), row0, col0)
+        if elliptical:
+            stamps, row0, col0 = pixel_integrated_stamps(x[j], y[j], sxx[j], syy[j], sxy[j], half, strips)
+            _scatter(image, stamps, np.ascontiguousarray(flux[j]), row0, col0)
+        else:  # separable: the stamps' two factors scattered, never the (N, S, S) stamps
+            p, wx, row0, col0 = _shares(x[j], y[j], sxx[j], syy[j], sxy[j], half, 1)
+            _scatter_round(image, p, np.ascontiguousarray(wx[:, 0, :]), np.ascontiguousarray(flux[j]),
+                           row0, col0)
     return image

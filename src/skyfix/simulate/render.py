@@ -312,9 +312,11 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
         camera=_camera_table(camera), sensor=sensor.to_dict(), optics=optics.to_dict(), noise=switches,
         sky_mag_arcsec2=sky_mag_arcsec2, background_e=float(background),
         atmosphere=atmosphere._asdict(), jpeg_quality=jpeg_quality,
-        stars=[dict(id=int(i), x=float(x), y=float(y), mag=float(m), electrons=float(e))
-               for i, (x, y), m, e in zip(catalog.ids[idx][inside], xy_mid[inside], catalog.mag[idx][inside],
-                                          electrons[inside], strict=True)],
+        stars=[dict(id=i, x=x, y=y, mag=m, electrons=e)  # Python numbers by tolist (float64's: the same)
+               for i, (x, y), m, e in zip(catalog.ids[idx][inside].astype(np.int64).tolist(),
+                                          xy_mid[inside].astype(np.float64).tolist(),
+                                          catalog.mag[idx][inside].astype(np.float64).tolist(),
+                                          electrons[inside].astype(np.float64).tolist(), strict=True)],
         false_stars=fs_records, cosmic_rays=cr_records, hot_pixels=hot_records,
     )
     return SimulatedFrame(image=image, truth=truth, expected_e=expected)
