@@ -108,3 +108,19 @@ print(json.dumps(out))
     a, b, c = (rng.normal(size=(5, 3)) for _ in range(3))
     assert got["p"] == log_binom_sf.dispatcher()(12, 40, 0.01)
     assert got["angles"] == angles.dispatcher()(a, b, c).tolist()
+
+
+def test_every_kernel_is_decorated_by_skyfix_jit():
+    # A kernel decorated with numba's own njit would not be compiled ahead of time, and a module
+    # importing numba at its top would import it in every process that imports the module.
+    import re
+
+    src = ROOT / "src" / "skyfix"
+    offenders = []
+    for path in sorted(src.rglob("*.py")):
+        if "_aot" in path.parts:
+            continue
+        text = path.read_text()
+        if re.search(r"^(import numba|from numba\b)", text, re.M) or re.search(r"@numba\.(njit|jit)\b", text):
+            offenders.append(str(path.relative_to(src)))
+    assert not offenders

@@ -110,7 +110,7 @@ def _scatter(image, stamps, flux, row0, col0):
                     image[r, c] += f * stamps[i, a, b]
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _scatter_round(image, p, wx, flux, row0, col0):
     """:func:`_scatter` of round stamps given as their factors: pixel (a, b) of stamp ``i`` is
     ``p[i, a] * wx[i, b]``, the product :func:`pixel_integrated_stamps` forms (the same numbers)
