@@ -132,6 +132,7 @@ def record(jobs: Iterable[str] | None = None, path: Path = SIGNATURES) -> int:
     for job in names:
         getattr(_warm_jobs, job.replace("-", "_"))()
     _solve_examples()
+    _wide_search_order()
     found = recorded_here()
     old = json.loads(path.read_text()) if path.exists() and jobs is not None else {}
     for key, sigs in found.items():
@@ -169,6 +170,16 @@ def _solve_examples() -> None:
                 continue
             if sol.solved:
                 skyfix.solve(path, camera=sol.camera)
+
+
+def _wide_search_order() -> None:
+    """The wide searches' pattern order (a 45–90° frame's, or a photograph's whose first band
+    failed): its kernel, called as the search calls it."""
+    import numpy as np
+
+    from skyfix.identify.common.search import centre_first_combinations
+
+    centre_first_combinations(np.arange(12) % 3 == 0, 64)
 
 
 # ---- building ---------------------------------------------------------------------------------
