@@ -29,7 +29,7 @@ from skyfix._rematch import CatalogueCone, equidistant_consensus, match_catalogu
 from skyfix._rematch import Matches as _Matches
 from skyfix.attitude import CENTROID_NOISE_FLOOR_PX, attitude_covariance, solve_attitude
 from skyfix.calibrate import CameraPrior, fit_camera_with_prior
-from skyfix.camera import Camera
+from skyfix.camera import MAX_FOV_DEG, Camera
 from skyfix.errors import CameraError
 from skyfix.identify import default_database
 from skyfix.identify.accept import PROB_THRESHOLD, chance_log_probability
@@ -117,6 +117,8 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
     if seen is not None:
         ident = replace(ident, catalog_vectors=seen(np.asarray(ident.catalog_vectors, dtype=np.float64),
                                                     np.asarray(ident.catalog_ids)))
+    if not camera_given and ident.camera.projection != "pinhole":  # an all-sky frame's model
+        return _fit_fisheye_camera(xy, ident, database, epoch, method, math.log(prob_threshold), n_img, seen)
     if not camera_given:
         return _fit_unknown_camera(xy, ident, database, epoch, method, math.log(prob_threshold), n_img, seen)
     camera: Camera = ident.camera
@@ -330,17 +332,58 @@ def _scored(xy: np.ndarray, result, rematch: _Rematch) -> _Scored:
     return _Scored(result, len(new.idx), log_p)
 
 
-def _fisheye_from(xy: np.ndarray, m: _Matches, start: tuple, A: np.ndarray, rematch: _Rematch):
+def _fit_fisheye_camera(xy: np.ndarray, ident, database, epoch: float | None, method: str,
+                        log_threshold: float, n_img: int, seen=None) -> FinalFit:
+    """No camera given, and identification's camera a fisheye's (an all-sky frame:
+    :mod:`skyfix.allsky`): a Kannala–Brandt camera fitted under the uncalibrated fisheye prior
+    about identification's principal point (within :data:`_ALLSKY_CENTRE_SIGMA` of its focal
+    length) to the verified stars (robustly, k1..k4 held near 0) and grown by re-matching
+    (:func:`_grow`, k1..k4 free), each step beyond chance with the camera paid for, over the
+    sky's disc (its area, not the frame's). Raises CameraError when no such camera fits."""
+    cam0: Camera = ident.camera
+    prior = CameraPrior.uncalibrated(cam0.width, cam0.height, cam0.projection)._replace(
+        cx=cam0.cx, cy=cam0.cy, sigma_principal_point_px=_ALLSKY_CENTRE_SIGMA * cam0.fx)
+    verified = _Matches(np.asarray(ident.star_index), np.asarray(ident.catalog_ids),
+                        np.ascontiguousarray(ident.catalog_vectors, dtype=np.float64),
+                        np.asarray(ident.catalog_mag, dtype=np.float64))
+    disc = math.pi * (cam0.fx * math.pi / 2.0) ** 2
+    area = min(float(cam0.width * cam0.height), disc)
+    n_use = min(len(xy), n_img)
+    stars = CatalogueCone(database if database is not None else ident.database or default_database(), epoch,
+                          seen)
+    max_radius = math.sqrt(_FISHEYE_CHANCE * area / (math.pi * n_use))
+    rematch = _Rematch(prior, stars, area, log_threshold, n_use, max_radius, memo={})
+    # the zenith's stars say little of the rim's distortion: k1..k4 held near 0 while their
+    # outliers are found, then freed as the grow reaches the horizon
+    held = prior._replace(**{f"sigma_{k}": _START_HOLD * getattr(prior, f"sigma_{k}")
+                             for k in ("k1", "k2", "k3", "k4")})
+    try:
+        fit, cur = _robust_prior_fit(xy, verified, cam0, ident.A_icrs_to_cam, held)
+        fit, cur, log_p = _grow(xy[:n_use], fit, cur, rematch, math.inf)
+    except CameraError as exc:
+        raise CameraError(f"no fisheye camera fits the stars identified ({exc})") from None
+    return _final(xy, fit, cur, max(log_p, math.log(max(ident.prob_false, 1e-300))), method)
+
+
+# An all-sky frame's principal point is known from its disc to within this share of the focal length.
+_ALLSKY_CENTRE_SIGMA = 0.1
+
+
+def _fisheye_from(xy: np.ndarray, m: _Matches, start: tuple, A: np.ndarray, rematch: _Rematch,
+                  widest: float = MAX_FOV_DEG["pinhole"]):
     """:func:`_robust_prior_fit` to the matches ``m`` of the equidistant camera ``start`` (width,
     height, fx, fy, cx, cy) at the attitude ``A``, grown (:func:`_grow`); None when a camera is
-    impossible (a field beyond 170°, or a fit's θ polynomial folding back inside the frame:
+    impossible (a field of ``widest`` degrees or more, or a fit's θ polynomial folding back inside the frame:
     fitted to wrong stars)."""
     try:
         camera = Camera(*start, projection="kannala-brandt")
         fit, cur = _robust_prior_fit(xy, m, camera, A, rematch.prior)
-        return _grow(xy[:rematch.n_use], fit, cur, rematch, math.inf)
+        grown = _grow(xy[:rematch.n_use], fit, cur, rematch, math.inf)
     except CameraError:
         return None
+    # a fisheye camera may be wider (an all-sky frame's: _fit_fisheye_camera), not one fitted to a
+    # frame identified through a pinhole
+    return grown if grown[0].camera.fov_deg < widest else None
 
 
 # Consensus start: pairs among this many verified stars (the brightest), and the largest miss
