@@ -20,7 +20,7 @@ import numpy as np
 
 __all__ = ["LENSES", "SIZES", "AllSkyResult", "allsky_campaign", "allsky_frame", "summarise"]
 
-#: Frame sizes (width, height): 1.9–4.2 MP (a 16:9 frame is not among them: docs/all-sky.md#limits).
+#: Frame sizes (width, height): 1.9–4.2 MP (no 16:9 frame: docs/all-sky.md#limits-not-done-yet).
 SIZES = ((1600, 1200), (2048, 1536), (2048, 2048))
 #: Lenses by name: (field across the image circle, degrees; Kannala–Brandt k1, k2; None: drawn).
 LENSES = {

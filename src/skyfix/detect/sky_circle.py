@@ -68,9 +68,9 @@ def _corner_test(data: np.ndarray) -> tuple[float, float] | None:
 
     Six 8 × 8 px patches — the four corners and the middles of the two short sides, which lie
     outside a circle that fits the short side — must be alike (their means within
-    :data:`_RIM_ALIKE` σ of a mean, σ their pooled pixel scatter) and far below the centre's
-    (:data:`_CORNER_SIGMA` σ of a mean): a vignetted frame's side middles are brighter than its
-    corners, a frame of stars on a sky has the sky in them."""
+    :data:`_RIM_ALIKE` σ of a patch's mean, σ their pooled pixel scatter) and their mean far below
+    the centre's median (:data:`_CORNER_SIGMA` σ of the six patches' mean): a vignetted frame's
+    side middles are brighter than its corners, a frame of stars on a sky has the sky in them."""
     h, w = data.shape
     if min(h, w) < 64:
         return None
@@ -82,10 +82,10 @@ def _corner_test(data: np.ndarray) -> tuple[float, float] | None:
     for i, (y, x) in enumerate(corners + sides):
         rim[i] = data[y:y + m, x:x + m]
     means = rim.mean(axis=(1, 2))
-    centre = float(data[h // 2 - 2 * m:h // 2 + 2 * m, w // 2 - 2 * m:w // 2 + 2 * m].mean())
-    sigma_mean = (float(rim.std()) + 0.5) / m
-    if (means.max() - means.min() > _RIM_ALIKE * sigma_mean
-            or centre - means.max() < _CORNER_SIGMA * sigma_mean):
+    centre = float(np.median(data[h // 2 - 2 * m:h // 2 + 2 * m, w // 2 - 2 * m:w // 2 + 2 * m]))
+    sigma = math.sqrt(float(rim.var()) + 1.0 / 12.0)  # a pixel's, with the ADU's rounding
+    if (means.max() - means.min() > _RIM_ALIKE * sigma / m
+            or centre - means.mean() < _CORNER_SIGMA * sigma / (m * math.sqrt(6.0))):
         return None
     return float(np.median(means)), centre
 
