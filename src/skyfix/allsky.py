@@ -24,7 +24,9 @@ the disc's centre, whose rim is the horizon, 90° from the boresight of a camera
    re-matching, each step beyond chance with the camera paid for, as every solve's.
 
 The result is an :class:`~skyfix.identify.Identification` of the frame's own centroids, its
-camera the equidistant model the stars were identified through.
+camera the equidistant model the stars were identified through. A frame with an image circle
+that is not identified so — a circular fisheye narrower than the sky, whose rim is no horizon —
+is searched as any frame (:func:`identify_allsky_frame`).
 """
 
 from __future__ import annotations
@@ -38,8 +40,9 @@ from skyfix.camera import Camera
 from skyfix.detect.sky_circle import ImageCircle
 from skyfix.identify import identify
 from skyfix.identify.common.result import Identification
+from skyfix.identify.lost import LostInSpace, identify_lost
 
-__all__ = ["FOV_TOLERANCE", "PATTERN_CONE_DEG", "allsky_camera", "identify_allsky"]
+__all__ = ["FOV_TOLERANCE", "PATTERN_CONE_DEG", "allsky_camera", "identify_allsky", "identify_allsky_frame"]
 
 PATTERN_CONE_DEG = 45.0
 """The stars identified first are those within this angle of the boresight (degrees)."""
@@ -80,3 +83,24 @@ def identify_allsky(xy: np.ndarray, width: int, height: int, circle: ImageCircle
         return dataclasses.replace(ident, reason=f"all-sky frame, the stars within {PATTERN_CONE_DEG:g}° of "
                                                  f"its centre: {ident.reason}")
     return dataclasses.replace(ident, star_index=near[np.asarray(ident.star_index)], camera=model)
+
+
+def identify_allsky_frame(xy: np.ndarray, width: int, height: int, *, circle: ImageCircle,
+                          fov_deg: float | None, fov_tolerance_deg: float | None, camera: Camera | None,
+                          database, epoch: float | None, identify_method: str, identify_options: dict
+                          ) -> LostInSpace:
+    """A frame with an image circle identified as an all-sky one (:func:`identify_allsky`); failing
+    that — a circular fisheye narrower than the sky, whose rim is no horizon — searched as any
+    frame (:func:`skyfix.identify.lost.identify_lost`), both reasons kept when neither succeeds.
+    The keywords are :func:`identify_lost`'s."""
+    ident = identify_allsky(xy, width, height, circle, camera=camera, database=database, epoch=epoch,
+                            identify_method=identify_method, identify_options=identify_options)
+    if ident.success:
+        return LostInSpace(ident, None)
+    found = identify_lost(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
+                          camera=camera, database=database, epoch=epoch, identify_method=identify_method,
+                          identify_options=identify_options)
+    if found.ident.success:
+        return found
+    reason = f"{ident.reason}; as any frame: {found.ident.reason}"
+    return found._replace(ident=dataclasses.replace(found.ident, reason=reason))

@@ -342,9 +342,10 @@ def _fit_fisheye_camera(xy: np.ndarray, ident, database, epoch: float | None, me
     :mod:`skyfix.allsky`): a Kannala–Brandt camera fitted under the uncalibrated fisheye prior
     about identification's principal point (within :data:`_ALLSKY_CENTRE_SIGMA` of its focal
     length) to the verified stars (robustly, k1..k4 held near 0) and grown by re-matching
-    (:func:`_grow`, k1..k4 free), each step beyond chance with the camera paid for, over the
-    sky's disc (its area, not the frame's); a refit that folds its θ polynomial inside the frame
-    ends the grow. Raises CameraError when no such camera fits the identified stars."""
+    (:func:`_grow`) in stages, k1 freed first and then k2..k4, each step beyond chance with the
+    camera paid for, over the sky's disc (its area, not the frame's); a refit that folds its θ
+    polynomial inside the frame ends a stage's grow. Raises CameraError when no such camera fits
+    the identified stars."""
     cam0: Camera = ident.camera
     prior = CameraPrior.uncalibrated(cam0.width, cam0.height, cam0.projection)._replace(
         cx=cam0.cx, cy=cam0.cy, sigma_principal_point_px=_ALLSKY_CENTRE_SIGMA * cam0.fx)

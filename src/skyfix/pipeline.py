@@ -331,17 +331,14 @@ def solve_centroids(
             return sol
         log.info("%s: not solved near the attitude hint (%s): solving lost in space", name, hint_failure)
         sol = _new_solution(name, len(xy), obs)
+    search = identify_lost
     if image_circle is not None:
-        from skyfix.allsky import identify_allsky
+        from skyfix.allsky import identify_allsky_frame
 
-        ident, assumed = identify_allsky(xy, width, height, image_circle, camera=camera, database=database,
-                                         epoch=epoch, identify_method=identify_method,
-                                         identify_options=identify_options), None
-    else:
-        ident, assumed = identify_lost(xy, width, height, fov_deg=fov_deg,
-                                       fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database,
-                                       epoch=epoch, identify_method=identify_method,
-                                       identify_options=identify_options)
+        search = functools.partial(identify_allsky_frame, circle=image_circle)
+    ident, assumed = search(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
+                            camera=camera, database=database, epoch=epoch, identify_method=identify_method,
+                            identify_options=identify_options)
     fov_failure = ""
     if (not ident.success and fov_deg is not None and camera is None
             and identify_method.lower() in _BLIND_METHODS and _searched(database, fov_deg)):
@@ -368,7 +365,7 @@ def solve_centroids(
         log.info("%s: identification failed: %s", name, ident.reason)
         return sol
     _fill_attitude(sol, xy, ident, attitude_method, **fit_options)
-    if not sol.solved and assumed is None and image_circle is None:
+    if not sol.solved and assumed is None and ident.camera.projection == "pinhole":
         # Identified, but too uncertain through a camera fitted to a few stars: a seed camera of
         # the frame's size, if the stars confirm it, pins the attitude down.
         again = retry_through_preset(ident, xy, width, height, fov_deg=fov_deg, camera=camera,
