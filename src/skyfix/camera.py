@@ -25,7 +25,8 @@ import tomllib
 from skyfix._kernels import lens
 from skyfix.errors import CameraError, unknown_name
 
-__all__ = ["Camera", "PRESETS", "PROJECTIONS", "PROJECTION_ALIASES", "Projection", "camera_from_preset"]
+__all__ = ["Camera", "MAX_FOV_DEG", "PRESETS", "PROJECTIONS", "PROJECTION_ALIASES", "Projection",
+           "camera_from_preset"]
 
 
 class Projection(NamedTuple):
@@ -43,6 +44,10 @@ PROJECTIONS: dict[str, Projection] = {
 }
 # Other names a camera file may give: equidistant is Kannala–Brandt with every k = 0.
 PROJECTION_ALIASES = {"equidistant": "kannala-brandt"}
+# The widest horizontal field (degrees, through the principal point) of each projection: a pinhole
+# stops short of 180°; a fisheye's frame may reach past its image circle to θ < 180° at the side
+# edges (an all-sky lens's circle inside a wide sensor: docs/all-sky.md).
+MAX_FOV_DEG = {"pinhole": 170.0, "kannala-brandt": 360.0}
 _PROJECTION_OF_CODE = {p.code: name for name, p in PROJECTIONS.items()}
 _KNOWN_PROJECTIONS = (*PROJECTIONS, *PROJECTION_ALIASES)
 
@@ -87,11 +92,13 @@ class Camera:
         if self.fx <= 0 or self.fy <= 0:
             raise CameraError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
         fov = self.fov_deg
-        if not 0.01 < fov < 170.0:
+        widest = MAX_FOV_DEG[self.projection]
+        if not 0.01 < fov <= widest:
             if math.isnan(fov):
                 raise CameraError(f"the {self.projection} polynomial (k1..k4) never reaches the frame's "
                                   "side edge")
-            raise CameraError(f"impossible field of view {fov:.4g}° (must be 0.01°–170°)")
+            raise CameraError(f"impossible field of view {fov:.4g}° (must be 0.01°–{widest:g}° for the "
+                              f"{self.projection} projection)")
 
     def _check_projection(self) -> None:
         """Resolve an alias to its projection's name; a coefficient of another projection is an error."""
@@ -118,8 +125,9 @@ class Camera:
         Pinhole: ``f = (width/2) / tan(fov/2)`` (Brown–Conrady distortion in ``kw`` left out);
         Kannala–Brandt: ``f = (width/2) / θ_d(fov/2)`` with the polynomial of ``kw`` — for the
         equidistant projection ``(width/2) / (fov/2)``, ``fov`` in radians."""
-        if not (isinstance(fov_deg, (int, float)) and 0.01 < fov_deg < 170.0):
-            raise CameraError(f"impossible field of view {fov_deg}° (must be 0.01°–170°)")
+        widest = MAX_FOV_DEG.get(PROJECTION_ALIASES.get(projection, projection), 170.0)
+        if not (isinstance(fov_deg, (int, float)) and 0.01 < fov_deg < widest):
+            raise CameraError(f"impossible field of view {fov_deg}° (must be 0.01°–{widest:g}°)")
         half = math.radians(fov_deg) / 2.0
         if projection == "pinhole":
             f = (width / 2.0) / math.tan(half)
@@ -170,10 +178,17 @@ class Camera:
 
     def _angle(self, rd: float) -> float:
         """Angle (rad) from the boresight of distorted normalised radius ``rd``: pinhole
-        ``atan rd`` (Brown–Conrady left out), Kannala–Brandt the θ of ``θ_d = rd``."""
+        ``atan rd`` (Brown–Conrady left out), Kannala–Brandt the θ of ``θ_d = rd`` — or, past the
+        polynomial's reach, that reach (:func:`_kb_reach`) when it covers the hemisphere (an
+        all-sky lens on a frame wider than its image circle); NaN when it falls short of it."""
         if self.projection == "pinhole":
             return math.atan(rd)
-        return float(lens.kb_theta(float(rd), self.numbers()))
+        numbers = self.numbers()
+        theta = float(lens.kb_theta(float(rd), numbers))
+        if math.isnan(theta) and math.isfinite(rd):
+            reach = _kb_reach(numbers)
+            return reach if reach >= math.pi / 2.0 else math.nan
+        return theta
 
     @property
     def fov_deg(self) -> float:
@@ -346,6 +361,14 @@ class Camera:
 
 
 _FIELD_NAMES = frozenset(f.name for f in dataclasses.fields(Camera))
+
+
+def _kb_reach(numbers: np.ndarray) -> float:
+    """The largest angle (rad, ≤ π) that a Kannala–Brandt polynomial maps outward: where ``θ_d``
+    stops growing (sampled every 0.125°), or π."""
+    theta = np.linspace(0.0, math.pi, 1441)
+    grows = np.diff(lens.kb_theta_d(theta, numbers)[0]) > 0.0
+    return float(theta[np.argmin(grows)]) if not grows.all() else math.pi
 
 
 def _projection_of_code(code: float) -> str:

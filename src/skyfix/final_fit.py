@@ -16,6 +16,7 @@ Kannala–Brandt camera (k1..k4) is fitted and grown too, and the stars choose b
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass, replace
 from typing import NamedTuple
@@ -29,7 +30,7 @@ from skyfix._rematch import CatalogueCone, equidistant_consensus, match_catalogu
 from skyfix._rematch import Matches as _Matches
 from skyfix.attitude import CENTROID_NOISE_FLOOR_PX, attitude_covariance, solve_attitude
 from skyfix.calibrate import CameraPrior, fit_camera_with_prior
-from skyfix.camera import Camera
+from skyfix.camera import MAX_FOV_DEG, Camera
 from skyfix.errors import CameraError
 from skyfix.identify import default_database
 from skyfix.identify.accept import PROB_THRESHOLD, chance_log_probability
@@ -117,6 +118,8 @@ def final_fit(xy: np.ndarray, ident, *, camera_given: bool, database=None, epoch
     if seen is not None:
         ident = replace(ident, catalog_vectors=seen(np.asarray(ident.catalog_vectors, dtype=np.float64),
                                                     np.asarray(ident.catalog_ids)))
+    if not camera_given and ident.camera.projection != "pinhole":  # an all-sky frame's model
+        return _fit_fisheye_camera(xy, ident, database, epoch, method, math.log(prob_threshold), n_img, seen)
     if not camera_given:
         return _fit_unknown_camera(xy, ident, database, epoch, method, math.log(prob_threshold), n_img, seen)
     camera: Camera = ident.camera
@@ -151,6 +154,9 @@ class _Rematch(NamedTuple):
     max_radius_px: float = math.inf  # stars the model places less surely are not looked for yet
     # each fit's re-matches so far ((id(fit), max_radius_px) -> (fit, result)): see _matched
     memo: dict | None = None
+    # a refit that is no camera (CameraError: a θ polynomial folding inside the frame) ends the
+    # grow at the last one that was, instead of raising (an all-sky frame's: _fit_fisheye_camera)
+    keep_last_camera: bool = False
 
 
 def _matched(xy: np.ndarray, fit, rematch: _Rematch, max_radius_px: float = math.inf):
@@ -330,17 +336,68 @@ def _scored(xy: np.ndarray, result, rematch: _Rematch) -> _Scored:
     return _Scored(result, len(new.idx), log_p)
 
 
-def _fisheye_from(xy: np.ndarray, m: _Matches, start: tuple, A: np.ndarray, rematch: _Rematch):
+def _fit_fisheye_camera(xy: np.ndarray, ident, database, epoch: float | None, method: str,
+                        log_threshold: float, n_img: int, seen=None) -> FinalFit:
+    """No camera given, and identification's camera a fisheye's (an all-sky frame:
+    :mod:`skyfix.allsky`): a Kannala–Brandt camera fitted under the uncalibrated fisheye prior
+    about identification's principal point (within :data:`_ALLSKY_CENTRE_SIGMA` of its focal
+    length) to the verified stars (robustly, k1..k4 held near 0) and grown by re-matching
+    (:func:`_grow`) in stages, k1 freed first and then k2..k4, each step beyond chance with the
+    camera paid for, over the sky's disc (its area, not the frame's); a refit that folds its θ
+    polynomial inside the frame ends a stage's grow. Raises CameraError when no such camera fits
+    the identified stars."""
+    cam0: Camera = ident.camera
+    prior = CameraPrior.uncalibrated(cam0.width, cam0.height, cam0.projection)._replace(
+        cx=cam0.cx, cy=cam0.cy, sigma_principal_point_px=_ALLSKY_CENTRE_SIGMA * cam0.fx)
+    verified = _Matches(np.asarray(ident.star_index), np.asarray(ident.catalog_ids),
+                        np.ascontiguousarray(ident.catalog_vectors, dtype=np.float64),
+                        np.asarray(ident.catalog_mag, dtype=np.float64))
+    disc = math.pi * (cam0.fx * math.pi / 2.0) ** 2
+    area = min(float(cam0.width * cam0.height), disc)
+    n_use = min(len(xy), n_img)
+    stars = CatalogueCone(database if database is not None else ident.database or default_database(), epoch,
+                          seen)
+    max_radius = math.sqrt(_FISHEYE_CHANCE * area / (math.pi * n_use))
+    rematch = _Rematch(prior, stars, area, log_threshold, n_use, max_radius, memo={}, keep_last_camera=True)
+    # the zenith's stars say little of the rim's distortion: k1..k4 held near 0 while their
+    # outliers are found, then freed as the grow reaches the horizon
+    held = prior._replace(**{f"sigma_{k}": _START_HOLD * getattr(prior, f"sigma_{k}")
+                             for k in ("k1", "k2", "k3", "k4")})
+    try:
+        fit, cur = _robust_prior_fit(xy, verified, cam0, ident.A_icrs_to_cam, held)
+    except CameraError as exc:
+        raise CameraError(f"no fisheye camera fits the stars identified ({exc})") from None
+    log_p = math.inf
+    # grown in stages, k1 freed first, then k2..k4: each stage's camera places the rim's stars
+    # only as surely as the stars so far allow, so the grow reaches out step by step
+    k1_only = prior._replace(**{f"sigma_{k}": _START_HOLD * getattr(prior, f"sigma_{k}")
+                                for k in ("k2", "k3", "k4")})
+    for stage in (k1_only, prior):
+        with contextlib.suppress(CameraError):
+            freed = _fit_without_outliers(xy, cur, fit.camera, fit.A_icrs_to_cam, stage)
+            fit, cur, log_p = _grow(xy[:n_use], *freed, rematch._replace(prior=stage), log_p)
+    return _final(xy, fit, cur, max(log_p, math.log(max(ident.prob_false, 1e-300))), method, prior)
+
+
+# An all-sky frame's principal point is known from its disc to within this share of the focal length.
+_ALLSKY_CENTRE_SIGMA = 0.1
+
+
+def _fisheye_from(xy: np.ndarray, m: _Matches, start: tuple, A: np.ndarray, rematch: _Rematch,
+                  widest: float = MAX_FOV_DEG["pinhole"]):
     """:func:`_robust_prior_fit` to the matches ``m`` of the equidistant camera ``start`` (width,
     height, fx, fy, cx, cy) at the attitude ``A``, grown (:func:`_grow`); None when a camera is
-    impossible (a field beyond 170°, or a fit's θ polynomial folding back inside the frame:
+    impossible (a field of ``widest`` degrees or more, or a fit's θ polynomial folding back inside the frame:
     fitted to wrong stars)."""
     try:
         camera = Camera(*start, projection="kannala-brandt")
         fit, cur = _robust_prior_fit(xy, m, camera, A, rematch.prior)
-        return _grow(xy[:rematch.n_use], fit, cur, rematch, math.inf)
+        grown = _grow(xy[:rematch.n_use], fit, cur, rematch, math.inf)
     except CameraError:
         return None
+    # a fisheye camera may be wider (an all-sky frame's: _fit_fisheye_camera), not one fitted to a
+    # frame identified through a pinhole
+    return grown if grown[0].camera.fov_deg < widest else None
 
 
 # Consensus start: pairs among this many verified stars (the brightest), and the largest miss
@@ -391,14 +448,17 @@ _NOISE_MODEL_CHI2 = 13.8
 _NOISE_MODEL_MIN_STARS = 20
 
 
-def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> FinalFit:
+def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str,
+           prior: CameraPrior | None = None) -> FinalFit:
     """The attitude by the chosen Wahba solver through the fitted camera, and the fit's
     covariance. Where the stars' centroid noise grows with their magnitude (a faint star's
     centroid is worse; :func:`_magnitude_noise` on the fit's residuals and the stars' catalogue
     magnitudes), the camera is fitted again with each star weighted by its inverse variance
     (outliers against it dropped), and Wahba's problem is solved with the same weights: on
     rendered 8° / 15° frames the boresight's median error 0.25 → 0.11″ / 0.19 → 0.11″
-    (``benchmarks/bench_final_fit.py --kinds r8,r15``)."""
+    (``benchmarks/bench_final_fit.py --kinds r8,r15``). The weighted fit is under ``prior``
+    (default: the uncalibrated one of the camera's projection); one that is no camera (its θ
+    polynomial folding inside the frame) leaves the unweighted fit."""
     weights = None
     if len(cur.idx) >= _NOISE_MODEL_MIN_STARS and len(fit.residuals_px) == len(cur.idx):
         variance, ratio = _magnitude_noise(np.sum(fit.residuals_px**2, axis=1),
@@ -406,11 +466,13 @@ def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str) -> Fin
                                            CENTROID_NOISE_FLOOR_PX**2)
         if ratio > _NOISE_MODEL_CHI2:
             cam = fit.camera
-            prior = CameraPrior.uncalibrated(cam.width, cam.height, cam.projection)
-            fit = fit_camera_with_prior(xy[cur.idx], cur.r, cam, fit.A_icrs_to_cam, prior,
-                                        weights=variance.mean() / variance, drop_outliers=True)
-            weights = (variance.mean() / variance)[fit.kept]
-            cur = cur if fit.kept.all() else cur.take(fit.kept)
+            if prior is None:
+                prior = CameraPrior.uncalibrated(cam.width, cam.height, cam.projection)
+            with contextlib.suppress(CameraError):
+                weighted = fit_camera_with_prior(xy[cur.idx], cur.r, cam, fit.A_icrs_to_cam, prior,
+                                                 weights=variance.mean() / variance, drop_outliers=True)
+                fit, weights = weighted, (variance.mean() / variance)[weighted.kept]
+                cur = cur if weighted.kept.all() else cur.take(weighted.kept)
     b = lens.pixel_rays(np.ascontiguousarray(xy[cur.idx], dtype=np.float64), lens.camera_numbers(fit.camera))
     A = solve_attitude(b, cur.r, weights=weights, method=method)
     resid = rotation.angles(b, cur.r, np.ascontiguousarray(A))
@@ -481,7 +543,12 @@ def _grow(xy: np.ndarray, fit, cur: _Matches, rematch: _Rematch, log_p: float):
             break
         last = new
         # Matched within the model's own gates: least squares and the outlier test suffice.
-        fit, cur = _fit_without_outliers(xy, new, fit.camera, fit.A_icrs_to_cam, rematch.prior)
+        try:
+            fit, cur = _fit_without_outliers(xy, new, fit.camera, fit.A_icrs_to_cam, rematch.prior)
+        except CameraError:
+            if not rematch.keep_last_camera:
+                raise
+            break
     return fit, cur, log_p
 
 

@@ -205,6 +205,11 @@ def solve(
 
         data = smear_filter(data, smear_px)
     usable = None if mask is None else as_mask(mask, data.shape[:2])
+    circle = _sky_circle(data, camera, fov_deg)
+    if circle is not None and usable is None:  # an explicit mask wins
+        from skyfix.detect.sky_circle import sky_mask
+
+        usable = as_mask(sky_mask(data, circle))
     centroids = _extract(data, DETECT_SIGMA, max_stars, usable)
     t_extract = _clock()
     log.info("%s: %d×%d image, %d centroids (noise %.3g)", label, data.shape[1], data.shape[0],
@@ -213,8 +218,10 @@ def solve(
         solve_centroids, width=data.shape[1], height=data.shape[0], fov_deg=fov_deg,
         fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database, epoch=epoch,
         attitude_method=attitude_method, identify_method=identify_method, name=label, parity=parity,
-        observation=obs, **identify_options)
+        observation=obs, image_circle=circle, **identify_options)
     sol = solve_stars(centroids.xy, attitude_hint=hint)
+    if not sol.solved and camera is not None and camera.projection == "pinhole":
+        _check_not_allsky(data, camera)
     problem = frame_problem(raw) if not sol.solved else ""
     if not sol.solved and not problem and look_fainter(len(centroids), hint):
         # A sparse frame that failed: the stars a solve needs may lie between the fainter
@@ -269,6 +276,7 @@ def solve_centroids(
     mounting=None,
     exclusion=None,
     observation: Observation | None = None,
+    image_circle=None,
     **identify_options,
 ) -> Solution:
     """Identify centroids (N, 2) (pixels, brightest first) and fit the attitude.
@@ -277,7 +285,9 @@ def solve_centroids(
     image, no time is read: ``time`` or none);
     ``width`` and ``height`` are the frame's size in pixels. ``observation`` (an
     :class:`~skyfix.corrections.observation.Observation`, :func:`~skyfix.corrections.observation.observe`'s)
-    gives the time and the rest at once instead, and then they must be left out. Raises
+    gives the time and the rest at once instead, and then they must be left out. ``image_circle``
+    (an :class:`~skyfix.detect.sky_circle.ImageCircle`) makes the frame an all-sky one, identified
+    through the stars near the circle's centre (:mod:`skyfix.allsky`). Raises
     :class:`~skyfix.errors.InputError` for a bad argument, before any work.
     """
     xy = check_xy(xy)
@@ -294,7 +304,8 @@ def solve_centroids(
                                    fov_tolerance_deg=fov_tolerance_deg, camera=cam, database=database,
                                    epoch=epoch, attitude_method=attitude_method,
                                    identify_method=identify_method, name=name, attitude_hint=hint_,
-                                   observation=obs, **options)
+                                   observation=obs, image_circle=image_circle if image_circle is None or
+                                   points is xy else image_circle.mirrored(width), **options)
 
         return solve_with_parity(parity, xy, width, camera, hint, identify_method, identify_options, attempt)
     _warm(database, fov_deg, camera)
@@ -320,9 +331,14 @@ def solve_centroids(
             return sol
         log.info("%s: not solved near the attitude hint (%s): solving lost in space", name, hint_failure)
         sol = _new_solution(name, len(xy), obs)
-    ident, assumed = identify_lost(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
-                                   camera=camera, database=database, epoch=epoch,
-                                   identify_method=identify_method, identify_options=identify_options)
+    search = identify_lost
+    if image_circle is not None:
+        from skyfix.allsky import identify_allsky_frame
+
+        search = functools.partial(identify_allsky_frame, circle=image_circle)
+    ident, assumed = search(xy, width, height, fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg,
+                            camera=camera, database=database, epoch=epoch, identify_method=identify_method,
+                            identify_options=identify_options)
     fov_failure = ""
     if (not ident.success and fov_deg is not None and camera is None
             and identify_method.lower() in _BLIND_METHODS and _searched(database, fov_deg)):
@@ -349,7 +365,7 @@ def solve_centroids(
         log.info("%s: identification failed: %s", name, ident.reason)
         return sol
     _fill_attitude(sol, xy, ident, attitude_method, **fit_options)
-    if not sol.solved and assumed is None:
+    if not sol.solved and assumed is None and ident.camera.projection == "pinhole":
         # Identified, but too uncertain through a camera fitted to a few stars: a seed camera of
         # the frame's size, if the stars confirm it, pins the attitude down.
         again = retry_through_preset(ident, xy, width, height, fov_deg=fov_deg, camera=camera,
@@ -377,6 +393,29 @@ def solve_centroids(
     elif hint_failure:
         sol.reason += f"; attitude hint: {hint_failure}"
     return sol
+
+
+def _sky_circle(data: np.ndarray, camera: Camera | None, fov_deg: float | None):
+    """The image circle of an all-sky frame (:func:`skyfix.detect.sky_circle.find_image_circle`)
+    when the scale is not given otherwise — no FOV, and no camera or a fisheye's — else None
+    (tens of µs on an ordinary frame)."""
+    if fov_deg is not None or (camera is not None and camera.projection == "pinhole"):
+        return None
+    from skyfix.detect.sky_circle import find_image_circle
+
+    return find_image_circle(data)
+
+
+def _check_not_allsky(data: np.ndarray, camera: Camera) -> None:
+    """Raise CameraError when a frame that failed through the pinhole ``camera`` is an all-sky
+    fisheye's: no pinhole model holds it."""
+    from skyfix.detect.sky_circle import find_image_circle
+
+    circle = find_image_circle(data)
+    if circle is not None:
+        raise CameraError(f"this is an all-sky fisheye frame (an image circle of radius {circle.radius:.0f} "
+                          f"px about ({circle.cx:.0f}, {circle.cy:.0f})) but the camera is a pinhole's "
+                          f"({camera.fov_deg:.3g}° across): give a kannala-brandt camera file, or none")
 
 
 #: The identification methods that search without a FOV (the others need the scale), so that a
@@ -544,8 +583,12 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
                    database, epoch: float | None, prob_threshold: float, n_img: int,
                    centroid_sigma_px: float | None = None, observation: Observation) -> None:
     seen = _Places(observation.seen) if observation.moves_stars else None
-    fit = final_fit(xy, ident, camera_given=camera_given, database=database, epoch=epoch,
-                    method=attitude_method, prob_threshold=prob_threshold, n_img=n_img, seen=seen)
+    try:
+        fit = final_fit(xy, ident, camera_given=camera_given, database=database, epoch=epoch,
+                        method=attitude_method, prob_threshold=prob_threshold, n_img=n_img, seen=seen)
+    except CameraError as exc:  # no camera model fits the stars identified
+        sol.reason = str(exc)
+        return
     A, camera, idx = fit.A_icrs_to_cam, fit.camera, fit.star_index
     # The σ behind the covariance was estimated from the residuals: 2 per star, less the
     # attitude's 3 and the camera's effective share (Student's tails for a few stars). A centroid
@@ -583,7 +626,7 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     sol.A_icrs_to_cam = A
     sol.A_apparent_to_cam = A_apparent
     sol.camera = camera
-    observation.report(sol, A, A_reported)
+    observation.report(sol, A, A_reported, camera=camera)
     for line in sol.warnings:  # a bright body inside its exclusion angle
         log.warning("%s: %s", sol.image, line)
     if db is not None:

@@ -110,6 +110,7 @@ class Solution:
     az_deg: float | None = None  #: its azimuth, from north through east (a site)
     ra_jnow_deg: float | None = None  #: its apparent RA of date: true equator and equinox (a site)
     dec_jnow_deg: float | None = None  #: its apparent Dec of date (a site)
+    zenith_px: list[float] | None = None  #: the zenith's pixel [x, y] when it is in the frame (a site)
     bodies: dict[str, float | None] | None = None  #: Sun, Moon, Earth limb: angles from the boresight
     frames: dict | None = None  #: the attitude of the body (and in the orbit frame): a mounting
     # Tracking (skyfix.track.Tracker) only; None, and left out of the JSON, from solve().
@@ -294,8 +295,8 @@ def _finite_or_none(x: float) -> float | None:
 
 
 _TRACKING_FIELDS = ("mode", "frame_time_s", "rate_dps", "rate_covariance_dps2")
-_OBSERVATION_FIELDS = ("observer_velocity_km_s", "alt_deg", "az_deg", "ra_jnow_deg", "dec_jnow_deg", "bodies",
-                       "frames")
+_OBSERVATION_FIELDS = ("observer_velocity_km_s", "alt_deg", "az_deg", "ra_jnow_deg", "dec_jnow_deg",
+                       "zenith_px", "bodies", "frames")
 
 
 def _clean(obj):

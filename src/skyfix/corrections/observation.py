@@ -166,13 +166,14 @@ class Observation:
         return body_directions(self.time, self.observer if self.observer is not None else GEOCENTRE)
 
     def report(self, sol, A_icrs_to_cam: np.ndarray | None, A_reported: np.ndarray | None = None,
-               time: ObservationTime | None = None) -> None:
+               time: ObservationTime | None = None, camera=None) -> None:
         """Fill the Solution's observation fields (docs/time-and-corrections.md#in-a-solve): the
         time (``time``, default the Observation's: a tracker's frame passes its own), the
         corrections, the attitude's frame, the observer's velocity; with an attitude
         (``A_icrs_to_cam``, the physical one fitted) also a site's Alt/Az and place of date, the
         bright bodies' angles with a warning inside their exclusion angles, and with a mounting
-        the body frame's attitude (of ``A_reported``, the attitude in the Solution's frame)."""
+        the body frame's attitude (of ``A_reported``, the attitude in the Solution's frame), and
+        with a site and the ``camera`` the zenith's pixel when it lies in the frame."""
         t = self.time if time is None else time
         sol.time = t.iso or None
         sol.time_source = t.source
@@ -190,6 +191,10 @@ class Observation:
             places = boresight_places(A, self.ground)
             sol.alt_deg, sol.az_deg = places.alt_deg, places.az_deg
             sol.ra_jnow_deg, sol.dec_jnow_deg = places.ra_jnow_deg, places.dec_jnow_deg
+            if camera is not None:  # the zenith: the local frame's up, in ICRS axes
+                uv, front = camera.ray_to_pixel((A @ self.ground.A_icrs_to_enu[2])[None])
+                if front[0] and camera.in_frame(uv)[0]:
+                    sol.zenith_px = [float(uv[0, 0]), float(uv[0, 1])]
         bodies = self.body_directions
         if bodies is not None:
             angles = angles_from_directions(A[2], bodies)

@@ -154,8 +154,8 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
            false_stars: int = 0, false_star_mags: tuple[float, float] = (3.0, 8.0), hot_pixels: int = 0,
            cosmic_rays: int = 0, stray_light: Mapping | None = None, sky_mag_arcsec2: float | None = 22.0,
            observer_velocity_km_s=None, noise: bool | Mapping[str, bool] = True, frame_index: int = 0,
-           motion=None, atmosphere: Atmosphere | None = None, jpeg_quality: int | None = None
-           ) -> SimulatedFrame:
+           motion=None, atmosphere: Atmosphere | None = None, jpeg_quality: int | None = None,
+           foreground=None) -> SimulatedFrame:
     """Render a star-camera frame and its truth.
 
     Parameters
@@ -211,6 +211,11 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
         The frame as a camera delivering 8-bit JPEG gives it: scaled to 8 bits, JPEG-encoded at
         this quality (1–95) and decoded (:mod:`skyfix.simulate.compression`); the image is then
         ``uint8``. None: the sensor's own ADU.
+    foreground : callable, optional
+        What stands in front of the sky: ``foreground(expected_e (H, W), camera, A, exposure_s)
+        -> (H, W)`` takes the expected photo-electrons of the sky and its stars and returns the
+        frame's (an all-sky lens's image circle, horizon, trees and light dome:
+        :func:`skyfix.simulate.allsky.render_allsky`), before the detector.
     """
     A = _check_attitude(A_icrs_to_cam)
     camera, sensor, optics, exposure_s = resolve_setup(camera, sensor, optics, exposure_s)
@@ -288,6 +293,8 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
     if cosmic_rays:
         extra_e, cr_records = cosmic_ray_hits(int(cosmic_rays), (h, w), streams["cosmic_rays"])
 
+    if foreground is not None:
+        expected = np.asarray(foreground(expected, camera, A, exposure_s), dtype=np.float32)
     image = apply_detector(expected, sensor, exposure_s, streams, noise=switches,
                            hot_pixels=int(hot_pixels), extra_e=extra_e)
     if jpeg_quality is not None:

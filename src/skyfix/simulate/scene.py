@@ -63,6 +63,8 @@ def field_radius(camera) -> float:
     border = np.concatenate([np.stack([xs, np.full(9, -0.5)], -1), np.stack([xs, np.full(9, h - 0.5)], -1),
                              np.stack([np.full(9, -0.5), ys], -1), np.stack([np.full(9, w - 0.5), ys], -1)])
     rays = camera.pixel_to_ray(border)
+    if not np.isfinite(rays).all():  # a fisheye whose polynomial does not reach the edge: it sees all round
+        return math.pi
     return float(np.max(np.arccos(np.clip(rays[:, 2], -1.0, 1.0))))
 
 
