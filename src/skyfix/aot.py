@@ -133,6 +133,7 @@ def record(jobs: Iterable[str] | None = None, path: Path = SIGNATURES) -> int:
         getattr(_warm_jobs, job.replace("-", "_"))()
     _solve_examples()
     _wide_search_order()
+    _all_sky()
     found = recorded_here()
     old = json.loads(path.read_text()) if path.exists() and jobs is not None else {}
     for key, sigs in found.items():
@@ -170,6 +171,16 @@ def _solve_examples() -> None:
                 continue
             if sol.solved:
                 skyfix.solve(path, camera=sol.camera)
+
+
+def _all_sky() -> None:
+    """An all-sky frame of the all-sky campaign, solved with no camera and with its true one."""
+    import skyfix
+    from skyfix.analysis.allsky_campaign import allsky_frame
+
+    frame, camera, _ = allsky_frame(0)
+    skyfix.solve(frame.image)
+    skyfix.solve(frame.image, camera=camera)
 
 
 def _wide_search_order() -> None:
