@@ -174,13 +174,21 @@ def _solve_examples() -> None:
 
 
 def _all_sky() -> None:
-    """An all-sky frame of the all-sky campaign, solved with no camera and with its true one."""
+    """Frames of the all-sky campaign (each of its lenses), solved with no camera and with the
+    true one."""
     import skyfix
-    from skyfix.analysis.allsky_campaign import allsky_frame
+    from skyfix.analysis.allsky_campaign import LENSES, allsky_frame
 
-    frame, camera, _ = allsky_frame(0)
-    skyfix.solve(frame.image)
-    skyfix.solve(frame.image, camera=camera)
+    lenses: set[str] = set()
+    for seed in range(40):
+        if len(lenses) == len(LENSES):
+            break
+        frame, camera, lens = allsky_frame(seed)
+        if lens in lenses and seed >= 3:
+            continue
+        lenses.add(lens)
+        skyfix.solve(frame.image)
+        skyfix.solve(frame.image, camera=camera)
 
 
 def _wide_search_order() -> None:
