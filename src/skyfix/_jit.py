@@ -35,8 +35,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Kernel", "aot_folder", "aot_modules", "cpu_tag", "guard_source", "kernels", "njit",
-           "on_numba_import"]
+__all__ = ["Kernel", "aot_folder", "aot_modules", "cpu_tag", "forget_modules", "guard_source", "kernels",
+           "named", "njit", "on_numba_import"]
 
 _KERNELS: list[Kernel] = []
 _NUMBA_HOOKS: list[Callable[[], None]] = []
@@ -115,17 +115,25 @@ class Kernel:
         return getattr(self.dispatcher(), name)
 
     def __reduce__(self) -> tuple:  # pickled by name, as a function is
-        return _kernel_named, (self.py_func.__module__, self.py_func.__qualname__)
+        return named, (self.key,)
 
     def __repr__(self) -> str:
         return f"<skyfix kernel {self.key}>"
 
 
-def _kernel_named(module: str, qualname: str) -> Kernel:
+def named(path: str) -> Any:
+    """The object ``"module:qualname"`` names (a kernel's :attr:`Kernel.key`, a recorded class)."""
+    module, _, qualname = path.partition(":")
     obj: Any = importlib.import_module(module)
     for part in qualname.split("."):
         obj = getattr(obj, part)
     return obj
+
+
+def forget_modules() -> None:
+    """Look for the compiled modules again on the next first call (after a build)."""
+    _index.cache_clear()
+    _exports.cache_clear()
 
 
 def njit(*args: Any, **options: Any) -> Any:
@@ -296,14 +304,6 @@ def _test(t: Any, v: str, consts: dict[str, Any], tag: str) -> str:
         head = f"type({v}) is tuple and len({v}) == {len(parts)}"
     inner = [_test(p, f"{v}[{i}]", consts, tag) for i, p in enumerate(parts)]
     return "(" + " and ".join([head, *inner]) + ")"
-
-
-def _class_named(path: str) -> type:
-    module, _, qualname = path.partition(":")
-    obj: Any = importlib.import_module(module)
-    for part in qualname.split("."):
-        obj = getattr(obj, part)
-    return obj
 
 
 def _make_guard(types: list[Any]) -> Callable[..., bool]:

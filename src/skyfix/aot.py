@@ -96,7 +96,7 @@ def decode(d: Any) -> Any:
                            aligned=d["aligned"])
     parts = [decode(x) for x in d["tuple"]]
     if "class" in d:
-        cls = _jit._class_named(d["class"])
+        cls = _jit.named(d["class"])
         if parts and all(p == parts[0] for p in parts):
             return types.NamedUniTuple(parts[0], len(parts), cls)
         return types.NamedTuple(parts, cls)
@@ -125,7 +125,7 @@ def record(jobs: Iterable[str] | None = None, path: Path = SIGNATURES) -> int:
     """Run the warm-up jobs (default: all) and a solve of the bundled frame with numba in this
     process (no exports), and write the signatures recorded to ``path``. Returns their count."""
     os.environ["SKYFIX_AOT"] = "0"
-    _jit._index.cache_clear()
+    _jit.forget_modules()
     from skyfix import _warm_jobs, warmup
 
     names = list(jobs) if jobs is not None else sorted({j for p in warmup.PATHS.values() for j in p})
@@ -298,8 +298,7 @@ def build(*, workers: int | None = None, on_area: Callable[[str, float], None] |
     tmp_index = folder / (_jit.INDEX + ".tmp")
     tmp_index.write_text(json.dumps(index))
     tmp_index.replace(folder / _jit.INDEX)
-    _jit._index.cache_clear()
-    _jit._exports.cache_clear()
+    _jit.forget_modules()
     return cpu
 
 
@@ -323,7 +322,7 @@ def _build_area(area: str, folder: Path, out: Path, signature_file: Path) -> Non
     for key, sigs in sorted(signatures.items()):
         if area_of(key) != area:
             continue
-        kernel = _jit._kernel_named(*key.split(":"))
+        kernel = _jit.named(key)
         if not isinstance(kernel, _jit.Kernel):
             continue
         importlib.import_module(kernel.py_func.__module__)

@@ -64,7 +64,7 @@ def warmup_command(
             typer.echo("skyfix: every kernel compiled ahead of time already")
             return
         try:
-            _compile_ahead(aot, n, alongside, "building the pattern database" if building else "")
+            _compile_ahead(n, alongside, "building the pattern database" if building else "")
             return
         except RuntimeError as exc:  # no C compiler, a compile error: numba's cache instead
             typer.echo(f"skyfix: {exc}; compiling with numba instead", err=True)
@@ -77,9 +77,11 @@ def warmup_command(
     typer.echo(f"skyfix: {len(names)} path(s) compiled" + ("" if done else " already"))
 
 
-def _compile_ahead(aot, workers: int, alongside: Callable[[], object] | None, also: str) -> None:
+def _compile_ahead(workers: int, alongside: Callable[[], object] | None, also: str) -> None:
     """:func:`skyfix.aot.build` with its notice: a bar on a terminal, a line an area on a pipe."""
     from rich.console import Console
+
+    from skyfix import aot
 
     eta = aot.estimate_s(workers)
     what = "compiling every kernel ahead of time" + (f", {also}" if also else "")
