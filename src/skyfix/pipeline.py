@@ -30,7 +30,7 @@ from skyfix.corrections.observation import Observation, apparent_attitude, obser
 from skyfix.errors import CameraError, InputError
 from skyfix.final_fit import final_fit
 from skyfix.identify import PatternDatabase, get_method, method_options
-from skyfix.identify.accept import PROB_THRESHOLD, noise_posterior, precision_failure
+from skyfix.identify.accept import PROB_THRESHOLD, error_covariance, noise_posterior, precision_failure
 from skyfix.identify.catalogue import bands
 from skyfix.identify.catalogue.bands import database_for_fov
 from skyfix.identify.lost import identify_lost, retry_through_preset
@@ -619,7 +619,8 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     sol.boresight_px = [float(camera.cx), float(camera.cy)]
     sol.fov_deg = camera.fov_deg
     sol.quaternion_xyzw = pointing[3:]
-    sol.covariance_arcsec2 = (covariance / _ARCSEC**2).tolist()
+    # Student's variance for a σ from dof residual degrees of freedom (the rule above took the scale).
+    sol.covariance_arcsec2 = (error_covariance(covariance, dof) / _ARCSEC**2).tolist()
     sol.n_matched = len(idx)
     sol.prob_false = max(float(ident.prob_false), math.exp(fit.log_prob_chance))
     sol.rmse_arcsec = rmse / _ARCSEC
