@@ -133,3 +133,13 @@ def test_camera_fisheye_past_170_degrees():
     assert all_sky_camera(1920, 1080, 180.0, k=(-1 / 24, 1 / 1920)).fov_deg == 360.0
     with pytest.raises(CameraError, match="0.01°–170° for the pinhole"):
         Camera.from_dict(dict(width=1920, height=1080, fx=50.0))
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64])
+def test_corner_check_median_is_numpys(dtype):
+    from skyfix.detect.sky_circle import _median
+
+    rng = np.random.default_rng(7)
+    for shape in [(32, 32), (5, 5), (7, 3), (1, 1), (2, 1)]:
+        a = (rng.random(shape) * 1000).astype(dtype)
+        assert _median(a) == float(np.median(a))

@@ -6,6 +6,7 @@ right attitude."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -82,3 +83,11 @@ def test_centre_first_order_interleaves_the_two_orders(n):
         if n_central >= 4:  # the four brightest central stars' pattern is among the first two
             first = tuple(sorted(np.flatnonzero(central)[:4]))
             assert rows[first] in place[:2]
+
+
+@pytest.mark.parametrize("n", [0, 3, 4, 5, 13, 30])
+def test_breadth_first_order_is_by_largest_star_then_lexicographic(n):
+    expected = sorted(itertools.combinations(range(n), 4), key=lambda c: (c[3], c))
+    got = breadth_first_combinations(n)
+    assert got.shape == (len(expected), 4) and got.dtype == np.int64
+    assert [tuple(int(v) for v in row) for row in got] == expected
