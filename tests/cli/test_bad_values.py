@@ -55,6 +55,7 @@ BASE: dict[tuple[str, ...], list[str]] = {
     ("analyze", "mounting"): [IMAGE, "--site", "40,20,100"],
     ("analyze", "coverage"): ["--fov", "10", "--mag", "4", "--n", "10"],
     ("analyze", "identification"): ["--quick"],
+    ("analyze", "seeds"): ["--only", "003-bennett"],
     ("calibrate", "stars"): [IMAGE, IMAGE, IMAGE, "-o", "cam.toml"],
     ("calibrate", "checkerboard"): [IMAGE, IMAGE, IMAGE, "-o", "cam.toml"],
     ("calibrate", "frames"): ["--darks", IMAGE, "-o", "maps.fits"],

@@ -542,3 +542,45 @@ def mounting(
                    f"(per angle {' '.join(f'{x:.2f}' for x in est.euler_standard_error_arcsec)}″)")
     if any_error:
         raise typer.Exit(2)
+
+
+@analyze_app.command()
+@guarded
+def seeds(
+    only: str = typer.Option(None, "--only", metavar="KEY,...",
+                             help="Run only these reproductions (keys as the table prints them)."),
+    quick: bool = typer.Option(False, "--quick", help="Small runs (each under a minute), not the "
+                               "theses' sizes."),
+    json_out: Path = typer.Option(None, "--json", metavar="FILE", help="Also write the rows as JSON."),
+    verbose: int = VERBOSE,
+) -> None:
+    """The seed theses' numbers beside skyfix's (docs/seeds.md): each reproduction run at the
+    thesis's size (``--quick``: small), or the one command that reproduces it named."""
+    from skyfix.analysis import seeds as sd
+
+    add_verbosity(verbose)
+    keys = None
+    if only is not None:
+        keys = [k.strip() for k in only.split(",") if k.strip()]
+        known = sd.reproduction_keys()
+        bad = [k for k in keys if k not in known]
+        if bad or not keys:
+            fail(f"--only: {unknown_name('reproduction', ', '.join(bad) or '(none)', known)}")
+    if json_out is not None:
+        prepare_outputs({"--json": [json_out]})
+    n = len(keys) if keys is not None else len(sd.REPRODUCTIONS)
+    with _progress(n, False) as bar, compile_notice(bar):
+        task = bar.add_task("seed reproductions", total=n)
+        results = sd.run_reproductions(keys, quick=quick,
+                                       progress=lambda rep: bar.update(task, advance=1, description=rep.key))
+    rows = sd.as_rows(results)
+    for row in rows:
+        typer.echo(f"{row['key']}: {row['what']}")
+        typer.echo(f"  thesis: {row['thesis_value']}")
+        typer.echo(f"  skyfix: {row['skyfix'] if row['skyfix'] is not None else '—'}  [{row['verdict']}]")
+        if row["note"]:
+            typer.echo(f"  why: {row['note']}")
+        typer.echo(f"  command: {row['command']}")
+    if json_out is not None:
+        json_out.write_text(json.dumps({"quick": quick, "rows": rows}, indent=1))
+        typer.echo(f"wrote {json_out}")
