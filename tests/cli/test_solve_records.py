@@ -171,3 +171,25 @@ def test_a_bad_centroid_row_is_an_error_record(tmp_path):
     table.write_text("x,y\n1,2\n3,four\n")
     code, (record,), _ = _run("--centroids", table, "--size", "100,100")
     assert code == 2 and record["status"] == "error" and "row 2" in record["reason"]
+
+
+def test_parquet_holds_the_json_records_row_for_row(bad_inputs, tmp_path):
+    import pyarrow.parquet as pq
+
+    from tests.conftest import EXAMPLES
+
+    broken, blank = bad_inputs
+    out = tmp_path / "batch.parquet"
+    code, records, _ = _run(EXAMPLES / "sky.png", broken, blank, "--parquet", out)
+    assert code == 2 and [r["status"] for r in records] == ["solved", "error", "failed"]
+    table = pq.read_table(out).to_pylist()
+    assert [row["image"] for row in table] == [r["image"] for r in records]
+    assert [row["status"] for row in table] == ["solved", "error", "failed"]
+    assert [row["reason"] for row in table] == [r["reason"] for r in records]
+    solved = table[0]
+    for key in ("ra_deg", "dec_deg", "roll_deg", "prob_false", "rmse_arcsec"):
+        assert solved[key] == records[0][key]  # bit for bit
+    assert solved["n_matched"] == records[0]["n_matched"] and isinstance(solved["n_matched"], int)
+    assert json.loads(solved["quaternion_xyzw"]) == records[0]["quaternion_xyzw"]
+    assert json.loads(solved["covariance_arcsec2"]) == records[0]["covariance_arcsec2"]
+    assert table[1]["ra_deg"] is None and table[1]["reason"]  # the error's row: its reason, no numbers

@@ -17,7 +17,8 @@ from typing import Any, NamedTuple
 
 from skyfix.cli.common import input_error_line
 
-__all__ = ["CentroidTable", "InputOutputs", "Outcome", "error_record", "solve_input"]
+__all__ = ["CentroidTable", "InputOutputs", "Outcome", "error_record", "records_table", "solve_input",
+           "write_parquet"]
 
 
 class InputOutputs(NamedTuple):
@@ -88,3 +89,42 @@ def _write_outputs(sol: Any, source: Path | CentroidTable, outputs: InputOutputs
         from skyfix.plot import plot_solution
 
         plot_solution(read_image(source), sol, outputs.plot)
+
+
+def records_table(records: list[dict]):
+    """The records as one ``pyarrow.Table``, a row per record in order: a field whose values are
+    all numbers (or all booleans, or all text) is a column of that type; any other (the lists
+    and tables: quaternion, covariance, matches, …) is a column of JSON text. A field a record
+    lacks (an error's) is null there. The columns are in the order the fields first appear."""
+    import json
+    import math
+
+    import pyarrow as pa
+
+    names: dict[str, None] = {}
+    for r in records:
+        names.update(dict.fromkeys(r))
+    columns = {}
+    for name in names:
+        values = [r.get(name) for r in records]
+        present = [v for v in values if v is not None]
+        if present and all(isinstance(v, bool) for v in present):
+            kind = pa.bool_()
+        elif present and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in present):
+            kind = pa.int64() if all(isinstance(v, int) for v in present) else pa.float64()
+            values = [None if v is None or (isinstance(v, float) and not math.isfinite(v)) else v
+                      for v in values]
+        elif all(isinstance(v, str) for v in present):
+            kind = pa.string()
+        else:
+            kind = pa.string()
+            values = [None if v is None else json.dumps(v, separators=(",", ":")) for v in values]
+        columns[name] = pa.array(values, type=kind)
+    return pa.table(columns)
+
+
+def write_parquet(records: list[dict], path: Path) -> None:
+    """:func:`records_table` written to ``path`` (Parquet, by pyarrow)."""
+    import pyarrow.parquet as pq
+
+    pq.write_table(records_table(records), str(path))

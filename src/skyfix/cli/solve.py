@@ -79,6 +79,10 @@ def solve(
     json_out: bool = typer.Option(
         False, "--json", help="One JSON record per input per line, in input order, errors included "
                               "(fields: docs/design.md#the-solution)."),
+    parquet: Path = typer.Option(
+        None, "--parquet", metavar="FILE",
+        help="Also write the records as one Parquet table, a row per input in input order, errors "
+             "included (the --json fields; nested ones as JSON text)."),
     save_camera: Path = typer.Option(
         None, "--save-camera", metavar="FILE.toml",
         help="Write the camera fitted on the frame (a --camera file for the next frame of that camera; "
@@ -145,7 +149,7 @@ def solve(
     names = [s.path if isinstance(s, CentroidTable) else s for s in sources]
     outputs = {"--wcs": output_paths(wcs, names, ".wcs"), "--plot": output_paths(plot, names, ".png"),
                "--save-camera": output_paths(save_camera, names, ".toml")}
-    prepare_outputs(outputs, inputs=names)
+    prepare_outputs(outputs if parquet is None else {**outputs, "--parquet": [parquet]}, inputs=names)
     maps = calibration_maps(calibration, dark, flat)
     if mask is not None:
         from skyfix.detect.mask import as_mask
@@ -184,8 +188,11 @@ def solve(
         outcomes = (solve_input(source, paths, options) for source, paths in items)
     any_failed = any_error = False
     progress = _progress(len(sources), json_out)
+    table = [] if parquet is not None else None
     with compile_notice(progress):
         for record, sol in outcomes:
+            if table is not None:
+                table.append(record)
             any_error |= sol is None
             any_failed |= sol is not None and not sol.solved
             if sol is None:  # on stderr with --json too, where a reader watching the batch sees it
@@ -198,6 +205,10 @@ def solve(
                 progress.advance(0)
     if progress is not None:
         progress.stop()
+    if table is not None:
+        from skyfix.cli.records import write_parquet
+
+        write_parquet(table, parquet)
     raise typer.Exit(2 if any_error else 1 if any_failed else 0)
 
 
