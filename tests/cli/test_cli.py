@@ -94,6 +94,30 @@ def test_cli_simulate_takes_a_camera_files_sensor_and_optics(tmp_path):
     assert image.shape == (240, 320) and image.max() <= 63 and image.max() >= 40  # bright stars saturate
 
 
+def test_cli_simulate_allsky_frame_solves_at_its_site(tmp_path):
+    """skyfix simulate --allsky LAT,LON: an all-sky frame whose zenith the solve finds, from the
+    site and the frame's time, within an arcminute of the truth."""
+    from skyfix.geometry import radec_to_vector
+
+    out = tmp_path / "sky.fits"
+    made = runner.invoke(app, ["simulate", "--allsky", "52.2,0.1", "--time", "2026-01-15T22:00:00",
+                               "--camera", "generic", "--seed", "3", "-o", str(out)])
+    assert made.exit_code == 0, made.output
+    truth = json.loads(out.with_name("sky.truth.json").read_text())
+    assert truth["site"] == [52.2, 0.1] and truth["lens_fov_deg"] == 180.0
+    solved = runner.invoke(app, ["solve", str(out), "--site", "52.2,0.1", "--refraction", "none", "--json"])
+    assert solved.exit_code == 0, solved.output
+    r = json.loads(solved.stdout.splitlines()[0])
+    assert r["status"] == "solved" and r["n_matched"] > 50
+    got = radec_to_vector(np.radians(r["ra_deg"]), np.radians(r["dec_deg"]))
+    want = radec_to_vector(np.radians(truth["ra_deg"]), np.radians(truth["dec_deg"]))
+    assert np.degrees(np.arccos(np.clip(got @ want, -1, 1))) * 3600 < 60.0
+    both = runner.invoke(app, ["simulate", "--allsky", "52.2,0.1", "--ra", "10", "-o", str(out)])
+    assert both.exit_code == 2 and "--ra" in both.stderr
+    none = runner.invoke(app, ["simulate", "-o", str(out)])
+    assert none.exit_code == 2 and "--allsky" in none.stderr
+
+
 def test_cli_detect_json_matches_truth():
     result = runner.invoke(app, ["detect", "--json", str(EXAMPLE)])
     assert result.exit_code == 0, result.output

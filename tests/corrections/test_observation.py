@@ -155,6 +155,15 @@ def test_report_fills_the_solution():
     assert sol.attitude_frame == "ICRS" and sol.observer_velocity_km_s == [7.5, 0.0, 0.0]
     assert 18.0 < sol.bodies["sun_deg"] < 20.01 and sol.bodies["earth_limb_deg"] is not None
     assert any(w.startswith("the Sun is") and "28.1° exclusion" in w for w in sol.warnings)
+    # an all-sky camera (no baffle) gets the angles but no exclusion warnings; a narrow one both
+    from skyfix.camera import Camera
+    from skyfix.simulate.allsky import all_sky_camera
+
+    for camera, warned in ((all_sky_camera(1280, 960), False), (Camera.from_fov(1280, 960, 15.0), True)):
+        other = Solution()
+        obs.report(other, A, camera=camera)
+        assert other.bodies == sol.bodies
+        assert any("exclusion" in w for w in other.warnings) is warned
     assert sol.frames["body"]["from"] == "icrs" and sol.frames["camera"]["ra_deg"] == pytest.approx(
         math.degrees(math.atan2(A[2, 1], A[2, 0])) % 360, abs=1e-6)
     d = sol.to_dict()

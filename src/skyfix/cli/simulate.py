@@ -57,8 +57,8 @@ def simulate(
     out_dir: Path = typer.Argument(None, metavar="[OUT_DIR]",
                                    help="Folder for the frames (frame-0000.fits … with NAME.truth.json "
                                         "beside each); or give one image file with -o."),
-    ra: float = typer.Option(..., "--ra", help="Boresight right ascension, degrees."),
-    dec: float = typer.Option(..., "--dec", help="Boresight declination, degrees."),
+    ra: float = typer.Option(None, "--ra", help="Boresight right ascension, degrees (unless --allsky)."),
+    dec: float = typer.Option(None, "--dec", help="Boresight declination, degrees (unless --allsky)."),
     roll: float = typer.Option(0.0, "--roll", help="Roll (PA of image-up from north through east), degrees."),
     camera: str = typer.Option("generic", "--camera", help="Camera preset name or TOML file."),
     sensor: str = typer.Option(None, "--sensor", help="Sensor preset name or TOML file."),
@@ -122,6 +122,14 @@ def simulate(
     jpeg_quality: int = typer.Option(None, "--jpeg-quality", rich_help_panel="What real frames carry",
                                      help="Deliver the frame as an 8-bit JPEG of this quality, 1–95, decoded "
                                           "(the image is then 8-bit)."),
+    allsky: str = typer.Option(None, "--allsky", metavar="LAT,LON", rich_help_panel="All-sky",
+                               help="An all-sky frame from this site (degrees) at --time, looking up "
+                                    "(instead of --ra/--dec): a fisheye's image circle in the --camera's "
+                                    "frame size, a random skyline and light dome (--seed); solve it with "
+                                    "--site LAT,LON --refraction none (docs/all-sky.md)."),
+    lens_fov: float = typer.Option(180.0, "--lens-fov", rich_help_panel="All-sky",
+                                   help="The all-sky lens's field across its image circle, degrees "
+                                        "(90–220)."),
     verbose: int = VERBOSE,
 ) -> None:
     """Render a simulated star image, or a sequence of frames as the camera turns, and write the
@@ -130,6 +138,12 @@ def simulate(
     from skyfix.simulate import render, render_sequence, write_frame
 
     add_verbosity(verbose)
+    if allsky is not None:
+        _simulate_allsky(allsky, lens_fov, out_dir, output, camera, sensor, exposure, time, seed, frames,
+                         ra, dec)
+        return
+    if ra is None or dec is None:
+        fail("give the boresight, --ra and --dec (or --allsky LAT,LON for an all-sky frame)")
     if not (math.isfinite(ra) and math.isfinite(roll)):
         fail("--ra and --roll must be finite numbers of degrees")
     if not -90.0 <= dec <= 90.0:
@@ -196,6 +210,55 @@ def simulate(
         where = out_dir if out_dir is not None else paths[0].parent
         typer.echo(f"wrote {frames} frames to {where} ({paths[0].name} … {paths[-1].name}, "
                    "truth beside each)")
+
+
+def _simulate_allsky(site_text: str, lens_fov: float, out_dir: Path | None, output: Path | None, camera: str,
+                     sensor: str | None, exposure: float | None, time: str | None, seed: int, frames: int,
+                     ra: float | None, dec: float | None) -> None:
+    """``skyfix simulate --allsky LAT,LON``: one all-sky frame
+    (:func:`skyfix.simulate.allsky.render_allsky`)."""
+    import numpy as np
+
+    from skyfix.corrections.refraction import Site
+    from skyfix.simulate import write_frame
+    from skyfix.simulate.allsky import all_sky_camera, random_landscape, render_allsky
+
+    if ra is not None or dec is not None:
+        fail("--allsky looks up from its site: leave out --ra and --dec")
+    if frames != 1:
+        fail("--allsky renders one frame: leave out --frames")
+    if not (math.isfinite(lens_fov) and 90.0 <= lens_fov <= 220.0):
+        fail(f"--lens-fov {lens_fov:g} must be from 90 to 220 degrees")
+    with checking("--allsky", site_text):
+        site = Site.parse(site_text, "--allsky")
+    if exposure is not None:
+        check_positive(exposure, "--exposure")
+    check_count(seed, "--seed", minimum=0)
+    with checking("--camera", camera):
+        size = load_camera(camera)
+    sensor_arg = _sensor_arg(sensor)
+    first, _ = _sky_seen_at(time, None)
+    if (out_dir is None) == (output is None):
+        fail("give an output folder (OUT_DIR) or an image file (-o FILE), not both" if out_dir is not None
+             else "give an output folder (OUT_DIR) or an image file (-o FILE)")
+    path = output if output is not None else out_dir / "frame-0000.fits"
+    prepare_outputs({"--output" if out_dir is None else "OUT_DIR": [path]})
+    lens_camera = all_sky_camera(size.width, size.height, lens_fov)
+    landscape = random_landscape(np.random.default_rng(seed))
+    options = {} if exposure is None else {"exposure_s": exposure}
+    progress = _simulate_progress(1)
+    try:
+        with compile_notice(progress):
+            frame = render_allsky(lens_camera, site=(site.lat_deg, site.lon_deg), time=first,
+                                  landscape=landscape, fov_deg=lens_fov, seed=seed, sensor=sensor_arg,
+                                  **options)
+            image, truth = write_frame(frame, path)
+    except ValueError as exc:
+        fail(f"bad value: {exc}")
+    finally:
+        if progress is not None:
+            progress.stop()
+    typer.echo(f"wrote {image} and {truth}")
 
 
 def _sky_seen_at(time: str | None, velocity_kms: str | None):

@@ -73,8 +73,12 @@ if TYPE_CHECKING:
 # A site's refraction (ERFA's astrometry) and the body frames are imported when a site or a mounting
 # is given: a plain solve's process does without them (erfa, skyfix.frames: ~30 ms at start).
 
-__all__ = ["CORRECTIONS", "NO_TIME_REASON", "Observation", "apparent_attitude", "observe", "observer_of",
-           "time_of_image"]
+__all__ = ["ALL_SKY_FOV_DEG", "CORRECTIONS", "NO_TIME_REASON", "Observation", "apparent_attitude", "observe",
+           "observer_of", "time_of_image"]
+
+#: A camera this wide or wider (an all-sky lens) has no baffle and sees the Moon whenever it is up:
+#: its Solution gives the bright bodies' angles (``bodies``) but no exclusion-angle warnings.
+ALL_SKY_FOV_DEG = 120.0
 
 #: The corrections a solve can apply to the catalogue, by the names the Solution lists them by.
 CORRECTIONS = ("proper_motion", "parallax", "light_deflection", "aberration", "refraction")
@@ -171,7 +175,8 @@ class Observation:
         time (``time``, default the Observation's: a tracker's frame passes its own), the
         corrections, the attitude's frame, the observer's velocity; with an attitude
         (``A_icrs_to_cam``, the physical one fitted) also a site's Alt/Az and place of date, the
-        bright bodies' angles with a warning inside their exclusion angles, and with a mounting
+        bright bodies' angles with a warning inside their exclusion angles (not for an all-sky
+        camera's, :data:`ALL_SKY_FOV_DEG`), and with a mounting
         the body frame's attitude (of ``A_reported``, the attitude in the Solution's frame), and
         with a site and the ``camera`` the zenith's pixel when it lies in the frame."""
         t = self.time if time is None else time
@@ -200,7 +205,8 @@ class Observation:
             angles = angles_from_directions(A[2], bodies)
             sol.bodies = {"sun_deg": angles.sun_deg, "moon_deg": angles.moon_deg,
                           "earth_limb_deg": angles.earth_limb_deg}
-            sol.warnings = sol.warnings + exclusion_warnings(angles, self.exclusion)
+            if camera is None or camera.fov_deg < ALL_SKY_FOV_DEG:
+                sol.warnings = sol.warnings + exclusion_warnings(angles, self.exclusion)
         if self.mounting is not None:
             sol.frames = self._frames(A if A_reported is None else A_reported)
 
