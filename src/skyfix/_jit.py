@@ -62,6 +62,9 @@ def on_numba_import(hook: Callable[[], None]) -> Callable[[], None]:
 def _numba() -> Any:
     import numba
 
+    from skyfix._numba_cache import install
+
+    install()  # the cache safe for processes compiling at once, before any kernel loads
     for hook in _NUMBA_HOOKS:
         hook()
     _NUMBA_HOOKS.clear()

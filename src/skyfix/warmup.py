@@ -418,15 +418,18 @@ def _enabled() -> bool:
 
 def _stamp_key() -> str:
     """What the stamp holds for: these kernels (:func:`skyfix._kernels.kernels_digest`), these
-    jobs (this file and :mod:`skyfix._warm_jobs`), this numba, this Python."""
+    jobs (this file and :mod:`skyfix._warm_jobs`), this numba and its cache's format
+    (:data:`skyfix._numba_cache.MARK`), this Python."""
     global _KEY
     if _KEY is None:
         import hashlib
         from importlib.metadata import version
 
+        from skyfix._numba_cache import MARK
+
         here = Path(__file__)
         jobs = hashlib.sha256(here.read_bytes() + here.with_name("_warm_jobs.py").read_bytes()).hexdigest()
-        _KEY = (f"{kernels_digest()} jobs {jobs[:16]} numba {version('numba')} "
+        _KEY = (f"{kernels_digest()} jobs {jobs[:16]} numba {version('numba')} {MARK} "
                 f"python {sys.version_info[0]}.{sys.version_info[1]}")
     return _KEY
 
