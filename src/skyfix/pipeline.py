@@ -438,6 +438,10 @@ def _searched(database, fov_deg: float) -> bool:
 def _warm(database, fov_deg: float | None, camera: Camera | None) -> None:
     """A first solve's kernels compiled up front, in parallel (:func:`skyfix.warmup.ensure`),
     while the pattern database it will search first is built, if that is not cached yet."""
+    from skyfix._jit import aot_modules
+
+    if aot_modules():  # every kernel compiled ahead of time: skyfix.warmup (~12 ms) not even imported
+        return
     from skyfix import warmup
 
     if warmup.is_warm("solve"):
