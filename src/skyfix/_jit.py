@@ -106,7 +106,9 @@ class Kernel:
     def n_compiled(self) -> int:
         """Signatures numba holds for this kernel in this process: it changes when a call
         compiled or loaded one from numba's cache (0 while only exports ran)."""
-        return 0 if self._dispatcher is None else len(self._dispatcher.signatures)
+        # (len of numba's overloads: its ``signatures`` builds a list, 17 µs a call, which
+        # quad's search paid twice a turn)
+        return 0 if self._dispatcher is None else len(self._dispatcher.overloads)
 
     @property
     def _numba_type_(self) -> Any:  # numba's typeof: inside a kernel this is the dispatcher

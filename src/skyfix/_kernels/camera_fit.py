@@ -230,7 +230,7 @@ def _normal_equations(J, res, w):
                 wa = wi * row[a]
                 g[a] += wa * rc
                 out = JtJ[a]
-                for b in range(P):  # the whole row vectorises; the lower triangle is overwritten
+                for b in range(a, P):  # the upper triangle; the lower one is its mirror
                     out[b] += wa * row[b]
     for a in range(P):
         for b in range(a):
