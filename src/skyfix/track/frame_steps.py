@@ -1,7 +1,9 @@
-"""The Tracker's two steps on a frame apart from its filter loop (:mod:`skyfix.track.tracker`):
+"""The Tracker's steps on a frame apart from its filter loop (:mod:`skyfix.track.tracker`):
 the star fit from windows around the predicted stars (:meth:`FrameSteps._measure`, one compiled
-call: :func:`skyfix.track.measure.measure_frame`) and the recovery of a frame the windows could
-not track (:meth:`FrameSteps._recover`: lost in space at once, then update, jump, coast or lost).
+call: :func:`skyfix.track.measure.measure_frame`; with the MEKF :meth:`FrameSteps._step`, one
+compiled call from the window plan to the filter's update: :func:`skyfix.track.step.track_step`)
+and the recovery of a frame the windows could not track (:meth:`FrameSteps._recover`: lost in
+space at once, then update, jump, coast or lost).
 
 :class:`FrameSteps` is a base of :class:`~skyfix.track.tracker.Tracker` and works on its state
 (the settings, the predictor, the catalogue, the sky); it is not used on its own.

@@ -23,7 +23,7 @@ returns a :class:`~skyfix.solution.Solution` whose ``mode`` says which of three 
     its covariance (``track.fit.fit_attitude``, :mod:`skyfix.attitude`'s formulas), outliers
     dropped; the fit is verified (at least ``min_stars`` stars, residuals consistent with the
     centroids, at least half of the windows that found a star in it:
-    :func:`~skyfix.track.frame_steps.window_fit_agrees`, the filter's NIS) and updates the
+    :func:`~skyfix.track.step.window_fit_agrees`, the filter's NIS) and updates the
     predictor — or, when at least 6 stars agree with each other but not with the prediction (a
     manoeuvre), restarts it from the fit. The
     Solution reports the filter's attitude, covariance and rate.
