@@ -1,12 +1,18 @@
-"""The tracker's one compiled call from the window plan to the attitude fit
-(:func:`skyfix.track.measure.measure_frame`) against the same steps run one at a time from
-Python, each kernel called on its own (the path before the single call; docs/tracking.md#one-tracking-update).
+"""The tracker's compiled calls against the same steps run one at a time.
 
-The Tracker runs as in flight on simulated frames — at rest (the centre of mass in the
-windows), at 1 °/s (the streak fit) and at 1 °/s on a rolling shutter (windows moved along
-``J ω Δt``, rays turned back to the frame time) — and every call of ``measure_frame`` is
-repeated by :func:`measure_steps` on the same arguments: the same windows, centroids, stars
-and attitude must come out (to 1e-12; the kernels are the same compiled code, inlined or not).
+1. :func:`skyfix.track.measure.measure_frame` (the window plan to the attitude fit) against
+   :func:`measure_steps`, each kernel called on its own from Python: the Tracker runs as in
+   flight on simulated frames — at rest (the centre of mass in the windows), at 1 °/s (the
+   streak fit) and at 1 °/s on a rolling shutter (windows moved along ``J ω Δt``, rays turned
+   back to the frame time) — and every ``measure_frame`` inside the tracker's one compiled step
+   (:func:`skyfix.track.step.track_step`) is repeated on the same arguments: the same windows,
+   centroids, stars and attitude must come out (to 1e-12; the kernels are the same compiled
+   code, inlined or not).
+2. The Tracker with the MEKF in one compiled step (:meth:`Tracker._step`: the window plan to the
+   filter's correction and the Solution's numbers) against the same Tracker step by step
+   (:meth:`Tracker._steps`: the predictor's ``predict``, ``measure_frame``, its
+   ``update_gated``, the Solution's numbers), on the same frames, with and without gyro rates:
+   every Solution is the same, bit for bit (docs/tracking.md#one-tracking-update).
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ from skyfix.geometry import attitude_from_radec_roll
 from skyfix.simulate import Sensor, render_sequence
 from skyfix.track import Tracker
 from skyfix.track.measure import CentroidSettings, measure_frame
+from skyfix.track.step import track_step
 from skyfix.track.windows import (
     Local,
     MatchSettings,
@@ -110,11 +117,15 @@ def test_compiled_measurement_is_the_steps_one_by_one(case, monkeypatch):
     compared = []
 
     def both(*args):
-        out = measure_frame(*args)
-        compared.append((out, measure_steps(*args)))
+        out = track_step(*args)
+        img, A, P, rate = args[:4]
+        measured = (img, A, P[:3, :3].copy(), rate, P[3:, 3:].copy(), *args[7:-2])  # measure_frame's
+        compared.append((out[0], measure_steps(*measured)))
+        alone = measure_frame(*measured)
+        assert all(np.array_equal(x, y, equal_nan=True) for x, y in zip(out[0], alone, strict=True))
         return out
 
-    monkeypatch.setattr(frame_steps_module, "measure_frame", both)
+    monkeypatch.setattr(frame_steps_module, "track_step", both)
     tracker = Tracker(CAMERA, epoch=EPOCH, **options)
     sols = [tracker.update(f.image, f.truth["t_s"]) for f in frames]
     assert [s.mode for s in sols[2:]] == ["tracking"] * 6
@@ -140,3 +151,34 @@ def test_compiled_measurement_is_the_steps_one_by_one(case, monkeypatch):
           f"attitude {worst['A']:.1e}, covariance {worst['P']:.1e} relative")
     assert fitted >= 6
     assert worst["xy"] <= 1e-12 and worst["A"] <= 1e-12 and worst["P"] <= 1e-12
+
+
+def _numbers(sol):
+    """A Solution's numbers: all that a tracked frame reports but its times."""
+    matches = [tuple(m) for m in sol.matches]
+    A = None if sol.A_icrs_to_cam is None else sol.A_icrs_to_cam.tolist()
+    return (sol.mode, sol.status, sol.reason, A, sol.covariance_arcsec2, sol.rate_dps,
+            sol.rate_covariance_dps2, sol.n_matched, sol.n_detected, sol.prob_false, sol.rmse_arcsec,
+            sol.ra_deg, sol.dec_deg, sol.roll_deg, sol.quaternion_xyzw, matches)
+
+
+@pytest.mark.parametrize("case", ["rest", "1 deg/s", "1 deg/s, rolling shutter", "1 deg/s, gyro"])
+def test_one_compiled_step_is_the_steps_one_by_one(case, monkeypatch):
+    rate_dps, options, render, _ = CASES[case.removesuffix(", gyro")]
+    rate = np.radians(AXIS * rate_dps) if rate_dps else None
+    gyro = rate if case.endswith("gyro") else None
+    frames = list(render_sequence(A0, CAMERA, n_frames=8, fps=10.0, rate_rad_s=rate, epoch=EPOCH, seed=5,
+                                  **render))
+    runs = {}
+    for how in ("step", "steps"):
+        if how == "steps":
+            monkeypatch.setattr(Tracker, "_step", Tracker._steps)
+        tracker = Tracker(CAMERA, epoch=EPOCH, **options)
+        sols = [tracker.update(f.image, f.truth["t_s"], gyro_rate_rad_s=gyro) for f in frames]
+        runs[how] = sols
+    step, steps = runs["step"], runs["steps"]
+    assert [s.mode for s in step[2:]] == ["tracking"] * 6
+    assert set(step[-1].time_ms) == {"predict", "step", "total"}
+    assert set(steps[-1].time_ms) == {"predict", "measure", "filter", "total"}
+    for a, b in zip(step, steps, strict=True):
+        assert _numbers(a) == _numbers(b)

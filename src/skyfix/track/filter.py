@@ -65,8 +65,12 @@ __all__ = [
     "as_covariance",
     "as_rotation",
     "as_time",
+    "corrected_rate",
+    "gate_innovation",
+    "gated_correct",
     "innovation",
     "interval_model",
+    "propagate_estimate",
 ]
 
 NIS_GATE = 16.27
@@ -93,6 +97,7 @@ _SERIES_BELOW = 0.3  # θ below which c₃, c₄, c₅ come from their series
 _OK, _NOT_FINITE, _NOT_ROTATION, _NOT_SPD = 0, 1, 2, 3
 _ROTATION_MESSAGES = {_NOT_FINITE: "{} must be a finite 3x3 rotation matrix",
                       _NOT_ROTATION: "{} is not a rotation matrix (not orthonormal or improper)"}
+_NO_BIAS = np.zeros(3)  # the bias a compiled step is given without a gyro (no kernel writes it)
 _COVARIANCE_MESSAGES = {_NOT_FINITE: "{} must be a finite 3x3 covariance (rad²)",
                         _NOT_SPD: "{} must be positive definite"}
 
@@ -166,7 +171,7 @@ def interval_model(rate_rad_s, dt_s):
 
 
 @njit(cache=True)
-def _propagate(A, P, omega, dt, q_rate, q_att, sign):
+def propagate_estimate(A, P, omega, dt, q_rate, q_att, sign):
     """``(R(−ω̂ T) A, Φ P Φᵀ + Q)`` over ``dt`` (``sign`` −1: rate model, +1: gyro model)."""
     m = interval_model(omega, dt)
     Phi = np.eye(6)
@@ -301,7 +306,7 @@ def _symmetrize_code(C):
 
 
 @njit(cache=True)
-def _gated_correct(A_pred, P, A_meas, R, nis_gate):
+def gated_correct(A_pred, P, A_meas, R, nis_gate):
     """:meth:`AttitudeFilter.update_gated` in one kernel: the checks of :func:`as_rotation` on
     ``A_meas`` and of :func:`as_covariance` on ``R`` (symmetrised in place), the innovation, and
     the measurement update of :func:`_correct` when the NIS is within ``nis_gate``. Returns
@@ -314,6 +319,24 @@ def _gated_correct(A_pred, P, A_meas, R, nis_gate):
         return rotation_code, covariance_code, ok, z, S, nis, False, A_pred, np.zeros(6), P
     _, A_new, dx, P_new, _ = _correct(A_pred, P, A_meas, R)
     return rotation_code, covariance_code, ok, z, S, nis, True, A_new, dx, P_new
+
+
+@njit(cache=True)
+def corrected_rate(omega, g, bias, dx, gyro):
+    """The body rate and gyro bias after a measurement's state correction ``dx`` (6,):
+    ``ω̂ + δω`` (the rate model; ``bias`` unchanged), or in gyro mode the bias ``β̂ + δβ`` and
+    the rate ``g − β̂`` it leaves of the gyro rate ``g``. Returns ``(rate, bias)``."""
+    if gyro:
+        new_bias = np.empty(3)
+        rate = np.empty(3)
+        for i in range(3):
+            new_bias[i] = bias[i] + dx[3 + i]
+            rate[i] = g[i] - new_bias[i]
+        return rate, new_bias
+    rate = np.empty(3)
+    for i in range(3):
+        rate[i] = omega[i] + dx[3 + i]
+    return rate, bias
 
 
 # --- checks and the innovation -----------------------------------------------------------------
@@ -385,6 +408,20 @@ def innovation(A_pred: np.ndarray, P_att_rad2: np.ndarray, A_meas: np.ndarray, c
                                    as_covariance(P_att_rad2, "predicted covariance"),
                                    as_rotation(A_meas, "measured attitude"),
                                    as_covariance(cov_meas_rad2, "measurement covariance"))
+    if not ok:
+        raise InputError("attitude innovation covariance is not positive definite")
+    return Innovation(z, S, float(nis))
+
+
+def gate_innovation(rotation_code: int, covariance_code: int, ok: bool, z: np.ndarray, S: np.ndarray,
+                    nis: float) -> Innovation:
+    """The Innovation of :func:`gated_correct`'s first six results, or its InputError: a
+    measured attitude that is not a rotation, a covariance that is not positive definite, or an
+    innovation covariance that is not."""
+    if rotation_code:
+        raise InputError(_ROTATION_MESSAGES[rotation_code].format("measured attitude"))
+    if covariance_code:
+        raise InputError(_COVARIANCE_MESSAGES[covariance_code].format("measurement covariance"))
     if not ok:
         raise InputError("attitude innovation covariance is not positive definite")
     return Innovation(z, S, float(nis))
@@ -482,7 +519,7 @@ class AttitudeFilter:
         if dt == 0.0:
             out = (self._A, self._P, omega, g)
         else:
-            A, P = _propagate(self._A, self._P, omega, dt, self._q_rate, self._q_att,
+            A, P = propagate_estimate(self._A, self._P, omega, dt, self._q_rate, self._q_att,
                               1.0 if self._gyro else -1.0)
             out = (A, P, omega, g)
         self._cached = (key, out)
@@ -573,29 +610,45 @@ class AttitudeFilter:
         A_meas = _matrix3(A_meas, _ROTATION_MESSAGES, "measured attitude", copy=False)  # only read
         R = _matrix3(cov_meas_rad2, _COVARIANCE_MESSAGES, "measurement covariance")  # symmetrised
         A_pred, P, omega, g = self._predicted(t, gyro_rate_rad_s)
-        rotation_code, covariance_code, ok, z, S, nis, done, A_new, dx, P_new = _gated_correct(
+        rotation_code, covariance_code, ok, z, S, nis, done, A_new, dx, P_new = gated_correct(
             A_pred, P, A_meas, R, float(nis_gate))
-        if rotation_code:
-            raise InputError(_ROTATION_MESSAGES[rotation_code].format("measured attitude"))
-        if covariance_code:
-            raise InputError(_COVARIANCE_MESSAGES[covariance_code].format("measurement covariance"))
-        if not ok:
-            raise InputError("attitude innovation covariance is not positive definite")
-        inn = Innovation(z, S, float(nis))
+        inn = gate_innovation(rotation_code, covariance_code, ok, z, S, nis)
         if done:
             self._commit(t, A_new, dx, P_new, g, omega, nis)
         return bool(done), inn
 
     def _commit(self, t: float, A_new: np.ndarray, dx: np.ndarray, P_new: np.ndarray, g, omega, nis) -> None:
         """Take a corrected estimate at ``t`` (:func:`_correct`'s) as the state."""
-        self._t = t
-        self._A = A_new
-        self._P = P_new
+        bias = self._bias if self._gyro else _NO_BIAS
+        rate, bias = corrected_rate(omega, omega if g is None else g, bias, dx, self._gyro)
+        self.take(t, A_new, P_new, rate, bias, g, nis)
+
+    # --- one compiled step (skyfix.track.step) -------------------------------------------------
+    def step_inputs(self, t_s: float, gyro_rate_rad_s: np.ndarray | None = None) -> tuple:
+        """What a compiled tracking step (:func:`skyfix.track.step.track_step`) needs to predict
+        and correct in one call, after :meth:`update`'s checks on ``t_s``: the prediction at
+        ``t_s`` — attitude (3, 3), covariance (6, 6), rate (3,) — the gyro rate held over the
+        interval and the bias (the rate and zeros without a gyro), and whether in gyro mode.
+        The arrays are the filter's own (cached), not copies: read, never written."""
+        t = as_time(t_s)
+        if not t > self._t:
+            raise InputError(f"filter time must increase: t={t!r} s after the state's {self._t!r} s")
+        A, P, omega, g = self._predicted(t, gyro_rate_rad_s)
         if self._gyro:
-            self._bias = self._bias + dx[3:]
+            return A, P, omega, g, self._bias, True
+        return A, P, omega, omega, _NO_BIAS, False
+
+    def take(self, t: float, A: np.ndarray, P: np.ndarray, rate: np.ndarray, bias: np.ndarray, g,
+             nis: float) -> None:
+        """Take the estimate at ``t`` a compiled step corrected (:func:`gated_correct`, then
+        :func:`corrected_rate`): attitude, covariance (6, 6), rate, bias (gyro mode), the gyro
+        rate ``g`` held over the interval, and the measurement's NIS."""
+        self._t = t
+        self._A = A
+        self._P = P
+        self._omega = rate
+        if self._gyro:
+            self._bias = bias
             self._gyro_rate = g
-            self._omega = g - self._bias
-        else:
-            self._omega = omega + dx[3:]
         self.last_nis = float(nis)
         self._cached = None

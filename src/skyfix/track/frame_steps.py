@@ -1,7 +1,9 @@
-"""The Tracker's two steps on a frame apart from its filter loop (:mod:`skyfix.track.tracker`):
+"""The Tracker's steps on a frame apart from its filter loop (:mod:`skyfix.track.tracker`):
 the star fit from windows around the predicted stars (:meth:`FrameSteps._measure`, one compiled
-call: :func:`skyfix.track.measure.measure_frame`) and the recovery of a frame the windows could
-not track (:meth:`FrameSteps._recover`: lost in space at once, then update, jump, coast or lost).
+call: :func:`skyfix.track.measure.measure_frame`; with the MEKF :meth:`FrameSteps._step`, one
+compiled call from the window plan to the filter's update: :func:`skyfix.track.step.track_step`)
+and the recovery of a frame the windows could not track (:meth:`FrameSteps._recover`: lost in
+space at once, then update, jump, coast or lost).
 
 :class:`FrameSteps` is a base of :class:`~skyfix.track.tracker.Tracker` and works on its state
 (the settings, the predictor, the catalogue, the sky); it is not used on its own.
@@ -10,14 +12,17 @@ not track (:meth:`FrameSteps._recover`: lost in space at once, then update, jump
 from __future__ import annotations
 
 import math
+import time
 from typing import NamedTuple
 
 import numpy as np
 
 from skyfix.solution import Solution
 from skyfix.track import windows as win
-from skyfix.track.filter import innovation
+from skyfix.track.filter import gate_innovation, innovation
 from skyfix.track.measure import measure_frame
+from skyfix.track.predictors import Prediction
+from skyfix.track.step import track_step, window_fit_agrees
 
 __all__ = ["STREAK_PX", "FrameSteps", "WindowFit", "window_fit_agrees"]
 
@@ -35,15 +40,6 @@ STREAK_PX = 2.0
 _JUMP_RATE_SIGMA = 0.1
 
 
-def window_fit_agrees(n_fit: int, n_found: int) -> bool:
-    """Whether a windows' fit speaks for the frame: at least half of the windows that found a
-    star are in it. Tracking, nearly every window's star fits; when most do not, the prediction
-    has put the windows where the stars are not quite (a manoeuvre, a wrong rate): the few that
-    agree may agree on a biased attitude — in one simulated slew, 7 of 16 agreed on one 65″ off
-    at 6σ — so the frame is solved lost in space instead."""
-    return 2 * n_fit >= n_found
-
-
 class WindowFit(NamedTuple):
     """A frame's star fit: the attitude, its covariance and the stars in it."""
 
@@ -56,6 +52,12 @@ class WindowFit(NamedTuple):
     n_found: int            # windows with a centroid
     n_windows: int
     prob_false: float
+
+
+def _copied(A: np.ndarray, P: np.ndarray, rate: np.ndarray) -> Prediction:
+    """The Prediction of the filter's attitude ``A``, covariance ``P`` (6, 6) and rate, copies
+    (as the MEKF predictor's ``predict`` gives it)."""
+    return Prediction(A.copy(), P[:3, :3].copy(), rate.copy(), P[3:, 3:].copy())
 
 
 class FrameSteps:
@@ -116,13 +118,45 @@ class FrameSteps:
         sigma_px = math.sqrt(max(P[0, 0] + P[1, 1], 0.0)) / self._plate
         return self.settings.k_sigma * sigma_px + self.settings.star_radius_px <= self.settings.max_window_px
 
+    def _step(self, img: np.ndarray, t: float, gyro, t0: float) -> Solution:
+        """A frame tracked with the MEKF: the filter's prediction, then the windows, the fit,
+        the filter's gated correction and the Solution's numbers in one compiled call
+        (:func:`skyfix.track.step.track_step`); what the step-by-step path decides from them
+        (:meth:`_measured`, the gate's Innovation) decided here the same way."""
+        filt = self._predictor.filter
+        A, P, rate, gyro_rate, bias, gyro_mode = filt.step_inputs(t, gyro)
+        t_pred = time.perf_counter()
+        n_max, args = self._measure_args(t, A, rate)
+        out, gate, (new_rate, new_bias), numbers = track_step(
+            img, A, P, rate, gyro_rate, bias, gyro_mode, *args, float(self.settings.nis_gate), self._mags)
+        t_step = time.perf_counter()
+        fit, why = self._measured(out, n_max)
+        if fit is None:
+            return self._recover(img, t, gyro, _copied(A, P, rate), why, t0)
+        rotation_code, covariance_code, ok, z, S, nis, done, A_new, _, P_new = gate
+        inn = gate_innovation(rotation_code, covariance_code, ok, z, S, nis)
+        times = {"predict": 1e3 * (t_pred - t0), "step": 1e3 * (t_step - t_pred)}
+        if not done:
+            return self._disagrees(img, t, gyro, _copied(A, P, rate), fit, inn, times, t0)
+        filt.take(t, A_new, P_new, new_rate, new_bias, gyro_rate, nis)
+        return self._tracked(A_new.copy(), fit, times, numbers)
+
     def _measure(self, img: np.ndarray, t: float, pred) -> tuple[WindowFit | None, str]:
         """The star fit of one frame from windows around the predicted stars (module
         docstring; :func:`skyfix.track.measure.measure_frame`), or None and why not."""
+        A = np.ascontiguousarray(pred.A_icrs_to_cam)
+        rate = np.ascontiguousarray(pred.rate_rad_s, dtype=np.float64)
+        n_max, args = self._measure_args(t, A, rate)
+        out = measure_frame(img, A, np.ascontiguousarray(pred.attitude_cov_rad2), rate,
+                            np.ascontiguousarray(pred.rate_cov_rad2_s2), *args)
+        return self._measured(out, n_max)
+
+    def _measure_args(self, t: float, A: np.ndarray, rate: np.ndarray) -> tuple[int, tuple]:
+        """The windows' most, and :func:`~skyfix.track.measure.measure_frame`'s arguments after
+        the prediction (``A``, its covariance, ``rate``, its covariance) for the frame at ``t``:
+        the local catalogue (made again when the boresight has moved) and the star vectors as
+        seen."""
         s = self.settings
-        c = np.ascontiguousarray
-        A = c(pred.A_icrs_to_cam)
-        rate = c(pred.rate_rad_s, dtype=np.float64)
         exposure = self._exposure(t)
         local = self._local_catalog(A[2])
         vectors = self.sky.vectors(local, self._stars, self._star_ids)  # as seen, with a time
@@ -130,12 +164,18 @@ class FrameSteps:
         streaking = s.centroid == "streak" and exposure * math.hypot(wx, wy) >= STREAK_PX * self._plate
         n_max = s.streak_windows if streaking else s.n_windows
         windows = self._streak_window_settings_t if streaking else self._window_settings_t
+        return n_max, (exposure, s.line_time_s, self._local_t,
+                       min(self._select_mag, self._faintest + 1.0), self._cam, windows, self._view_t,
+                       self._tiles, self._max_tile, vectors, self._zero_point, self._match_settings_t,
+                       self._centroid_t, s.min_stars, _OUTLIER_SIGMA)
+
+    def _measured(self, out: tuple, n_max: int) -> tuple[WindowFit | None, str]:
+        """:func:`~skyfix.track.measure.measure_frame`'s tuple ``out`` as the frame's
+        :class:`WindowFit`, or None and why not; the faintest star to choose next frame and the
+        magnitudes' zero point kept."""
+        s = self.settings
         (n, too_wide, faintest, ok, n_found, n_gated, n_fit, A_fit, P_fit, zero_point, log_chance, index, xy,
-         b) = measure_frame(img, A, c(pred.attitude_cov_rad2), rate, c(pred.rate_cov_rad2_s2), exposure,
-                            s.line_time_s, self._local_t, min(self._select_mag, self._faintest + 1.0),
-                            self._cam, windows, self._view_t, self._tiles, self._max_tile,
-                            vectors, self._zero_point, self._match_settings_t, self._centroid_t,
-                            s.min_stars, _OUTLIER_SIGMA)
+         b) = out
         # next frame: stars down to a magnitude fainter than the faintest chosen (all, when short)
         self._faintest = faintest if n == n_max else math.inf
         if n < s.min_stars:
@@ -155,7 +195,7 @@ class FrameSteps:
             self._zero_point = zero_point if zp != zp else 0.8 * zp + 0.2 * zero_point
         index = index[:n_fit]
         return WindowFit(A_fit, P_fit, xy[:n_fit], index, self._star_ids[index], b[:n_fit], n_found, n,
-                    math.exp(log_chance)), ""
+                         math.exp(log_chance)), ""
 
     def _local_catalog(self, z: np.ndarray) -> win.Local:
         """The catalogue within the frame's cone plus :data:`_LOCAL_MARGIN_RAD` of the boresight

@@ -23,7 +23,7 @@ returns a :class:`~skyfix.solution.Solution` whose ``mode`` says which of three 
     its covariance (``track.fit.fit_attitude``, :mod:`skyfix.attitude`'s formulas), outliers
     dropped; the fit is verified (at least ``min_stars`` stars, residuals consistent with the
     centroids, at least half of the windows that found a star in it:
-    :func:`~skyfix.track.frame_steps.window_fit_agrees`, the filter's NIS) and updates the
+    :func:`~skyfix.track.step.window_fit_agrees`, the filter's NIS) and updates the
     predictor — or, when at least 6 stars agree with each other but not with the prediction (a
     manoeuvre), restarts it from the fit. The
     Solution reports the filter's attitude, covariance and rate.
@@ -58,7 +58,6 @@ a frame whose size is not the camera's; gyro rates that are not three finite num
 
 from __future__ import annotations
 
-import itertools
 import math
 import os
 import time
@@ -79,7 +78,7 @@ from skyfix.identify.catalogue.database import readonly_view
 from skyfix.identify.catalogue.kernel_data import StarIndex
 from skyfix.io import read_image_with_header
 from skyfix.obstime import julian_year
-from skyfix.solution import Match, Solution
+from skyfix.solution import MatchTable, Solution
 from skyfix.track import inputs
 from skyfix.track import windows as win
 from skyfix.track.frame_steps import STREAK_PX, FrameSteps, WindowFit
@@ -512,6 +511,15 @@ class Tracker(FrameSteps):
 
     # --- tracking --------------------------------------------------------------------------
     def _track(self, img: np.ndarray, t: float, gyro, t0: float) -> Solution:
+        """One tracked frame: with the MEKF in one compiled call (:meth:`_step`), else step by
+        step (:meth:`_steps`)."""
+        if self.predictor_name == "mekf":
+            return self._step(img, t, gyro, t0)
+        return self._steps(img, t, gyro, t0)
+
+    def _steps(self, img: np.ndarray, t: float, gyro, t0: float) -> Solution:
+        """One tracked frame step by step, for any predictor: its prediction, the windows' fit
+        (one compiled call, :meth:`_measure`) and its gated update."""
         pred = self._predictor.predict(t, gyro_rate_rad_s=gyro)
         t_pred = time.perf_counter()
         fit, why = self._measure(img, t, pred)
@@ -522,32 +530,43 @@ class Tracker(FrameSteps):
                                                      self.settings.nis_gate, xy=fit.xy,
                                                      ids=fit.ids, camera=self.camera,
                                                      gyro_rate_rad_s=gyro)
+            times = {"predict": 1e3 * (t_pred - t0), "measure": 1e3 * (t_fit - t_pred),
+                     "filter": 1e3 * (time.perf_counter() - t_fit)}
             if post is not None:
-                return self._tracked(post, fit, (t0, t_pred, t_fit))
-            if len(fit.index) >= _STRONG_FIT:
-                # The stars agree among themselves, not with the prediction: a manoeuvre the
-                # motion model did not expect. Restart the predictor from the fit, keeping the
-                # predicted rate with the uncertainty the miss implies (2|z|/Δt, a constant
-                # acceleration's over the interval).
-                dt = t - self._t_last
-                rate_sigma = max(2.0 * float(np.linalg.norm(inn.residual_rad)) / dt,
-                                 math.sqrt(float(np.max(np.diagonal(pred.rate_cov_rad2_s2)))))
-                self._restart(fit.A_icrs_to_cam, t, fit.covariance_rad2, gyro, pred.rate_rad_s, rate_sigma)
-                post = self._predictor.predict(t, gyro_rate_rad_s=gyro)
-                return self._tracked(post, fit, (t0, t_pred, t_fit))
-            why = f"the star fit disagrees with the prediction (NIS {inn.nis:.3g})"
+                return self._tracked(post, fit, times)
+            return self._disagrees(img, t, gyro, pred, fit, inn, times, t0)
         return self._recover(img, t, gyro, pred, why, t0)
 
-    def _tracked(self, post, fit: WindowFit, times) -> Solution:
-        """The Solution of a frame tracked in windows (``post``: the predictor's estimate after it)."""
+    def _disagrees(self, img: np.ndarray, t: float, gyro, pred, fit: WindowFit, inn, times: dict,
+                   t0: float) -> Solution:
+        """A fit the predictor's gate refused (its Innovation ``inn``): a manoeuvre when at
+        least :data:`_STRONG_FIT` stars agree among themselves, else a failed frame."""
+        if len(fit.index) >= _STRONG_FIT:
+            # The stars agree among themselves, not with the prediction: a manoeuvre the
+            # motion model did not expect. Restart the predictor from the fit, keeping the
+            # predicted rate with the uncertainty the miss implies (2|z|/Δt, a constant
+            # acceleration's over the interval).
+            dt = t - self._t_last
+            rate_sigma = max(2.0 * float(np.linalg.norm(inn.residual_rad)) / dt,
+                             math.sqrt(float(np.max(np.diagonal(pred.rate_cov_rad2_s2)))))
+            self._restart(fit.A_icrs_to_cam, t, fit.covariance_rad2, gyro, pred.rate_rad_s, rate_sigma)
+            post = self._predictor.predict(t, gyro_rate_rad_s=gyro)
+            return self._tracked(post, fit, times)
+        why = f"the star fit disagrees with the prediction (NIS {inn.nis:.3g})"
+        return self._recover(img, t, gyro, pred, why, t0)
+
+    def _tracked(self, post, fit: WindowFit, times: dict, numbers: tuple | None = None) -> Solution:
+        """The Solution of a frame tracked in windows (``post``: the predictor's estimate after
+        it, or with the Solution's ``numbers`` already made its attitude alone), its ``time_ms``
+        ``times``."""
         mode = self.mode
         self.mode = "tracking"
         self._coast = 0
-        t_end = time.perf_counter()
-        t0, t_pred, t_fit = times
-        sol = self._solution(post, mode, fit)
-        sol.time_ms = {"predict": 1e3 * (t_pred - t0), "measure": 1e3 * (t_fit - t_pred),
-                       "filter": 1e3 * (t_end - t_fit)}
+        if numbers is None:
+            sol = self._solution(post, mode, fit)
+        else:
+            sol = self._solution_of(post, numbers, mode, fit)
+        sol.time_ms = times
         return sol
 
     # --- the Solution ----------------------------------------------------------------------
@@ -561,8 +580,15 @@ class Tracker(FrameSteps):
             xy, b, index = fit.xy, fit.b, fit.index
         vectors = (self._stars.vectors if self._local is None
                    else self.sky.vectors(self._local, self._stars, self._star_ids))
-        head, table, rmse = win.solution_numbers(A, est.attitude_cov_rad2, est.rate_rad_s,
-                                                 est.rate_cov_rad2_s2, xy, b, index, vectors, self._mags)
+        numbers = win.solution_numbers(A, est.attitude_cov_rad2, est.rate_rad_s, est.rate_cov_rad2_s2, xy, b,
+                                       index, vectors, self._mags)
+        return self._solution_of(A, numbers, mode, fit)
+
+    def _solution_of(self, A: np.ndarray, numbers: tuple, mode: str, fit: WindowFit | None) -> Solution:
+        """The Solution of the attitude ``A`` from its numbers (``head``, ``table``, RMS:
+        :func:`skyfix.track.windows.solution_numbers`'s) and the fit (None: coasting)."""
+        head, table, rmse = numbers
+        index = self._no_index if fit is None else fit.index
         A_reported = self.sky.numbers(A, head, table, index, self._stars)  # catalogue places, the frame asked
         h = head.tolist()
         cam = self.camera
@@ -579,8 +605,5 @@ class Tracker(FrameSteps):
         sol.n_matched = len(fit.index)
         sol.prob_false = fit.prob_false
         sol.rmse_arcsec = float(rmse)
-        x, y, ra, dec, mag, resid = table.tolist()
-        # tuple.__new__ mapped in C: half the time of calling Match per star
-        sol.matches = list(map(tuple.__new__, itertools.repeat(Match),
-                               zip(x, y, fit.ids.tolist(), ra, dec, mag, resid, strict=True)))
+        sol.matches = MatchTable(table, fit.ids)  # made into Match tuples when read
         return sol
