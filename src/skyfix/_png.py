@@ -1,4 +1,5 @@
-"""PNG row unfiltering (the step after inflating the image data), as one numba kernel.
+"""PNG row unfiltering and sample conversion (the steps after inflating the image data), as one
+numba kernel.
 
 A PNG stores each row as a filter-type byte and the row's bytes predicted from already decoded
 neighbours (PNG specification § 9): 0 None, 1 Sub (the byte ``bpp`` to the left), 2 Up (the byte
@@ -6,48 +7,73 @@ above), 3 Average (of left and above, rounded down), 4 Paeth (whichever of left,
 upper-left is closest to left + above − upper-left). Decoding adds the prediction back, mod 256.
 Sub, Average and Paeth carry a dependency along the row from one pixel to the next, so the loop
 runs one byte lane (``i ≡ lane mod bpp``) at a time and keeps the left byte in a register; Up
-and None are plain vector loops. :mod:`skyfix.io` inflates and calls this.
+and None are plain vector loops.
 
-Compiling it takes 2–4 s on a loaded 2-core machine (once: numba caches it; a cached load is
-≈ 60 ms). Written with per-row views and scalar loops: the first version, with slice
-assignments, compiled 3× longer for the same speed.
+Each decoded row of a grey image, still in the cache, is then written out as float32 samples
+(big-endian 16-bit samples combined): the frame the extraction reads comes out of this one
+pass, with no full-size byte buffer and no conversion pass after it. A colour image's rows are
+written out as bytes. :mod:`skyfix.io` inflates and calls this.
+
+Compiling it takes 2–4 s on a loaded 2-core machine (once: numba caches it). Written with
+per-row views and scalar loops: a first version with slice assignments compiled 3× longer for
+the same speed.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
 from skyfix._jit import njit
 
-__all__ = ["unfilter_rows"]
+__all__ = ["PngLayout", "decode_rows"]
+
+
+class PngLayout(NamedTuple):
+    """How a non-interlaced PNG's inflated image data is laid out (from its IHDR chunk)."""
+
+    height: int
+    width: int
+    #: samples per pixel: 1 grey, 2 grey + alpha, 3 RGB, 4 RGBA
+    channels: int
+    #: bytes per sample: 1 (8-bit) or 2 (16-bit, big-endian)
+    sample_bytes: int
 
 
 @njit(cache=True, nogil=True)
-def unfilter_rows(raw: np.ndarray, height: int, row_bytes: int, bpp: int) -> tuple[np.ndarray, int]:
-    """Undo the PNG row filters of a non-interlaced image.
+def decode_rows(raw: np.ndarray, layout: PngLayout, out: np.ndarray) -> int:
+    """Undo the PNG row filters of a non-interlaced image and write out its samples.
 
     Parameters
     ----------
-    raw : ndarray of uint8, shape (height * (row_bytes + 1),)
-        The inflated image data: per row, the filter-type byte then ``row_bytes`` bytes.
-    height, row_bytes : int
-        Rows, and bytes per row (width × bytes per pixel).
-    bpp : int
-        Bytes per complete pixel (1–8): the distance to the "left" byte.
+    raw : read-only ndarray of uint8, shape (height * (1 + width * channels * sample_bytes),)
+        The inflated image data: per row, the filter-type byte then the row's bytes (read-only
+        whatever its source, so that numba compiles one signature).
+    layout : PngLayout
+        The image's size and sample layout.
+    out : ndarray
+        Grey (``channels`` 1 or 2): float32, shape (height, width), receives each pixel's grey
+        sample (the alpha sample left out) — the frame as the extraction reads it. Colour:
+        uint8, shape (height, width * channels * sample_bytes), receives the decoded bytes of
+        each row, for :func:`skyfix.io.as_image`'s integer luminance. Two compiled signatures.
 
     Returns
     -------
-    (ndarray of uint8, shape (height, row_bytes), int)
-        The decoded rows, and -1, or the index of the first row whose filter type is not 0–4
-        (the rows from it on are undefined).
+    int
+        -1, or the index of the first row whose filter type is not 0–4 (``out`` is then
+        undefined from that row on).
     """
-    out = np.zeros((height + 1, row_bytes), np.uint8)  # row 0: the zero row "above" the image
+    width, channels, sample_bytes = layout.width, layout.channels, layout.sample_bytes
+    bpp = channels * sample_bytes  # bytes per complete pixel: the distance to the "left" byte
+    row_bytes = width * bpp
     stride = row_bytes + 1
-    for r in range(height):
+    rows = np.zeros((2, row_bytes), np.uint8)  # this row and the one above: zeros above the first
+    for r in range(layout.height):
         kind = raw[r * stride]
         src = raw[r * stride + 1:(r + 1) * stride]
-        cur = out[r + 1]
-        up = out[r]
+        cur = rows[(r + 1) & 1]
+        up = rows[r & 1]
         if kind == 0:
             for i in range(row_bytes):  # a loop: a slice assignment here triples the compile time
                 cur[i] = src[i]
@@ -80,5 +106,20 @@ def unfilter_rows(raw: np.ndarray, height: int, row_bytes: int, bpp: int) -> tup
                     upper_left = above
                     cur[i] = left
         else:
-            return out[1:], r
-    return out[1:], -1
+            return r
+        dst = out[r]
+        if channels > 2:  # colour: the row's bytes as they are
+            for i in range(row_bytes):
+                dst[i] = cur[i]
+        elif sample_bytes == 1:  # 8-bit grey (+ alpha)
+            for x in range(width):
+                dst[x] = cur[x * bpp]
+        elif bpp == 2:  # 16-bit grey: one big-endian uint16 a pixel
+            pairs = cur.view(np.uint16)
+            for x in range(width):
+                v = pairs[x]
+                dst[x] = ((v & 255) << 8) | (v >> 8)
+        else:  # 16-bit grey + alpha
+            for x in range(width):
+                dst[x] = (np.int32(cur[x * 4]) << 8) | np.int32(cur[x * 4 + 1])
+    return -1
