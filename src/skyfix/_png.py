@@ -6,8 +6,8 @@ neighbours (PNG specification § 9): 0 None, 1 Sub (the byte ``bpp`` to the left
 above), 3 Average (of left and above, rounded down), 4 Paeth (whichever of left, above and
 upper-left is closest to left + above − upper-left). Decoding adds the prediction back, mod 256.
 Sub, Average and Paeth carry a dependency along the row from one pixel to the next, so the loop
-runs one byte lane (``i ≡ lane mod bpp``) at a time and keeps the left byte in a register; Up
-and None are plain vector loops.
+runs along byte lanes (``i ≡ lane mod bpp``), two at a time, keeping their left bytes in
+registers; Up and None are plain vector loops.
 
 Each decoded row of a grey image, still in the cache, is then written out as float32 samples
 (big-endian 16-bit samples combined): the frame the extraction reads comes out of this one
@@ -80,40 +80,34 @@ def decode_rows(raw: np.ndarray, layout: PngLayout, out: np.ndarray) -> int:
         elif kind == 2:
             for i in range(row_bytes):
                 cur[i] = src[i] + up[i]
+        elif kind == 1 and bpp == 2:  # Sub of 16-bit grey (or 8-bit grey + alpha): both lanes in one word
+            for i in range(row_bytes):
+                cur[i] = src[i]
+            words = cur.view(np.uint16)
+            left = np.uint32(0)
+            for x in range(width):
+                v = np.uint32(words[x])
+                # each byte plus the byte to its left, mod 256, without a carry between the two
+                left = (((v & 0xFF) + (left & 0xFF)) & 0xFF) | (((v & 0xFF00) + (left & 0xFF00)) & 0xFF00)
+                words[x] = left
         elif kind == 1:
-            for lane in range(bpp):
-                left = 0
-                for i in range(lane, row_bytes, bpp):
-                    left = (src[i] + left) & 255
-                    cur[i] = left
+            _along_lanes(_sub, src, up, cur, row_bytes, bpp)
         elif kind == 3:
-            for lane in range(bpp):
-                left = 0
-                for i in range(lane, row_bytes, bpp):
-                    left = (src[i] + ((left + up[i]) >> 1)) & 255
-                    cur[i] = left
+            _along_lanes(_average, src, up, cur, row_bytes, bpp)
         elif kind == 4:
-            for lane in range(bpp):
-                left = 0
-                upper_left = 0
-                for i in range(lane, row_bytes, bpp):
-                    above = np.int64(up[i])
-                    pa = abs(above - upper_left)  # |p - left| with p = left + above - upper_left
-                    pb = abs(left - upper_left)  # |p - above|
-                    pc = abs(left + above - 2 * upper_left)  # |p - upper_left|
-                    pred = left if (pa <= pb and pa <= pc) else (above if pb <= pc else upper_left)
-                    left = (src[i] + pred) & 255
-                    upper_left = above
-                    cur[i] = left
+            _along_lanes(_paeth, src, up, cur, row_bytes, bpp)
         else:
             return r
         dst = out[r]
         if channels > 2:  # colour: the row's bytes as they are
             for i in range(row_bytes):
                 dst[i] = cur[i]
-        elif sample_bytes == 1:  # 8-bit grey (+ alpha)
+        elif bpp == 1:  # 8-bit grey (a loop of its own: a contiguous one vectorises)
             for x in range(width):
-                dst[x] = cur[x * bpp]
+                dst[x] = cur[x]
+        elif sample_bytes == 1:  # 8-bit grey + alpha
+            for x in range(width):
+                dst[x] = cur[2 * x]
         elif bpp == 2:  # 16-bit grey: one big-endian uint16 a pixel
             pairs = cur.view(np.uint16)
             for x in range(width):
@@ -123,3 +117,51 @@ def decode_rows(raw: np.ndarray, layout: PngLayout, out: np.ndarray) -> int:
             for x in range(width):
                 dst[x] = (np.int32(cur[x * 4]) << 8) | np.int32(cur[x * 4 + 1])
     return -1
+
+
+@njit(cache=True, inline="always")
+def _along_lanes(predict, src, up, cur, row_bytes, bpp):
+    """A Sub, Average or Paeth row: each byte plus ``predict(left, above, upper_left)``, mod 256.
+
+    The chain runs along each byte lane, two lanes at a time so that their two chains overlap
+    (one lane at a time waits on each step), keeping the left bytes in registers. ``predict``
+    is a kernel: numba compiles this loop once for each, with the prediction written in.
+    """
+    for lane in range(0, bpp - 1, 2):
+        left0 = left1 = upper_left0 = upper_left1 = np.int64(0)
+        for i in range(lane, row_bytes, bpp):
+            above0, above1 = np.int64(up[i]), np.int64(up[i + 1])
+            left0 = (np.int64(src[i]) + predict(left0, above0, upper_left0)) & 255
+            left1 = (np.int64(src[i + 1]) + predict(left1, above1, upper_left1)) & 255
+            upper_left0, upper_left1 = above0, above1
+            cur[i] = left0
+            cur[i + 1] = left1
+    if bpp % 2:  # the last lane, alone
+        left0 = upper_left0 = np.int64(0)
+        for i in range(bpp - 1, row_bytes, bpp):
+            above0 = np.int64(up[i])
+            left0 = (np.int64(src[i]) + predict(left0, above0, upper_left0)) & 255
+            upper_left0 = above0
+            cur[i] = left0
+
+
+@njit(cache=True, inline="always")
+def _sub(left, above, upper_left):
+    """Sub's prediction: the byte to the left."""
+    return left
+
+
+@njit(cache=True, inline="always")
+def _average(left, above, upper_left):
+    """Average's prediction: the mean of left and above, rounded down."""
+    return (left + above) >> 1
+
+
+@njit(cache=True, inline="always")
+def _paeth(left, above, upper_left):
+    """Paeth's prediction: whichever of left, above and upper-left is closest to
+    p = left + above − upper-left (ties in that order)."""
+    pa = abs(above - upper_left)  # |p - left|
+    pb = abs(left - upper_left)  # |p - above|
+    pc = abs(left + above - 2 * upper_left)  # |p - upper_left|
+    return left if (pa <= pb and pa <= pc) else (above if pb <= pc else upper_left)
