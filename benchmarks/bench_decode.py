@@ -172,26 +172,27 @@ def available(module: str) -> bool:
 
 
 def skyfix_png_zlib(p: Path) -> np.ndarray:
-    """skyfix's PNG decoder as it runs without imagecodecs: Python's zlib inflates."""
-    import imagecodecs
+    """skyfix's PNG decoder as it runs without the ``deflate`` package: Python's zlib inflates."""
+    import deflate
 
     from skyfix.io import read_image_with_header
 
-    sys.modules["imagecodecs"] = None  # `import imagecodecs` raises ImportError
+    sys.modules["deflate"] = None  # `import deflate` raises ImportError
     try:
         return read_image_with_header(p, decoder="skyfix-png").data
     finally:
-        sys.modules["imagecodecs"] = imagecodecs
+        sys.modules["deflate"] = deflate
 
 
 def load_base_reader(path: str) -> Callable:
-    """``read_image`` from another tree's ``skyfix/io.py`` (e.g. the base commit's), loaded on its own."""
+    """``read_image_with_header`` from another tree's ``skyfix/io.py`` (e.g. the base commit's),
+    loaded on its own (its own ``skyfix._png`` must be importable as this tree's: see ``--base-io``)."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("skyfix_io_base", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return module.read_image
+    return module.read_image_with_header
 
 
 def time_rounds(calls: dict[str, Callable[[], object]], rounds: int) -> dict[str, tuple[list, list]]:
@@ -230,10 +231,10 @@ def decode_table(args, base_read: Callable | None) -> None:
         fns: dict[str, tuple[Callable[[Path], np.ndarray], tuple[str, ...]]] = {
             "read_image": (read_image, ALL)}
         if base_read is not None:
-            fns["base read_image"] = (base_read, ALL)
+            fns["base read_image"] = ((lambda p: base_read(p).data), ALL)
         fns |= {k: ((lambda p, k=k: read_image_with_header(p, decoder=k).data), suf)
                 for k, suf in SKYFIX.items()}
-        if available("imagecodecs"):
+        if available("deflate"):
             fns["skyfix-png(zlib)"] = (skyfix_png_zlib, (".png",))
         fns |= {k: ((lambda p, fn=fn: as_image(fn(p))), suf) for k, (fn, suf, _) in others.items()}
         calls, diff = {}, {}
@@ -275,24 +276,25 @@ def solve_ab(args, base_read: Callable) -> None:
     import skyfix.io
 
     path = Path(args.solve)
-    new_read = skyfix.io.read_image
+    new_read = skyfix.io.read_image_with_header
     res: dict[str, dict[str, list]] = {"this tree": {}, "base reader": {}}
 
     def run(label, reader):
         cpu_read = []
 
-        def timed(image):
+        def timed(image, **kw):
             c0 = time.process_time()
-            out = reader(image)
+            out = reader(image, **kw)
             cpu_read.append((time.process_time() - c0) * 1e3)
             return out
 
-        skyfix.io.read_image = timed  # pipeline.solve imports read_image from skyfix.io at each call
+        # pipeline.solve imports read_image_with_header from skyfix.io at each call
+        skyfix.io.read_image_with_header = timed
         c0 = time.process_time()
         try:
             sol = skyfix.solve(path)
         finally:
-            skyfix.io.read_image = new_read
+            skyfix.io.read_image_with_header = new_read
         cpu_total = (time.process_time() - c0) * 1e3
         assert sol.status == "solved", sol.reason
         for k, v in [*sol.time_ms.items(), ("read CPU", cpu_read[0]), ("total CPU", cpu_total)]:
@@ -321,7 +323,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=15, help="rounds (each decoder once per file per round)")
     ap.add_argument("--sizes", default="1280x960,4000x3000")
-    ap.add_argument("--base-io", help="another tree's src/skyfix/io.py: adds its read_image as a column")
+    ap.add_argument("--base-io", help="another tree's src/skyfix/io.py: adds its read_image as a column "
+                    "(it imports this tree's skyfix._png: where that changed, give a copy whose import "
+                    "names the other tree's _png.py, copied beside it under another name)")
     ap.add_argument("--solve", metavar="IMAGE",
                     help="with --base-io: time skyfix.solve(IMAGE) with each reader")
     ap.add_argument("--no-table", action="store_true", help="skip the decoder table")

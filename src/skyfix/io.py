@@ -20,10 +20,14 @@ and the last one of the chain gives the verdict on a bad file. :data:`DECODERS` 
 (``read_image_with_header(path, decoder=...)`` picks one):
 
 - ``skyfix-png``: PNG's plain layouts (8- or 16-bit grey, grey + alpha, RGB, RGBA, not
-  interlaced) — the chunks parsed here, the image data inflated by libdeflate when
-  ``imagecodecs`` is installed (else by ``zlib``, which Python ships), the rows unfiltered by a
-  numba kernel (:mod:`skyfix._png`). Its pixels are bit-exact with Pillow's, and 16-bit colour
-  keeps its 16 bits (Pillow reduces 16-bit colour and grey + alpha to 8 bits).
+  interlaced) — the chunks parsed here, the image data inflated by libdeflate (the ``deflate``
+  package, a dependency; ``zlib``, which Python ships, if it is missing), the rows unfiltered
+  by a numba kernel (:mod:`skyfix._png`) that writes a grey image's float32 frame itself: no
+  full-size intermediate and no conversion pass. Its pixels are bit-exact with Pillow's, and
+  16-bit colour keeps its 16 bits (Pillow reduces 16-bit colour and grey + alpha to 8 bits).
+  The inflate is most of the time: on a 16-bit 1280 × 960 frame libdeflate takes 5.4 ms of
+  the read's CPU, zlib 8.7, and Pillow, pyspng, OpenCV and imagecodecs' PNG decoder 12–13.5
+  ms for the whole read (``benchmarks/bench_decode.py``).
 - ``skyfix-fits``: an uncompressed FITS file's first 2-D image HDU (primary or ``IMAGE``
   extension), its header cards parsed here and its data memory-mapped and converted to native
   float32 in one pass, BZERO/BSCALE/BLANK applied as astropy applies them — without importing
@@ -157,7 +161,9 @@ def read_image_with_header(path: str | os.PathLike | np.ndarray, *, decoder: str
         got = DECODERS[name](p)
         if got is not None:
             data, header = got
-            return ImageFile(as_image(data, name=str(p)), header, fmt, name)
+            # a frame of whole numbers holds no NaN: no pass over it to look for one
+            return ImageFile(as_image(data, name=str(p), replace_nonfinite=name not in _WHOLE_NUMBERS),
+                             header, fmt, name)
     raise ImageReadError(f"{p}: the {' / '.join(chain)} decoder cannot read this {fmt} file")
 
 
@@ -292,27 +298,32 @@ def _png_skyfix(p: Path) -> tuple[np.ndarray, dict] | None:
     if (depth not in (8, 16) or colour not in _PNG_CHANNELS or compression or filter_method or interlace
             or not 0 < width * height <= _PNG_MAX_PIXELS):
         return None
+    from skyfix._png import PngLayout, decode_rows  # numba: imported on first use
+
     channels = _PNG_CHANNELS[colour]
-    bpp = channels * depth // 8
-    row_bytes = width * bpp
-    raw = _inflate(idat[0] if len(idat) == 1 else b"".join(idat), height * (row_bytes + 1))
+    layout = PngLayout(height, width, channels, depth // 8)
+    row_bytes = width * channels * depth // 8
+    raw = _inflate(idat[0] if len(idat) == 1 else b"".join(idat), height * (1 + row_bytes))
     if raw is None:
         return None
-    from skyfix._png import unfilter_rows
-
-    rows, bad_row = unfilter_rows(np.frombuffer(raw, np.uint8), height, row_bytes, bpp)
-    if bad_row >= 0:
+    grey = channels <= 2
+    # grey: the float32 frame itself (alpha left out); colour: the decoded bytes, for as_image's
+    # integer luminance as from every decoder
+    out = np.empty((height, width) if grey else (height, row_bytes), np.float32 if grey else np.uint8)
+    pixels = np.frombuffer(raw, np.uint8)
+    pixels.flags.writeable = False  # libdeflate's bytearray and zlib's bytes alike: one kernel signature
+    if decode_rows(pixels, layout, out) >= 0:
         return None
-    pixels = (rows.view(">u2") if depth == 16 else rows).reshape(height, width, channels)
-    return (pixels[..., 0] if channels <= 2 else pixels[..., :3]), {}
+    if grey:
+        return out, {}
+    return (out.view(">u2") if depth == 16 else out).reshape(height, width, channels)[..., :3], {}
 
 
-def _inflate(stream: bytes | memoryview, size: int) -> bytes | None:
-    """A zlib stream inflated to exactly ``size`` bytes (libdeflate if installed, else zlib); None if not."""
+def _inflate(stream: bytes | memoryview, size: int) -> bytes | bytearray | None:
+    """A zlib stream inflated to exactly ``size`` bytes (libdeflate, the ``deflate`` package, if
+    installed, else zlib); None if it is cut short, longer, or fails its Adler-32 check."""
     try:
-        import imagecodecs
-
-        out = imagecodecs.deflate_decode(stream, out=size)
+        import deflate
     except ImportError:
         inflater = zlib.decompressobj()
         try:
@@ -321,8 +332,11 @@ def _inflate(stream: bytes | memoryview, size: int) -> bytes | None:
             return None
         if not inflater.eof:  # cut short, or longer than the image
             return None
-    except Exception:  # imagecodecs.DeflateError: corrupt, truncated or longer than the image
-        return None
+    else:
+        try:
+            out = deflate.zlib_decompress(stream, size)  # longer than ``size``: an error
+        except deflate.DeflateError:
+            return None
     return out if len(out) == size else None
 
 
@@ -609,6 +623,9 @@ DECODERS: dict[str, Callable[[Path], tuple[np.ndarray, dict] | None]] = {
     "astropy": _fits_astropy,
     "pillow": _pillow,
 }
+
+# Decoders whose frames hold stored integers only (as float32 or an integer type).
+_WHOLE_NUMBERS = frozenset({"skyfix-png"})
 
 #: The decoders tried for each format, in order (the first that reads the file wins).
 DECODER_CHAINS: dict[str, tuple[str, ...]] = {

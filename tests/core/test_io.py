@@ -413,10 +413,11 @@ def test_reading_plain_fits_does_not_import_astropy(tmp_path, frame):
     assert out.strip() == "(40, 56) False"
 
 
-def test_without_imagecodecs_png_inflates_with_zlib_and_jpeg_goes_to_pillow(tmp_path, monkeypatch):
+def test_without_deflate_or_imagecodecs_png_inflates_with_zlib_and_jpeg_goes_to_pillow(tmp_path, monkeypatch):
     import sys
 
     monkeypatch.setitem(sys.modules, "imagecodecs", None)  # `import imagecodecs` raises ImportError
+    monkeypatch.setitem(sys.modules, "deflate", None)
     pixels = np.random.default_rng(8).integers(0, 65536, (15, 17)).astype(np.uint16)
     _png_file(tmp_path / "z.png", pixels, 0)
     got = read_image_with_header(tmp_path / "z.png")
@@ -430,21 +431,23 @@ def test_without_imagecodecs_png_inflates_with_zlib_and_jpeg_goes_to_pillow(tmp_
         read_image_with_header(tmp_path / "t.png", decoder="skyfix-png")
 
 
-@pytest.mark.parametrize("inflater", ["imagecodecs", "zlib"])
-def test_png_image_data_longer_than_the_image_is_not_decoded(tmp_path, monkeypatch, inflater):
+@pytest.mark.parametrize("inflater", ["deflate", "zlib"])
+@pytest.mark.parametrize("extra", [1 << 20, 1, -1])  # bytes more (a zip bomb) or fewer than the image
+def test_png_image_data_not_the_image_size_is_not_decoded(tmp_path, monkeypatch, inflater, extra):
     import struct
     import sys
     import zlib
 
     if inflater == "zlib":
-        monkeypatch.setitem(sys.modules, "imagecodecs", None)
+        monkeypatch.setitem(sys.modules, "deflate", None)
     else:
-        pytest.importorskip("imagecodecs")
+        pytest.importorskip("deflate")
 
     def chunk(kind: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
-    rows = b"".join(b"\0" + bytes(4) for _ in range(4)) + bytes(1 << 20)  # 4×4 grey, then 1 MiB more
+    rows = b"".join(b"\0" + bytes(4) for _ in range(4))  # 4×4 grey
+    rows = rows + bytes(extra) if extra > 0 else rows[:extra]
     ihdr = struct.pack(">IIBBBBB", 4, 4, 8, 0, 0, 0, 0)
     (tmp_path / "long.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
                                         + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))

@@ -203,3 +203,20 @@ def test_whole_number_test_on_the_sample_lattice(bad):
     off[43, 55] = bad
     assert not is_integer_valued(on)
     assert is_integer_valued(off)
+
+
+def test_kept_grid_weights_give_the_same_stars_as_fresh_ones():
+    from skyfix.detect import _grid
+
+    img, _ = _star_field(seed=9)
+    _grid._WEIGHTS.clear()
+    fresh = extract_centroids(img)
+    assert len(_grid._WEIGHTS) == 1  # the background and the extractor's sky share one tiling
+    kept = extract_centroids(img)
+    np.testing.assert_array_equal(kept.xy, fresh.xy)
+    np.testing.assert_array_equal(kept.flux, fresh.flux)
+    cy, cx = np.array([10.0, 30.0]), np.array([5.0, 25.0, 45.0])
+    w = _grid.grid_weights(cy, cx, (40, 50))
+    assert _grid.grid_weights(cy.copy(), cx.copy(), (40, 50)) is w  # same tiling: the kept arrays
+    assert _grid.grid_weights(cy, cx, (41, 50)) is not w
+    np.testing.assert_array_equal(w.fy, _grid.interp_weights(cy, 40)[1])
