@@ -7,6 +7,7 @@ runs, not when the command table is set up: every ``skyfix`` start loads this mo
 
 from __future__ import annotations
 
+import contextlib
 import math
 from pathlib import Path
 
@@ -138,6 +139,12 @@ def simulate(
     from skyfix.simulate import render, render_sequence, write_frame
 
     add_verbosity(verbose)
+    frames = check_count(frames, "--frames")
+    check_positive(fps, "--fps")
+    if exposure is not None:
+        check_positive(exposure, "--exposure")
+    for name, value in (("--false-stars", false_stars), ("--hot-pixels", hot_pixels), ("--seed", seed)):
+        check_count(value, name, minimum=0)
     if allsky is not None:
         _simulate_allsky(allsky, lens_fov, out_dir, output, camera, sensor, exposure, time, seed, frames,
                          ra, dec)
@@ -148,12 +155,6 @@ def simulate(
         fail("--ra and --roll must be finite numbers of degrees")
     if not -90.0 <= dec <= 90.0:
         fail(f"--dec {dec:g} is outside -90..90 degrees")
-    frames = check_count(frames, "--frames")
-    check_positive(fps, "--fps")
-    if exposure is not None:
-        check_positive(exposure, "--exposure")
-    for name, value in (("--false-stars", false_stars), ("--hot-pixels", hot_pixels), ("--seed", seed)):
-        check_count(value, name, minimum=0)
     realism = _realism(seeing, scintillation, airmass, site_altitude, psf_growth, jpeg_quality)
     A = attitude_from_radec_roll(math.radians(ra), math.radians(dec), math.radians(roll))
     motion_options = {"--rate-dps": rate_dps, "--axis": axis, "--rotation-deg": rotation_deg,
@@ -163,17 +164,7 @@ def simulate(
     motion = _simulate_profile(profile, A, {k: v for k, v in motion_options.items() if v is not None})
     cam, sensor_arg = _camera_arg(camera), _sensor_arg(sensor)
     first, velocity = _sky_seen_at(time, velocity_kms)  # --time and --velocity-kms checked now
-    if (out_dir is None) == (output is None):
-        fail("give an output folder (OUT_DIR) or an image file (-o FILE), not both" if out_dir is not None
-             else "give an output folder (OUT_DIR) or an image file (-o FILE)")
-    if out_dir is not None:
-        if out_dir.exists() and not out_dir.is_dir():
-            fail(f"OUT_DIR {out_dir} is a file; give a folder (or write one image with -o {out_dir})")
-        paths = [out_dir / f"frame-{k:04d}.fits" for k in range(frames)]
-    elif frames == 1:
-        paths = [output]
-    else:
-        paths = [output.with_name(f"{output.stem}-{k:04d}{output.suffix}") for k in range(frames)]
+    paths = _output_paths(out_dir, output, frames)
     timed = all(p.suffix.lower() in (".fits", ".fit", ".fts") for p in paths)
     if velocity_kms is not None and not timed:
         fail("--velocity-kms needs FITS frames: a PNG or TIFF frame carries no time, so a solve could "
@@ -187,23 +178,16 @@ def simulate(
         from skyfix.simulate import resolve_setup
 
         kw["optics"] = resolve_setup(cam, None, None, None)[2].replace(psf_growth_edge=psf_growth)
-    progress = _simulate_progress(frames)
-    try:
-        with compile_notice(progress):
-            if frames == 1 and out_dir is None and motion is None:
-                image, truth = write_frame(render(A, cam, **kw), output)
-                typer.echo(f"wrote {image} and {truth}")
-                return
-            sequence = render_sequence(A, cam, n_frames=frames, fps=fps, profile=motion, **kw)
-            for path, frame in zip(paths, sequence, strict=True):
-                write_frame(frame, path)
-                if progress is not None:
-                    progress.advance(0)
-    except ValueError as exc:  # the simulator's own checks of sensor and preset values
-        fail(f"bad value: {exc}")
-    finally:
-        if progress is not None:
-            progress.stop()
+    with _rendering(frames) as progress:
+        if frames == 1 and out_dir is None and motion is None:
+            image, truth = write_frame(render(A, cam, **kw), output)
+            typer.echo(f"wrote {image} and {truth}")
+            return
+        sequence = render_sequence(A, cam, n_frames=frames, fps=fps, profile=motion, **kw)
+        for path, frame in zip(paths, sequence, strict=True):
+            write_frame(frame, path)
+            if progress is not None:
+                progress.advance(0)
     if frames == 1:
         typer.echo(f"wrote {paths[0]} and {paths[0].with_suffix('.truth.json')}")
     else:
@@ -231,34 +215,52 @@ def _simulate_allsky(site_text: str, lens_fov: float, out_dir: Path | None, outp
         fail(f"--lens-fov {lens_fov:g} must be from 90 to 220 degrees")
     with checking("--allsky", site_text):
         site = Site.parse(site_text, "--allsky")
-    if exposure is not None:
-        check_positive(exposure, "--exposure")
-    check_count(seed, "--seed", minimum=0)
     with checking("--camera", camera):
         size = load_camera(camera)
     sensor_arg = _sensor_arg(sensor)
     first, _ = _sky_seen_at(time, None)
-    if (out_dir is None) == (output is None):
-        fail("give an output folder (OUT_DIR) or an image file (-o FILE), not both" if out_dir is not None
-             else "give an output folder (OUT_DIR) or an image file (-o FILE)")
-    path = output if output is not None else out_dir / "frame-0000.fits"
+    path, = _output_paths(out_dir, output, 1)
     prepare_outputs({"--output" if out_dir is None else "OUT_DIR": [path]})
     lens_camera = all_sky_camera(size.width, size.height, lens_fov)
     landscape = random_landscape(np.random.default_rng(seed))
     options = {} if exposure is None else {"exposure_s": exposure}
-    progress = _simulate_progress(1)
+    with _rendering(1):
+        frame = render_allsky(lens_camera, site=(site.lat_deg, site.lon_deg), time=first, landscape=landscape,
+                              fov_deg=lens_fov, seed=seed, sensor=sensor_arg, **options)
+        image, truth = write_frame(frame, path)
+    typer.echo(f"wrote {image} and {truth}")
+
+
+def _output_paths(out_dir: Path | None, output: Path | None, frames: int) -> list[Path]:
+    """The frames' files — ``OUT_DIR/frame-NNNN.fits``, or ``-o FILE`` (numbered when more than
+    one) — checked: exactly one of the two, and a folder that is no file (the caller makes their folders)."""
+    if (out_dir is None) == (output is None):
+        fail("give an output folder (OUT_DIR) or an image file (-o FILE), not both" if out_dir is not None
+             else "give an output folder (OUT_DIR) or an image file (-o FILE)")
+    if out_dir is not None:
+        if out_dir.exists() and not out_dir.is_dir():
+            fail(f"OUT_DIR {out_dir} is a file; give a folder (or write one image with -o {out_dir})")
+        paths = [out_dir / f"frame-{k:04d}.fits" for k in range(frames)]
+    elif frames == 1:
+        paths = [output]
+    else:
+        paths = [output.with_name(f"{output.stem}-{k:04d}{output.suffix}") for k in range(frames)]
+    return paths
+
+
+@contextlib.contextmanager
+def _rendering(frames: int):
+    """The progress of rendering ``frames`` (None when there is none to show), with the compile
+    notice; the simulator's own ValueErrors (sensor and preset values) become one-line errors."""
+    progress = _simulate_progress(frames)
     try:
         with compile_notice(progress):
-            frame = render_allsky(lens_camera, site=(site.lat_deg, site.lon_deg), time=first,
-                                  landscape=landscape, fov_deg=lens_fov, seed=seed, sensor=sensor_arg,
-                                  **options)
-            image, truth = write_frame(frame, path)
+            yield progress
     except ValueError as exc:
         fail(f"bad value: {exc}")
     finally:
         if progress is not None:
             progress.stop()
-    typer.echo(f"wrote {image} and {truth}")
 
 
 def _sky_seen_at(time: str | None, velocity_kms: str | None):
