@@ -35,9 +35,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from skyfix._kernels.places import move_stars
 from skyfix.cache import CorruptFileError, cache_dir, exclusive_lock, notice, verify, write_npz
 from skyfix.errors import CatalogError
-from skyfix.geometry import normalize, radec_to_vector, vector_to_radec
+from skyfix.geometry import radec_to_vector, vector_to_radec
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
@@ -202,38 +203,12 @@ def propagate(vectors: np.ndarray, pm_ra: np.ndarray, pm_dec: np.ndarray, dt: fl
     """
     if dt == 0.0:
         return vectors
-    rate = None
-    if parallax is not None and rv_km_s is not None:
-        rate = np.broadcast_to(np.asarray(rv_km_s, np.float64) * parallax / AU_KM_S_PER_YEAR, pm_ra.shape)
-    moving = (pm_ra != 0.0) | (pm_dec != 0.0)
-    if rate is not None:
-        moving |= rate != 0.0
-    if moving.all():
-        return _moved(vectors, pm_ra, pm_dec, rate, dt)
-    out = vectors.copy()
-    out[moving] = _moved(vectors[moving], pm_ra[moving], pm_dec[moving],
-                         None if rate is None else rate[moving], dt)
-    return out
-
-
-def _moved(vectors: np.ndarray, pm_ra: np.ndarray, pm_dec: np.ndarray, rate: np.ndarray | None,
-           dt: float) -> np.ndarray:
-    """The straight-line step of :func:`propagate`, renormalised. East and north at ``u = (x, y,
-    z)`` from the vector itself, no angles: ``e = (−y, x, 0) / ρ``, ``n = (−z x, −z y, ρ²) / ρ``
-    with ``ρ = √(x² + y²)`` (at a pole, where RA is 0 by convention, ``x/ρ = 1``, ``y/ρ = 0``)."""
-    x, y, z = vectors[:, 0], vectors[:, 1], vectors[:, 2]
-    rho = np.hypot(x, y)
-    pole = rho == 0.0
-    safe = np.where(pole, 1.0, rho)
-    cos_ra, sin_ra = np.where(pole, 1.0, x / safe), np.where(pole, 0.0, y / safe)
-    a, d = pm_ra * dt, pm_dec * dt
-    step = np.empty_like(vectors)
-    step[:, 0] = -a * sin_ra - d * z * cos_ra
-    step[:, 1] = a * cos_ra - d * z * sin_ra
-    step[:, 2] = d * rho
-    if rate is not None:
-        step += (rate * dt)[:, None] * vectors
-    return normalize(vectors + step)
+    rate = np.zeros_like(pm_ra) if parallax is None or rv_km_s is None else np.broadcast_to(
+        np.asarray(rv_km_s, np.float64) * parallax / AU_KM_S_PER_YEAR, pm_ra.shape)
+    f64 = np.float64
+    return move_stars(np.ascontiguousarray(vectors, dtype=f64), np.ascontiguousarray(pm_ra, dtype=f64),
+                      np.ascontiguousarray(pm_dec, dtype=f64), np.ascontiguousarray(rate, dtype=f64),
+                      float(dt))
 
 
 # --- magnitudes: Gaia G and Hipparcos Hp ---------------------------------------------------------

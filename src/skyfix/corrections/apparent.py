@@ -12,8 +12,9 @@ becomes the direction the camera sees in three steps, ERFA's for a star (``atciq
 The result is the GCRS direction: astropy's ICRS → GCRS with the same ``obsgeoloc`` and
 ``obsgeovel`` (tests/corrections/test_aberration.py: 1000 random stars, dates and velocities, within 1 µas).
 What depends on the time and the observer alone is computed once (:func:`apparent_frame`, the
-ephemeris cached per time); applying it to a solve's few hundred stars costs ~40 µs
-(:func:`apparent_directions`).
+ephemeris cached per time); applying it to a solve's few hundred stars is one compiled call
+(:func:`apparent_directions`: ERFA's ``ldsun`` and ``ab`` written out in
+:mod:`skyfix._kernels.places`, a few µs; ERFA stays the tests' reference).
 """
 
 from __future__ import annotations
@@ -22,12 +23,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from skyfix.corrections.aberration import AU_KM, aberrate, earth_state
+from skyfix._kernels.places import apparent_stars
+from skyfix.corrections.aberration import AU_KM, earth_state, lorentz
 from skyfix.corrections.observer import GEOCENTRE, Observer, check_speed
 from skyfix.errors import InputError
 from skyfix.obstime import ObservationTime
 
-# erfa is imported in the functions that call it: importing it takes ~150 ms.
 __all__ = ["ApparentFrame", "apparent_frame", "apparent_directions"]
 
 
@@ -72,11 +73,11 @@ def apparent_directions(vectors: np.ndarray, frame: ApparentFrame,
     """Apparent (GCRS) directions of catalogue ``vectors`` ((N, 3) unit, ICRS, at the
     observation epoch) in ``frame``: parallax (``parallax``, (N,) rad, when given), the Sun's
     light deflection, aberration — the module's three steps."""
-    import erfa
-
-    p = np.asarray(vectors, dtype=np.float64)
-    if parallax is not None:
-        shifted = p - np.asarray(parallax, dtype=np.float64)[..., None] * frame.barycentric_au
-        p = shifted / np.linalg.norm(shifted, axis=-1, keepdims=True)
-    p = erfa.ldsun(p, frame.sun_to_observer, frame.sun_distance_au)
-    return aberrate(p, frame.velocity_km_s)
+    p = np.ascontiguousarray(vectors, dtype=np.float64)
+    shape = p.shape
+    p = p.reshape(-1, 3)
+    parallax = (np.zeros(len(p)) if parallax is None
+                else np.ascontiguousarray(parallax, dtype=np.float64).reshape(-1))
+    beta, bm1 = lorentz(frame.velocity_km_s)
+    return apparent_stars(p, parallax, frame.barycentric_au, frame.sun_to_observer, frame.sun_distance_au,
+                          beta, bm1).reshape(shape)

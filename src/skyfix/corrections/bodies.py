@@ -33,7 +33,6 @@ import numpy as np
 from skyfix.corrections.aberration import AU_KM, DAY_S, aberrate, earth_state
 from skyfix.corrections.observer import EARTH_EQUATORIAL_RADIUS_KM, GEOCENTRE, SPEED_OF_LIGHT_KM_S, Observer
 from skyfix.errors import InputError
-from skyfix.geometry import normalize
 from skyfix.obstime import ObservationTime
 
 # erfa is imported in the functions that call it: importing it takes ~150 ms.
@@ -95,41 +94,37 @@ def body_directions(time: ObservationTime, observer: Observer = GEOCENTRE) -> Bo
     if not time.known:
         raise InputError("no observation time: the Sun's and the Moon's directions need one "
                          "(give --time, or an image with DATE-OBS or EXIF)")
-    earth = earth_state(time.jd_tt)
-    offset = np.zeros(3) if observer.position_km is None else observer.position_km / AU_KM
-    seen_from = earth.barycentric_au + offset
-    velocity = earth.velocity_km_s + observer.velocity_km_s
-    sun, moon = aberrate(normalize(np.array([_light_time_position(body, time.jd_tt, seen_from)
-                                             for body in ("sun", "moon")])), velocity)
-    if observer.position_km is None:
-        return BodyDirections(sun, moon, None, math.nan)
-    distance = float(np.linalg.norm(observer.position_km))
-    radius = math.asin(min(1.0, EARTH_EQUATORIAL_RADIUS_KM / distance))
-    return BodyDirections(sun, moon, -observer.position_km / distance, radius)
-
-
-def _barycentric_state(body: str, jd_tt: float) -> tuple[np.ndarray, np.ndarray]:
-    """The barycentric position (au) and velocity (au/day) of the Sun or the Moon at ``jd_tt``
-    (ERFA ``epv00`` through :func:`earth_state`, cached per time, and ``moon98``); the Sun's
-    velocity is taken as 0 (its barycentric motion, at most 15 m/s, moves it 7 km in the light's
-    8.3 minutes: 0.01″)."""
     import erfa
 
-    earth = earth_state(jd_tt)
-    if body == "sun":
-        return earth.barycentric_au - earth.heliocentric_au, np.zeros(3)
-    day = math.floor(jd_tt - 0.5) + 0.5
-    moon = erfa.moon98(day, jd_tt - day)  # geocentric, GCRS axes, au and au/day
-    return earth.barycentric_au + moon[0], earth.velocity_km_s * (DAY_S / AU_KM) + moon[1]
-
-
-def _light_time_position(body: str, jd_tt: float, seen_from_au: np.ndarray) -> np.ndarray:
-    """Where ``body`` was, from ``seen_from_au`` (barycentric, au), when the light that arrives at
-    ``jd_tt`` left it: its position moved back along its velocity by the light time (for the
-    Moon 1.3 s, in which its path bends by 2 m: the one ephemeris call serves)."""
-    position, velocity = _barycentric_state(body, jd_tt)
-    light_days = float(np.linalg.norm(position - seen_from_au)) * AU_KM / SPEED_OF_LIGHT_KM_S / DAY_S
-    return position - light_days * velocity - seen_from_au
+    jd = time.jd_tt
+    earth = earth_state(jd)
+    seen_from = earth.barycentric_au if observer.position_km is None else (
+        earth.barycentric_au + observer.position_km / AU_KM)
+    day = math.floor(jd - 0.5) + 0.5
+    moon = erfa.moon98(day, jd - day)  # geocentric, GCRS axes, au and au/day
+    # Barycentric positions (au) and velocities (au/day) of the Sun (its velocity taken as 0: its
+    # barycentric motion, at most 15 m/s, moves it 7 km in the light's 8.3 minutes, 0.01″) and the
+    # Moon; each is where it was when the light that arrives at ``jd`` left it (light time: for the
+    # Moon 1.3 s, in which its path bends by 2 m, so one ephemeris call serves).
+    o = seen_from.tolist()
+    bary, helio = earth.barycentric_au.tolist(), earth.heliocentric_au.tolist()
+    to_day = DAY_S / AU_KM
+    moon_velocity = (earth.velocity_km_s * to_day + moon[1]).tolist()
+    bodies = (([b - h for b, h in zip(bary, helio, strict=True)], (0.0, 0.0, 0.0)),
+              ((earth.barycentric_au + moon[0]).tolist(), moon_velocity))
+    seen = []
+    for position, velocity in bodies:
+        d = [p - q for p, q in zip(position, o, strict=True)]
+        light_days = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) * AU_KM / SPEED_OF_LIGHT_KM_S / DAY_S
+        d = [p - light_days * v for p, v in zip(d, velocity, strict=True)]
+        n = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        seen.append([c / n for c in d])
+    sun, moon_dir = aberrate(np.array(seen), earth.velocity_km_s + observer.velocity_km_s)
+    if observer.position_km is None:
+        return BodyDirections(sun, moon_dir, None, math.nan)
+    distance = float(np.linalg.norm(observer.position_km))
+    radius = math.asin(min(1.0, EARTH_EQUATORIAL_RADIUS_KM / distance))
+    return BodyDirections(sun, moon_dir, -observer.position_km / distance, radius)
 
 
 def body_angles(boresight: np.ndarray, time: ObservationTime, observer: Observer = GEOCENTRE) -> BodyAngles:
