@@ -145,8 +145,9 @@ def record(jobs: Iterable[str] | None = None, path: Path = SIGNATURES) -> int:
 
 
 def _solve_examples() -> None:
-    """The bundled frames as the README solves them, with and without a camera, and the first
-    as an 8-bit JPEG (a photograph's path: no camera, a distorted-frame search order)."""
+    """The bundled frames as the README solves them, with and without a camera, the first as an
+    8-bit JPEG (a photograph's path: no camera, a distorted-frame search order) and the first
+    with a time and an observer's velocity (the corrections' path)."""
     import numpy as np
     from PIL import Image
 
@@ -171,6 +172,8 @@ def _solve_examples() -> None:
                 continue
             if sol.solved:
                 skyfix.solve(path, camera=sol.camera)
+        if frames:  # a time and a velocity: proper motion and the per-star corrections' kernels
+            skyfix.solve(frames[0], time="2026-06-01T00:00:00", observer="7.0,0.5,-1.0")
 
 
 def _all_sky() -> None:
