@@ -145,9 +145,9 @@ def record(jobs: Iterable[str] | None = None, path: Path = SIGNATURES) -> int:
 
 
 def _solve_examples() -> None:
-    """The bundled frames as the README solves them, with and without a camera, the first as an
-    8-bit JPEG (a photograph's path: no camera, a distorted-frame search order) and the first
-    with a time and an observer's velocity (the corrections' path)."""
+    """The bundled frames as the README solves them, with and without a camera; the first also
+    as an 8-bit JPEG (a photograph's path: no camera, a distorted-frame search order), as a
+    colour PNG, and with a time and an observer's velocity (the corrections' path)."""
     import numpy as np
     from PIL import Image
 
@@ -162,9 +162,11 @@ def _solve_examples() -> None:
             a = read_image(frames[0]).astype(np.float64)
             lo, top = np.median(a), np.percentile(a, 99.9)
             jpeg = Path(tmp) / "frame.jpg"
-            Image.fromarray(np.clip((a - lo) / max(top - lo, 1.0) * 230 + 20, 0, 255).astype(np.uint8)).save(
-                jpeg, quality=92)
-            frames.append(jpeg)
+            grey = Image.fromarray(np.clip((a - lo) / max(top - lo, 1.0) * 230 + 20, 0, 255).astype(np.uint8))
+            grey.save(jpeg, quality=92)
+            colour = Path(tmp) / "frame-rgb.png"  # a colour PNG: the reader's RGB rows
+            grey.convert("RGB").save(colour)
+            frames += [jpeg, colour]
         for path in frames:
             try:
                 sol = skyfix.solve(path)
