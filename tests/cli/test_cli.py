@@ -96,7 +96,9 @@ def test_cli_simulate_takes_a_camera_files_sensor_and_optics(tmp_path):
 
 def test_cli_simulate_allsky_frame_solves_at_its_site(tmp_path):
     """skyfix simulate --allsky LAT,LON: an all-sky frame whose zenith the solve finds, from the
-    site and the frame's time, within an arcminute of the truth."""
+    site and the frame's time (its DATE-OBS: the frame shows the Earth's aberration then), within
+    a tenth of a pixel of the truth; the boresight within half a pixel (8.4′ a pixel here: all-sky
+    boresights on these frames are 20–160″ off, seeds 3–6)."""
     from skyfix.geometry import radec_to_vector
 
     out = tmp_path / "sky.fits"
@@ -111,7 +113,9 @@ def test_cli_simulate_allsky_frame_solves_at_its_site(tmp_path):
     assert r["status"] == "solved" and r["n_matched"] > 50
     got = radec_to_vector(np.radians(r["ra_deg"]), np.radians(r["dec_deg"]))
     want = radec_to_vector(np.radians(truth["ra_deg"]), np.radians(truth["dec_deg"]))
-    assert np.degrees(np.arccos(np.clip(got @ want, -1, 1))) * 3600 < 60.0
+    assert np.arccos(np.clip(got @ want, -1, 1)) < 0.5 / truth["camera"]["fx"]
+    assert np.hypot(*np.subtract(r["zenith_px"], truth["zenith_px"])) < 0.1
+    assert r["time_source"] == "DATE-AVG"
     both = runner.invoke(app, ["simulate", "--allsky", "52.2,0.1", "--ra", "10", "-o", str(out)])
     assert both.exit_code == 2 and "--ra" in both.stderr
     none = runner.invoke(app, ["simulate", "-o", str(out)])

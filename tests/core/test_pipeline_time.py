@@ -80,6 +80,24 @@ def test_aberrated_frames_solve_to_the_true_attitude(tmp_path):
     np.testing.assert_allclose(plain, predicted, atol=1.5)
 
 
+def test_a_frame_rendered_without_aberration_carries_no_time_a_solve_would_use(tmp_path):
+    """simulate.render with a time but no observer velocity renders the catalogue places: its FITS
+    holds the time as SIMDATE, not DATE-OBS, so a solve of the file removes no aberration and
+    lands on the truth (with DATE-OBS it was 19–20″ off under a 2″ error bar)."""
+    from skyfix.simulate import render
+    from skyfix.simulate.optics import Optics
+    from skyfix.simulate.truth import write_frame
+
+    A = attitude_from_radec_roll(math.radians(84.0), math.radians(-2.0), math.radians(10.0))
+    optics = Optics(aperture_mm=25.0, throughput=0.8, psf_fwhm_px=2.0)
+    frame = render(A, CAMERA, optics=optics, exposure_s=0.2, epoch="2026-03-01T00:00:00", seed=1)
+    path = tmp_path / "plain.fits"
+    write_frame(frame, path)
+    sol = skyfix.solve(path, camera=CAMERA)
+    assert sol.solved and sol.time_source == "none" and "aberration" in sol.corrections_not_applied
+    assert boresight_arcsec(sol.A_icrs_to_cam, A) < 1.0
+
+
 def test_time_from_the_header_and_from_the_caller(tmp_path):
     rng = np.random.default_rng(7)
     path, image, A, v_orbit, t = rendered(tmp_path, 0, rng)

@@ -289,8 +289,20 @@ def test_write_fits_png_tiff_and_truth(tmp_path):
     with fits.open(p) as hdul:
         assert np.array_equal(hdul[0].data, f.image)
         h = hdul[0].header
-        # J2025.0 is 18:00 TT, 69.184 s later than UTC (a Julian year is TT, as obstime reads it)
-        assert h["TRU_RA"] == pytest.approx(40.0) and h["DATE-AVG"] == "2024-12-31T17:58:50.816"
+        # J2025.0 is 18:00 TT, 69.184 s later than UTC (a Julian year is TT, as obstime reads it).
+        # Rendered with no observer velocity, the stars are not aberrated: no DATE-OBS (a solve
+        # reading it would remove the Earth's aberration of that moment, 20″), the time as SIMDATE
+        assert h["TRU_RA"] == pytest.approx(40.0) and h["SIMDATE"] == "2024-12-31T17:58:50.816"
+        assert "DATE-OBS" not in h and "DATE-AVG" not in h
+    from skyfix.corrections import earth_state
+    from skyfix.obstime import parse_time
+
+    v = earth_state(parse_time(f.truth["time"]).jd_tt).velocity_km_s
+    aberrated = render(A0, "generic", epoch=EPOCH, seed=2, mag_limit=7.0, observer_velocity_km_s=v)
+    p, _ = write_frame(aberrated, tmp_path / "seen.fits")
+    with fits.open(p) as hdul:
+        h = hdul[0].header
+        assert h["DATE-AVG"] == "2024-12-31T17:58:50.816" and "SIMDATE" not in h
         # DATE-OBS is the exposure's start (FITS), half an exposure before the middle
         start = datetime.fromisoformat(h["DATE-OBS"]) + timedelta(seconds=0.5 * h["EXPTIME"])
         assert start == datetime.fromisoformat(h["DATE-AVG"])

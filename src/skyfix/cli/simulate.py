@@ -218,15 +218,18 @@ def _simulate_allsky(site_text: str, lens_fov: float, out_dir: Path | None, outp
     with checking("--camera", camera):
         size = load_camera(camera)
     sensor_arg = _sensor_arg(sensor)
-    first, _ = _sky_seen_at(time, None)
+    first, velocity = _sky_seen_at(time, None)  # the Earth's velocity: the FITS carries its time
     path, = _output_paths(out_dir, output, 1)
     prepare_outputs({"--output" if out_dir is None else "OUT_DIR": [path]})
+    if path.suffix.lower() not in (".fits", ".fit", ".fts"):  # no time in the file: catalogue places
+        velocity = None
     lens_camera = all_sky_camera(size.width, size.height, lens_fov)
     landscape = random_landscape(np.random.default_rng(seed))
     options = {} if exposure is None else {"exposure_s": exposure}
     with _rendering(1):
         frame = render_allsky(lens_camera, site=(site.lat_deg, site.lon_deg), time=first, landscape=landscape,
-                              fov_deg=lens_fov, seed=seed, sensor=sensor_arg, **options)
+                              fov_deg=lens_fov, seed=seed, sensor=sensor_arg, observer_velocity_km_s=velocity,
+                              **options)
         image, truth = write_frame(frame, path)
     typer.echo(f"wrote {image} and {truth}")
 

@@ -37,9 +37,15 @@ def _fits_header(truth: dict):
     hdr = fits.Header()
     # FITS: DATE-OBS is the exposure's start, DATE-AVG its middle (what skyfix reads first); the
     # truth's time is the middle (both were the middle's before, half an exposure late as read).
-    mid = parse_time(truth["time"])
-    hdr["DATE-OBS"] = (later(mid, -0.5 * float(truth["exposure_s"])).iso.rstrip("Z"), "exposure start (UTC)")
-    hdr["DATE-AVG"] = (truth["time"].rstrip("Z"), "mid-exposure time (UTC)")
+    # Only a frame whose stars were aberrated (an observer velocity) carries them: a solver that
+    # reads a time removes the aberration of that moment, which a frame rendered at the catalogue
+    # places does not show (20″ off). Its time is SIMDATE instead, which no solver reads.
+    if truth.get("observer_velocity_km_s") is None:
+        hdr["SIMDATE"] = (truth["time"].rstrip("Z"), "mid-exposure (UTC); stars not aberrated")
+    else:
+        start = later(parse_time(truth["time"]), -0.5 * float(truth["exposure_s"]))
+        hdr["DATE-OBS"] = (start.iso.rstrip("Z"), "exposure start (UTC)")
+        hdr["DATE-AVG"] = (truth["time"].rstrip("Z"), "mid-exposure time (UTC)")
     hdr["EXPTIME"] = (truth["exposure_s"], "exposure, s")
     hdr["TRU_RA"] = (truth["ra_deg"], "truth boresight RA, deg (ICRS)")
     hdr["TRU_DEC"] = (truth["dec_deg"], "truth boresight Dec, deg (ICRS)")
