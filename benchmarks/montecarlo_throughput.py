@@ -36,7 +36,7 @@ import tomllib
 ROOT = Path(__file__).resolve().parents[1]
 #: What --against replaces: the trial code and the modules it times that this work changed.
 _MODULES = ("skyfix.montecarlo.trials", "skyfix.montecarlo.budget", "skyfix.simulate.psf",
-            "skyfix.simulate.render", "skyfix.calibrate")
+            "skyfix.simulate.render", "skyfix.simulate.sensor", "skyfix.calibrate")
 _TIMES = ("simulate_ms", "time_ms")
 
 

@@ -12,7 +12,7 @@ from skyfix.catalog import Catalog
 from skyfix.errors import CameraError, SimulationError, SkyfixError, UnknownNameError
 from skyfix.geometry import angle_between, attitude_from_radec_roll
 from skyfix.simulate import Optics, Sensor, load_preset, render, render_sequence, star_electrons, write_frame
-from skyfix.simulate.psf import add_gaussians
+from skyfix.simulate.psf import add_gaussians, pixel_integrated_stamps
 from skyfix.simulate.scene import simulation_time
 
 EPOCH = 2025.0
@@ -108,6 +108,25 @@ def test_elliptical_psf_keeps_flux_and_centroid():
         w = img / img.sum()
         assert (w * (xx - cx) ** 2).sum() == pytest.approx(sxx + 1 / 12, rel=0.01)
         assert (w * (xx - cx) * (yy - cy)).sum() == pytest.approx(sxy, rel=0.02)
+
+
+@pytest.mark.parametrize("correlation", [0.0, 0.4])
+def test_scattered_gaussians_are_the_stamps_placed(correlation):
+    # psf._scatter has two forms (a round Gaussian's two factors, an elliptical one's whole
+    # stamps): each adds exactly the stamps of pixel_integrated_stamps, clipped at the frame's edges
+    rng = np.random.default_rng(9)
+    n = 60
+    x, y = rng.uniform(-6, 86, n), rng.uniform(-6, 66, n)
+    flux, s = rng.uniform(10, 1e3, n), rng.uniform(0.6, 1.1, n)
+    sxx, syy, sxy = s**2, (0.9 * s) ** 2, np.full(n, correlation)
+    img = add_gaussians(np.zeros((60, 80)), x, y, flux, sxx, syy, sxy)
+    half = math.ceil(6.0 * s.max())  # add_gaussians's stamp half-size at its n_sigma 6
+    stamps, row0, col0 = pixel_integrated_stamps(x, y, sxx, syy, sxy, half, strips=4 if correlation else 1)
+    ref = np.zeros((60 + 4 * half, 80 + 4 * half))
+    for st, r, c, f in zip(stamps, row0 + 2 * half, col0 + 2 * half, flux, strict=True):
+        ref[r:r + 2 * half + 1, c:c + 2 * half + 1] += f * st
+    assert np.allclose(img, ref[2 * half:-2 * half, 2 * half:-2 * half], rtol=1e-12, atol=1e-9)
+    assert img.sum() < flux.sum() - 10  # some light fell off the frame
 
 
 def test_field_dependent_psf_and_defocus_through_render():

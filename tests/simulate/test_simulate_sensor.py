@@ -179,6 +179,30 @@ def test_constant_poisson_sparse_and_table_paths_are_exact(lam):
     assert abs(x.mean() - lam) < 4 * math.sqrt(lam / x.size)
 
 
+@pytest.mark.parametrize("floor", [0.0, 0.2, 5.0])
+def test_poisson_of_a_gain_map_and_constant_into_a_frame_are_the_plain_draws(floor):
+    # poisson_image(lam, rng, gain) is poisson_image(lam * gain) draw for draw (the product in
+    # float32, not stored on a dark frame), and poisson_constant(…, into=frame) adds exactly its
+    # own draws to the frame — on the dark path's two passes (most pixels 0 or 1 by bounds, the
+    # rest inverted or PTRS) and on the bright path's table
+    rng = np.random.default_rng(4)
+    lam = (floor + rng.uniform(0.0, 0.6, (120, 90))).astype(np.float32)
+    lam[::17, ::13] = rng.uniform(2.0, 3e3, lam[::17, ::13].shape)
+    gain = (1.0 + 0.02 * rng.standard_normal(lam.shape)).astype(np.float32)
+    a = poisson_image(lam, np.random.default_rng(5), gain)
+    b = poisson_image(lam * gain, np.random.default_rng(5))
+    assert a.dtype == np.float32 and np.array_equal(a, b) and a.sum() > 0
+    for mean in (0.05, 0.7):
+        frame = a.copy()
+        out = poisson_constant(mean, lam.shape, np.random.default_rng(6), into=frame)
+        assert out is frame
+        assert np.array_equal(frame, a + poisson_constant(mean, lam.shape, np.random.default_rng(6)))
+    with pytest.raises(SimulationError):
+        poisson_image(lam, rng, gain[:-1])
+    with pytest.raises(SimulationError):
+        poisson_constant(0.1, lam.shape, rng, into=a.astype(np.float64))
+
+
 def test_standard_normals_are_the_quantiles_of_their_uniforms():
     from scipy.special import ndtri
 

@@ -93,30 +93,15 @@ def _shares(x: np.ndarray, y: np.ndarray, sxx: np.ndarray, syy: np.ndarray, sxy:
 
 
 @njit(cache=True, nogil=True)
-def _scatter(image, stamps, flux, row0, col0):
-    h, w = image.shape
-    n, s, _ = stamps.shape
-    for i in range(n):
-        f = flux[i]
-        r0 = row0[i]
-        c0 = col0[i]
-        for a in range(s):
-            r = r0 + a
-            if r < 0 or r >= h:
-                continue
-            for b in range(s):
-                c = c0 + b
-                if 0 <= c < w:
-                    image[r, c] += f * stamps[i, a, b]
-
-
-@njit(cache=True, nogil=True)
-def _scatter_round(image, p, wx, flux, row0, col0):
-    """:func:`_scatter` of round stamps given as their factors: pixel (a, b) of stamp ``i`` is
-    ``p[i, a] * wx[i, b]``, the product :func:`pixel_integrated_stamps` forms (the same numbers)
-    without making the (N, S, S) stamps."""
+def _scatter(image, p, wx, flux, row0, col0):
+    """Add stamp ``i`` times ``flux[i]`` to ``image`` at (``row0[i]``, ``col0[i]``), the pixels
+    outside the frame left out. A stamp is given as factors: its pixel (a, b) is
+    ``p[i, a] * wx[i, a, b]`` — or ``p[i, a] * wx[i, 0, b]`` when ``wx`` has one row (a round
+    Gaussian, separable: the (N, S, S) stamps are never made); a whole stamp is ``p`` = 1 and
+    ``wx`` the stamps (1 × x is x: the same numbers)."""
     h, w = image.shape
     n, s = p.shape
+    one_row = wx.shape[1] == 1
     for i in range(n):
         f = flux[i]
         r0 = row0[i]
@@ -125,10 +110,11 @@ def _scatter_round(image, p, wx, flux, row0, col0):
             r = r0 + a
             if r < 0 or r >= h:
                 continue
+            ra = 0 if one_row else a
             for b in range(s):
                 c = c0 + b
                 if 0 <= c < w:
-                    image[r, c] += f * (p[i, a] * wx[i, b])
+                    image[r, c] += f * (p[i, a] * wx[i, ra, b])
 
 
 def add_gaussians(image: np.ndarray, x: np.ndarray, y: np.ndarray, flux: np.ndarray,
@@ -160,10 +146,9 @@ def add_gaussians(image: np.ndarray, x: np.ndarray, y: np.ndarray, flux: np.ndar
         half = int(math.ceil(n_sigma * math.sqrt(float(max(sxx[j].max(), syy[j].max())))))
         half = max(half, 1)
         if elliptical:
-            stamps, row0, col0 = pixel_integrated_stamps(x[j], y[j], sxx[j], syy[j], sxy[j], half, strips)
-            _scatter(image, stamps, np.ascontiguousarray(flux[j]), row0, col0)
+            wx, row0, col0 = pixel_integrated_stamps(x[j], y[j], sxx[j], syy[j], sxy[j], half, strips)
+            p = np.ones(wx.shape[:2])
         else:  # separable: the stamps' two factors scattered, never the (N, S, S) stamps
             p, wx, row0, col0 = _shares(x[j], y[j], sxx[j], syy[j], sxy[j], half, 1)
-            _scatter_round(image, p, np.ascontiguousarray(wx[:, 0, :]), np.ascontiguousarray(flux[j]),
-                           row0, col0)
+        _scatter(image, p, np.ascontiguousarray(wx), np.ascontiguousarray(flux[j]), row0, col0)
     return image

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -69,6 +70,13 @@ class SimulatedFrame:
 
 
 def _camera_table(camera: Camera) -> dict:
+    """The truth's ``camera``: the camera file's ``[camera]`` table (a copy of the one kept for
+    the last few cameras: its TOML, written and read, costs ~0.4 ms a frame)."""
+    return dict(_camera_toml_table(camera))
+
+
+@lru_cache(maxsize=8)
+def _camera_toml_table(camera: Camera) -> dict:
     return tomllib.loads(camera.to_toml())["camera"]
 
 

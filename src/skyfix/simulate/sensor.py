@@ -314,14 +314,21 @@ def _draw_table(u, cdf, lo, guide):
 _SEARCH_MAX = 12.0
 
 
-@njit(cache=True, nogil=True)
-def _invert_small(u, lam):
-    # Poisson(lam) of the uniform u by sequential search of the CDF: about lam + 1 steps.
+@njit(cache=True, nogil=True, inline="always")
+def _certain(u, lam):
+    """Poisson(lam) of the uniform u where bounds settle it without exp: 0 or 1; else -1."""
     if u <= 1.0 - lam:  # exp(-lam) >= 1 - lam: certainly 0 (skips exp for the faint majority)
         return 0
     # 1 - lam + lam²/2 >= exp(-lam) and (1 + lam)·exp(-lam) >= 1 - lam²: certainly 1
-    if 1.0 - lam + 0.5 * lam * lam < u <= 1.0 - lam * lam:
-        return 1
+    return 1 if 1.0 - lam + 0.5 * lam * lam < u <= 1.0 - lam * lam else -1
+
+
+@njit(cache=True, nogil=True)
+def _invert_small(u, lam):
+    # Poisson(lam) of the uniform u by sequential search of the CDF: about lam + 1 steps.
+    k = _certain(u, lam)
+    if k >= 0:
+        return k
     p = math.exp(-lam)
     s = p
     k = 0
@@ -338,14 +345,38 @@ def _poisson_small(rng, lam):
 
 
 @njit(cache=True, nogil=True)
-def _poisson_dim(lam, u, rng, out):
-    """out[i] = Poisson(lam[i]): the uniform u[i] inverted where lam[i] < _SEARCH_MAX (u drawn in
-    bulk beforehand), ``rng.poisson`` in pixel order elsewhere (star cores)."""
+def _lowest(lam, gain, scaled):
+    """(the smallest of ``lam·gain`` — ``lam`` when not ``scaled`` —, whether all are finite),
+    the products in float32 as numpy forms them, none kept."""
     flat = lam.ravel()
+    g = gain.ravel()
+    lo = np.float32(np.inf)
+    finite = True
+    for i in range(flat.size):
+        m = flat[i] * g[i] if scaled else flat[i]
+        if not np.isfinite(m):
+            finite = False
+        elif m < lo:
+            lo = m
+    return lo, finite
+
+
+@njit(cache=True, nogil=True)
+def _poisson_dim(lam, gain, scaled, u, rng, out):
+    """out[i] = Poisson(lam[i]·gain[i]) (``lam[i]`` when not ``scaled``; the product in float32):
+    the uniform u[i] inverted where the mean is < _SEARCH_MAX (u drawn in bulk beforehand),
+    ``rng.poisson`` in pixel order elsewhere (star cores). Two passes: the pixels that bounds
+    settle (0 or 1: 94 % of them at a mean of 0.2 e⁻) in one pass, then the rest."""
+    flat = lam.ravel()
+    g = gain.ravel()
     uu = u.ravel()
     o = out.ravel()
+    for i in range(flat.size):  # a mean >= _SEARCH_MAX is never settled (1 - m² < 0 <= u)
+        o[i] = _certain(uu[i], flat[i] * g[i] if scaled else flat[i])
     for i in range(flat.size):
-        m = flat[i]
+        if o[i] >= 0.0:
+            continue
+        m = flat[i] * g[i] if scaled else flat[i]
         if m < _SEARCH_MAX:
             o[i] = _invert_small(uu[i], m)
         else:
@@ -371,8 +402,9 @@ def _poisson_image(lam, lam0, cdf, lo, guide, rng, out):
         o[i] = k
 
 
-def poisson_image(lam: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Poisson draws (float32, same shape) with per-pixel means ``lam`` (electrons).
+def poisson_image(lam: np.ndarray, rng: np.random.Generator, gain: np.ndarray | None = None) -> np.ndarray:
+    """Poisson draws (float32, same shape) with per-pixel means ``lam`` (electrons), or
+    ``lam · gain`` (float32; a PRNU map, the product never stored on a dark frame).
 
     Exact Poisson, fast for star-tracker frames. A dark frame (the smallest mean below 1
     electron, as every star tracker's sky): one uniform per pixel drawn in bulk and inverted
@@ -384,12 +416,19 @@ def poisson_image(lam: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     out = np.empty(lam.shape, dtype=np.float32)
     if lam.size == 0:
         return out
-    if not np.all(np.isfinite(lam)) or lam.min() < 0:
+    scaled = gain is not None
+    gain = np.ascontiguousarray(gain, dtype=np.float32) if scaled else np.ones((1, 1), np.float32)
+    if scaled and gain.shape != lam.shape:
+        raise SimulationError(f"gain map is {gain.shape}, the means {lam.shape}")
+    lowest, finite = _lowest(lam, gain, scaled)
+    if not finite or lowest < 0:
         raise SimulationError("expected electron counts must be finite and non-negative")
-    lam0 = float(lam.min())
+    lam0 = float(lowest)
     if lam0 < 1.0:
-        _poisson_dim(lam, rng.random(lam.shape), rng, out)
+        _poisson_dim(lam, gain, scaled, rng.random(lam.shape), rng, out)
         return out
+    if scaled:
+        lam = lam * gain
     if lam0 > 1e6:  # the table would be too long; no star-tracker background is this bright
         return rng.poisson(lam).astype(np.float32)
     cdf, lo, guide = _poisson_table(lam0) if lam0 > 0 else (np.ones(1), 0, np.zeros(1, np.int64))
@@ -400,14 +439,15 @@ def poisson_image(lam: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 @njit(cache=True, nogil=True)
 def _fill_nonzero(out, gaps, u, p0, lam):
     """Pixels ``cumsum(gaps) - 1`` get Poisson(lam) given ≥ 1 (u[j] mapped above P(0) = p0 and
-    inverted); returns how many fell inside ``out``."""
+    inverted), added to them (float32, as numpy adds two float32 frames); returns how many fell
+    inside ``out``."""
     o = out.ravel()
     pos = -1
     for j in range(gaps.size):
         pos += gaps[j]
         if pos >= o.size:
             return j
-        o[pos] = _invert_small(p0 + u[j] * (1.0 - p0), lam)
+        o[pos] = o[pos] + np.float32(_invert_small(p0 + u[j] * (1.0 - p0), lam))
     return gaps.size
 
 
@@ -415,18 +455,24 @@ def _fill_nonzero(out, gaps, u, p0, lam):
 def _invert_table(u, cdf, lo, guide, out):
     o = out.ravel()
     for i in range(o.size):
-        o[i] = _draw_table(u[i], cdf, lo, guide)
+        o[i] = o[i] + np.float32(_draw_table(u[i], cdf, lo, guide))
 
 
-def poisson_constant(lam: float, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
-    """Poisson draws (float32) with one mean ``lam`` for every pixel, exact.
+def poisson_constant(lam: float, shape: tuple[int, int], rng: np.random.Generator,
+                     into: np.ndarray | None = None) -> np.ndarray:
+    """Poisson draws (float32) with one mean ``lam`` for every pixel, exact; added to ``into``
+    (float32, C-contiguous, in place: the same numbers as ``into + poisson_constant(…)``) and
+    that returned, when given.
 
     A mean below 0.25 (a dark current of a fraction of an electron): the pixels that are not 0
     are found by geometric gaps between them (a pixel is not 0 with chance ``1 − e^(−lam)``,
     independently), each then drawn from the Poisson given ≥ 1 — about ``lam`` draws a pixel.
     Larger means: one uniform per pixel, in bulk, through a cached CDF table.
     """
-    out = np.zeros(shape, dtype=np.float32)
+    out = np.zeros(shape, dtype=np.float32) if into is None else into
+    if into is not None and not (into.dtype == np.float32 and into.shape == tuple(shape)
+                                 and into.flags.c_contiguous):
+        raise SimulationError("into must be a C-contiguous float32 frame of the shape")
     if lam <= 0:
         return out
     lam = float(np.float32(lam))
@@ -585,11 +631,13 @@ def apply_detector(photo_e: np.ndarray, sensor: Sensor, exposure_s: float,
     need_pattern = on["prnu"] or on["dsnu"] or (on["hot_pixels"] and hot_pixels > 0)
     pattern = fixed_pattern(sensor, shape, hot_pixels if on["hot_pixels"] else 0) if need_pattern else None
 
-    mean_e = photo_e * pattern.prnu_gain if (on["prnu"] and sensor.prnu > 0) else photo_e
-    charge = poisson_image(mean_e, streams["shot"]) if on["shot"] else np.array(mean_e, dtype=np.float32)
+    gain = pattern.prnu_gain if (on["prnu"] and sensor.prnu > 0) else None
+    if on["shot"]:
+        charge = poisson_image(photo_e, streams["shot"], gain)
+    else:
+        charge = np.array(photo_e if gain is None else photo_e * gain, dtype=np.float32)
     if on["dark"] and sensor.dark_current_e_s > 0:
-        dark_mean = sensor.dark_current_e_s * exposure_s
-        charge += poisson_constant(dark_mean, shape, streams["dark"])
+        poisson_constant(sensor.dark_current_e_s * exposure_s, shape, streams["dark"], into=charge)
     if on["hot_pixels"] and pattern is not None and pattern.hot_index.size:
         hot = streams["dark"].poisson(pattern.hot_dark_e_s * exposure_s)
         charge.ravel()[pattern.hot_index] += hot.astype(np.float32)
