@@ -49,6 +49,9 @@ def calibrate_stars_command(
                               "chosen by BIC and those the stars cannot constrain are refused."),
     skew: bool = typer.Option(False, "--skew", help="Fit the pixel skew too (off by default)."),
     max_stars: int = typer.Option(300, "--max-stars", help="Centroids per image."),
+    centroid: str = typer.Option("gaussian", "--centroid", metavar="NAME",
+                                 help="com | iwcog | gaussian: the centroider the stars are measured with "
+                                 "(default gaussian, the most precise)."),
     plot: Path | None = typer.Option(None, "--plot", help="PNG of the residuals across the frame, before and "
                                      "after."),
     verbose: int = VERBOSE,
@@ -56,13 +59,18 @@ def calibrate_stars_command(
     """Calibrate a camera from star images: solve each, fit one camera and one attitude per image
     jointly, re-identify stars through the camera until it converges."""
     from skyfix.calibration.stars import calibrate_stars, calibration_model, parameter_table
+    from skyfix.detect.centroid import CENTROIDERS
+    from skyfix.errors import unknown_name
 
     add_verbosity(verbose)
     with checking("--model", model):
         calibration_model(model)
+    with checking("--centroid", centroid):
+        if centroid not in CENTROIDERS:
+            raise unknown_name("centroider", centroid, CENTROIDERS)
     outputs = {"--output": [output]} | ({"--plot": [plot]} if plot else {})
     prepare_outputs(outputs, inputs=images)
-    cal = calibrate_stars(images, model=model, skew=skew, max_stars=max_stars)
+    cal = calibrate_stars(images, model=model, skew=skew, max_stars=max_stars, centroid=centroid)
     _print_parameters(parameter_table(cal))
     for name, why in cal.refused.items():
         typer.echo(f"refused {name}: {why}")
