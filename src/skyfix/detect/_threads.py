@@ -22,6 +22,7 @@ calling thread.
 
 from __future__ import annotations
 
+import functools
 import os
 import queue
 import threading
@@ -54,12 +55,16 @@ _PACE = _Pace()
 
 def threads_enabled() -> bool:
     """Whether :func:`run_chunks` hands chunks to the helper thread."""
-    if os.environ.get("SKYFIX_THREADS", "") == "1":
-        return False
+    return os.environ.get("SKYFIX_THREADS", "") != "1" and _cpus() > 1
+
+
+@functools.cache
+def _cpus() -> int:
+    """The CPUs this process may run on (as it started)."""
     try:
-        return len(os.sched_getaffinity(0)) > 1
+        return len(os.sched_getaffinity(0))
     except AttributeError:  # not Linux
-        return (os.cpu_count() or 1) > 1
+        return os.cpu_count() or 1
 
 
 def split(n: int, least: int) -> list[int]:

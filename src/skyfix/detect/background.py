@@ -354,7 +354,11 @@ def _lattice_samples(img: np.ndarray, sm: np.ndarray, lattice: _Lattice, of_raw:
     Returns the :class:`_Samples`, with the medians of the smoothed samples (of the raw ones if
     ``of_raw``). Bands of tile rows are shared with the helper thread (:mod:`skyfix.detect._threads`).
     """
-    samples = _lattice_tables(lattice)
+    edges_y, edges_x, sy, sx = lattice
+    n_tiles = (edges_y.size - 1) * (edges_x.size - 1)
+    cap = int((np.diff(edges_y).max() // sy + 1) * (np.diff(edges_x).max() // sx + 1))
+    samples = _Samples(np.empty((n_tiles, cap)), np.empty((n_tiles, cap)), np.zeros(n_tiles, np.int64),
+                       np.empty(n_tiles))
     edges = _tile_bands(lattice)
     run_chunks(lambda i: _lattice_rows(img, sm, lattice, of_raw, samples, edges[i], edges[i + 1]),
                len(edges) - 1)
@@ -365,16 +369,6 @@ def _tile_bands(lattice: _Lattice) -> list[int]:
     """Bands of tile rows for the helper thread, about 150 tiles or more each."""
     ny, nx = lattice.edges_y.size - 1, lattice.edges_x.size - 1
     return split(ny, -(-150 // nx))
-
-
-@njit(cache=True)
-def _lattice_tables(lattice):
-    """Empty :class:`_Samples` for ``lattice`` (counts 0)."""
-    edges_y, edges_x, sy, sx = lattice
-    ny, nx = edges_y.size - 1, edges_x.size - 1
-    cap = ((edges_y[1:] - edges_y[:-1]).max() // sy + 1) * ((edges_x[1:] - edges_x[:-1]).max() // sx + 1)
-    return _Samples(np.empty((ny * nx, cap)), np.empty((ny * nx, cap)), np.zeros(ny * nx, np.int64),
-                    np.empty(ny * nx))
 
 
 @njit(cache=True, nogil=True)
@@ -422,11 +416,9 @@ def _lattice_rows(img, sm, lattice, of_raw, samples, ty0, ty1):
             med[t] = median_inplace(buf, k, guess)
 
 
-class _NoiseTables(NamedTuple):
-    """What :func:`_tile_noise` fills and the indices it shares between tiles (:func:`_noise_tables`)."""
+class _NoiseIndex(NamedTuple):
+    """What the tiles of :func:`_tile_noise` share (:func:`_noise_index`)."""
 
-    stats: np.ndarray  # (ny, nx, 2) float64 — each tile's level correction and noise σ
-    pooled: np.ndarray  # the raw samples minus the sky of the pooled tiles (in tile order)
     start: np.ndarray  # (T + 1,) int64 — where each tile's pooled samples go
     col_start: np.ndarray  # (nx + 1,) int64 — each tile column's first lattice column
     along_x: np.ndarray  # (ny, lattice columns) float64 — the level along x at the tile-centre rows
@@ -445,27 +437,28 @@ def _tile_noise(samples: _Samples, lattice: _Lattice, level: np.ndarray, level_r
     ``level``. Bands of tile rows are shared with the helper thread, each band starting from
     the statistics of the tile before it, so the result is the same whatever the bands.
     """
-    tables = _noise_tables(samples, lattice, level, weights)
+    ny, nx = lattice.edges_y.size - 1, lattice.edges_x.size - 1
+    pool_every = max(1, (ny * nx) // 64)  # the tiles whose raw samples are pooled: every this many
+    stats = np.empty((ny, nx, 2))
+    pooled = np.empty(int(samples.count[::pool_every].sum()))
     edges = _tile_bands(lattice)
-    nx = lattice.edges_x.size - 1
-    run_chunks(lambda i: _tile_noise_tiles(samples, lattice, level_raw, weights, is_int, same_level, tables,
-                                           edges[i] * nx, edges[i + 1] * nx), len(edges) - 1)
-    return tables.stats, tables.pooled
+    run_chunks(lambda i: _tile_noise_tiles(samples, lattice, level, level_raw, weights, is_int, same_level,
+                                           pool_every, stats, pooled, edges[i] * nx, edges[i + 1] * nx),
+               len(edges) - 1)
+    return stats, pooled
 
 
-@njit(cache=True)
-def _noise_tables(samples, lattice, level, weights):
-    """:class:`_NoiseTables` for :func:`_tile_noise`: the pooled tiles' places and the level
+@njit(cache=True, inline="always")
+def _noise_index(count, lattice, level, weights, pool_every):
+    """:class:`_NoiseIndex` for :func:`_tile_noise`: the pooled tiles' places and the level
     interpolated along x at every tile-centre row, on the lattice columns (each sample's model
     is then one interpolation along y: the arithmetic of bilinear, in two steps)."""
-    cnt = samples.count
     edges_y, edges_x, sy, sx = lattice
     ix, fx = weights.ix, weights.fx
     ny, nx = edges_y.size - 1, edges_x.size - 1
-    pool_every = max(1, (ny * nx) // 64)
     start = np.zeros(ny * nx + 1, np.int64)
     for t in range(ny * nx):
-        start[t + 1] = start[t] + (cnt[t] if t % pool_every == 0 else 0)
+        start[t + 1] = start[t] + (count[t] if t % pool_every == 0 else 0)
     col_start = np.zeros(nx + 1, np.int64)
     for tx in range(nx):
         x_first = _lattice_start(edges_x[tx], edges_x[tx + 1], sx)
@@ -480,43 +473,45 @@ def _noise_tables(samples, lattice, level, weights):
             for i in range(ny):
                 along_x[i, c] = (1.0 - g) * level[i, j] + g * level[i, j1]
             c += 1
-    return _NoiseTables(np.empty((ny, nx, 2)), np.empty(start[-1], np.float64), start, col_start, along_x)
+    return _NoiseIndex(start, col_start, along_x)
 
 
 @njit(cache=True, nogil=True)
-def _tile_noise_tiles(samples, lattice, level_raw, weights, is_int, same_level, tables, t0, t1):
-    """:func:`_tile_noise` for the tiles ``t0..t1 − 1`` (row-major), into ``tables``.
+def _tile_noise_tiles(samples, lattice, level, level_raw, weights, is_int, same_level, pool_every, stats,
+                      pooled, t0, t1):
+    """:func:`_tile_noise` for the tiles ``t0..t1 − 1`` (row-major), into ``stats`` and ``pooled``.
 
     Each tile's lower-half median starts from the previous tile's offset below its median (a
     pivot, which changes the order the selection leaves the values in, and so the rounding of
     their RMS): the first tile of the band takes it from the tile before, measured again here.
     """
+    index = _noise_index(samples.count, lattice, level, weights, pool_every)
     res = np.empty(samples.smooth.shape[1], np.float64)
     nx = lattice.edges_x.size - 1
     lower_offset = np.nan
     if t0 > 0:  # the offset the tile before would hand on (its value does not depend on pivots)
-        med, _, lower = _tile_stats(samples, lattice, level_raw, weights, is_int, same_level, tables,
+        med, _, lower = _tile_stats(samples, lattice, level_raw, weights, is_int, same_level, index, pooled,
                                     t0 - 1, res, np.nan, False)
         lower_offset = lower - med
     for t in range(t0, t1):
-        med, sig, lower = _tile_stats(samples, lattice, level_raw, weights, is_int, same_level, tables,
-                                      t, res, lower_offset, True)
+        med, sig, lower = _tile_stats(samples, lattice, level_raw, weights, is_int, same_level, index, pooled,
+                                      t, res, lower_offset, t % pool_every == 0)
         lower_offset = lower - med
-        tables.stats[t // nx, t % nx, 0] = med
-        tables.stats[t // nx, t % nx, 1] = sig
+        stats[t // nx, t % nx, 0] = med
+        stats[t // nx, t % nx, 1] = sig
 
 
 @njit(cache=True, inline="always")
-def _tile_stats(samples, lattice, level_raw, weights, is_int, same_level, tables, t, res, lower_offset, pool):
+def _tile_stats(samples, lattice, level_raw, weights, is_int, same_level, index, pooled, t, res, lower_offset,
+                pool):
     """Tile ``t``'s median, lower-side clipped RMS and lower-half median of its smoothed samples
-    less the sky model (in ``res``); with ``pool``, its pooled raw residuals go to ``tables``."""
+    less the sky model (in ``res``); with ``pool``, its raw samples less the sky go to ``pooled``."""
     smp, rawp = samples.smooth, samples.raw
     edges_y, edges_x, sy, sx = lattice
     iy, fy = weights.iy, weights.fy
     ny, nx = edges_y.size - 1, edges_x.size - 1
-    along_x, col_start, pooled, start = tables.along_x, tables.col_start, tables.pooled, tables.start
+    along_x, col_start, start = index.along_x, index.col_start, index.start
     ty, tx = t // nx, t % nx
-    pool = pool and t % max(1, (ny * nx) // 64) == 0
     k = np.int64(0)  # typed (skyfix.detect._stats)
     for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], sy), edges_y[ty + 1], sy):
         i = iy[y]
