@@ -1,6 +1,10 @@
 """Speed of skyfix's star extraction: full frame (ms per megapixel) and windowed centroiding.
 
-Run: ``.venv/bin/python benchmarks/bench_extract.py [--repeat N]``
+Run: ``.venv/bin/python benchmarks/bench_extract.py [--repeat N] [--threads]``
+
+``--threads``: instead, each frame's extraction with the helper thread (the default) and with
+``SKYFIX_THREADS=1``, interleaved call by call in one process, and the ratio of their medians
+(:mod:`skyfix.detect._threads`; on a machine whose other core is busy expect about 1).
 
 Frames: a rendered 1280×960 star field (100 stars, noise, gradient) and every real image in
 ``../shared/data/real``. Each call is timed with ``time.perf_counter`` after one warm-up call
@@ -43,13 +47,43 @@ def timeit(fn, repeat):
     return float(np.median(ts)), float(np.percentile(ts, 90)), float(np.min(ts))
 
 
+def threads_against_one(frames: list[tuple[str, np.ndarray]], repeat: int) -> None:
+    """Each frame's extraction with the helper thread and without, interleaved; median ratio."""
+    import os
+
+    from skyfix.detect import extract_centroids
+
+    print(f"{'frame':44s} {'MP':>5s} {'2 threads ms':>13s} {'1 thread ms':>12s} {'ratio':>6s}")
+    for name, img in frames:
+        times: dict[str, list[float]] = {"": [], "1": []}
+        for r in range(repeat + 1):
+            for value in ("", "1") if r % 2 else ("1", ""):
+                os.environ["SKYFIX_THREADS"] = value
+                t0 = time.perf_counter()
+                extract_centroids(img)
+                if r:  # the first round warms up
+                    times[value].append((time.perf_counter() - t0) * 1e3)
+        two, one = np.median(times[""]), np.median(times["1"])
+        print(f"{name[:44]:44s} {img.size / 1e6:5.2f} {two:13.2f} {one:12.2f} {two / one:6.2f}")
+    os.environ.pop("SKYFIX_THREADS", None)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=30)
+    ap.add_argument("--threads", action="store_true", help="the helper thread against one thread, per frame")
     args = ap.parse_args()
 
     from skyfix.detect import extract_centroids
     from skyfix.io import read_image
+
+    if args.threads:
+        frames = [("synthetic 1280x960", render_field()[0].astype(np.float32))]
+        if REAL_DIR.is_dir():
+            frames += [(f"{p.parent.name}/{p.name}", read_image(p)) for p in sorted(REAL_DIR.glob("*/*"))
+                       if p.suffix.lower() in (".jpg", ".tiff", ".png", ".fits")]
+        threads_against_one(frames, args.repeat)
+        return
 
     rows = []
     raw, _ = render_field()

@@ -24,6 +24,7 @@ with from Python to :data:`SIGNATURES` (a file in the repository, reviewed like 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -32,7 +33,7 @@ import sys
 import sysconfig
 import tempfile
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -365,11 +366,38 @@ def _build_area(area: str, folder: Path, out: Path, signature_file: Path) -> Non
             arg_names = ", ".join(f"a{j}" for j in range(len(args)))
             namespace = {"K": kernel}
             exec(f"def {name}({arg_names}):\n    return K({arg_names})\n", namespace)  # noqa: S102
+            namespace[name].release_gil = bool(kernel.options.get("nogil"))
             cc.export(name, returns(*args))(namespace[name])
             exports.append({"kernel": key, "module": module_name, "name": name, "args": sig["args"],
                             "n": i})
-    cc.compile()
+    with _gil_released_for_nogil_kernels():
+        cc.compile()
     out.write_text(json.dumps({"exports": exports, "cpu_s": time.process_time()}))
+
+
+@contextlib.contextmanager
+def _gil_released_for_nogil_kernels() -> Iterator[None]:
+    """While it lasts, ``numba.pycc`` builds the CPython wrapper of an export whose function has
+    ``release_gil`` set (a ``nogil=True`` kernel's, :func:`_build_area`) with the GIL released
+    around the call, as numba's own dispatcher does for such a kernel; pycc compiles every
+    export with numba's default flags, which hold it (so a kernel run on a helper thread,
+    :mod:`skyfix.detect._threads`, would run one thread at a time)."""
+    from numba.pycc import compiler
+
+    plain = compiler.compile_extra
+
+    def compile_extra(typingctx: Any, targetctx: Any, func: Any, args: Any, return_type: Any, flags: Any,
+                      *rest: Any, **kw: Any) -> Any:
+        if getattr(func, "release_gil", False):
+            flags = flags.copy()
+            flags.release_gil = True
+        return plain(typingctx, targetctx, func, args, return_type, flags, *rest, **kw)
+
+    compiler.compile_extra = compile_extra
+    try:
+        yield
+    finally:
+        compiler.compile_extra = plain
 
 
 def main(argv: list[str]) -> int:

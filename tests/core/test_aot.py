@@ -124,3 +124,36 @@ def test_every_kernel_is_decorated_by_skyfix_jit():
         if re.search(r"^(import numba|from numba\b)", text, re.M) or re.search(r"@numba\.(njit|jit)\b", text):
             offenders.append(str(path.relative_to(src)))
     assert not offenders
+
+
+@pytest.mark.filterwarnings("ignore:The 'pycc' module is pending deprecation")
+def test_the_exports_of_nogil_kernels_release_the_gil(monkeypatch):
+    """numba.pycc compiles every export with numba's default flags, whose CPython wrapper holds
+    the GIL: the build turns ``release_gil`` on for the exports of ``nogil=True`` kernels (the
+    extraction's chunks, which run on a helper thread), and leaves the others as they were."""
+    from numba.core.compiler import Flags
+    from numba.pycc import compiler
+
+    from skyfix.detect.labelling import _smooth_threshold_rows, select_candidates
+
+    seen = []
+
+    def record(typingctx, targetctx, func, args, return_type, flags, *rest, **kw):
+        seen.append((func.__name__, flags.release_gil))
+
+    monkeypatch.setattr(compiler, "compile_extra", record)
+
+    def held():
+        pass
+
+    def free():
+        pass
+
+    free.release_gil = True
+    flags = Flags()
+    with aot._gil_released_for_nogil_kernels():
+        compiler.compile_extra(None, None, held, (), None, flags)
+        compiler.compile_extra(None, None, free, (), None, flags)
+    assert seen == [("held", False), ("free", True)] and not flags.release_gil
+    assert compiler.compile_extra is record
+    assert _smooth_threshold_rows.options.get("nogil") and not select_candidates.options.get("nogil")

@@ -32,9 +32,10 @@ from typing import NamedTuple
 import numpy as np
 
 from skyfix._jit import njit
-from skyfix.detect._grid import bilinear, grid_weights
+from skyfix.detect._grid import GridWeights, bilinear, grid_weights
 from skyfix.detect._smooth import column_sum, smooth_at, smooth_row
 from skyfix.detect._stats import CLIP, median, median_inplace, robust_level_noise, tile_level_noise
+from skyfix.detect._threads import run_chunks, split
 from skyfix.errors import unknown_name
 
 __all__ = ["METHODS", "Background", "estimate_background", "smooth3", "default_tile_size"]
@@ -346,26 +347,41 @@ def _lattice_start(e0, e1, stride):
     return e0 + ((e1 - e0 - 1) % stride) // 2
 
 
-@njit(cache=True)
-def _lattice_samples(img, sm, lattice, of_raw=False):
+def _lattice_samples(img: np.ndarray, sm: np.ndarray, lattice: _Lattice, of_raw: bool = False) -> _Samples:
     """The smoothed and raw frame on each tile's sampling lattice, and each tile's median.
 
     ``sm`` is the smoothed frame, or a 0×0 array to smooth at the lattice points only.
     Returns the :class:`_Samples`, with the medians of the smoothed samples (of the raw ones if
-    ``of_raw``).
+    ``of_raw``). Bands of tile rows are shared with the helper thread (:mod:`skyfix.detect._threads`).
     """
     edges_y, edges_x, sy, sx = lattice
-    ny, nx = edges_y.size - 1, edges_x.size - 1
-    cap = ((edges_y[1:] - edges_y[:-1]).max() // sy + 1) * ((edges_x[1:] - edges_x[:-1]).max() // sx + 1)
-    smp = np.empty((ny * nx, cap))
-    rawp = np.empty((ny * nx, cap))
-    cnt = np.zeros(ny * nx, np.int64)
-    med = np.empty(ny * nx)
+    n_tiles = (edges_y.size - 1) * (edges_x.size - 1)
+    cap = int((np.diff(edges_y).max() // sy + 1) * (np.diff(edges_x).max() // sx + 1))
+    samples = _Samples(np.empty((n_tiles, cap)), np.empty((n_tiles, cap)), np.zeros(n_tiles, np.int64),
+                       np.empty(n_tiles))
+    edges = _tile_bands(lattice)
+    run_chunks(lambda i: _lattice_rows(img, sm, lattice, of_raw, samples, edges[i], edges[i + 1]),
+               len(edges) - 1)
+    return samples
+
+
+def _tile_bands(lattice: _Lattice) -> list[int]:
+    """Bands of tile rows for the helper thread, about 150 tiles or more each."""
+    ny, nx = lattice.edges_y.size - 1, lattice.edges_x.size - 1
+    return split(ny, -(-150 // nx))
+
+
+@njit(cache=True, nogil=True)
+def _lattice_rows(img, sm, lattice, of_raw, samples, ty0, ty1):
+    """:func:`_lattice_samples` for the tile rows ``ty0..ty1 − 1``, into ``samples``."""
+    edges_y, edges_x, sy, sx = lattice
+    smp, rawp, cnt, med = samples
+    nx = edges_x.size - 1
     have_sm = sm.shape[0] > 0
     h, w = img.shape
     vsum = np.empty(w, np.float32)  # a lattice row's vertical [1 2 1] sums, as smooth3 has them
-    buf = np.empty(cap)
-    for ty in range(ny):
+    buf = np.empty(smp.shape[1])
+    for ty in range(ty0, ty1):
         row = 0  # lattice row within this row of tiles
         for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], sy), edges_y[ty + 1], sy):
             if not have_sm:
@@ -394,13 +410,22 @@ def _lattice_samples(img, sm, lattice, of_raw=False):
             src = rawp if of_raw else smp
             for i in range(k):
                 buf[i] = src[t, i]
-            # the previous tile's median (the one above at a row start) as the first pivot
-            med[t] = median_inplace(buf, k, med[t - 1] if tx > 0 else (med[t - nx] if ty > 0 else np.nan))
-    return _Samples(smp, rawp, cnt, med)
+            # the previous tile's median (the one above at a row start) as the first pivot (the
+            # median is the same whatever the pivot)
+            guess = med[t - 1] if tx > 0 else (med[t - nx] if ty > ty0 else np.nan)
+            med[t] = median_inplace(buf, k, guess)
 
 
-@njit(cache=True)
-def _tile_noise(samples, lattice, level, level_raw, weights, is_int, same_level):
+class _NoiseIndex(NamedTuple):
+    """What the tiles of :func:`_tile_noise` share (:func:`_noise_index`)."""
+
+    start: np.ndarray  # (T + 1,) int64 — where each tile's pooled samples go
+    col_start: np.ndarray  # (nx + 1,) int64 — each tile column's first lattice column
+    along_x: np.ndarray  # (ny, lattice columns) float64 — the level along x at the tile-centre rows
+
+
+def _tile_noise(samples: _Samples, lattice: _Lattice, level: np.ndarray, level_raw: np.ndarray,
+                weights: GridWeights, is_int: bool, same_level: bool) -> tuple[np.ndarray, np.ndarray]:
     """Per tile, the median and lower-side clipped RMS of the smoothed frame minus the sky model.
 
     The median is a correction to the tile's level: a plain tile median of a sky with a
@@ -409,21 +434,31 @@ def _tile_noise(samples, lattice, level, level_raw, weights, is_int, same_level)
     the frame's :class:`~skyfix.detect._grid.GridWeights`. Returns the statistics as
     (ny, nx, 2), then the raw samples minus the sky pooled over about 64 tiles (in tile order).
     ``is_int``: the frame holds integers (quantised data); ``same_level``: ``level_raw`` is
-    ``level``.
+    ``level``. Bands of tile rows are shared with the helper thread, each band starting from
+    the statistics of the tile before it, so the result is the same whatever the bands.
     """
-    smp, rawp, cnt = samples.smooth, samples.raw, samples.count
+    ny, nx = lattice.edges_y.size - 1, lattice.edges_x.size - 1
+    pool_every = max(1, (ny * nx) // 64)  # the tiles whose raw samples are pooled: every this many
+    stats = np.empty((ny, nx, 2))
+    pooled = np.empty(int(samples.count[::pool_every].sum()))
+    edges = _tile_bands(lattice)
+    run_chunks(lambda i: _tile_noise_tiles(samples, lattice, level, level_raw, weights, is_int, same_level,
+                                           pool_every, stats, pooled, edges[i] * nx, edges[i + 1] * nx),
+               len(edges) - 1)
+    return stats, pooled
+
+
+@njit(cache=True, inline="always")
+def _noise_index(count, lattice, level, weights, pool_every):
+    """:class:`_NoiseIndex` for :func:`_tile_noise`: the pooled tiles' places and the level
+    interpolated along x at every tile-centre row, on the lattice columns (each sample's model
+    is then one interpolation along y: the arithmetic of bilinear, in two steps)."""
     edges_y, edges_x, sy, sx = lattice
-    iy, fy, ix, fx = weights
+    ix, fx = weights.ix, weights.fx
     ny, nx = edges_y.size - 1, edges_x.size - 1
-    out = np.empty((ny, nx, 2))
-    cap = smp.shape[1]
-    pool_every = max(1, (ny * nx) // 64)
-    start = np.zeros(ny * nx + 1, np.int64)  # where each tile's pooled samples go
+    start = np.zeros(ny * nx + 1, np.int64)
     for t in range(ny * nx):
-        start[t + 1] = start[t] + (cnt[t] if t % pool_every == 0 else 0)
-    pooled = np.empty(start[-1], np.float64)
-    # the level interpolated along x at every tile-centre row, on the lattice columns: each
-    # sample's model is then one interpolation along y (the arithmetic of bilinear, in two steps)
+        start[t + 1] = start[t] + (count[t] if t % pool_every == 0 else 0)
     col_start = np.zeros(nx + 1, np.int64)
     for tx in range(nx):
         x_first = _lattice_start(edges_x[tx], edges_x[tx + 1], sx)
@@ -438,35 +473,64 @@ def _tile_noise(samples, lattice, level, level_raw, weights, is_int, same_level)
             for i in range(ny):
                 along_x[i, c] = (1.0 - g) * level[i, j] + g * level[i, j1]
             c += 1
-    res = np.empty(cap, np.float64)
+    return _NoiseIndex(start, col_start, along_x)
+
+
+@njit(cache=True, nogil=True)
+def _tile_noise_tiles(samples, lattice, level, level_raw, weights, is_int, same_level, pool_every, stats,
+                      pooled, t0, t1):
+    """:func:`_tile_noise` for the tiles ``t0..t1 − 1`` (row-major), into ``stats`` and ``pooled``.
+
+    Each tile's lower-half median starts from the previous tile's offset below its median (a
+    pivot, which changes the order the selection leaves the values in, and so the rounding of
+    their RMS): the first tile of the band takes it from the tile before, measured again here.
+    """
+    index = _noise_index(samples.count, lattice, level, weights, pool_every)
+    res = np.empty(samples.smooth.shape[1], np.float64)
+    nx = lattice.edges_x.size - 1
     lower_offset = np.nan
-    for ty in range(ny):
-        for tx in range(nx):
-            t = ty * nx + tx
-            pool = t % pool_every == 0
-            k = np.int64(0)  # typed (skyfix.detect._stats)
-            for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], sy), edges_y[ty + 1], sy):
-                i = iy[y]
-                i1 = min(i + 1, ny - 1)
-                f = fy[y]
-                c = col_start[tx]
-                for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], sx), edges_x[tx + 1], sx):
-                    model = (1.0 - f) * along_x[i, c] + f * along_x[i1, c]
-                    c += 1
-                    res[k] = smp[t, k] - model
-                    if pool:  # the raw residuals of the pooled tiles only
-                        if not same_level:
-                            model = bilinear(level_raw, weights, y, x)
-                        pooled[start[t] + k] = rawp[t, k] - model
-                    k += 1
-            # a 3×3 binomial mean of integers moves in steps of 1/16
-            # first pivots: residuals about the sky model centre on 0; the lower half's median
-            # sits about as far below as in the previous tile
-            med, sig, lower = tile_level_noise(res, k, 0.0625 if is_int else 0.0, 0.0, lower_offset)
-            lower_offset = lower - med
-            out[ty, tx, 0] = med
-            out[ty, tx, 1] = sig
-    return out, pooled
+    if t0 > 0:  # the offset the tile before would hand on (its value does not depend on pivots)
+        med, _, lower = _tile_stats(samples, lattice, level_raw, weights, is_int, same_level, index, pooled,
+                                    t0 - 1, res, np.nan, False)
+        lower_offset = lower - med
+    for t in range(t0, t1):
+        med, sig, lower = _tile_stats(samples, lattice, level_raw, weights, is_int, same_level, index, pooled,
+                                      t, res, lower_offset, t % pool_every == 0)
+        lower_offset = lower - med
+        stats[t // nx, t % nx, 0] = med
+        stats[t // nx, t % nx, 1] = sig
+
+
+@njit(cache=True, inline="always")
+def _tile_stats(samples, lattice, level_raw, weights, is_int, same_level, index, pooled, t, res, lower_offset,
+                pool):
+    """Tile ``t``'s median, lower-side clipped RMS and lower-half median of its smoothed samples
+    less the sky model (in ``res``); with ``pool``, its raw samples less the sky go to ``pooled``."""
+    smp, rawp = samples.smooth, samples.raw
+    edges_y, edges_x, sy, sx = lattice
+    iy, fy = weights.iy, weights.fy
+    ny, nx = edges_y.size - 1, edges_x.size - 1
+    along_x, col_start, start = index.along_x, index.col_start, index.start
+    ty, tx = t // nx, t % nx
+    k = np.int64(0)  # typed (skyfix.detect._stats)
+    for y in range(_lattice_start(edges_y[ty], edges_y[ty + 1], sy), edges_y[ty + 1], sy):
+        i = iy[y]
+        i1 = min(i + 1, ny - 1)
+        f = fy[y]
+        c = col_start[tx]
+        for x in range(_lattice_start(edges_x[tx], edges_x[tx + 1], sx), edges_x[tx + 1], sx):
+            model = (1.0 - f) * along_x[i, c] + f * along_x[i1, c]
+            c += 1
+            res[k] = smp[t, k] - model
+            if pool:  # the raw residuals of the pooled tiles only
+                if not same_level:
+                    model = bilinear(level_raw, weights, y, x)
+                pooled[start[t] + k] = rawp[t, k] - model
+            k += 1
+    # a 3×3 binomial mean of integers moves in steps of 1/16
+    # first pivots: residuals about the sky model centre on 0; the lower half's median
+    # sits about as far below as in the previous tile
+    return tile_level_noise(res, k, 0.0625 if is_int else 0.0, 0.0, lower_offset)
 
 
 @njit(cache=True)

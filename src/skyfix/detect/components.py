@@ -28,10 +28,13 @@ runs, each step in its own module:
 Speed (about 2–3 ms per megapixel on one core): the background needs the smoothed frame only on
 its sampling lattice, so it comes first; smoothing, threshold, the frame's sum (non-finite
 pixels) and maximum (saturation) then share one pass over the frame, which also flags the
-64-pixel blocks holding detections so that the labelling skips empty sky. Steps 3 and 6 run
-in numba, not as dozens of small numpy calls, and 8/16-bit frames are not converted to float.
-Everything is serial: on a shared 2-core machine a parallel kernel waits for a descheduled
-thread (measured: 40× slower under load with OpenMP's default spinning).
+64-pixel blocks holding detections so that the labelling skips empty sky and finds the runs of
+detected pixels along the rows. Steps 3 and 6 run in numba, not as dozens of small numpy calls.
+The background's tile rows and the frame's rows are cut into two bands on frames large enough
+(about 300 tiles, 600 kilopixels), shared with a helper thread that takes a band when the
+machine schedules it and is never waited for otherwise (:mod:`skyfix.detect._threads`; no
+OpenMP-style spinning, which measured 40× slower under load); the results are the same bit for
+bit whatever the bands and threads. Deblending and measurement stay in the calling thread.
 """
 
 from __future__ import annotations
@@ -156,16 +159,16 @@ def _one_pass(img: np.ndarray, s: Options, check_finite: bool) -> Centroids | No
     thr_grid = bg.level_smooth + np.maximum(s.sigma * bg.noise_smooth, floor)
     ws = _workspace(h, w)
     frames = ws.frames
-    total, vmax = smooth_threshold(img, img.view(np.int32), thr_grid, sky, frames)
-    if check_finite and not math.isfinite(total):
+    found = smooth_threshold(img, thr_grid, sky, frames)
+    if check_finite and not math.isfinite(found.total):
         return None
-    saturation = full_scale(float(vmax)) if s.saturation is None else s.saturation
+    saturation = full_scale(found.maximum) if s.saturation is None else s.saturation
     if ws.dirty is None:
         frames.labels.fill(0)
     else:  # clear only what the last call labelled
         clear_boxes(frames.labels, ws.dirty)
     ws.dirty = None
-    comps = label_components(img, frames, sky, MAX_COMPONENTS)
+    comps = label_components(img, frames, sky, MAX_COMPONENTS, found)
     ws.dirty = comps
     n_comp = comps.size
     if n_comp == 0:

@@ -23,12 +23,13 @@ from typing import NamedTuple
 import numpy as np
 
 from skyfix._jit import njit
-from skyfix.detect._grid import grid_at, grid_rows
+from skyfix.detect._grid import SkyGrid, grid_at, grid_rows
 from skyfix.detect._smooth import column_sum, smooth_row
 from skyfix.detect._stats import argsort_descending
+from skyfix.detect._threads import run_chunks, split
 
-__all__ = ["Frames", "COMPONENT", "CANDIDATE", "MAX_COMPONENTS", "smooth_threshold", "label_components",
-           "select_candidates", "clear_boxes"]
+__all__ = ["Frames", "COMPONENT", "CANDIDATE", "MAX_COMPONENTS", "Runs", "Thresholded", "smooth_threshold",
+           "label_components", "select_candidates", "clear_boxes"]
 
 #: Components beyond this many (in raster order) stay unlabelled.
 MAX_COMPONENTS = 1 << 16
@@ -65,18 +66,56 @@ CANDIDATE = np.dtype([("id", np.int32), ("y0", np.int64), ("y1", np.int64), ("x0
                       ("x1", np.int64), ("is_part", np.bool_)])
 
 
-@njit(cache=True, fastmath={"reassoc", "contract"})
-def smooth_threshold(img, bits, thr_grid, sky, frames):
-    """One pass: the frame smoothed into ``frames.smooth``, above threshold into ``frames.mask``.
+def smooth_threshold(img: np.ndarray, thr_grid: np.ndarray, sky: SkyGrid, frames: Frames) -> Thresholded:
+    """One pass over the frame smooths it into ``frames.smooth``, sets ``frames.mask`` where it
+    is above threshold and finds the runs of set pixels along its rows (:func:`label_components`
+    joins them) — in bands of rows, shared with the helper thread (:mod:`skyfix.detect._threads`).
 
     The smoothing is :func:`~skyfix.detect.background.smooth3`'s; ``frames.blocks`` flags the
     64-pixel blocks of each mask row that hold a set pixel (the labelling skips the others).
+    ``img`` is float32 (:func:`~skyfix.detect.background.frame_f32`); ``thr_grid`` the threshold
+    on the tile grid of ``sky`` (a :class:`~skyfix.detect._grid.SkyGrid`), interpolated
+    bilinearly (raised on the border, :func:`_threshold_at`). Nothing depends on the bands but
+    the rounding of the sum (only its finiteness is used).
+    """
+    edges = split(img.shape[0], -(-300_000 // img.shape[1]))  # 300 kilopixels or more a band
+    bits = img.view(np.int32)
+    parts = run_chunks(lambda i: _smooth_threshold_rows(img, bits, thr_grid, sky, frames, edges[i],
+                                                        edges[i + 1]), len(edges) - 1)
+    top = max(p[1] for p in parts)
+    top ^= (top >> 31) & 0x7FFFFFFF  # back from the monotonic int32 to the float's bits
+    maximum = float(np.array([top], np.int32).view(np.float32)[0])
+    runs, starts = _joined([p[2] for p in parts])
+    return Thresholded(float(sum(p[0] for p in parts)), maximum, runs, starts)
 
-    ``img`` is float32 (:func:`~skyfix.detect.background.frame_f32`) and ``bits`` the same
-    pixels viewed as int32 (for the maximum). ``thr_grid`` is the threshold on the tile
-    grid of ``sky`` (a :class:`~skyfix.detect._grid.SkyGrid`), interpolated bilinearly (raised
-    on the border, :func:`_threshold_at`).
-    Returns the sum of the raw frame (non-finite if any pixel is) and its maximum.
+
+def _joined(parts: list[Runs]) -> tuple[Runs, np.ndarray]:
+    """The bands' runs as one table (parents renumbered), and where each band's start."""
+    starts = np.zeros(len(parts) + 1, np.int64)
+    for i, r in enumerate(parts):
+        starts[i + 1] = starts[i] + r.y.size
+    if len(parts) == 1:
+        return parts[0], starts
+    runs = Runs(*(np.concatenate(columns) for columns in zip(*parts, strict=True)))
+    for i in range(1, len(parts)):
+        runs.parent[starts[i]:starts[i + 1]] += starts[i]
+    return runs, starts
+
+
+class Thresholded(NamedTuple):
+    """What :func:`smooth_threshold` found besides the frames it filled."""
+
+    total: float  #: the raw frame's sum (non-finite if any pixel is)
+    maximum: float  #: the raw frame's maximum
+    runs: Runs  #: the runs of set pixels, each band's joined within it (:func:`label_components`)
+    starts: np.ndarray  #: (B + 1,) int64 — where each band's runs start in ``runs``
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"}, nogil=True)
+def _smooth_threshold_rows(img, bits, thr_grid, sky, frames, y0, y1):
+    """:func:`smooth_threshold` on rows ``y0..y1 − 1``. ``bits`` is ``img`` viewed as int32 (for
+    the maximum). Returns the rows' sum (non-finite if any pixel is), their maximum as a
+    monotonic int32 (a float's bits, negatives flipped) and the runs of set pixels in their mask.
     Reassociation lets the row loops vectorise; NaN and Inf still propagate (no "nnan"/"ninf").
     The arithmetic is float32 (exact on 8- to 16-bit data).
     """
@@ -89,7 +128,7 @@ def smooth_threshold(img, bits, thr_grid, sky, frames):
     tmp = np.empty(w, np.float32)
     total = 0.0
     top = np.int32(-(2**31))
-    for y in range(h):
+    for y in range(y0, y1):
         ya, yb = max(y - 1, 0), min(y + 1, h - 1)
         acc = np.float32(0.0)
         for x in range(w):
@@ -120,8 +159,7 @@ def smooth_threshold(img, bits, thr_grid, sky, frames):
             for wi in range(8 * c, 8 * c + 8):
                 any_set |= words[wi]
             blocks[y, c] = any_set != 0
-    top ^= (top >> 31) & np.int32(0x7FFFFFFF)
-    return total, float(np.array([top], np.int32).view(np.float32)[0])
+    return total, top, _band_runs(img, frames, sky, y0, y1)
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
@@ -142,33 +180,64 @@ def _threshold_at(thr_grid, sky, y, x, h, w):
     return b + (t - b) * fac
 
 
-@njit(cache=True)
-def label_components(img, frames, sky, max_components):
+class Runs(NamedTuple):
+    """Runs of set mask pixels along rows, in raster order (:func:`label_components`): row,
+    first and last column, union-find parent, summed excess of the smoothed frame over its sky,
+    highest raw pixel above the sky, sum of the positive raw pixels above the sky."""
+
+    y: np.ndarray
+    x0: np.ndarray
+    x1: np.ndarray
+    parent: np.ndarray
+    excess: np.ndarray
+    peak: np.ndarray
+    positive: np.ndarray
+
+
+def label_components(img: np.ndarray, frames: Frames, sky: SkyGrid, max_components: int,
+                     found: Thresholded | None = None) -> np.ndarray:
     """8-connected components of the pixels set in ``frames.mask``, into ``frames.labels`` (1-based).
 
-    ``frames`` as :func:`smooth_threshold` left them; ``labels`` must be 0 wherever the mask
-    is set. Components are numbered in the raster order of their first pixel (as a flood fill
-    from a raster scan numbers them); those beyond ``max_components`` stay unlabelled. Works on
-    runs of set pixels along rows, joined to the touching runs of the row above by union-find:
-    the frame is read row by row (a flood fill's scattered reads wait on memory).
+    ``frames`` as :func:`smooth_threshold` left them, ``found`` what it returned (without it the
+    runs are found here, the frame one band); ``labels`` must be 0 wherever the mask is set.
+    Components are numbered in the raster order of their first pixel (as a flood fill from a
+    raster scan numbers them); those beyond ``max_components`` stay unlabelled. Works on runs
+    of set pixels along rows, joined to the touching runs of the row above by union-find: the
+    frame is read row by row (a flood fill's scattered reads wait on memory). Runs joined within
+    each band of rows are joined here across the bands' edges and numbered in one pass, so the
+    components are the same whatever the bands.
     Returns the components, a :data:`COMPONENT` array.
     """
+    if found is None:
+        runs = _band_runs(img, frames, sky, 0, frames.mask.shape[0])
+        runs, starts = _joined([runs])
+    else:
+        runs, starts = found.runs, found.starts
+    return _number_components(frames.labels, runs, starts, max_components)
+
+
+@njit(cache=True)
+def _band_runs(img, frames, sky, y0, y1):
+    """The :class:`Runs` of rows ``y0..y1 − 1``, joined within them (parents count from 0)."""
+    cap = _count_runs(frames.mask[y0:y1], frames.blocks[y0:y1])  # exactly (a bound of 32 a block was 5 MB)
+    runs = Runs(np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64),
+                np.empty(cap, np.int64), np.empty(cap), np.empty(cap), np.empty(cap))
+    _find_runs(img, frames, sky, y0, y1, runs, 0)
+    return runs
+
+
+@njit(cache=True)
+def _find_runs(img, frames, sky, y0, y1, runs, r0):
+    """The runs of rows ``y0..y1 − 1`` into ``runs`` from index ``r0``, joined within the rows."""
     sm, mask, blocks, labels = frames
     iy, fy = sky.weights.iy, sky.weights.fy
-    h, w = sm.shape
+    w = sm.shape[1]
     b0, db = grid_rows(sky.level_smooth, sky.weights)
     q0, dq = grid_rows(sky.level, sky.weights)
-    cap = _count_runs(mask, blocks) + 1  # the run tables, exactly (a bound of 32 a block was 5 MB)
-    run_y = np.empty(cap, np.int64)
-    run_x0 = np.empty(cap, np.int64)
-    run_x1 = np.empty(cap, np.int64)
-    parent = np.empty(cap, np.int64)
-    run_excess = np.empty(cap)
-    run_peak = np.empty(cap)
-    run_sum = np.empty(cap)
-    nr = 0
-    prev_start = prev_end = 0
-    for y in range(h):
+    run_y, run_x0, run_x1, parent, run_excess, run_peak, run_sum = runs
+    nr = r0
+    prev_start = prev_end = r0
+    for y in range(y0, y1):
         words = mask[y].view(np.uint64)
         cur_start = nr
         i = iy[y]
@@ -195,28 +264,61 @@ def label_components(img, frames, sky, max_components):
                     r = img[y, x] - (q0[i, x] + f * dq[i, x])
                     run_peak[nr - 1] = max(run_peak[nr - 1], r)
                     run_sum[nr - 1] += max(r, 0.0)
-        # join each run to the runs of the row above that touch it (8-connected), both in x order
-        k0 = prev_start
-        for j in range(cur_start, nr):
-            while k0 < prev_end and run_x1[k0] < run_x0[j] - 1:
-                k0 += 1
-            k = k0
-            while k < prev_end and run_x0[k] <= run_x1[j] + 1:
-                # union, the earlier run (in raster order) becoming the root
-                a = k
-                while parent[a] != a:
-                    parent[a] = parent[parent[a]]
-                    a = parent[a]
-                bb = j
-                while parent[bb] != bb:
-                    parent[bb] = parent[parent[bb]]
-                    bb = parent[bb]
-                if a < bb:
-                    parent[bb] = a
-                elif bb < a:
-                    parent[a] = bb
-                k += 1
+        _join_rows(runs, prev_start, prev_end, cur_start, nr)
         prev_start, prev_end = cur_start, nr
+    return nr
+
+
+@njit(cache=True, inline="always")
+def _join_rows(runs, prev_start, prev_end, cur_start, cur_end):
+    """Join each run ``cur_start..cur_end − 1`` of a row to the runs ``prev_start..prev_end − 1``
+    of the row above that touch it (8-connected); both in x order."""
+    run_x0, run_x1, parent = runs.x0, runs.x1, runs.parent
+    k0 = prev_start
+    for j in range(cur_start, cur_end):
+        while k0 < prev_end and run_x1[k0] < run_x0[j] - 1:
+            k0 += 1
+        k = k0
+        while k < prev_end and run_x0[k] <= run_x1[j] + 1:
+            # union, the earlier run (in raster order) becoming the root
+            a = k
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            bb = j
+            while parent[bb] != bb:
+                parent[bb] = parent[parent[bb]]
+                bb = parent[bb]
+            if a < bb:
+                parent[bb] = a
+            elif bb < a:
+                parent[a] = bb
+            k += 1
+
+
+@njit(cache=True)
+def _number_components(labels, runs, starts, max_components):
+    """The bands' runs (band ``b`` from ``starts[b]``) joined across the bands' edges, numbered
+    as components in raster order and written into ``labels``: a :data:`COMPONENT` array."""
+    run_y, parent = runs.y, runs.parent
+    nr = starts[-1]
+    for b in range(1, starts.size - 1):
+        # the last row of the band above (if it has runs there) and the first row of this band
+        s = starts[b]
+        e = starts[b + 1]
+        if s == starts[b - 1] or s == e:
+            continue
+        first = run_y[s]
+        prev_end = s
+        prev_start = s
+        while prev_start > starts[b - 1] and run_y[prev_start - 1] == first - 1:
+            prev_start -= 1
+        cur_end = s
+        while cur_end < e and run_y[cur_end] == first:
+            cur_end += 1
+        if prev_start < prev_end:
+            _join_rows(runs, prev_start, prev_end, s, cur_end)
+    h, w = labels.shape
     # component numbers: roots in raster order (each root is its component's first run)
     rank = np.empty(nr, np.int64)
     k = 0
@@ -240,15 +342,15 @@ def label_components(img, frames, sky, max_components):
         c = rank[parent[r]]
         if c >= n_comp:
             continue
-        y, x0, x1 = run_y[r], run_x0[r], run_x1[r]
+        y, x0, x1 = run_y[r], runs.x0[r], runs.x1[r]
         comps[c].area += x1 - x0 + 1
         comps[c].y0 = min(comps[c].y0, y)
         comps[c].y1 = max(comps[c].y1, y)
         comps[c].x0 = min(comps[c].x0, x0)
         comps[c].x1 = max(comps[c].x1, x1)
-        comps[c].excess += run_excess[r]
-        comps[c].peak = max(comps[c].peak, run_peak[r])
-        comps[c].positive += run_sum[r]
+        comps[c].excess += runs.excess[r]
+        comps[c].peak = max(comps[c].peak, runs.peak[r])
+        comps[c].positive += runs.positive[r]
         for x in range(x0, x1 + 1):
             labels[y, x] = c + 1
     return comps
