@@ -172,16 +172,16 @@ def available(module: str) -> bool:
 
 
 def skyfix_png_zlib(p: Path) -> np.ndarray:
-    """skyfix's PNG decoder as it runs without the ``isal`` package: Python's zlib inflates."""
-    import isal
+    """skyfix's PNG decoder as it runs without the ``deflate`` package: Python's zlib inflates."""
+    import deflate
 
     from skyfix.io import read_image_with_header
 
-    sys.modules["isal"] = None  # `from isal import isal_zlib` raises ImportError
+    sys.modules["deflate"] = None  # `import deflate` raises ImportError
     try:
         return read_image_with_header(p, decoder="skyfix-png").data
     finally:
-        sys.modules["isal"] = isal
+        sys.modules["deflate"] = deflate
 
 
 def load_base_reader(path: str) -> Callable:
@@ -234,7 +234,7 @@ def decode_table(args, base_read: Callable | None) -> None:
             fns["base read_image"] = ((lambda p: base_read(p).data), ALL)
         fns |= {k: ((lambda p, k=k: read_image_with_header(p, decoder=k).data), suf)
                 for k, suf in SKYFIX.items()}
-        if available("isal"):
+        if available("deflate"):
             fns["skyfix-png(zlib)"] = (skyfix_png_zlib, (".png",))
         fns |= {k: ((lambda p, fn=fn: as_image(fn(p))), suf) for k, (fn, suf, _) in others.items()}
         calls, diff = {}, {}

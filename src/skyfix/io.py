@@ -20,16 +20,14 @@ and the last one of the chain gives the verdict on a bad file. :data:`DECODERS` 
 (``read_image_with_header(path, decoder=...)`` picks one):
 
 - ``skyfix-png``: PNG's plain layouts (8- or 16-bit grey, grey + alpha, RGB, RGBA, not
-  interlaced) — the chunks parsed here, the image data inflated by ISA-L (the ``isal``
+  interlaced) — the chunks parsed here, the image data inflated by libdeflate (the ``deflate``
   package, a dependency; ``zlib``, which Python ships, if it is missing), the rows unfiltered
   by a numba kernel (:mod:`skyfix._png`) that writes a grey image's float32 frame itself: no
   full-size intermediate and no conversion pass. Its pixels are bit-exact with Pillow's, and
   16-bit colour keeps its 16 bits (Pillow reduces 16-bit colour and grey + alpha to 8 bits).
-  The inflate is most of the time: on a rendered 16-bit 1280 × 960 frame (noisy data) ISA-L
-  takes 4.4–4.8 ms, libdeflate 5.3–6.6, zlib 8.8–12.9 (interleaved, min–median), and Pillow,
-  pyspng, OpenCV and imagecodecs' PNG decoder 13–17 ms for the whole read
-  (``benchmarks/bench_decode.py``). On very compressible data (``examples/sky.png``, 5:1)
-  libdeflate is the faster, 1.6 ms against 2.0.
+  The inflate is most of the time: on a 16-bit 1280 × 960 frame libdeflate takes 5.4 ms of
+  the read's CPU, zlib 8.7, and Pillow, pyspng, OpenCV and imagecodecs' PNG decoder 12–13.5
+  ms for the whole read (``benchmarks/bench_decode.py``).
 - ``skyfix-fits``: an uncompressed FITS file's first 2-D image HDU (primary or ``IMAGE``
   extension), its header cards parsed here and its data memory-mapped and converted to native
   float32 in one pass, BZERO/BSCALE/BLANK applied as astropy applies them — without importing
@@ -313,7 +311,7 @@ def _png_skyfix(p: Path) -> tuple[np.ndarray, dict] | None:
     # integer luminance as from every decoder
     out = np.empty((height, width) if grey else (height, row_bytes), np.float32 if grey else np.uint8)
     pixels = np.frombuffer(raw, np.uint8)
-    pixels.flags.writeable = False  # read-only whatever the inflater returned: one kernel signature
+    pixels.flags.writeable = False  # libdeflate's bytearray and zlib's bytes alike: one kernel signature
     if decode_rows(pixels, layout, out) >= 0:
         return None
     if grey:
@@ -321,21 +319,24 @@ def _png_skyfix(p: Path) -> tuple[np.ndarray, dict] | None:
     return (out.view(">u2") if depth == 16 else out).reshape(height, width, channels)[..., :3], {}
 
 
-def _inflate(stream: bytes | memoryview, size: int) -> bytes | None:
-    """A zlib stream inflated to exactly ``size`` bytes (ISA-L's inflate, the ``isal`` package, if
-    installed, else zlib: the same interface); None if it is cut short, longer, or fails its
-    Adler-32 check."""
+def _inflate(stream: bytes | memoryview, size: int) -> bytes | bytearray | None:
+    """A zlib stream inflated to exactly ``size`` bytes (libdeflate, the ``deflate`` package, if
+    installed, else zlib); None if it is cut short, longer, or fails its Adler-32 check."""
     try:
-        from isal import isal_zlib as inflating
+        import deflate
     except ImportError:
-        inflating = zlib
-    inflater = inflating.decompressobj()
-    try:
-        out = inflater.decompress(stream, size + 1)  # never more than the image (a zip bomb)
-    except inflating.error:
-        return None
-    if not inflater.eof:  # cut short, or longer than the image
-        return None
+        inflater = zlib.decompressobj()
+        try:
+            out = inflater.decompress(stream, size + 1)  # never more than the image (a zip bomb)
+        except zlib.error:
+            return None
+        if not inflater.eof:  # cut short, or longer than the image
+            return None
+    else:
+        try:
+            out = deflate.zlib_decompress(stream, size)  # longer than ``size``: an error
+        except deflate.DeflateError:
+            return None
     return out if len(out) == size else None
 
 
