@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skyfix._jit import njit
+from skyfix._jit import aot_modules, njit
 from skyfix._kernels import rotation
 from skyfix.camera import Camera
 from skyfix.corrections.observation import Observation, apparent_attitude, observe, time_of_image
@@ -442,12 +442,7 @@ def _warm(database, fov_deg: float | None, camera: Camera | None) -> None:
     """A first solve's kernels compiled up front, in parallel (:func:`skyfix.warmup.ensure`),
     while the pattern database it will search first is built, if that is not cached yet."""
     global _WARM
-    if _WARM:
-        return
-    from skyfix._jit import aot_modules
-
-    if aot_modules():  # every kernel compiled ahead of time: skyfix.warmup (~12 ms) not even imported
-        _WARM = True
+    if _WARM or aot_modules():  # every kernel compiled ahead of time: skyfix.warmup (~12 ms) not imported
         return
     from skyfix import warmup
 

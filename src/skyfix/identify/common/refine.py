@@ -193,13 +193,10 @@ def refine(image, A, f, settings, stars):
     p, frame = image.offsets_px, image.frame_px
     fit_focal, fit_k1_min, n_first, n_img, radius_px, sigma_px, iterations = settings
     star_vectors = stars.vectors
-    # A pass keeps at most 2·n_img stars in view (project_stars, n_max) and needs one slot
-    # beyond: buffers of that size, not a fixed 16384 (five 128 KiB allocations a refit)
-    room = 2 * n_img + 1
-    out_img = np.empty(room, dtype=np.int64)
-    out_star = np.empty(room, dtype=np.int64)
-    view = ViewBuffers(np.empty(room, dtype=np.int64), np.empty(room), np.empty(room),
-                       np.zeros(n_img, dtype=np.bool_), np.empty(room, dtype=np.int64))
+    out_img = np.empty(16384, dtype=np.int64)
+    out_star = np.empty(16384, dtype=np.int64)
+    view = ViewBuffers(np.empty(16384, dtype=np.int64), np.empty(16384), np.empty(16384),
+                       np.zeros(n_img, dtype=np.bool_), np.empty(16384, dtype=np.int64))
     view_idx, match_img = view.index, view.match
     f_given = f
     k1 = 0.0
