@@ -413,9 +413,16 @@ class CameraPrior(NamedTuple):
         name = PROJECTION_ALIASES.get(projection, projection)
         if name not in UNCALIBRATED_DISTORTION:
             raise unknown_name("camera projection", projection, UNCALIBRATED_DISTORTION)
-        return cls(cx=(width - 1) / 2.0, cy=(height - 1) / 2.0,
-                   sigma_principal_point_px=0.25 * math.hypot(width, height) / 2.0, projection=name,
-                   **UNCALIBRATED_DISTORTION[name])
+        return _uncalibrated(cls, width, height, name)
+
+
+@functools.lru_cache(maxsize=64)
+def _uncalibrated(cls: type[CameraPrior], width: int, height: int, name: str) -> CameraPrior:
+    """:meth:`CameraPrior.uncalibrated`'s prior, made once per frame size and projection (a
+    final fit asks for it several times a solve; the NamedTuple cannot change)."""
+    return cls(cx=(width - 1) / 2.0, cy=(height - 1) / 2.0,
+               sigma_principal_point_px=0.25 * math.hypot(width, height) / 2.0, projection=name,
+               **UNCALIBRATED_DISTORTION[name])
 
 
 UNCALIBRATED_DISTORTION: dict[str, dict[str, float]] = {
@@ -579,8 +586,10 @@ def fit_camera_with_prior(xy: np.ndarray, r_icrs: np.ndarray, camera: Camera, A_
                     gn.chi2, gn.covariance, float(gn.moved), parameters, fitted, gn.kept)
 
 
+@functools.lru_cache(maxsize=64)
 def _prior_numbers(prior: CameraPrior) -> np.ndarray:
-    """The prior's numbers as the kernel takes them (:data:`skyfix._kernels.camera_fit.PRIOR_NUMBERS`)."""
+    """The prior's numbers as the kernel takes them (:data:`skyfix._kernels.camera_fit.PRIOR_NUMBERS`),
+    made once per prior (the kernel only reads them)."""
     return np.array([getattr(prior, k) for k in kernels.PRIOR_NUMBERS], dtype=np.float64)
 
 

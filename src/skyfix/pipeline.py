@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skyfix._jit import njit
+from skyfix._jit import aot_modules, njit
 from skyfix._kernels import rotation
 from skyfix.camera import Camera
 from skyfix.corrections.observation import Observation, apparent_attitude, observe, time_of_image
@@ -435,16 +435,19 @@ def _searched(database, fov_deg: float) -> bool:
     return lo <= fov_deg <= hi
 
 
+_WARM = False  # this process has seen the solve path warm (it stays so: skyfix.warmup.is_warm)
+
+
 def _warm(database, fov_deg: float | None, camera: Camera | None) -> None:
     """A first solve's kernels compiled up front, in parallel (:func:`skyfix.warmup.ensure`),
     while the pattern database it will search first is built, if that is not cached yet."""
-    from skyfix._jit import aot_modules
-
-    if aot_modules():  # every kernel compiled ahead of time: skyfix.warmup (~12 ms) not even imported
+    global _WARM
+    if _WARM or aot_modules():  # every kernel compiled ahead of time: skyfix.warmup (~12 ms) not imported
         return
     from skyfix import warmup
 
     if warmup.is_warm("solve"):
+        _WARM = True
         return
     alongside, also = None, ""
     if database is None:

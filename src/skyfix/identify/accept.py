@@ -285,21 +285,30 @@ def wrong_probability(covariance_rad2: np.ndarray, plate_scale_rad: float, dof: 
     Gaussian (``exp(−L²/2λ)``, ν = ∞): a σ estimated from three stars' six residuals may be
     several times too small, and a three-star solution 4σ off was called solved before
     (``tests/identify/test_identify_triangle.py::test_sparse_noisy_fields_with_false_stars_are_never_wrong``).
-    NaN or negative variances give 1."""
-    rows = np.asarray(covariance_rad2, dtype=np.float64).tolist()  # (3, 3): Python floats, fast
-    if not all(math.isfinite(v) for row in rows for v in row):
-        return 1.0
-    (a, b, _), (_, d, _), (_, _, var_roll) = rows
+    NaN or negative variances give 1. (Compiled, :func:`_wrong_probability`: a solve's final
+    fit asks once, and the Python arithmetic of the tails cost it ~15 µs.)"""
+    c = np.ascontiguousarray(covariance_rad2, dtype=np.float64)
+    return float(_wrong_probability(c, float(plate_scale_rad), float(dof)))
+
+
+@njit(cache=True)
+def _wrong_probability(c, plate_scale_rad, dof):
+    """:func:`wrong_probability` of the (3, 3) float64 covariance ``c``."""
+    for i in range(3):
+        for j in range(3):
+            if not math.isfinite(c[i, j]):
+                return 1.0
+    a, b, d, var_roll = c[0, 0], c[0, 1], c[1, 1], c[2, 2]
     lam = (a + d) / 2.0 + math.sqrt(max(((a - d) / 2.0) ** 2 + b * b, 0.0))
     bound = max(WRONG_BORESIGHT_ARCSEC * _ARCSEC, plate_scale_rad)
     roll = math.radians(WRONG_ROLL_DEG)
-    nu = max(float(dof), 1.0)
+    nu = max(dof, 1.0)
     if math.isinf(nu):
         p_bore = math.exp(-bound * bound / (2.0 * lam)) if lam > 0.0 else 0.0
         p_roll = math.erfc(roll / math.sqrt(2.0 * var_roll)) if var_roll > 0.0 else 0.0
     else:
         p_bore = (1.0 + bound * bound / (nu * lam)) ** (-nu / 2.0) if lam > 0.0 else 0.0
-        p_roll = student_t_two_sided(roll / math.sqrt(var_roll), nu) if var_roll > 0.0 else 0.0
+        p_roll = _student_t(roll / math.sqrt(var_roll), nu) if var_roll > 0.0 else 0.0
     return min(p_bore + p_roll, 1.0) if lam >= 0.0 and var_roll >= 0.0 else 1.0
 
 
@@ -309,7 +318,13 @@ def student_t_two_sided(t: float, nu: float) -> float:
     growing beyond, 2e-11 at ν = 1e5; tests/identify/test_identify_accept.py): the regularised incomplete
     beta ``I_x(ν/2, 1/2)`` at ``x = ν / (ν + t²)``, by its continued fraction (modified Lentz).
     Written here because importing scipy.special costs a solving process ~0.06 s of CPU."""
-    t = abs(float(t))
+    return float(_student_t(float(t), float(nu)))
+
+
+@njit(cache=True)
+def _student_t(t, nu):
+    """:func:`student_t_two_sided`, compiled (:func:`_wrong_probability` calls it)."""
+    t = abs(t)
     if not t > 0.0:
         return 1.0 if t == 0.0 else math.nan
     a, b = nu / 2.0, 0.5
@@ -323,7 +338,8 @@ def student_t_two_sided(t: float, nu: float) -> float:
     return 1.0 - front * _beta_fraction(b, a, y) / b if front > 0.0 else 1.0
 
 
-def _beta_fraction(a: float, b: float, x: float) -> float:
+@njit(cache=True)
+def _beta_fraction(a, b, x):
     """The continued fraction of the incomplete beta function ``I_x(a, b)`` (Numerical Recipes
     §6.4's ``betacf``), converging fast for ``x < (a + 1) / (a + b + 2)``."""
     tiny = 1e-300
@@ -332,8 +348,11 @@ def _beta_fraction(a: float, b: float, x: float) -> float:
     h = d
     for m in range(1, 500):
         m2 = 2 * m
-        for num in (m * (b - m) * x / ((a + m2 - 1.0) * (a + m2)),
-                    -(a + m) * (a + b + m) * x / ((a + m2) * (a + m2 + 1.0))):
+        for step in range(2):
+            if step == 0:
+                num = m * (b - m) * x / ((a + m2 - 1.0) * (a + m2))
+            else:
+                num = -(a + m) * (a + b + m) * x / ((a + m2) * (a + m2 + 1.0))
             d = 1.0 + num * d
             d = 1.0 / (d if abs(d) > tiny else tiny)
             c = 1.0 + num / c

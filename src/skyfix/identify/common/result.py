@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,6 +77,8 @@ def finite_centroids(xy) -> tuple[np.ndarray, np.ndarray | None]:
         xy = xy.reshape(0, 2)
     if xy.ndim != 2 or xy.shape[1] != 2:
         raise InputError(f"centroids must be an (N, 2) array of x, y pixels, got shape {xy.shape}")
-    finite = np.isfinite(xy).all(axis=1)
+    if math.isfinite(xy.sum()):  # the common case in one reduction (a NaN or inf makes it non-finite)
+        return xy, None
+    finite = np.isfinite(xy).all(axis=1)  # (or finite values that overflow the sum)
     kept = None if finite.all() else np.flatnonzero(finite)
     return (xy if kept is None else xy[kept]), kept

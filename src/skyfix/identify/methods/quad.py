@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -247,16 +246,19 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
         chosen = tiers if explicit or camera is not None or own is None else [tiers[0], own]
         return [tuple(Tolerances(float(eps_key), float(centroid_sigma_px), float(model_err)))
                 for eps_key, model_err in chosen]
-    # on failure the frame is tried mirrored, briefly, with these options (see check_mirror)
-    retry = dict(fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database,
-                 max_patterns=min(max_patterns, 200), time_limit_s=min(time_limit_s, 0.25), epoch=epoch,
-                 pattern_stars=pattern_stars, verify_stars=verify_stars, refine_stars=refine_stars,
-                 match_radius=match_radius, prob_threshold=prob_threshold,
-                 centroid_sigma_px=centroid_sigma_px, ratio_tolerance=ratio_tolerance,
-                 key_tolerance=key_tolerance, check_mirror=False) if check_mirror else None
+    # on failure the frame is tried mirrored, briefly, with these options (see check_mirror);
+    # made only then
+    def retry() -> dict | None:
+        return dict(fov_deg=fov_deg, fov_tolerance_deg=fov_tolerance_deg, camera=camera, database=database,
+                    max_patterns=min(max_patterns, 200), time_limit_s=min(time_limit_s, 0.25), epoch=epoch,
+                    pattern_stars=pattern_stars, verify_stars=verify_stars, refine_stars=refine_stars,
+                    match_radius=match_radius, prob_threshold=prob_threshold,
+                    centroid_sigma_px=centroid_sigma_px, ratio_tolerance=ratio_tolerance,
+                    key_tolerance=key_tolerance, check_mirror=False) if check_mirror else None
     log_threshold = math.log(prob_threshold)
     refit = RefineSettings(camera is None, 12, n_verify, min(n, refine_stars), float(radius),
                            float(centroid_sigma_px), 3)
+    refit_plain = tuple(refit)
     verification = tuple(VerifySettings(n_verify, float(radius), log_threshold))
     geometry = (int(width), int(height), cx, cy)
     # A wide search's pattern order puts the central stars' patterns forward (_CENTRE_SHARE).
@@ -292,7 +294,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 if n_lookups and time.perf_counter() - t0 - loading_s > time_limit_s:
                     n_tried = max(s.pos[0] for s in searches)
                     return _failure(f"time limit {time_limit_s:g} s reached after {n_tried} patterns"
-                                    + _mirror_note(xy, width, height, cx, retry), t0, n_tried, n_cand)
+                                    + _mirror_note(xy, width, height, cx, retry()), t0, n_tried, n_cand)
                 start = search.pos[tier]
                 stop = min(goal, start + 512)
                 t_load = time.perf_counter()
@@ -309,8 +311,9 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 n_lookups += hit.n_done
                 n_cand += hit.n_candidates
                 if hit.success:
-                    ctx = _Context(kept, search.geometry, camera, plain.image_stars, refit, search.database(),
-                                   epoch, log_threshold, t0, search.distortion)
+                    ctx = _Context(kept, search.geometry, camera, plain.image_stars, plain.image, refit,
+                                   refit_plain, plain.stars, search.database(), epoch, log_threshold, t0,
+                                   search.distortion)
                     n_tried = max(s.pos[0] for s in searches)
                     res = _accepted(_finish(ctx, hit, n_tried, n_cand), search.focal)
                     if search.distortion.equidistant_px:
@@ -322,7 +325,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                     search.work_s += REFUSED_HIT_COST_S
     n_tried = max(s.pos[0] for s in searches)
     return _failure(f"no match after {n_tried} patterns ({n_cand} candidates verified)"
-                    + _mirror_note(xy, width, height, cx, retry) + _shallow_note(hinted[1]),
+                    + _mirror_note(xy, width, height, cx, retry()) + _shallow_note(hinted[1]),
                     t0, n_tried, n_cand)
 
 
@@ -597,21 +600,25 @@ def _mirror_note(xy: np.ndarray, width: int, height: int, cx: float, retry: dict
     return MIRROR_NOTE if identify(flipped, width, height, **retry).success else ""
 
 
-@dataclass(frozen=True)
-class _Context:
+class _Context(NamedTuple):
     """What :func:`identify` works out once per frame and :func:`_finish` needs.
 
     kept : the indices of the finite centroids in the caller's array (None: all were finite).
     geometry : (width, height, cx, cy) — the frame and the principal point assumed.
     camera : the calibrated camera, or None (then the focal length and k1 are fitted).
-    image : the centroids as the kernels see them; refit : the refit's settings.
+    image : the centroids as the kernels see them (``image_plain``: as a plain tuple);
+    refit : the refit's settings (``refit_plain``: as a plain tuple); stars_plain : the database's
+    :class:`StarIndex` as a plain tuple (kernel_data says why plain).
     """
 
     kept: np.ndarray | None
     geometry: tuple[int, int, float, float]
     camera: Camera | None
     image: ImageStars
+    image_plain: tuple
     refit: RefineSettings
+    refit_plain: tuple
+    stars_plain: tuple
     database: PatternDatabase
     epoch: float | None
     log_threshold: float
@@ -627,7 +634,9 @@ def _most_stars(res: Identification | None, ctx: _Context, hit: SearchResult, ri
     lens may show a central pattern that fits the fisheye's distortion first: a 45° frame of
     k1 −0.3 kept 78 stars through the fisheye's refit where the cubic one matches 184."""
     for other in rivals:
-        alt = _accepted(_finish(replace(ctx, image=other.plain().image_stars, distortion=other.distortion),
+        plain = other.plain()
+        alt = _accepted(_finish(ctx._replace(image=plain.image_stars, image_plain=plain.image,
+                                             distortion=other.distortion),
                                 hit, n_tried, n_cand), other.focal)
         if alt is not None and (res is None or len(alt.star_index) > len(res.star_index)):
             res = alt
@@ -638,15 +647,14 @@ def _finish(ctx: _Context, hit: SearchResult, n_tried: int, n_cand: int) -> Iden
     """Refit the accepted candidate ``hit`` on all matched stars (compiled :func:`refine`) and
     package the result; None when the refit is not itself beyond chance (accept rule 6)."""
     db = ctx.database
-    fit = refine_entry(tuple(ctx.image), hit.A_icrs_to_cam, hit.focal_px, tuple(ctx.refit),
-                       tuple(db.star_index()))
+    fit = refine_entry(ctx.image_plain, hit.A_icrs_to_cam, hit.focal_px, ctx.refit_plain, ctx.stars_plain)
     r_final, n_cat = float(fit.radius_px), int(fit.n_catalog)
     frame = ctx.image.frame_px
     area = (frame[1] - frame[0]) * (frame[3] - frame[2])
     if not refit_accepted(fit.n_pairs, n_cat, ctx.refit.n_img, r_final, area, ctx.log_threshold):
         return None
     star_index, cat_index = fit.star_index, fit.catalog_index
-    order = np.argsort(star_index)
+    order = np.argsort(star_index, kind="stable")
     star_index, cat_index = star_index[order], cat_index[order]
     camera = ctx.camera
     if camera is None:
