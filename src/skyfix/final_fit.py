@@ -349,7 +349,7 @@ def _fit_fisheye_camera(xy: np.ndarray, ident, database, epoch: float | None, me
 
     The covariance is the camera axes' (``_final``'s ``axis_covariance``): the principal point the
     boresight's RA/Dec and the quaternion refer to is fitted, known to 0.02–0.08 px, which at an
-    all-sky frame's 300–700″ a pixel is 10–50″, 4× the error of the sky direction of that pixel.
+    all-sky frame's 300–700″ a pixel is 4–40″, 4× the error of the sky direction of that pixel.
     Campaign seeds 0–39, the error (x, y) against the truth's quaternion over the σ reported: RMS
     5.3, 5.3 with the pixel's covariance, 1.10, 1.05 with this (docs/all-sky.md#error-bars)."""
     cam0: Camera = ident.camera
