@@ -44,6 +44,9 @@ class AllSkyResult(NamedTuple):
     n_matched: int
     time_s: float
     reason: str
+    # the camera axes' error against the truth's quaternion (x, y, roll: the optical axis's
+    # direction and the roll about it) over the σ the solution reports (NaN when not solved)
+    axis_error_sigmas: tuple[float, float, float] = (math.nan, math.nan, math.nan)
 
 
 def allsky_frame(seed: int):
@@ -71,6 +74,7 @@ def allsky_campaign(seeds, **solve_options) -> list[AllSkyResult]:
     """Render and solve the campaign's frames ``seeds`` (no hint, no camera; ``solve_options`` are
     :func:`skyfix.solve`'s)."""
     from skyfix.analysis.truth import judge
+    from skyfix.attitude import RAD_TO_ARCSEC, attitude_error
     from skyfix.geometry import attitude_from_quaternion
     from skyfix.pipeline import solve
 
@@ -83,8 +87,11 @@ def allsky_campaign(seeds, **solve_options) -> list[AllSkyResult]:
         if sol.solved:
             A_true = attitude_from_quaternion(np.asarray(frame.truth["quaternion_xyzw"]))
             j = judge(sol.A_icrs_to_cam, sol.camera, A_true, camera)
+            sigma = np.sqrt(np.diag(np.asarray(sol.covariance_arcsec2))) / RAD_TO_ARCSEC
+            z = attitude_error(A_true, sol.A_icrs_to_cam) / sigma
             out.append(AllSkyResult(int(seed), (camera.width, camera.height), lens, True, j.wrong,
-                                    j.boresight_arcsec, j.roll_deg, sol.n_matched, dt, ""))
+                                    j.boresight_arcsec, j.roll_deg, sol.n_matched, dt, "",
+                                    (float(z[0]), float(z[1]), float(z[2]))))
         else:
             out.append(AllSkyResult(int(seed), (camera.width, camera.height), lens, False, False, math.nan,
                                     math.nan, 0, dt, sol.reason))
@@ -92,12 +99,15 @@ def allsky_campaign(seeds, **solve_options) -> list[AllSkyResult]:
 
 
 def summarise(results: list[AllSkyResult]) -> dict:
-    """Solved share, wrong count, the boresight's median and largest error (″) and the median
-    time of ``results``."""
+    """Solved share, wrong count, the boresight's median and largest error (″), the median
+    time of ``results``, and the RMS of the camera axes' errors over their reported σ
+    (``normalised_rms``: x, y, roll; 1 for an honest error bar)."""
     solved = [r for r in results if r.solved]
     errors = [r.boresight_arcsec for r in solved]
+    z = np.array([r.axis_error_sigmas for r in solved]).reshape(-1, 3)
     return dict(n=len(results), solved=len(solved), solved_pct=100.0 * len(solved) / max(len(results), 1),
                 wrong=sum(r.wrong for r in results),
                 boresight_median_arcsec=float(np.median(errors)) if errors else math.nan,
                 boresight_max_arcsec=float(np.max(errors)) if errors else math.nan,
-                time_median_s=float(np.median([r.time_s for r in results])) if results else math.nan)
+                time_median_s=float(np.median([r.time_s for r in results])) if results else math.nan,
+                normalised_rms=np.sqrt(np.mean(z**2, axis=0)).tolist() if errors else [math.nan] * 3)
