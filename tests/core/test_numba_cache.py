@@ -4,10 +4,12 @@ small kernel modules written to a temporary folder, their cache in another:
 - two signatures' data files swapped (what two processes compiling one kernel at once could
   leave): the kernel must compile again, not run the other signature's code;
 - a cached ``a.sort()`` and a cached ``a.argsort()``, each compiled in a process of its own, then
-  both loaded in a third: numba names its quicksort helper the same in both (its compile number
-  counts from 1 in every process, and sort and argsort reach it after as many compiles), and the
-  second kernel loaded must still run its own helper, not the first one's."""
+  both loaded in a third: with numba's compile numbers counting from 1 in every process, both
+  name their quicksort helper ``run_quicksort1[v4](float64[::1])`` (sort and argsort reach it
+  after as many compiles), and the argsort loaded second ran the sort's (what crashed
+  ``grid._catalogue_cells``, skyfix._numba_cache's text). Each must run its own."""
 
+import json
 import subprocess
 import sys
 import textwrap
@@ -77,8 +79,6 @@ LOAD = textwrap.dedent('''
 
 @pytest.mark.slow  # three processes, each importing numba: 16 s at load 7
 def test_kernels_cached_by_two_processes_run_their_own_helpers(tmp_path):
-    import json
-
     for name, body in SORTS.items():
         (tmp_path / f"{name}.py").write_text("from skyfix._jit import njit\n\n\n" + body)
     cache = tmp_path / "cache"
