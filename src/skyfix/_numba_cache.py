@@ -1,37 +1,61 @@
-"""numba's kernel cache made safe for processes that compile at the same time.
+"""numba's kernel cache made safe for processes that compile at the same time, or one after
+another.
 
-numba keeps a kernel's machine code in numbered data files (``NAME.1.nbc``, ``NAME.2.nbc``, …)
-beside an index (``NAME.nbi``) mapping each signature to its file. Saving an entry reads the
-index, picks the first free number and writes both — with no lock. Two processes compiling two
-signatures of one kernel at once (test workers, campaign workers, a warm-up beside a solve) can
-both pick the same number: the index then names one signature's file while the file holds the
-other's code, and the next process that loads it runs machine code compiled for other argument
-types — it crashed (a segmentation fault in ``grid.pattern_cells``, whose two signatures differ
-in one argument's type, after a test run beside two other processes).
+**Names.** numba names a compiled function's machine code by its module, qualified name,
+argument types and a number, ``v<uid>``, that its process counts up from 1 at every compile
+(``numba.core.bytecode.FunctionIdentity``): unique in one process, not across processes. A
+cached kernel's code holds a copy of every function it calls (numba's own ``sort``/``argsort``
+helpers, the skyfix kernels it calls) as a *weak* symbol, and when a process loads two cached
+kernels whose copies have the same name, LLVM's JIT keeps the first and binds the second
+kernel's calls to it — right only if the name means the same code. Across processes it need
+not: numba's quicksort helpers are closures made once for ``sort`` and once for ``argsort``,
+with one qualified name (``make_quicksort_impl.<locals>.run_quicksort1``) and, for a float64
+array, one argument type (the return type is not in the name). Under ``pytest -n 2``,
+``search._pattern_edges``'s cached code held its ``out.sort()`` as
+``run_quicksort1[v24](float64[::1])``, compiled in one process, and ``grid._catalogue_cells``'s
+held ``np.argsort`` under the very same name, compiled in another; a process that ran
+``_pattern_edges`` first and then ``_catalogue_cells`` ran the sort for the argsort — its floats
+sorted in place and handed back as indices — and crashed (numba's issue 10486). :func:`install`
+starts each process's count at a random 63-bit number (again in a forked child), so no two
+processes give one name to two functions.
 
-:func:`install` changes two methods of ``numba.core.caching.IndexDataCacheFile``:
+**Numbering.** numba keeps a kernel's machine code in numbered data files (``NAME.1.nbc``,
+``NAME.2.nbc``, …) beside an index (``NAME.nbi``) mapping each signature to its file. Saving an
+entry reads the index, picks the first free number and writes both — with no lock. Two
+processes compiling two signatures of one kernel at once (test workers, campaign workers, a
+warm-up beside a solve) can both pick the same number: the index then names one signature's
+file while the file holds the other's code, and the next process that loads it runs machine
+code compiled for other argument types.
+
+:func:`install` sets numba's counter (above) and changes two methods of
+``numba.core.caching.IndexDataCacheFile``:
 
 - ``save`` holds an exclusive lock (``fcntl.flock`` on ``NAME.nbi.lock``) from reading the index
   to writing the data, so no two processes pick one number;
-- each data file holds its signature's key beside the code, and ``load`` returns the code only
-  when that key is the one asked for — anything else (a file of the race above, one from before
-  this change) is a cache miss, and the kernel compiles again.
+- each data file holds :data:`MARK` and its signature's key beside the code, and ``load``
+  returns the code only when both are this module's — anything else (a file of the race above,
+  one saved before the counter was random, one of another skyfix) is a cache miss, and the
+  kernel compiles again.
 
 Installed by :func:`skyfix._jit` when it first imports numba, before any kernel is compiled or
-loaded. ``tests/core/test_numba_cache.py`` swaps two signatures' data files and checks that the
-kernel recompiles instead of running the wrong code.
+loaded. ``tests/core/test_numba_cache.py`` swaps two signatures' data files, and loads a cached
+``sort`` and a cached ``argsort`` compiled in two processes, and checks that each kernel
+recompiles or runs its own code.
 """
 
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
+import secrets
 from typing import Any
 
 __all__ = ["MARK", "install"]
 
-#: The first item of a data file this module wrote: ``(MARK, key, data)``.
-MARK = "skyfix-keyed-1"
+#: The first item of a data file this module wrote: ``(MARK, key, data)``. Version 2: saved by a
+#: process whose compile numbers start at random (files of version 1 may share names: load as misses).
+MARK = "skyfix-keyed-2"
 
 _installed = False
 
@@ -55,12 +79,24 @@ def _locked(path: str):
         os.close(fd)  # closing releases the lock
 
 
+def _random_uids() -> None:
+    """numba's compile numbers, from a random start: its names unique across processes."""
+    from numba.core.bytecode import FunctionIdentity
+
+    FunctionIdentity._unique_ids = itertools.count(secrets.randbits(63))
+
+
 def install() -> None:
-    """Patch numba's cache file class (once per process; see the module text)."""
+    """Patch numba's compile numbering and cache file class (once per process; see the module
+    text)."""
     global _installed
     if _installed:
         return
     from numba.core.caching import IndexDataCacheFile
+
+    _random_uids()
+    if hasattr(os, "register_at_fork"):  # a forked child would count on from its parent's number
+        os.register_at_fork(after_in_child=_random_uids)
 
     plain_save, plain_load = IndexDataCacheFile.save, IndexDataCacheFile.load
 

@@ -1,10 +1,21 @@
-"""numba's cache with two signatures' data files swapped (what two processes compiling one
-kernel at once could leave): the kernel must compile again, not run the other signature's code.
-Run in a subprocess on a copy of a small kernel module, its cache in a temporary folder."""
+"""numba's cache as processes leave it (skyfix._numba_cache), each case run in fresh processes on
+small kernel modules written to a temporary folder, their cache in another:
 
+- two signatures' data files swapped (what two processes compiling one kernel at once could
+  leave): the kernel must compile again, not run the other signature's code;
+- a cached ``a.sort()`` and a cached ``a.argsort()``, each compiled in a process of its own, then
+  both loaded in a third: with numba's compile numbers counting from 1 in every process, both
+  name their quicksort helper ``run_quicksort1[v4](float64[::1])`` (sort and argsort reach it
+  after as many compiles), and the argsort loaded second ran the sort's (what crashed
+  ``grid._catalogue_cells``, skyfix._numba_cache's text). Each must run its own."""
+
+import json
 import subprocess
 import sys
 import textwrap
+
+import numpy as np
+import pytest
 
 from tests.conftest import ROOT
 
@@ -27,10 +38,10 @@ SCRIPT = textwrap.dedent('''
 ''')
 
 
-def _run(tmp_path, cache):
+def _run(tmp_path, cache, script=SCRIPT, *args):
     env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(ROOT / "src"), "NUMBA_CACHE_DIR": str(cache),
            "SKYFIX_AOT": "0", "HOME": str(tmp_path)}
-    r = subprocess.run([sys.executable, "-c", SCRIPT, str(tmp_path)], capture_output=True, text=True,
+    r = subprocess.run([sys.executable, "-c", script, str(tmp_path), *args], capture_output=True, text=True,
                        env=env, timeout=600)
     return r.returncode, r.stdout.strip(), r.stderr
 
@@ -46,3 +57,38 @@ def test_swapped_data_files_recompile_instead_of_crashing(tmp_path):
     files[1].write_bytes(a)  # the index now names the other signature's code for each
     code, out, err = _run(tmp_path, cache)
     assert (code, out) == (0, "6 7.0"), err[-2000:]
+
+
+SORTS = {
+    "ksort": "@njit(cache=True)\ndef kernel(a):\n    a.sort()\n    return a\n",
+    "kargsort": "@njit(cache=True)\ndef kernel(a):\n    return a.argsort()\n",
+}
+
+LOAD = textwrap.dedent('''
+    import importlib, json, sys
+    import numpy as np
+    sys.path.insert(0, sys.argv[1])
+    out = {}
+    for name in sys.argv[2:]:
+        k = importlib.import_module(name).kernel
+        out[name] = k(np.array([3.0, 1.0, 2.0, 0.5])).tolist()
+        out[name + " hits"] = sum(k.dispatcher().stats.cache_hits.values())
+    print(json.dumps(out))
+''')
+
+
+@pytest.mark.slow  # three processes, each importing numba: 16 s at load 7
+def test_kernels_cached_by_two_processes_run_their_own_helpers(tmp_path):
+    for name, body in SORTS.items():
+        (tmp_path / f"{name}.py").write_text("from skyfix._jit import njit\n\n\n" + body)
+    cache = tmp_path / "cache"
+    for name in SORTS:  # each compiled and cached in a process of its own
+        code, _, err = _run(tmp_path, cache, LOAD, name)
+        assert code == 0, err[-2000:]
+    code, out, err = _run(tmp_path, cache, LOAD, "ksort", "kargsort")  # both, sort first
+    assert code == 0, err[-2000:]
+    got = json.loads(out)
+    assert got["ksort hits"] == got["kargsort hits"] == 1  # both loaded from the cache
+    a = [3.0, 1.0, 2.0, 0.5]
+    assert got["ksort"] == sorted(a)
+    assert got["kargsort"] == np.argsort(a).tolist()  # not the floats' bits, as sort's helper returns
