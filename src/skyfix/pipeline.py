@@ -662,7 +662,7 @@ class _Places:
             return self._vectors[0]
         numbers, vectors = np.concatenate(self._ids), np.concatenate(self._vectors)
         order = np.argsort(numbers, kind="stable")
-        return vectors[order[np.searchsorted(numbers, np.asarray(ids), sorter=order)]]
+        return vectors[order[np.searchsorted(numbers, ids, sorter=order)]]
 
 
 def solution_numbers(A: np.ndarray, xy: np.ndarray, idx: np.ndarray, v: np.ndarray, mag: np.ndarray,

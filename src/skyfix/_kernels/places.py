@@ -25,9 +25,11 @@ SCHWARZSCHILD_SUN_AU = 1.97412574336e-8
 
 @njit(cache=True, inline="always")
 def moved(x, y, z, a, d, r):
-    """The unit vector ``(x, y, z)`` moved by ``a`` east and ``d`` north (radians, proper motion
-    times the time) and ``r`` along itself (the distance's relative change), renormalised
-    (:func:`skyfix.catalog.propagate`'s straight line; at a pole, east is +y)."""
+    """The unit vector ``u = (x, y, z)`` moved by ``a`` east and ``d`` north (radians, proper
+    motion times the time) and ``r`` along itself (the distance's relative change), renormalised
+    (:func:`skyfix.catalog.propagate`'s straight line). East and north come from the vector
+    itself, no angles: ``e = (−y, x, 0) / ρ``, ``n = (−z x, −z y, ρ²) / ρ`` with ``ρ = √(x² + y²)``
+    (at a pole, where RA is 0 by convention, ``x/ρ = 1``, ``y/ρ = 0``)."""
     rho = math.hypot(x, y)
     cos_ra, sin_ra = (1.0, 0.0) if rho == 0.0 else (x / rho, y / rho)
     px = x + (-a * sin_ra - d * z * cos_ra + r * x)

@@ -27,8 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from skyfix._kernels.places import aberrate_stars
-from skyfix.corrections.observer import SPEED_OF_LIGHT_KM_S
-from skyfix.errors import InputError
+from skyfix.corrections.observer import SPEED_OF_LIGHT_KM_S, check_speed
 
 # erfa is imported in the functions that call it: importing it takes ~150 ms.
 __all__ = ["aberrate", "earth_state", "EarthState", "lorentz", "SPEED_OF_LIGHT_KM_S", "AU_KM", "DAY_S"]
@@ -90,10 +89,6 @@ def aberrate(vectors: np.ndarray, velocity_km_s) -> np.ndarray:
 def lorentz(velocity_km_s) -> tuple[np.ndarray, float]:
     """``β`` (3,), the velocity ``velocity_km_s`` (km/s) in units of c, and ``√(1 − β²)``: what
     ERFA's ``ab`` takes. Raises :class:`~skyfix.errors.InputError` for a speed of c or more."""
-    vx, vy, vz = np.asarray(velocity_km_s, dtype=np.float64).reshape(3).tolist()
-    bx, by, bz = vx / SPEED_OF_LIGHT_KM_S, vy / SPEED_OF_LIGHT_KM_S, vz / SPEED_OF_LIGHT_KM_S
-    b2 = bx * bx + by * by + bz * bz
-    if not b2 < 1.0:
-        raise InputError(f"an observer speed of {math.sqrt(b2) * SPEED_OF_LIGHT_KM_S:.6g} km/s is not "
-                         f"below the speed of light ({SPEED_OF_LIGHT_KM_S} km/s)")
-    return np.array([bx, by, bz]), math.sqrt(1.0 - b2)
+    v = check_speed(np.asarray(velocity_km_s, dtype=np.float64).reshape(3), "an observer speed of")
+    bx, by, bz = (c / SPEED_OF_LIGHT_KM_S for c in v.tolist())
+    return np.array([bx, by, bz]), math.sqrt(1.0 - (bx * bx + by * by + bz * bz))
