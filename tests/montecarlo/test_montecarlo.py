@@ -156,6 +156,50 @@ def test_two_workers_give_the_same_rows_and_summary(full_run, tmp_path):
     assert summarize(two.table, _campaign()) == summarize(full_run.table, _campaign())
 
 
+def test_in_process_run_gives_the_same_rows(full_run, tmp_path):
+    from skyfix.montecarlo.engine import run_campaign
+
+    here = run_campaign(_campaign(), tmp_path / "here.parquet", workers=0)
+    assert (here.workers, here.batches_run) == (0, 4)
+    assert _rows(here.table) == _rows(full_run.table)
+
+
+def _squares_study(trials: int = 10, batch_size: int = 3, power: int = 2):
+    from dataclasses import dataclass
+
+    from skyfix.montecarlo.study import BatchedStudy
+
+    @dataclass(frozen=True)
+    class Squares(BatchedStudy):
+        kind = "squares"
+        columns = {"trial": "int64", "value": "float64", "values": "list<int64>"}
+
+        def run_trial(self, trial: int) -> dict:
+            p = self.settings["power"]
+            return {"trial": trial, "value": float(trial) ** p, "values": list(range(trial % 3))}
+
+    return Squares(trials, batch_size, {"power": power})
+
+
+def test_any_study_runs_resumes_and_is_refused_when_changed(tmp_path):
+    from skyfix.montecarlo.engine import run_campaign
+
+    study, out = _squares_study(), tmp_path / "sq.parquet"
+    first = run_campaign(study, out, workers=0, max_batches=2)
+    assert (first.complete, first.batches_run, first.n_batches) == (False, 2, 4)
+    done = run_campaign(study, out, workers=1, processes=False)
+    assert (done.batches_before, done.batches_run) == (2, 2)
+    assert done.table.column("value").to_pylist() == [float(i * i) for i in range(10)]
+    assert done.table.column("values").to_pylist()[:4] == [[], [0], [0, 1], []]
+    assert done.table.schema.metadata[b"skyfix.fingerprint"].decode() == study.fingerprint
+    cubes = _squares_study(power=3)
+    assert cubes.fingerprint != study.fingerprint
+    run_campaign(cubes, tmp_path / "cubes.parquet", workers=0, max_batches=1)
+    (tmp_path / "cubes.parquet.parts").rename(tmp_path / "sq2.parquet.parts")
+    with pytest.raises(CampaignError, match="another campaign"):
+        run_campaign(study, tmp_path / "sq2.parquet", workers=0)
+
+
 def test_interrupted_run_resumes_with_every_trial_once(full_run, tmp_path):
     from dask.distributed import Client, LocalCluster
 

@@ -1,12 +1,18 @@
 """Run a campaign on Dask: batches of trials as tasks, each finished batch kept on disk, so an
 interrupted run continues where it stopped.
 
-- **Cluster.** A :class:`dask.distributed.LocalCluster` of ``workers`` single-threaded worker
-  processes (their ``PYTHONPATH`` gets the folder this skyfix is imported from), or the
-  scheduler at ``scheduler`` (``tcp://HOST:8786``) with whatever workers it has. dask is
-  imported only here, when a campaign runs.
+What runs is a :class:`skyfix.montecarlo.study.Study`: a campaign file
+(:class:`~skyfix.montecarlo.campaign.Campaign`, wrapped as
+:class:`~skyfix.montecarlo.trials.CampaignTrials`) or one of the analysis studies. Below,
+"campaign" means either.
+
+- **Cluster.** ``workers=0``: the batches run one after another in this process (no Dask; for
+  small runs and tests — the same rows). Otherwise a :class:`dask.distributed.LocalCluster` of
+  ``workers`` single-threaded worker processes (their ``PYTHONPATH`` gets the folder this
+  skyfix is imported from), or the scheduler at ``scheduler`` (``tcp://HOST:8786``) with
+  whatever workers it has. dask is imported only here, when a campaign runs.
 - **Batches.** Batch ``k`` is trials ``k·B … (k+1)·B − 1`` (``[campaign] batch_size``), one task
-  :func:`skyfix.montecarlo.trials.run_batch`; its key names the campaign's fingerprint and
+  (the study's ``run_batch``); its key names the campaign's fingerprint and
   ``k``. A trial is a pure function of (campaign, trial index), so the rows do not depend on
   the worker count or the order the batches finish in.
 - **Resume.** Each finished batch is written by this process (workers need no shared disk) to
@@ -35,11 +41,12 @@ from typing import TYPE_CHECKING, Any
 import skyfix
 from skyfix.errors import CampaignError
 from skyfix.montecarlo.campaign import Campaign
+from skyfix.montecarlo.study import Study, table_of
 
 if TYPE_CHECKING:
     import pyarrow as pa
 
-__all__ = ["CONNECT_TIMEOUT_S", "RunResult", "connect", "parts_folder", "run_campaign"]
+__all__ = ["CONNECT_TIMEOUT_S", "RunResult", "as_study", "connect", "parts_folder", "run_campaign"]
 
 #: How long to try reaching a scheduler before the run is refused.
 CONNECT_TIMEOUT_S = 10.0
@@ -64,6 +71,16 @@ class RunResult:
         return self.table is not None
 
 
+def as_study(campaign: Campaign | Study) -> Study:
+    """What the engine runs for ``campaign``: a campaign file's :class:`CampaignTrials`, or the
+    study itself."""
+    if isinstance(campaign, Campaign):
+        from skyfix.montecarlo.trials import CampaignTrials
+
+        return CampaignTrials(campaign)
+    return campaign
+
+
 def parts_folder(output: Path) -> Path:
     """Where a run to ``output`` keeps its finished batches."""
     return output.with_name(output.name + ".parts")
@@ -73,7 +90,7 @@ def _part_path(parts: Path, batch: int) -> Path:
     return parts / f"batch-{batch:06d}.parquet"
 
 
-def _finished_batches(campaign: Campaign, parts: Path) -> set[int]:
+def _finished_batches(campaign: Study, parts: Path) -> set[int]:
     """Batches already in ``parts`` (created, with the manifest, when missing); a part that does
     not hold exactly its batch's trials is deleted."""
     import pyarrow.parquet as pq
@@ -112,15 +129,14 @@ def _write_atomic(path: Path, write: Callable[[Path], Any]) -> None:
     os.replace(tmp, path)
 
 
-def _join(campaign: Campaign, parts: Path, output: Path) -> pa.Table:
+def _join(campaign: Study, parts: Path, output: Path) -> pa.Table:
     """The parts in trial order written to ``output`` (every trial exactly once, checked)."""
     import numpy as np
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from skyfix.montecarlo.results import schema
-
-    table = pa.concat_tables([pq.read_table(_part_path(parts, k), schema=schema(campaign))
+    schema = campaign.schema()
+    table = pa.concat_tables([pq.read_table(_part_path(parts, k), schema=schema)
                               for k in range(campaign.n_batches)])
     trials = table.column("trial").to_numpy()
     if not np.array_equal(trials, np.arange(campaign.trials)):
@@ -130,10 +146,11 @@ def _join(campaign: Campaign, parts: Path, output: Path) -> pa.Table:
     return table
 
 
-def completed_table(campaign: Campaign, output: Path) -> pa.Table | None:
+def completed_table(campaign: Campaign | Study, output: Path) -> pa.Table | None:
     """``output``'s table when it holds this campaign's finished results, else None."""
     import pyarrow.parquet as pq
 
+    campaign = as_study(campaign)
     if not output.is_file() or parts_folder(output).exists():
         return None
     try:
@@ -170,25 +187,17 @@ def connect(workers: int, scheduler: str | None, processes: bool = True):
     return Client(cluster, set_as_default=False), cluster
 
 
-def _warm(campaign: Campaign) -> None:
-    """Compile (or load) the kernels the trials need once here, before the workers start."""
-    from skyfix import warmup
-
-    methods = {campaign.fixed.get("identify_method")} | {v for a in campaign.sweep
-                                                          if a.name == "identify_method" for v in a.values}
-    paths = ["solve", *(["simulate"] if campaign.level == "image" else []),
-             *(f"method-{m}" for m in sorted(m for m in methods if m))]
-    warmup.ensure(paths, missing_ok=True)
-
-
-def run_campaign(campaign: Campaign, output: str | Path, *, workers: int = 2, scheduler: str | None = None,
-                 client=None, processes: bool = True, max_batches: int | None = None,
+def run_campaign(campaign: Campaign | Study, output: str | Path, *, workers: int = 2,
+                 scheduler: str | None = None, client=None, processes: bool = True,
+                 max_batches: int | None = None,
                  progress: Callable[[int, int], None] | None = None) -> RunResult:
     """Run the batches of ``campaign`` not yet finished and, when all are, join them into
-    ``output`` (Parquet). ``client``: an existing Dask client to use (then ``workers``,
-    ``scheduler`` and ``processes`` are ignored and it is left open). ``max_batches``: stop once
-    this many batches have finished in this run (what an interrupt does, for tests).
+    ``output`` (Parquet). ``workers=0`` (and no ``scheduler`` or ``client``): in this process,
+    without Dask. ``client``: an existing Dask client to use (then ``workers``, ``scheduler``
+    and ``processes`` are ignored and it is left open). ``max_batches``: stop once this many
+    batches have finished in this run (what an interrupt does, for tests).
     ``progress(done, total)`` is called with the batches finished."""
+    campaign = as_study(campaign)
     output = Path(output)
     t0 = time.perf_counter()
     done_table = completed_table(campaign, output)
@@ -200,9 +209,11 @@ def run_campaign(campaign: Campaign, output: str | Path, *, workers: int = 2, sc
     if progress is not None:
         progress(len(done), campaign.n_batches)
     n_workers, ran = 0, []
-    if todo:
+    if todo and client is None and scheduler is None and workers == 0:
+        ran = _run_here(campaign, todo, parts, max_batches, progress, len(done))
+    elif todo:
         if client is None and scheduler is None:
-            _warm(campaign)
+            campaign.warm()
         owned = client is None
         if owned:
             client, cluster = connect(workers, scheduler, processes)
@@ -220,17 +231,40 @@ def run_campaign(campaign: Campaign, output: str | Path, *, workers: int = 2, sc
                      sum(len(campaign.batch_trials(k)) for k in ran), time.perf_counter() - t0, n_workers)
 
 
-def _run_batches(client, campaign: Campaign, todo: list[int], parts: Path, max_batches: int | None,
+def _keep(campaign: Study, parts: Path, k: int, rows: list) -> None:
+    """Write batch ``k``'s rows as its part, atomically."""
+    import pyarrow.parquet as pq
+
+    table = table_of(campaign, rows)
+    _write_atomic(_part_path(parts, k), lambda p: pq.write_table(table, p))
+
+
+def _run_here(campaign: Study, todo: list[int], parts: Path, max_batches: int | None,
+              progress: Callable[[int, int], None] | None, done: int) -> list[int]:
+    """``todo`` run one after another in this process, each written as it finishes."""
+    ran: list[int] = []
+    for k in todo:
+        _keep(campaign, parts, k, campaign.run_batch(k))
+        ran.append(k)
+        if progress is not None:
+            progress(done + len(ran), campaign.n_batches)
+        if max_batches is not None and len(ran) >= max_batches:
+            break
+    return ran
+
+
+def _run_batch(campaign: Study, batch: int) -> list[dict[str, Any]]:
+    """One task: the rows of ``batch``."""
+    return campaign.run_batch(batch)
+
+
+def _run_batches(client, campaign: Study, todo: list[int], parts: Path, max_batches: int | None,
                  progress: Callable[[int, int], None] | None, done: int) -> list[int]:
     """Submit ``todo``, write each batch as it finishes; the batches written."""
-    import pyarrow.parquet as pq
     from dask.distributed import KilledWorker, as_completed
 
-    from skyfix.montecarlo.results import batch_table
-    from skyfix.montecarlo.trials import run_batch
-
     tag = campaign.fingerprint[:12]
-    futures = {client.submit(run_batch, campaign, k, key=f"skyfix-montecarlo-{tag}-{k}"): k for k in todo}
+    futures = {client.submit(_run_batch, campaign, k, key=f"skyfix-montecarlo-{tag}-{k}"): k for k in todo}
     ran: list[int] = []
     try:
         for fut in as_completed(futures, loop=client.loop):
@@ -247,8 +281,7 @@ def _run_batches(client, campaign: Campaign, todo: list[int], parts: Path, max_b
                 raise CampaignError("the scheduler could not load the campaign's tasks: the scheduler and "
                                     "every worker must import the same skyfix as this command (its "
                                     "PYTHONPATH, or the same install)") from None
-            table = batch_table(campaign, rows)
-            _write_atomic(_part_path(parts, k), lambda p, t=table: pq.write_table(t, p))
+            _keep(campaign, parts, k, rows)
             ran.append(k)
             if progress is not None:
                 progress(done + len(ran), campaign.n_batches)

@@ -35,8 +35,9 @@ import numpy as np
 from skyfix.camera import Camera
 from skyfix.montecarlo.campaign import Campaign
 
-__all__ = ["EARTH_RATE_RAD_S", "LEVEL_TRIALS", "Setup", "Simulated", "TrialInput", "run_batch", "run_trial",
-           "setup_for", "stamped_attitude", "told_camera", "trial_seed", "trial_values", "true_attitude"]
+__all__ = ["EARTH_RATE_RAD_S", "LEVEL_TRIALS", "CampaignTrials", "Setup", "Simulated", "TrialInput",
+           "run_batch", "run_trial", "setup_for", "stamped_attitude", "told_camera", "trial_seed",
+           "trial_values", "true_attitude"]
 
 _ARCSEC = math.pi / (180.0 * 3600.0)
 _STREAMS = ("attitude", "parameters", "noise", "told")  # spawn order: never reorder (it changes every draw)
@@ -370,3 +371,52 @@ def run_batch(campaign: Campaign, batch: int) -> list[dict[str, Any]]:
     """The rows of batch ``batch`` (trials :meth:`Campaign.batch_trials`), in trial order."""
     setup = setup_for(campaign)
     return [run_trial(campaign, i, setup) for i in campaign.batch_trials(batch)]
+
+
+@dataclasses.dataclass(frozen=True)
+class CampaignTrials:
+    """A campaign file as the engine's :class:`skyfix.montecarlo.study.Study`: its batches run
+    :func:`run_batch`, its rows have :func:`skyfix.montecarlo.results.schema`."""
+
+    campaign: Campaign
+
+    @property
+    def trials(self) -> int:
+        return self.campaign.trials
+
+    @property
+    def batch_size(self) -> int:
+        return self.campaign.batch_size
+
+    @property
+    def n_batches(self) -> int:
+        return self.campaign.n_batches
+
+    @property
+    def fingerprint(self) -> str:
+        return self.campaign.fingerprint
+
+    def batch_trials(self, batch: int) -> range:
+        return self.campaign.batch_trials(batch)
+
+    def to_dict(self) -> dict:
+        return self.campaign.to_dict()
+
+    def schema(self):
+        from skyfix.montecarlo.results import schema
+
+        return schema(self.campaign)
+
+    def run_batch(self, batch: int) -> list[dict[str, Any]]:
+        return run_batch(self.campaign, batch)
+
+    def warm(self) -> None:
+        """Compile (or load) the kernels the trials need once, before the workers start."""
+        from skyfix import warmup
+
+        c = self.campaign
+        methods = {c.fixed.get("identify_method")} | {v for a in c.sweep if a.name == "identify_method"
+                                                       for v in a.values}
+        paths = ["solve", *(["simulate"] if c.level == "image" else []),
+                 *(f"method-{m}" for m in sorted(m for m in methods if m))]
+        warmup.ensure(paths, missing_ok=True)
