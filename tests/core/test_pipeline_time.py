@@ -18,10 +18,11 @@ from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
 from skyfix.corrections import earth_state
-from skyfix.corrections.observation import observe
+from skyfix.corrections.observation import apparent_attitude, observe
 from skyfix.errors import InputError
 from skyfix.geometry import attitude_from_radec_roll
 from skyfix.obstime import julian_year, parse_time
+from skyfix.solution import Deferred
 
 iers.conf.auto_download = False
 pytestmark = pytest.mark.filterwarnings("ignore::erfa.ErfaWarning")
@@ -69,7 +70,10 @@ def test_aberrated_frames_solve_to_the_true_attitude(tmp_path):
         assert abs(parse_time(sol.time).jd_tt - t.jd_tt) * 86400 < 1e-3  # DATE-AVG: the middle
         fixed.append(boresight_arcsec(sol.A_icrs_to_cam, A))
         plain.append(boresight_arcsec(old.A_icrs_to_cam, A))
+        deferred = sol.__dict__["_A_apparent_to_cam"]  # found when first read (a WCS, a plot)
+        assert isinstance(deferred, Deferred)
         assert boresight_arcsec(sol.A_apparent_to_cam, old.A_icrs_to_cam) < 1.0
+        assert np.array_equal(sol.A_apparent_to_cam, apparent_attitude(*deferred.args))  # kept, once
         v = earth_state(t.jd_tt).velocity_km_s + v_orbit
         predicted.append(math.asin(np.linalg.norm(np.cross(A[2], v)) / 299792.458) / ARCSEC)
     fixed, plain = np.array(fixed), np.array(plain)

@@ -17,7 +17,7 @@ import numpy as np
 
 from skyfix._jit import njit
 
-__all__ = ["SCHWARZSCHILD_SUN_AU", "aberrate_stars", "apparent_stars", "move_stars"]
+__all__ = ["SCHWARZSCHILD_SUN_AU", "aberrate_stars", "apparent_stars", "move_stars", "seen_bodies"]
 
 SCHWARZSCHILD_SUN_AU = 1.97412574336e-8
 """The Sun's Schwarzschild radius 2GM/c² in au (ERFA's ``ERFA_SRS``)."""
@@ -109,4 +109,30 @@ def apparent_stars(vectors, parallax, barycentric_au, sun_to_observer, sun_dista
             px, py, pz = px / n, py / n, pz / n
         px, py, pz = deflected(px, py, pz, sun_to_observer, sun_distance_au)
         out[i, 0], out[i, 1], out[i, 2] = aberrated(px, py, pz, beta, 0.0, bm1)
+    return out
+
+
+@njit(cache=True)
+def seen_bodies(heliocentric, offset, earth_velocity, moon, beta, bm1, light_days_per_au):
+    """The Sun's and the Moon's apparent directions (2, 3) from an observer at ``heliocentric``
+    (3,), au, ``offset`` (3,) au from the Earth's centre, given the Earth's barycentric velocity
+    (au/day) and the Moon's geocentric position and velocity ``moon`` (2, 3) (au, au/day; ERFA
+    ``moon98``): each body taken back to where it was when its light left it
+    (``light_days_per_au`` days of light per au of distance; the Sun's velocity taken as 0, and
+    one step: a path bends negligibly in the light time), then aberrated by the observer's
+    velocity ``beta`` (:func:`aberrated`, no gravitational term)."""
+    out = np.empty((2, 3))
+    for i in range(2):
+        d = np.empty(3)
+        v = np.zeros(3)
+        for k in range(3):
+            if i == 0:  # the Sun
+                d[k] = -heliocentric[k]
+            else:
+                d[k] = moon[0, k] - offset[k]
+                v[k] = earth_velocity[k] + moon[1, k]
+        t = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) * light_days_per_au
+        dx, dy, dz = d[0] - t * v[0], d[1] - t * v[1], d[2] - t * v[2]
+        n = math.sqrt(dx * dx + dy * dy + dz * dz)
+        out[i, 0], out[i, 1], out[i, 2] = aberrated(dx / n, dy / n, dz / n, beta, 0.0, bm1)
     return out

@@ -86,9 +86,10 @@ def aberrate(vectors: np.ndarray, velocity_km_s) -> np.ndarray:
     return aberrate_stars(np.ascontiguousarray(p.reshape(-1, 3)), beta, bm1).reshape(p.shape)
 
 
-def lorentz(velocity_km_s) -> tuple[np.ndarray, float]:
+def lorentz(velocity_km_s, what: str = "an observer speed of") -> tuple[np.ndarray, float]:
     """``β`` (3,), the velocity ``velocity_km_s`` (km/s) in units of c, and ``√(1 − β²)``: what
-    ERFA's ``ab`` takes. Raises :class:`~skyfix.errors.InputError` for a speed of c or more."""
-    v = check_speed(np.asarray(velocity_km_s, dtype=np.float64).reshape(3), "an observer speed of")
+    ERFA's ``ab`` takes. Raises :class:`~skyfix.errors.InputError` for a speed of c or more
+    (``what`` names the speed in it)."""
+    v = check_speed(np.asarray(velocity_km_s, dtype=np.float64).reshape(3), what)
     bx, by, bz = (c / SPEED_OF_LIGHT_KM_S for c in v.tolist())
     return np.array([bx, by, bz]), math.sqrt(1.0 - (bx * bx + by * by + bz * bz))

@@ -19,17 +19,20 @@ ephemeris cached per time); applying it to a solve's few hundred stars is one co
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
 
 from skyfix._kernels.places import apparent_stars
 from skyfix.corrections.aberration import AU_KM, earth_state, lorentz
-from skyfix.corrections.observer import GEOCENTRE, Observer, check_speed
+from skyfix.corrections.observer import GEOCENTRE, Observer
 from skyfix.errors import InputError
 from skyfix.obstime import ObservationTime
 
 __all__ = ["ApparentFrame", "apparent_frame", "apparent_directions"]
+
+_NO_OFFSET = np.zeros(3)  # an observer at the Earth's centre
 
 
 class ApparentFrame(NamedTuple):
@@ -41,12 +44,16 @@ class ApparentFrame(NamedTuple):
     barycentric_au : (3,) float64 — the observer's barycentric position, au.
     sun_to_observer : (3,) float64 — unit vector from the Sun to the observer.
     sun_distance_au : float — the Sun–observer distance, au.
+    beta : (3,) float64 — ``velocity_km_s`` in units of c (:func:`~skyfix.corrections.aberration.lorentz`).
+    beta_factor : float — ``√(1 − β²)``.
     """
 
     velocity_km_s: np.ndarray
     barycentric_au: np.ndarray
     sun_to_observer: np.ndarray
     sun_distance_au: float
+    beta: np.ndarray
+    beta_factor: float
 
 
 def apparent_frame(time: ObservationTime, observer: Observer = GEOCENTRE) -> ApparentFrame:
@@ -60,12 +67,13 @@ def apparent_frame(time: ObservationTime, observer: Observer = GEOCENTRE) -> App
         raise InputError("no observation time: aberration and the Sun's deflection need one "
                          "(give --time, or an image with DATE-OBS or EXIF)")
     earth = earth_state(time.jd_tt)
-    velocity = check_speed(earth.velocity_km_s + observer.velocity_km_s,
-                                 "the observer's barycentric speed")
-    offset = np.zeros(3) if observer.position_km is None else observer.position_km / AU_KM
-    heliocentric = earth.heliocentric_au + offset
-    distance = float(np.linalg.norm(heliocentric))
-    return ApparentFrame(velocity, earth.barycentric_au + offset, heliocentric / distance, distance)
+    velocity = earth.velocity_km_s + observer.velocity_km_s
+    beta, beta_factor = lorentz(velocity, "the observer's barycentric speed")
+    offset = _NO_OFFSET if observer.position_km is None else observer.position_km / AU_KM
+    heliocentric = earth.heliocentric_au + offset  # new arrays: the kernels take no read-only ones
+    barycentric = earth.barycentric_au + offset
+    distance = math.hypot(*heliocentric.tolist())
+    return ApparentFrame(velocity, barycentric, heliocentric / distance, distance, beta, beta_factor)
 
 
 def apparent_directions(vectors: np.ndarray, frame: ApparentFrame,
@@ -78,6 +86,5 @@ def apparent_directions(vectors: np.ndarray, frame: ApparentFrame,
     p = p.reshape(-1, 3)
     parallax = (np.zeros(len(p)) if parallax is None
                 else np.ascontiguousarray(parallax, dtype=np.float64).reshape(-1))
-    beta, bm1 = lorentz(frame.velocity_km_s)
     return apparent_stars(p, parallax, frame.barycentric_au, frame.sun_to_observer, frame.sun_distance_au,
-                          beta, bm1).reshape(shape)
+                          frame.beta, frame.beta_factor).reshape(shape)

@@ -30,7 +30,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from skyfix.corrections.aberration import AU_KM, DAY_S, aberrate, earth_state
+from skyfix._kernels.places import seen_bodies
+from skyfix.corrections.aberration import AU_KM, DAY_S, earth_state, lorentz
 from skyfix.corrections.observer import EARTH_EQUATORIAL_RADIUS_KM, GEOCENTRE, SPEED_OF_LIGHT_KM_S, Observer
 from skyfix.errors import InputError
 from skyfix.obstime import ObservationTime
@@ -84,6 +85,7 @@ class Exclusion(NamedTuple):
 EXCLUSION_DEG = Exclusion(28.1, 28.1, 28.1)
 """Default exclusion angles: thesis 004's baffle angle (§7.6, Eq. 7.26), for every bright body."""
 
+_NO_OFFSET = np.zeros(3)  # an observer at the Earth's centre (the kernels never write it)
 _NAMES = {"sun_deg": "the Sun", "moon_deg": "the Moon", "earth_limb_deg": "the Earth's limb"}
 
 
@@ -98,28 +100,16 @@ def body_directions(time: ObservationTime, observer: Observer = GEOCENTRE) -> Bo
 
     jd = time.jd_tt
     earth = earth_state(jd)
-    seen_from = earth.barycentric_au if observer.position_km is None else (
-        earth.barycentric_au + observer.position_km / AU_KM)
     day = math.floor(jd - 0.5) + 0.5
-    moon = erfa.moon98(day, jd - day)  # geocentric, GCRS axes, au and au/day
-    # Barycentric positions (au) and velocities (au/day) of the Sun (its velocity taken as 0: its
-    # barycentric motion, at most 15 m/s, moves it 7 km in the light's 8.3 minutes, 0.01″) and the
-    # Moon; each is where it was when the light that arrives at ``jd`` left it (light time: for the
-    # Moon 1.3 s, in which its path bends by 2 m, so one ephemeris call serves).
-    o = seen_from.tolist()
-    bary, helio = earth.barycentric_au.tolist(), earth.heliocentric_au.tolist()
-    to_day = DAY_S / AU_KM
-    moon_velocity = (earth.velocity_km_s * to_day + moon[1]).tolist()
-    bodies = (([b - h for b, h in zip(bary, helio, strict=True)], (0.0, 0.0, 0.0)),
-              ((earth.barycentric_au + moon[0]).tolist(), moon_velocity))
-    seen = []
-    for position, velocity in bodies:
-        d = [p - q for p, q in zip(position, o, strict=True)]
-        light_days = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) * AU_KM / SPEED_OF_LIGHT_KM_S / DAY_S
-        d = [p - light_days * v for p, v in zip(d, velocity, strict=True)]
-        n = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        seen.append([c / n for c in d])
-    sun, moon_dir = aberrate(np.array(seen), earth.velocity_km_s + observer.velocity_km_s)
+    moon = erfa.moon98(day, jd - day)[None].view(np.float64).reshape(2, 3)  # geocentric: au, au/day
+    # The Sun and the Moon seen from the observer where they were when the light that arrives at
+    # ``jd`` left them (the Sun's barycentric motion, at most 15 m/s, moves it 7 km in the light's
+    # 8.3 minutes, 0.01″; the Moon's path bends by 2 m in its 1.3 s, so one ephemeris call serves),
+    # aberrated by the observer's barycentric velocity.
+    offset = _NO_OFFSET if observer.position_km is None else observer.position_km / AU_KM
+    beta, beta_factor = lorentz(earth.velocity_km_s + observer.velocity_km_s)
+    sun, moon_dir = seen_bodies(earth.heliocentric_au + offset, offset, earth.velocity_km_s * (DAY_S / AU_KM),
+                                moon, beta, beta_factor, AU_KM / SPEED_OF_LIGHT_KM_S / DAY_S)
     if observer.position_km is None:
         return BodyDirections(sun, moon_dir, None, math.nan)
     distance = float(np.linalg.norm(observer.position_km))

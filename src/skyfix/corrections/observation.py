@@ -186,7 +186,7 @@ class Observation:
         sol.corrections_not_applied = dict(self.not_applied)
         sol.attitude_frame = self.attitude_frame
         if self.observer is not None:
-            sol.observer_velocity_km_s = [float(v) for v in self.observer.velocity_km_s]
+            sol.observer_velocity_km_s = np.asarray(self.observer.velocity_km_s, dtype=np.float64).tolist()
         if A_icrs_to_cam is None:
             return
         A = np.asarray(A_icrs_to_cam, dtype=np.float64)

@@ -62,7 +62,7 @@ def _vector(value, what: str) -> np.ndarray:
 
 def check_speed(v: np.ndarray, what: str) -> np.ndarray:
     """``v`` (km/s) if its length is below c, else an :class:`~skyfix.errors.InputError` naming ``what``."""
-    speed = float(np.linalg.norm(v))
+    speed = math.hypot(*np.ravel(v).tolist())
     if speed >= SPEED_OF_LIGHT_KM_S:
         raise InputError(f"{what} {speed:.6g} km/s is not below the speed of light "
                          f"({SPEED_OF_LIGHT_KM_S} km/s)")
