@@ -119,7 +119,7 @@ def test_compiled_measurement_is_the_steps_one_by_one(case, monkeypatch):
     def both(*args):
         out = track_step(*args)
         img, A, P, rate = args[:4]
-        measured = (img, A, P[:3, :3].copy(), rate, P[3:, 3:].copy(), *args[7:-2])  # measure_frame's
+        measured = (img, A, P[:3, :3].copy(), rate, P[3:, 3:].copy(), *args[7:-3])  # measure_frame's
         compared.append((out[0], measure_steps(*measured)))
         alone = measure_frame(*measured)
         assert all(np.array_equal(x, y, equal_nan=True) for x, y in zip(out[0], alone, strict=True))

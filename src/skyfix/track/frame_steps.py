@@ -128,7 +128,8 @@ class FrameSteps:
         t_pred = time.perf_counter()
         n_max, args = self._measure_args(t, A, rate)
         out, gate, (new_rate, new_bias), numbers = track_step(
-            img, A, P, rate, gyro_rate, bias, gyro_mode, *args, float(self.settings.nis_gate), self._mags)
+            img, A, P, rate, gyro_rate, bias, gyro_mode, *args, float(self.settings.nis_gate), self._mags,
+            self._stars.vectors)
         t_step = time.perf_counter()
         fit, why = self._measured(out, n_max)
         if fit is None:

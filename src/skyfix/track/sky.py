@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 
-from skyfix._kernels.rotation import pointing, radec_of_vectors
+from skyfix._kernels.rotation import pointing
 from skyfix.corrections.observation import Observation, apparent_attitude, observer_of, time_of_image
 from skyfix.identify.catalogue.database import readonly_view
 from skyfix.obstime import later
@@ -142,18 +142,12 @@ class TrackedSky:
                         exclusion=obs.exclusion)
         return dict(observer=obs.observer, mounting=obs.mounting, apparent=obs.apparent)
 
-    def numbers(self, A: np.ndarray, head: np.ndarray, table: np.ndarray, index: np.ndarray,
-                stars) -> np.ndarray:
-        """A tracked frame's Solution numbers as made by :func:`skyfix.track.windows.solution_numbers`
-        against :meth:`vectors` (``head``, ``table``, changed in place): the matches' RA/Dec from
-        their catalogue places (``stars.vectors``), and the attitude in the frame asked for, which
-        is returned (``A`` itself but for ``apparent``)."""
-        if not self.corrected:
-            return A
-
-        ra, dec = radec_of_vectors(np.ascontiguousarray(stars.vectors[index]))
-        table[2], table[3] = np.degrees(ra), np.degrees(dec)
-        if self._to_apparent is None:
+    def numbers(self, A: np.ndarray, head: np.ndarray) -> np.ndarray:
+        """The attitude a tracked frame reports, in the frame asked for: ``A`` itself but for
+        ``apparent``, whose RA, Dec, roll and quaternion then replace ``head``'s
+        (:func:`skyfix.track.windows.solution_numbers`'s, changed in place). The matches' RA/Dec
+        are their catalogue places already (the windows' ``places``)."""
+        if not self.corrected or self._to_apparent is None:
             return A
         A_reported = A @ self._to_apparent
         head[:7] = pointing(A_reported)

@@ -44,13 +44,14 @@ def window_fit_agrees(n_fit, n_found):
 @njit(cache=True)
 def track_step(img, A, P, rate, gyro_rate, bias, gyro, exposure_s, line_time_s, local_t, select_mag, cam,
                settings_t, view_t, tiles, max_tile, vectors, zero_point, match_t, centroid_t, min_stars,
-               outlier_k, nis_gate, mags):
+               outlier_k, nis_gate, mags, places):
     """The steps of the module docstring for the frame ``img`` at the filter's prediction:
     attitude ``A`` (3, 3), covariance ``P`` (6, 6: attitude, then rate or bias), rate ``rate``;
     ``gyro_rate`` and ``bias`` the gyro's rate and bias in gyro mode (``gyro``; else any (3,)
     arrays, unused) — :meth:`skyfix.track.filter.AttitudeFilter.step_inputs`. ``exposure_s`` …
     ``outlier_k`` are :func:`~skyfix.track.measure.measure_frame`'s, ``nis_gate`` the filter's
-    gate, ``mags`` the star index's magnitudes (the Solution's matches).
+    gate, ``mags`` the star index's magnitudes and ``places`` its catalogue places (the Solution's
+    matches: :func:`~skyfix.track.windows.solution_numbers`).
 
     Returns four plain tuples: ``measure_frame``'s; the gate — of
     :func:`~skyfix.track.filter.gated_correct` (the two input codes, whether ``S`` was positive
@@ -73,5 +74,6 @@ def track_step(img, A, P, rate, gyro_rate, bias, gyro, exposure_s, line_time_s, 
         A_new, dx, P_new = gate[7], gate[8], gate[9]
         new_rate, new_bias = corrected_rate(rate, gyro_rate, bias, dx, gyro)
         head, table, rmse = solution_numbers(A_new, P_new[:3, :3].copy(), new_rate, P_new[3:, 3:].copy(),
-                                             m[12][:n_fit], m[13][:n_fit], m[11][:n_fit], vectors, mags)
+                                             m[12][:n_fit], m[13][:n_fit], m[11][:n_fit], vectors, places,
+                                             mags)
     return m, gate, (new_rate, new_bias), (head, table, rmse)

@@ -581,15 +581,14 @@ class Tracker(FrameSteps):
         vectors = (self._stars.vectors if self._local is None
                    else self.sky.vectors(self._local, self._stars, self._star_ids))
         numbers = win.solution_numbers(A, est.attitude_cov_rad2, est.rate_rad_s, est.rate_cov_rad2_s2, xy, b,
-                                       index, vectors, self._mags)
+                                       index, vectors, self._stars.vectors, self._mags)
         return self._solution_of(A, numbers, mode, fit)
 
     def _solution_of(self, A: np.ndarray, numbers: tuple, mode: str, fit: WindowFit | None) -> Solution:
         """The Solution of the attitude ``A`` from its numbers (``head``, ``table``, RMS:
         :func:`skyfix.track.windows.solution_numbers`'s) and the fit (None: coasting)."""
         head, table, rmse = numbers
-        index = self._no_index if fit is None else fit.index
-        A_reported = self.sky.numbers(A, head, table, index, self._stars)  # catalogue places, the frame asked
+        A_reported = self.sky.numbers(A, head)  # the attitude in the frame asked for
         h = head.tolist()
         cam = self.camera
         sol = Solution(image="<array>", status="solved", ra_deg=h[0], dec_deg=h[1], roll_deg=h[2],

@@ -615,15 +615,17 @@ _DEG2_PER_RAD2 = _DEG_PER_RAD ** 2
 
 
 @njit(cache=True)
-def solution_numbers(A, P, rate, P_rate, xy, b, index, vectors, mags):
+def solution_numbers(A, P, rate, P_rate, xy, b, index, vectors, places, mags):
     """A tracked frame's Solution numbers in one call, for the estimate ``A`` (covariance
     ``P``, rad²; body rate ``rate``, rad/s, covariance ``P_rate``) and its stars (centroids
-    ``xy``, rays ``b``, catalogue rows ``index`` of ``vectors`` and ``mags``): ``head`` (28,) —
-    RA, Dec, roll (degrees) and the quaternion ``[x, y, z, w]`` of ``A``
-    (:func:`skyfix._kernels.rotation.pointing`), ``P`` in arcsec² (9, by rows), the rate in °/s
-    (3) and its covariance in (°/s)² (9); the matches' table (6, n) of x, y, catalogue RA and
-    Dec (degrees), magnitude and residual (arcsec, the angle between ray ``b`` and ``A r``);
-    the residuals' RMS (arcsec)."""
+    ``xy``, rays ``b``, catalogue rows ``index`` of ``vectors`` — the directions fitted —,
+    ``places`` — their catalogue places, ``vectors`` itself when no correction moved the stars
+    (:mod:`skyfix.track.sky`) — and ``mags``): ``head`` (28,) — RA, Dec, roll (degrees) and the
+    quaternion ``[x, y, z, w]`` of ``A`` (:func:`skyfix._kernels.rotation.pointing`), ``P`` in
+    arcsec² (9, by rows), the rate in °/s (3) and its covariance in (°/s)² (9); the matches'
+    table (6, n) of x, y, the catalogue place's RA and Dec (degrees), magnitude and residual
+    (arcsec, the angle between ray ``b`` and ``A r``, ``r`` from ``vectors``); the residuals'
+    RMS (arcsec)."""
     head = np.empty(28)
     head[:7] = pointing(A)
     for k in range(3):
@@ -640,7 +642,8 @@ def solution_numbers(A, P, rate, P_rate, xy, b, index, vectors, mags):
     resid = angles(b, r, A)
     ss = 0.0
     for i in range(n):
-        ra, dec = vector_radec(r[i, 0], r[i, 1], r[i, 2])
+        q = places[index[i]]
+        ra, dec = vector_radec(q[0], q[1], q[2])
         table[0, i] = xy[i, 0]
         table[1, i] = xy[i, 1]
         table[2, i] = np.degrees(ra)
