@@ -150,7 +150,7 @@ def tracking(
 @guarded
 def presets(
     out: Path = typer.Option(Path("preset-campaign"), "--out",
-                             help="Output directory (JSON, Markdown, PNG)."),
+                             help="Output directory (JSON, Markdown, PNG; the frames as Parquet)."),
     n: int = typer.Option(100, "--n", min=1, help="Frames per preset configuration."),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed (attitudes, noise)."),
     only: str = typer.Option("", "--presets", help="Comma-separated presets (default: every configuration)."),
