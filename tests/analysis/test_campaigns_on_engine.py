@@ -15,8 +15,6 @@ from skyfix.analysis import preset_campaign as pc
 from skyfix.analysis.study_run import run_rows
 from skyfix.montecarlo.study import table_of
 
-pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
-
 
 def _same(a, b) -> bool:
     """Rows equal, NaN equal to NaN, the solve times aside."""
