@@ -202,6 +202,30 @@ def test_cli_analyze_presets(tmp_path):
     (row,) = data["rows"]
     assert row["preset"] == "generic" and row["summary"]["bands/blind"]["solved"] == 2
     assert (out / "presets.png").stat().st_size > 10_000
+    import pyarrow.parquet as pq
+
+    rows = pq.read_table(out / "presets.parquet").to_pylist()  # the engine's rows, a frame each
+    assert [(r["trial"], r["preset"], r["database"]) for r in rows] == [(0, "generic", "bands"),
+                                                                        (1, "generic", "bands")]
+    assert [r["blind_boresight_arcsec"] for r in rows] == [f["solves"]["bands/blind"]["boresight_arcsec"]
+                                                           for f in row["frames"]]
+    assert not (out / "presets.parquet.parts").exists()
     bad = runner.invoke(app, ["analyze", "presets", "--presets", "nosuch", "--out", str(out)])
     assert bad.exit_code == 2 and "--presets: unknown preset 'nosuch'" in bad.output
     assert len(bad.output.strip().splitlines()) == 1
+
+
+def test_cli_analyze_presets_unreachable_scheduler_is_one_line(tmp_path, monkeypatch):
+    from skyfix.cli import app
+    from skyfix.montecarlo import engine
+
+    monkeypatch.setattr(engine, "CONNECT_TIMEOUT_S", 1.0)
+    result = CliRunner().invoke(app, ["analyze", "presets", "--n", "1", "--presets", "generic", "--scheduler",
+                                      "tcp://127.0.0.1:9", "--out", str(tmp_path / "c")])
+    assert result.exit_code == 2, result.output
+    *progress, error = result.stderr.strip().splitlines()  # off a terminal the progress is lines
+    assert error.startswith("skyfix: error: cannot reach the Dask scheduler at tcp://127.0.0.1:9: "), error
+    assert all(line.startswith("skyfix: preset campaign") for line in progress), progress
+    assert "Traceback" not in result.output
+    both = CliRunner().invoke(app, ["analyze", "presets", "--workers", "2", "--scheduler", "tcp://127.0.0.1:9"])
+    assert both.exit_code == 2 and "give --workers or --scheduler, not both" in both.stderr

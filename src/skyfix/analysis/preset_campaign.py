@@ -2,10 +2,12 @@
 
 For each seed camera preset, :func:`run_campaign` renders N frames at random attitudes (seeded)
 at the preset's ``[defaults]`` exposure, and solves each with no hint (``skyfix.solve(image)``)
-and, for reference, with the preset's camera given (``camera=``). Each solve is compared with
-the truth attitude at the pixel the solution calls its boresight
-(:func:`skyfix.analysis.truth.attitude_error_rad`); a solve is **wrong** when that
-boresight error exceeds max(60″, 1 px) or the roll error 0.5°
+and, for reference, with the preset's camera given (``camera=``). It runs on the campaign engine
+(:func:`skyfix.montecarlo.engine.run_campaign`): a frame is a trial of :class:`PresetStudy`, one
+Parquet row, the same whether run in this process, on local worker processes or on a Dask
+scheduler's workers. Each solve is compared with the truth attitude at the pixel the solution
+calls its boresight (:func:`skyfix.analysis.truth.attitude_error_rad`); a solve is **wrong** when
+that boresight error exceeds max(60″, 1 px) or the roll error 0.5°
 (:func:`skyfix.analysis.truth.is_wrong`).
 
 A frame's **detectable** stars are those of its truth whose expected detection SNR reaches
@@ -14,40 +16,45 @@ peak in the extractor's smoothed frame over that frame's noise). Issue 10's bar:
 with at least 4 detectable stars, ≥ 95% solve and none is wrong.
 
 By default the solves use skyfix's own databases (the FOV bands, :mod:`skyfix.identify.catalogue.bands`).
-Given a ``database``, they use it instead, and the presets whose field it does not serve
+Given a ``database`` (a file), they use it instead, and the presets whose field it does not serve
 (:func:`~skyfix.identify.catalogue.bands.served_fov_deg`) are also solved with a database built for their
 field (:meth:`PatternDatabase.build` over ``FOV / 1.1 … FOV · 1.1``): the rest of the path tested
 apart from the database's range. :data:`CAMPAIGN_ROWS` adds configurations beyond the presets'
 own exposures (the Droid X2 at its sensor's 1 s).
 
 :func:`write_campaign` writes ``presets.json``, ``presets.md`` (the table, headed by the
-command) and ``presets.png`` (the boresight errors per configuration). docs/presets.md has a run.
+command) and ``presets.png`` (the boresight errors per configuration); ``skyfix analyze presets``
+has the engine write the trial rows beside them (``presets.parquet``). docs/presets.md has a run.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple
 
 import numpy as np
 
 from skyfix.analysis._json import strict_json
 from skyfix.analysis.preset_check import THESIS_FIGURES, detection_snr
+from skyfix.analysis.study_run import run_rows
 from skyfix.analysis.truth import judge
 from skyfix.camera import Camera
 from skyfix.identify import PatternDatabase
 from skyfix.identify.catalogue.bands import served_fov_deg
+from skyfix.montecarlo.study import BatchedStudy
 
 if TYPE_CHECKING:
-    from skyfix.identify import PatternDatabase
+    import pyarrow as pa
 
 __all__ = ["CAMPAIGN_ROWS", "DETECTABLE_BINS", "DETECTABLE_SNR", "MIN_DETECTABLE", "Campaign", "CampaignRow",
-           "FrameResult", "SolveOutcome", "run_campaign", "summarize_row", "markdown", "plot_campaign",
-           "write_campaign"]
+           "FrameResult", "PresetStudy", "SolveOutcome", "campaign_of", "campaign_study", "run_campaign",
+           "summarize_row", "markdown", "plot_campaign", "write_campaign"]
 
 #: A star is detectable when its expected detection SNR reaches this: the extractor's 5σ threshold
 #: plus what its 3-pixel footprint and the sub-pixel phase need. Measured (docs/presets.md): stars
@@ -128,57 +135,177 @@ def _outcome(sol, A_true: np.ndarray, camera_true, seconds: float) -> SolveOutco
     return SolveOutcome(True, "", verdict.wrong, verdict.error_rad, sigma, int(sol.n_matched), seconds)
 
 
-def _databases(camera, database: PatternDatabase | None, epoch: float) -> dict:
+def _databases(camera, database: str | None, epoch: float) -> dict:
     """The databases a preset is solved with: {label: database or None (skyfix's bands)}. With
-    ``database`` given, it, and one built for the preset's field when it does not serve it."""
+    ``database`` (a file) given, it, and one built for the preset's field when it does not serve it."""
     if database is None:
         return {"bands": None}
-    dbs = {f"given {database.fov_min_deg:g}–{database.fov_max_deg:g}°": database}
-    lo, hi = served_fov_deg(database)
+    given = _given_database(database)
+    dbs = {f"given {given.fov_min_deg:g}–{given.fov_max_deg:g}°": given}
+    lo, hi = served_fov_deg(given)
     fov = camera.fov_deg
     if not lo <= fov <= hi:
         lo, hi = round(fov / 1.1, 2), round(fov * 1.1, 2)
-        dbs[f"built {lo:g}–{hi:g}°"] = PatternDatabase.build(lo, hi, epoch=epoch)
+        dbs[f"built {lo:g}–{hi:g}°"] = _built_database(lo, hi, epoch)
     return dbs
 
 
+@functools.lru_cache(maxsize=2)
+def _given_database(path: str) -> PatternDatabase:
+    """The database in ``path``, loaded once per process (a worker keeps it for its batches)."""
+    return PatternDatabase.load(path)
+
+
+@functools.lru_cache(maxsize=4)
+def _built_database(lo: float, hi: float, epoch: float) -> PatternDatabase:
+    """A database built for ``lo … hi``°, once per process."""
+    return PatternDatabase.build(lo, hi, epoch=epoch)
+
+
+@functools.lru_cache(maxsize=4)
+def _attitudes(n: int, seed: int) -> np.ndarray:
+    """The campaign's ``n`` attitudes for ``seed`` (the same for every configuration)."""
+    from skyfix.analysis.synthetic_centroids import random_attitudes
+
+    return random_attitudes(n, np.random.default_rng(seed))
+
+
+#: The solves of a frame in a trial's row: (column prefix, database slot, mode). Slot "" is the
+#: database the campaign was given (or skyfix's bands), slot "built_" the one built for a field
+#: the given one does not serve (its columns null when there is none).
+_SOLVES = (("blind_", "", "blind"), ("camera_", "", "camera"),
+           ("built_blind_", "built_", "blind"), ("built_camera_", "built_", "camera"))
+_AXES = ("x", "y", "roll")
+_SOLVE_COLUMNS = {"solved": "bool", "wrong": "bool", "reason": "string", "n_matched": "int64",
+                  **{f"{what}_{a}_rad": "float64" for what in ("error", "sigma") for a in _AXES},
+                  **{f"normalised_{a}": "float64" for a in _AXES},
+                  "boresight_arcsec": "float64", "roll_arcsec": "float64", "time_s": "float64"}
+
+
+@dataclass(frozen=True)
+class PresetStudy(BatchedStudy):
+    """The campaign on the engine (:func:`skyfix.montecarlo.engine.run_campaign`): trial
+    ``r·n + k`` is frame ``k`` of configuration ``r`` (``settings["rows"]``), rendered at the
+    ``k``-th of the ``n`` attitudes drawn from ``seed`` with noise seed ``seed·100003 + k`` and
+    solved as :func:`run_campaign` describes. Its row: the configuration, the truth, and each
+    solve's outcome (columns ``blind_…``, ``camera_…``; ``built_blind_…``, ``built_camera_…``
+    with a database built for the field). The databases are loaded or built once per process."""
+
+    kind: ClassVar[str] = "preset campaign"
+    columns: ClassVar[Mapping[str, str]] = {
+        "trial": "int64", "preset": "string", "exposure_s": "float64", "note": "string", "frame": "int64",
+        "seed": "int64", "ra_deg": "float64", "dec_deg": "float64", "roll_deg": "float64",
+        "n_stars": "int64", "n_detectable": "int64",
+        "database": "string", "database_fov_deg": "list<float64>",
+        "built_database": "string", "built_database_fov_deg": "list<float64>",
+        **{p + name: kind for p, _, _ in _SOLVES for name, kind in _SOLVE_COLUMNS.items()}}
+
+    def run_trial(self, trial: int) -> dict[str, Any]:
+        from skyfix.pipeline import solve
+        from skyfix.simulate import render
+
+        st = self.settings
+        n, seed, epoch = st["n"], st["seed"], st["epoch"]
+        preset, exposure_s, note = st["rows"][trial // n]
+        k = trial % n
+        A = _attitudes(n, seed)[k]
+        frame = render(A, preset, exposure_s=exposure_s, epoch=epoch, seed=seed * 100003 + k)
+        camera = Camera.from_dict(frame.truth["camera"])
+        dbs = dict(zip(("", "built_"), _databases(camera, st["database"], epoch).items(), strict=False))
+        truth = frame.truth
+        row: dict[str, Any] = dict(
+            trial=trial, preset=preset, exposure_s=exposure_s, note=note, frame=k, seed=seed * 100003 + k,
+            ra_deg=truth["ra_deg"], dec_deg=truth["dec_deg"], roll_deg=truth["roll_deg"],
+            n_stars=len(truth["stars"]), n_detectable=int(np.sum(detection_snr(truth) >= DETECTABLE_SNR)))
+        for slot, (label, db) in dbs.items():
+            row[slot + "database"] = label
+            row[slot + "database_fov_deg"] = None if db is None else [db.fov_min_deg, db.fov_max_deg]
+        for prefix, slot, mode in _SOLVES:
+            if slot not in dbs:
+                continue
+            t0 = time.perf_counter()
+            sol = solve(frame.image, epoch=epoch, database=dbs[slot][1],
+                        **({"camera": camera} if mode == "camera" else {}))
+            o = _outcome(sol, A, camera, time.perf_counter() - t0)
+            row.update({prefix + name: value for name, value in _outcome_columns(o).items()})
+        return row
+
+    def warm(self) -> None:
+        from skyfix import warmup
+
+        warmup.ensure(["solve", "simulate"], missing_ok=True)
+
+
+def _outcome_columns(o: SolveOutcome) -> dict[str, Any]:
+    """A solve's columns (without their prefix)."""
+    with np.errstate(invalid="ignore"):
+        z = o.error_rad / o.sigma_rad
+    return dict(solved=o.solved, wrong=o.wrong, reason=o.reason, n_matched=o.n_matched,
+                **{f"error_{a}_rad": float(v) for a, v in zip(_AXES, o.error_rad, strict=True)},
+                **{f"sigma_{a}_rad": float(v) for a, v in zip(_AXES, o.sigma_rad, strict=True)},
+                **{f"normalised_{a}": float(v) for a, v in zip(_AXES, z, strict=True)},
+                boresight_arcsec=o.boresight_arcsec, roll_arcsec=o.roll_arcsec, time_s=o.time_s)
+
+
+def _outcome_of(row: Mapping[str, Any], prefix: str) -> SolveOutcome:
+    """The :class:`SolveOutcome` a row's columns ``prefix…`` hold."""
+    def axes(what: str) -> np.ndarray:
+        return np.array([row[f"{prefix}{what}_{a}_rad"] for a in _AXES], dtype=np.float64)
+
+    return SolveOutcome(row[prefix + "solved"], row[prefix + "reason"], row[prefix + "wrong"], axes("error"),
+                        axes("sigma"), row[prefix + "n_matched"], row[prefix + "time_s"])
+
+
+def campaign_study(n: int = 100, seed: int = 0, *, rows: tuple[CampaignRow, ...] = CAMPAIGN_ROWS,
+                   epoch: float = 2025.0, database: str | Path | None = None,
+                   batch_size: int = 10) -> PresetStudy:
+    """The campaign as a study for :func:`skyfix.montecarlo.engine.run_campaign`: ``n`` frames of
+    each configuration in ``rows``; ``database``: a pattern database file (its path, size and
+    modification time are in the settings, so another file there is another campaign)."""
+    path, file = None, None
+    if database is not None:
+        path = str(Path(database).resolve())
+        stat = Path(path).stat()
+        file = {"bytes": stat.st_size, "mtime_ns": stat.st_mtime_ns}
+    settings = dict(n=n, seed=seed, epoch=epoch, rows=[[r.preset, r.exposure_s, r.note] for r in rows],
+                    database=path, database_file=file,
+                    detectable_snr=DETECTABLE_SNR, min_detectable=MIN_DETECTABLE)
+    return PresetStudy(n * len(rows), batch_size, settings)
+
+
+def campaign_of(study: PresetStudy, table: pa.Table) -> Campaign:
+    """The :class:`Campaign` (its configurations and frames) that the engine's rows of ``study`` hold."""
+    st = study.settings
+    n, records = st["n"], table.to_pylist()
+    out = []
+    for r, (preset, exposure_s, note) in enumerate(st["rows"]):
+        mine = records[r * n:(r + 1) * n]
+        slots = [s for s in ("", "built_") if mine[0][s + "database"] is not None]
+        dbs = {mine[0][s + "database"]: None if mine[0][s + "database_fov_deg"] is None
+               else tuple(mine[0][s + "database_fov_deg"]) for s in slots}
+        frames = [FrameResult(rec["frame"], rec["ra_deg"], rec["dec_deg"], rec["roll_deg"], rec["n_stars"],
+                              rec["n_detectable"],
+                              {f"{rec[slot + 'database']}/{mode}": _outcome_of(rec, prefix)
+                               for prefix, slot, mode in _SOLVES if slot in slots})
+                  for rec in mine]
+        out.append((CampaignRow(preset, exposure_s, note), dbs, frames))
+    return Campaign({k: st[k] for k in ("n", "seed", "epoch", "detectable_snr", "min_detectable")}, out)
+
+
 def run_campaign(n: int = 100, seed: int = 0, *, rows: tuple[CampaignRow, ...] = CAMPAIGN_ROWS,
-                 epoch: float = 2025.0, database: PatternDatabase | None = None,
-                 progress: Callable[[str], None] | None = None) -> Campaign:
+                 epoch: float = 2025.0, database: str | Path | None = None, workers: int = 0,
+                 scheduler: str | None = None, output: str | Path | None = None, batch_size: int = 10,
+                 progress: Callable[[int, int], None] | None = None) -> Campaign:
     """Render ``n`` frames per configuration in ``rows`` at random attitudes (seeded; the same
     attitudes for every configuration) and solve each with no hint and with the camera given,
-    with skyfix's databases or, given one, with ``database`` and, for fields it does not serve,
-    one built for the field. ``progress`` is called once per frame."""
-    from skyfix.analysis.synthetic_centroids import random_attitudes
-    from skyfix.pipeline import solve
-    from skyfix.simulate import render
-
-    attitudes = random_attitudes(n, np.random.default_rng(seed))
-    out = []
-    for row in rows:
-        frames: list[FrameResult] = []
-        dbs = None
-        for k, A in enumerate(attitudes):
-            frame = render(A, row.preset, exposure_s=row.exposure_s, epoch=epoch, seed=seed * 100003 + k)
-            camera = Camera.from_dict(frame.truth["camera"])
-            if dbs is None:
-                dbs = _databases(camera, database, epoch)
-            solves = {}
-            for label, db in dbs.items():
-                for mode, kw in (("blind", {}), ("camera", {"camera": camera})):
-                    t0 = time.perf_counter()
-                    sol = solve(frame.image, epoch=epoch, database=db, **kw)
-                    solves[f"{label}/{mode}"] = _outcome(sol, A, camera, time.perf_counter() - t0)
-            truth = frame.truth
-            n_detectable = int(np.sum(detection_snr(truth) >= DETECTABLE_SNR))
-            frames.append(FrameResult(k, truth["ra_deg"], truth["dec_deg"], truth["roll_deg"],
-                                      len(truth["stars"]), n_detectable, solves))
-            if progress is not None:
-                progress(f"{row.preset} frame {k + 1}/{n}")
-        out.append((row, {label: None if db is None else (db.fov_min_deg, db.fov_max_deg)
-                          for label, db in dbs.items()}, frames))
-    settings = dict(n=n, seed=seed, epoch=epoch, detectable_snr=DETECTABLE_SNR, min_detectable=MIN_DETECTABLE)
-    return Campaign(settings, out)
+    with skyfix's databases or, given one (a file), with ``database`` and, for fields it does not
+    serve, one built for the field — on the campaign engine: ``workers=0`` in this process, else
+    that many local worker processes, or the Dask ``scheduler``'s workers
+    (:func:`skyfix.analysis.study_run.run_rows`). ``output``: the trial rows' Parquet file
+    (resumable; default: a temporary one). ``progress(frames done, frames)``."""
+    study = campaign_study(n, seed, rows=rows, epoch=epoch, database=database, batch_size=batch_size)
+    table = run_rows(study, output, workers=workers, scheduler=scheduler, progress=progress)
+    return campaign_of(study, table)
 
 
 def _percentile(values: list[float], q: float) -> float:

@@ -21,6 +21,7 @@ from skyfix.cli.common import (
     LineProgress,
     OneLineErrors,
     add_verbosity,
+    check_cluster,
     checking,
     compile_notice,
     error_line,
@@ -149,13 +150,17 @@ def tracking(
 @guarded
 def presets(
     out: Path = typer.Option(Path("preset-campaign"), "--out",
-                             help="Output directory (JSON, Markdown, PNG)."),
+                             help="Output directory (JSON, Markdown, PNG; the frames as Parquet)."),
     n: int = typer.Option(100, "--n", min=1, help="Frames per preset configuration."),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed (attitudes, noise)."),
     only: str = typer.Option("", "--presets", help="Comma-separated presets (default: every configuration)."),
     database: Path = typer.Option(None, "--database", help="Solve with this pattern database instead of "
                                   "skyfix's FOV bands (fields it does not serve also with one built for "
                                   "them)."),
+    workers: int = typer.Option(0, "--workers", help="Local worker processes on the campaign engine "
+                                "(0: in this process)."),
+    scheduler: str = typer.Option(None, "--scheduler", metavar="ADDRESS",
+                                  help="Run on a running Dask scheduler's workers (tcp://HOST:8786)."),
     verbose: int = VERBOSE,
 ) -> None:
     """Each seed camera preset rendered at random attitudes and solved with no hint and with its
@@ -166,6 +171,8 @@ def presets(
 
     add_verbosity(verbose)
     n = check_count(n, "--n", minimum=1)
+    workers = check_count(workers, "--workers", minimum=0)
+    check_cluster(workers or None, scheduler)
     names = [p.strip().lower() for p in only.split(",") if p.strip()]
     bad = [p for p in names if p not in preset_names()]
     if bad:
@@ -175,16 +182,37 @@ def presets(
     command = (f"skyfix analyze presets --n {n}" + (f" --seed {seed}" if seed else "")
                + (f" --presets {','.join(names)}" if names else "")
                + (f" --database {database}" if database is not None else ""))
-    prepare_outputs({"--out": [out / "presets.json"]})
-    db = load_database(database) if database is not None else None
-    with _progress(n * len(rows), False) as bar, compile_notice(bar):
-        task = bar.add_task("preset campaign", total=n * len(rows))
-        campaign = pc.run_campaign(n, seed, rows=rows, database=db,
-                                   progress=lambda what: bar.update(task, advance=1, description=what))
+    table = out / "presets.parquet"
+    prepare_outputs({"--out": [out / "presets.json", table]})
+    if database is not None:
+        load_database(database)  # a missing or bad file fails here, in one line
+    table.unlink(missing_ok=True)  # a finished run's rows are run again; an interrupted one's continue
+    try:  # a scheduler out of reach is the engine's CampaignError: one line (guarded)
+        with _progress(n * len(rows), False) as bar, compile_notice(bar):
+            task = bar.add_task("preset campaign", total=n * len(rows))
+            campaign = pc.run_campaign(n, seed, rows=rows, database=database, workers=workers,
+                                       scheduler=scheduler, output=table, progress=_frames_done(bar, task))
+    except KeyboardInterrupt:
+        typer.echo(f"skyfix: interrupted: the finished frames are kept in {table}.parts; the same "
+                   "command continues the campaign", err=True)
+        raise typer.Exit(130) from None
     paths = pc.write_campaign(campaign, out, command=command)
     typer.echo(paths[1].read_text())
-    for p in paths:
+    for p in [*paths, table]:
         typer.echo(f"wrote {p}")
+
+
+def _frames_done(bar, task: int):
+    """The engine's ``progress(done, total)`` advancing ``task`` of ``bar`` (a rich Progress or a
+    :class:`~skyfix.cli.common.LineProgress`) to ``done``."""
+    shown = [0]
+
+    def update(done: int, total: int) -> None:
+        if done > shown[0]:
+            bar.update(task, advance=done - shown[0])
+            shown[0] = done
+
+    return update
 
 
 @analyze_app.command()
