@@ -49,6 +49,7 @@ import contextlib
 import itertools
 import os
 import secrets
+import threading
 from typing import Any
 
 __all__ = ["MARK", "install"]
@@ -58,6 +59,10 @@ __all__ = ["MARK", "install"]
 MARK = "skyfix-keyed-2"
 
 _installed = False
+#: Two threads loading their first kernels at once (the extraction's helper thread beside the
+#: caller) both reach :func:`install`: the second waits, then finds it done — installed twice,
+#: ``save`` would lock its index twice in one thread (two ``flock`` s on one file: a deadlock).
+_install_lock = threading.Lock()
 
 
 @contextlib.contextmanager
@@ -87,11 +92,17 @@ def _random_uids() -> None:
 
 
 def install() -> None:
-    """Patch numba's compile numbering and cache file class (once per process; see the module
-    text)."""
+    """Patch numba's compile numbering and cache file class (once per process, whichever threads
+    call it; see the module text)."""
     global _installed
-    if _installed:
-        return
+    with _install_lock:
+        if _installed:
+            return
+        _install()
+        _installed = True
+
+
+def _install() -> None:
     from numba.core.caching import IndexDataCacheFile
 
     _random_uids()
@@ -111,4 +122,3 @@ def install() -> None:
         return None  # another signature's code, or a file from before: compile again
 
     IndexDataCacheFile.save, IndexDataCacheFile.load = save, load
-    _installed = True

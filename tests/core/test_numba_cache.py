@@ -10,6 +10,7 @@ small kernel modules written to a temporary folder, their cache in another:
   ``grid._catalogue_cells``, skyfix._numba_cache's text). Each must run its own."""
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -92,3 +93,36 @@ def test_kernels_cached_by_two_processes_run_their_own_helpers(tmp_path):
     a = [3.0, 1.0, 2.0, 0.5]
     assert got["ksort"] == sorted(a)
     assert got["kargsort"] == np.argsort(a).tolist()  # not the floats' bits, as sort's helper returns
+
+
+THREADS = textwrap.dedent('''
+    import threading, time
+    from skyfix import _numba_cache as c
+
+    slow = c._random_uids
+    c._random_uids = lambda: (time.sleep(0.2), slow())  # widen the window two threads could share
+    start = threading.Barrier(4)
+
+    def first_kernel():
+        start.wait()
+        c.install()
+
+    threads = [threading.Thread(target=first_kernel) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    from numba.core.caching import IndexDataCacheFile
+    wrapped = [c.cell_contents.__module__ for c in IndexDataCacheFile.save.__closure__]
+    print(*wrapped)
+''')
+
+
+def test_threads_installing_at_once_wrap_the_cache_once():
+    """Four threads reaching their first kernel together (the extraction's helper thread beside
+    its caller) install the cache's wrappers once: wrapped twice, ``save`` locked its index twice
+    in one thread — two ``flock`` s on one file, a deadlock on the first compile."""
+    out = subprocess.run([sys.executable, "-c", THREADS], capture_output=True, text=True, timeout=120,
+                         cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["numba.core.caching"]  # skyfix's save around numba's, not around itself

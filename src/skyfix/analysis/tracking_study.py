@@ -1,8 +1,9 @@
 """Tracking mode measured: against lost in space, against its own error bars, against thesis 002.
 
-``skyfix analyze tracking`` runs these studies and
-:func:`skyfix.analysis.tracking_report.write_study` writes their tables and plots;
-docs/tracking-study.md holds the numbers of a full run and reads them.
+``skyfix analyze tracking`` runs these studies —
+:func:`skyfix.analysis.tracking_runs.run_study`: every sequence a trial of the campaign engine,
+a Parquet row each — and :func:`skyfix.analysis.tracking_report.write_study` writes their tables
+and plots; docs/tracking-study.md holds the numbers of a full run and reads them.
 
 **Sequences** (:func:`run_sequence`). Frames of :data:`CAMERA` (1280 × 960, 15°) at 10 Hz with
 the generic sensor's noise (:func:`skyfix.simulate.render_sequence`), the camera turning at a
@@ -39,9 +40,8 @@ it times an idle machine.
 from __future__ import annotations
 
 import math
-import os
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -62,7 +62,7 @@ __all__ = [
     "SlopeFit", "TimingRow", "TrackingStudy", "sequence_specs", "run_sequence", "accuracy_summary",
     "binned_fits", "error_correlations", "time_error_slope", "normalised_errors", "recovery_frames",
     "accel_terms", "accel_slopes", "rate_slopes",
-    "constant_rate_slopes", "timing_frame", "run_timing", "run_study",
+    "constant_rate_slopes", "timing_frame", "run_timing",
 ]
 
 CAMERA = Camera.from_fov(1280, 960, 15.0)
@@ -99,7 +99,8 @@ class SequenceSpec(NamedTuple):
 
 class StudySettings(NamedTuple):
     """The study's size: frames per sequence, the constant rates, the forced losses' frames, the
-    pendulum's frames, the Table 5-1 grid and repeats, the seed and the worker processes."""
+    pendulum's frames, the Table 5-1 grid and repeats, the seed, and the campaign engine's local
+    worker processes for the sequences (0: in the calling process; they decide no number)."""
 
     n_frames: int = 210
     rates_dps: tuple = (0.0, 0.5, 1.0, 2.0)
@@ -313,8 +314,7 @@ def _accel(profile: Profile, t: np.ndarray, h: float = 1e-4) -> np.ndarray:
     return np.where(np.abs(acc) < 1e-9, 0.0, acc)
 
 
-def run_sequence(spec: SequenceSpec, *, database=None, progress: Callable[[str], None] | None = None
-                 ) -> SequenceResult:
+def run_sequence(spec: SequenceSpec, *, database=None) -> SequenceResult:
     """Track one sequence and solve each frame lost in space (module docstring)."""
     from skyfix.identify import default_database
     from skyfix.pipeline import solve
@@ -377,8 +377,6 @@ def run_sequence(spec: SequenceSpec, *, database=None, progress: Callable[[str],
             label = t + float(np.clip(rng_time.normal(0.0, spec.time_error_s), -0.4 * T, 0.4 * T))
             for p in late.step(label, fit, restart=sol.mode == "lost").values():
                 preds[late_name].record(k, p.A_icrs_to_cam, fit, truth_xy, A_true)
-        if progress is not None:
-            progress(spec.name)
     return SequenceResult(spec=spec, predictions=preds, **rec)
 
 
@@ -590,48 +588,3 @@ class TrackingStudy:
     @property
     def accuracy_sequences(self) -> list:
         return [s for s in self.sequences if s.spec.profile != "pendulum"]
-
-
-def _run_job(spec: SequenceSpec, queue) -> SequenceResult:
-    """A worker's job: one sequence, a message per frame on ``queue``."""
-    return run_sequence(spec, progress=None if queue is None else queue.put)
-
-
-def run_study(settings: StudySettings = FULL, progress: Callable[[str], None] | None = None) -> TrackingStudy:
-    """Time the centroiding (first, on an idle machine), then run every sequence, ``workers`` in
-    parallel processes. ``progress`` is called once per frame and per timing cell."""
-    timing = run_timing(settings.rois, settings.star_counts, settings.timing_repeats, settings.seed, progress)
-    specs = sequence_specs(settings)
-    workers = max(1, min(int(settings.workers), len(specs)))
-    if workers == 1:
-        seqs = [run_sequence(s, progress=progress) for s in specs]
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-
-        ctx = mp.get_context("spawn")  # no fork of a process holding numba's and rich's threads
-        with ctx.Manager() as manager, ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-            queue = manager.Queue()
-            # longest first: the fast-moving sequences render the longest streaks
-            order = sorted(range(len(specs)), key=lambda i: -_cost(specs[i]))
-            futures = {pool.submit(_run_job, specs[i], queue): i for i in order}
-            pending = set(futures)
-            while pending:
-                _, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-                while not queue.empty():
-                    what = queue.get()
-                    if progress is not None:
-                        progress(what)
-            seqs = [None] * len(specs)
-            for f, i in futures.items():
-                seqs[i] = f.result()
-    return TrackingStudy(sequences=seqs, timing=timing,
-                         settings=dict(settings._asdict(), camera="1280×960, 15°", epoch=EPOCH,
-                                       cpu_count=os.cpu_count()))
-
-
-def _cost(spec: SequenceSpec) -> float:
-    """Relative render time of a sequence: frames × (1 + its fastest rate in °/s)."""
-    p = spec.params
-    rate = float(np.linalg.norm(p["rate_rad_s"])) if "rate_rad_s" in p else p.get("max_rate_rad_s", 0.0)
-    return spec.n_frames * (1.0 + rate / _DEG)

@@ -117,33 +117,61 @@ def centroids(
 @analyze_app.command()
 @guarded
 def tracking(
-    out: Path = typer.Option(Path("tracking-study"), "--out", help="Output directory (JSON, Markdown, PNG)."),
+    out: Path = typer.Option(Path("tracking-study"), "--out", help="Output directory (JSON, Markdown, PNG, "
+                             "Parquet)."),
     quick: bool = typer.Option(False, "--quick", help="16-frame sequences, 24 pendulum frames, 3 ROIs "
                                "(a smoke run, ~25 s on 2 cores)."),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed (pointings, noise)."),
-    workers: int = typer.Option(2, "--workers", min=1, help="Processes for the sequences."),
+    workers: int = typer.Option(None, "--workers", metavar="N", help="Local Dask worker processes for the "
+                                "sequences (0: one after another in this process; default 2)."),
+    scheduler: str = typer.Option(None, "--scheduler", metavar="ADDRESS",
+                                  help="Run the sequences on a running Dask scheduler (tcp://HOST:8786) "
+                                       "instead of local workers."),
     verbose: int = VERBOSE,
 ) -> None:
     """Tracking against lost in space and its own error bars, and thesis 002's findings (prediction
     error vs. rate and acceleration, windowed vs. full-frame time) with skyfix's numbers beside."""
-    from skyfix.analysis import tracking_report
+    from skyfix.analysis import tracking_report, tracking_runs
     from skyfix.analysis import tracking_study as ts
 
     add_verbosity(verbose)
-    workers = check_count(workers, "--workers", minimum=1)
-    settings = (ts.QUICK if quick else ts.FULL)._replace(seed=int(seed), workers=workers)
-    n_steps = (sum(s.n_frames for s in ts.sequence_specs(settings))
-               + len(settings.rois) * len(settings.star_counts))
+    check_cluster(workers, scheduler, minimum=0)
+    n_workers = 2 if workers is None else workers
+    settings = (ts.QUICK if quick else ts.FULL)._replace(seed=int(seed), workers=n_workers)
     command = ("skyfix analyze tracking" + (" --quick" if quick else "") + (f" --seed {seed}" if seed else "")
-               + (f" --workers {workers}" if workers != 2 else ""))
-    prepare_outputs({"--out": [out / "tracking_study.json"]})
-    with _progress(n_steps, False) as bar, compile_notice(bar):
-        task = bar.add_task("tracking study", total=n_steps)
-        study = ts.run_study(settings, progress=lambda what: bar.update(task, advance=1, description=what))
+               + (f" --workers {workers}" if workers not in (None, 2) else "")
+               + (f" --scheduler {scheduler}" if scheduler else ""))
+    rows = out / "tracking_study.parquet"
+    prepare_outputs({"--out": [out / "tracking_study.json", rows]})
+    n_steps = tracking_runs.study_steps(settings)
+    client = None
+    if scheduler is not None:  # out of reach: its one line now, before the bar's first
+        from skyfix.montecarlo.engine import connect
+
+        client = connect(0, scheduler)[0]
+    try:
+        with _progress(n_steps, False) as bar, compile_notice(bar):
+            task = bar.add_task("tracking study", total=n_steps)
+            study = tracking_runs.run_study(settings, progress=_steps(bar, task), output=rows,
+                                            scheduler=scheduler, client=client)
+    finally:
+        if client is not None:
+            client.close()
     paths = tracking_report.write_study(study, out, command=command)
     typer.echo(paths[1].read_text())
-    for p in paths:
+    for p in [*paths, rows]:
         typer.echo(f"wrote {p}")
+
+
+def _steps(bar, task: int):
+    """A ``progress(done, total)`` callback (the campaign engine's) advancing ``task`` of ``bar``."""
+    seen = [0]
+
+    def update(done: int, total: int) -> None:
+        bar.update(task, advance=done - seen[0], total=total)
+        seen[0] = done
+
+    return update
 
 
 @analyze_app.command()

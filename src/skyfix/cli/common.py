@@ -460,12 +460,13 @@ def load_camera(value: str) -> Any:
 _ADDRESS = re.compile(r"(?:[a-z][a-z0-9+.-]*://)?(?:\[[0-9a-fA-F:]+\]|[^\s/:\[\]]+):\d+/?")
 
 
-def check_cluster(workers: int | None, scheduler: str | None) -> None:
-    """``--workers N`` (≥ 1) or ``--scheduler [PROTOCOL://]HOST:PORT``, not both (InputError)."""
+def check_cluster(workers: int | None, scheduler: str | None, minimum: int = 1) -> None:
+    """``--workers N`` (≥ ``minimum``: 0 where the command can run in its own process) or
+    ``--scheduler [PROTOCOL://]HOST:PORT``, not both (InputError)."""
     if workers is not None and scheduler is not None:
         raise InputError("give --workers or --scheduler, not both")
-    if workers is not None and workers < 1:
-        raise InputError(f"--workers must be ≥ 1, got {workers}")
+    if workers is not None and workers < minimum:
+        raise InputError(f"--workers must be ≥ {minimum}, got {workers}")
     if scheduler is not None and not _ADDRESS.fullmatch(scheduler):
         raise InputError(f"--scheduler {scheduler!r} is not a Dask scheduler's address: give "
                          "[PROTOCOL://]HOST:PORT (tcp://10.0.0.5:8786)")
