@@ -376,3 +376,21 @@ def test_the_command_interrupted_and_run_again(tmp_path):
     for s in summaries:
         s.pop("timing")
     assert summaries[0] == summaries[1]
+
+
+def _trim_threshold():
+    import os
+
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_")
+
+
+def test_local_workers_keep_glibcs_adaptive_mmap_threshold():
+    """Dask's nanny would start them with MALLOC_TRIM_THRESHOLD_=65536 (half the speed on frames)."""
+    from skyfix.montecarlo.engine import connect
+
+    client, cluster = connect(1, None)
+    try:
+        assert list(client.run(_trim_threshold).values()) == [None]
+    finally:
+        client.close()
+        cluster.close()
