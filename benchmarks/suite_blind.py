@@ -135,8 +135,14 @@ if __name__ == "__main__":
     ap.add_argument("--workers", type=int, default=0, help="local worker processes (0: this one)")
     ap.add_argument("--scheduler", default=None, help="a Dask scheduler, tcp://HOST:PORT")
     args = ap.parse_args()
-    result = run(args.n_blind, args.n_preset, tuple(args.presets.split(",")), args.seed, args.workers,
-                 args.scheduler)
+    from skyfix.errors import CampaignError
+
+    try:
+        result = run(args.n_blind, args.n_preset, tuple(args.presets.split(",")), args.seed, args.workers,
+                     args.scheduler)
+    except CampaignError as exc:  # a scheduler out of reach: one line, exit 2
+        print(f"{Path(__file__).name}: {exc}", file=sys.stderr)
+        sys.exit(2)
     from common import write_json
 
     say(f"wrote {write_json('blind', result)}")

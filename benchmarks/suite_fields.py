@@ -181,7 +181,14 @@ if __name__ == "__main__":
     ap.add_argument("--workers", type=int, default=0, help="centroids: local worker processes (0: this one)")
     ap.add_argument("--scheduler", default=None, help="centroids: a Dask scheduler, tcp://HOST:PORT")
     args = ap.parse_args()
-    result = run(args.n, tuple(args.parts.split(",")), args.seed, args.n_images, args.workers, args.scheduler)
+    from skyfix.errors import CampaignError
+
+    try:
+        result = run(args.n, tuple(args.parts.split(",")), args.seed, args.n_images, args.workers,
+                     args.scheduler)
+    except CampaignError as exc:  # a scheduler out of reach: one line, exit 2
+        print(f"{Path(__file__).name}: {exc}", file=sys.stderr)
+        sys.exit(2)
     from common import write_json
 
     say(f"wrote {write_json('fields', result)}")
