@@ -146,6 +146,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="suite e: uncalibrated centroid trials (default 10000; quick 500)")
     ap.add_argument("--n-preset", type=int, default=None,
                     help="suite e: rendered frames per preset and scene (default 500; quick 20)")
+    ap.add_argument("--workers", type=int, default=0,
+                    help="suites e and g: trials on N local worker processes (campaign engine; default 0: "
+                         "in this process)")
+    ap.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                    help="suites e and g: trials on the Dask scheduler at tcp://HOST:PORT instead")
     ap.add_argument("--tools", default=None,
                     help="comma-separated subset of tools (default: skyfix,tetra3rs,tetra3rs-mme,"
                          "cedar-solve; with --against: skyfix)")
@@ -254,7 +259,8 @@ def _run(args, info: dict, wanted: list[str], skyfix_sides: dict | None, sides: 
 
                 results["blind"] = suite_blind.run(
                     n_blind=args.n_blind or (500 if args.quick else 10_000),
-                    n_preset=args.n_preset or (20 if args.quick else 500))
+                    n_preset=args.n_preset or (20 if args.quick else 500), workers=args.workers,
+                    scheduler=args.scheduler)
                 write_json("blind", results["blind"])
             elif key == "f":
                 import suite_track
@@ -267,7 +273,8 @@ def _run(args, info: dict, wanted: list[str], skyfix_sides: dict | None, sides: 
                 import suite_fields
 
                 results["fields"] = suite_fields.run(n=20 if args.quick else 100,
-                                                     n_images=3 if args.quick else 10)
+                                                     n_images=3 if args.quick else 10, workers=args.workers,
+                                                     scheduler=args.scheduler)
                 write_json("fields", results["fields"])
             elif key == "h":
                 import against

@@ -7,8 +7,11 @@ these fields without a database built for each.
   median / p99 per case and over all cases (targets: median ≤ 5 ms, p99 ≤ 50 ms), wall and CPU
   (the solving thread's, around each solve: on a busy machine the wall time moves with the
   load, the CPU time much less; the process's would also count the BLAS threads that generating
-  the frames leaves spinning), after one untimed frame of each case (the bands' databases
-  loaded or built, the kernels compiled: the ``bands`` part measures those).
+  the frames leaves spinning), each process solving its first frame of a case once untimed (the
+  bands' databases loaded or built, the kernels loaded: the ``bands`` part measures those). The
+  cases run on the campaign engine (``skyfix.analysis.field_campaign.FieldStudy``): ``--workers
+  N`` local processes (default 0: this one) or ``--scheduler tcp://HOST:PORT``; the rows go to
+  ``results/fields-centroids.parquet`` (written afresh each run).
 - ``images``: 1280×960 frames rendered by skyfix's simulator (generic sensor, an f/1.4 lens of
   the field's focal length, Gaia stars) at 2°, 15° and 60°, solved from the image with no hint:
   time median (target ≤ 30 ms).
@@ -16,7 +19,7 @@ these fields without a database built for each.
   separate process: the time a first use costs), its size on disk, and its cached load time
   (target: all built ≤ 2 min, ≤ 300 MB, each load ≤ 0.3 s).
 
-    python benchmarks/suite_fields.py [--n 100] [--parts centroids,images,bands]
+    python benchmarks/suite_fields.py [--n 100] [--parts centroids,images,bands] [--workers 2]
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -64,51 +68,34 @@ print(json.dumps(out))
 """
 
 
-class _CpuTimed:
-    """``solve_centroids`` with the calling thread's CPU time of each call appended to ``times_ms``."""
-
-    def __init__(self, solve) -> None:
-        self.solve, self.times_ms = solve, []
-
-    def __call__(self, *args, **kwargs):
-        t = time.thread_time()
-        try:
-            return self.solve(*args, **kwargs)
-        finally:
-            self.times_ms.append(1e3 * (time.thread_time() - t))
-
-
-def _centroids(n: int, seed: int) -> dict:
-    import skyfix.pipeline
-    from skyfix.analysis.field_campaign import CASES, field_trials, summarize_case
+def _centroids(n: int, seed: int, workers: int = 0, scheduler: str | None = None) -> dict:
+    from skyfix.analysis.field_campaign import CASES, campaign_trials, summarize_case
+    from skyfix.montecarlo.engine import parts_folder
 
     rows, out, times, cpu_all = [], {}, [], []
-    # field_trials imports solve_centroids from skyfix.pipeline when it runs: time each call's CPU
-    cpu = _CpuTimed(skyfix.pipeline.solve_centroids)
-    skyfix.pipeline.solve_centroids = cpu
-    for case in CASES:  # warm-up, untimed: a frame of each case loads its band (built if absent), compiles
-        try:
-            field_trials(case, 1, seed + 10_000)
-        except Exception:  # noqa: BLE001, S110 - reported below, when the case itself runs
-            pass
-    for case in CASES:
-        cpu.times_ms.clear()
-        try:
-            trials = field_trials(case, n, seed)
-        except Exception as exc:  # noqa: BLE001 - a case skyfix cannot yet run is reported, not fatal
-            say(f"  {case.name}: not run ({type(exc).__name__}: {exc})")
-            continue
+    path = Path(__file__).resolve().parent / "results" / "fields-centroids.parquet"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.unlink(missing_ok=True)  # a timed run: never the rows of an earlier one
+    shutil.rmtree(parts_folder(path), ignore_errors=True)
+    # every case on the campaign engine (each process solves its first frame of a case once,
+    # untimed: the case's band loaded, the kernels loaded); each row has its solve's wall and CPU time
+    try:
+        results = campaign_trials(CASES, n, seed, workers=workers, scheduler=scheduler, output=path)
+    except Exception as exc:  # noqa: BLE001 - a case skyfix cannot yet run is reported, not fatal
+        say(f"  field cases: not run ({type(exc).__name__}: {exc})")
+        return out
+    for case, trials in results:
         s = summarize_case(case, trials)
-        s["cpu_median_ms"] = float(np.median(cpu.times_ms))
-        s["cpu_p99_ms"] = float(np.percentile(cpu.times_ms, 99))
+        cpu = [t.cpu_ms for t in trials]
+        s["cpu_median_ms"] = float(np.median(cpu))
+        s["cpu_p99_ms"] = float(np.percentile(cpu, 99))
         out[case.name] = s
         times += [t.time_ms for t in trials]
-        cpu_all += cpu.times_ms
+        cpu_all += cpu
         pct = 100.0 * s["solved_min_stars"] / max(s["frames_min_stars"], 1)
         rows.append([case.name, s["frames"], f"{s['solved_min_stars']}/{s['frames_min_stars']} ({pct:.1f} %)",
                      s["wrong"], *s.get("normalised_rms", [float("nan")] * 3), s["time_median_ms"],
                      s["time_p99_ms"], s["cpu_median_ms"], s["cpu_p99_ms"]])
-    skyfix.pipeline.solve_centroids = cpu.solve
     if times:
         out["all"] = {"time_median_ms": float(np.median(times)),
                       "time_p99_ms": float(np.percentile(times, 99)),
@@ -173,10 +160,11 @@ def _bands() -> dict:
     return {"bands": built, "total_build_s": total, "total_mb": size}
 
 
-def run(n: int = 100, parts=("centroids", "images", "bands"), seed: int = 1, n_images: int = 10) -> dict:
+def run(n: int = 100, parts=("centroids", "images", "bands"), seed: int = 1, n_images: int = 10,
+        workers: int = 0, scheduler: str | None = None) -> dict:
     out = {}
     if "centroids" in parts:
-        out["centroids"] = _centroids(n, seed)
+        out["centroids"] = _centroids(n, seed, workers, scheduler)
     if "images" in parts:
         out["images"] = _images(n_images, seed)
     if "bands" in parts:
@@ -190,8 +178,17 @@ if __name__ == "__main__":
     ap.add_argument("--n-images", type=int, default=10)
     ap.add_argument("--parts", default="centroids,images,bands")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--workers", type=int, default=0, help="centroids: local worker processes (0: this one)")
+    ap.add_argument("--scheduler", default=None, help="centroids: a Dask scheduler, tcp://HOST:PORT")
     args = ap.parse_args()
-    result = run(args.n, tuple(args.parts.split(",")), args.seed, args.n_images)
+    from skyfix.errors import CampaignError
+
+    try:
+        result = run(args.n, tuple(args.parts.split(",")), args.seed, args.n_images, args.workers,
+                     args.scheduler)
+    except CampaignError as exc:  # a scheduler out of reach: one line, exit 2
+        print(f"{Path(__file__).name}: {exc}", file=sys.stderr)
+        sys.exit(2)
     from common import write_json
 
     say(f"wrote {write_json('fields', result)}")

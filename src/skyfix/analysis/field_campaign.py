@@ -12,8 +12,11 @@ axis) should have an RMS near 1.
 
 The stars are Gaia DR3 to G 10 with Hipparcos for the brightest (:func:`skyfix.catalog.load_gaia`),
 deeper than any case's limit, so the fields are the sky, not the solver's catalogue.
-``python -m skyfix.analysis.field_campaign`` runs :data:`CASES` and writes the table and plots
-(docs/fields.md); ``benchmarks/suite_fields.py`` times them.
+It runs on the campaign engine (:func:`skyfix.montecarlo.engine.run_campaign`) as
+:class:`FieldStudy`: one Parquet row per frame, in this process or on Dask workers, the same
+frames as the serial loop it replaced. ``python -m skyfix.analysis.field_campaign`` runs
+:data:`CASES` and writes the rows, the table and the plots (docs/fields.md);
+``benchmarks/suite_fields.py`` times them.
 """
 
 from __future__ import annotations
@@ -21,18 +24,28 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from skyfix.analysis.blind_campaign import Trial, summarize, trial_result
+from skyfix.analysis.blind_campaign import (
+    TRIAL_COLUMNS,
+    Trial,
+    run_rows,
+    sequence_batch,
+    summarize,
+    trial_of_row,
+    trial_row,
+)
 from skyfix.camera import Camera
 from skyfix.catalog import load_gaia
+from skyfix.montecarlo.study import BatchedStudy
 
-__all__ = ["CASES", "FieldCase", "FieldTrial", "case_camera", "field_trials", "main", "summarize_case",
-           "write_campaign"]
+__all__ = ["CASES", "FieldCase", "FieldStudy", "FieldTrial", "campaign_trials", "case_camera", "field_study",
+           "field_trials", "main", "summarize_case", "write_campaign"]
 
 
 class FieldCase(NamedTuple):
@@ -69,10 +82,12 @@ where 8 or more are in view, as the issue counts them)."""
 
 
 class FieldTrial(NamedTuple):
-    """One frame: its :class:`~skyfix.analysis.blind_campaign.Trial` and the solve's time (ms)."""
+    """One frame: its :class:`~skyfix.analysis.blind_campaign.Trial`, the solve's wall time and
+    the solving thread's CPU time (ms)."""
 
     trial: Trial
     time_ms: float
+    cpu_ms: float = math.nan
 
 
 def case_camera(case: FieldCase) -> Camera:
@@ -86,28 +101,126 @@ def case_camera(case: FieldCase) -> Camera:
     return Camera(case.width, case.height, f, f, (case.width - 1) / 2.0, (case.height - 1) / 2.0, k1=case.k1)
 
 
-def field_trials(case: FieldCase, n: int, seed: int = 0, *, epoch: float = 2025.0,
-                 progress: Callable[[int], None] | None = None) -> list[FieldTrial]:
-    """``n`` frames of ``case`` at uniformly random attitudes (reproducible from ``seed``), each
-    solved with no hint."""
-    from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
-    from skyfix.pipeline import solve_centroids
+#: Per process: each (case, n, seed)'s attitudes and the generator's state after drawing them.
+_ATTITUDES: dict[tuple, tuple[np.ndarray, dict]] = {}
+#: Per process: the sequences (cases) whose first frame has been solved once, untimed.
+_WARMED: set[tuple] = set()
 
-    catalog = load_gaia(epoch=epoch)
-    camera = case_camera(case)
-    rng = np.random.default_rng(seed)
-    out = []
-    for A in random_attitudes(n, rng):
-        field = synthetic_centroids(camera, A, catalog, mag_limit=case.mag_limit, sigma_px=case.sigma_px,
-                                    n_false=int(rng.integers(0, case.max_false + 1)), dropout=case.dropout,
-                                    mag_sigma=case.mag_sigma, rng=rng)
-        n_stars = int((field.star_id != 0).sum())
-        t0 = time.perf_counter()
-        sol = solve_centroids(field.xy[:200], case.width, case.height, epoch=epoch)
-        out.append(FieldTrial(trial_result(sol, A, camera, n_stars), 1e3 * (time.perf_counter() - t0)))
-        if progress is not None:
-            progress(1)
-    return out
+
+def _attitudes(key: tuple, n: int, seed: int) -> tuple[np.ndarray, dict]:
+    from skyfix.analysis.synthetic_centroids import random_attitudes
+
+    found = _ATTITUDES.get(key)
+    if found is None:
+        rng = np.random.default_rng(seed)
+        found = (random_attitudes(n, rng), rng.bit_generator.state)
+        if len(_ATTITUDES) >= 16:
+            _ATTITUDES.clear()
+        _ATTITUDES[key] = found
+    return found
+
+
+@dataclass(frozen=True)
+class FieldStudy(BatchedStudy):
+    """The field campaign on the engine (settings ``cases``: :class:`FieldCase` tables, ``n``
+    frames each, ``seed``, ``epoch``): trial ``i`` is frame ``i mod n`` of case ``i // n``, the
+    frames of a case one random sequence from ``seed`` as :func:`field_trials` always drew them
+    (:func:`skyfix.analysis.blind_campaign.sequence_batch`). A process solves its first frame of
+    each case once untimed first (the case's FOV band loaded, the kernels loaded), so
+    ``time_ms`` and ``cpu_ms`` time the solve alone."""
+
+    kind: ClassVar[str] = "field-campaign"
+    columns: ClassVar[Mapping[str, str]] = {"trial": "int64", "case": "string", "frame": "int32",
+                                            "n_false": "int32", **TRIAL_COLUMNS, "cpu_ms": "float64"}
+
+    @property
+    def cases(self) -> list[FieldCase]:
+        return [FieldCase(**c) for c in self.settings["cases"]]
+
+    def run_batch(self, batch: int) -> list[dict[str, Any]]:
+        n, rows = int(self.settings["n"]), []
+        trials = self.batch_trials(batch)
+        for c in range(trials.start // n, (trials.stop - 1) // n + 1):  # a batch may span cases
+            first, stop = max(trials.start, c * n), min(trials.stop, (c + 1) * n)
+            rows += self._case_rows(c, range(first - c * n, stop - c * n))
+        return rows
+
+    def _case_rows(self, c: int, frames: range) -> list[dict[str, Any]]:
+        from skyfix.analysis.synthetic_centroids import synthetic_centroids
+        from skyfix.pipeline import solve_centroids
+
+        case, n = self.cases[c], int(self.settings["n"])
+        seed, epoch = int(self.settings["seed"]), float(self.settings["epoch"])
+        catalog, camera = load_gaia(epoch=epoch), case_camera(case)
+        key = (self.kind, tuple(case), n, seed, epoch)
+        attitudes, after = _attitudes(key, n, seed)
+
+        def start() -> np.random.Generator:
+            rng = np.random.Generator(np.random.PCG64())
+            rng.bit_generator.state = after
+            return rng
+
+        def draw(rng: np.random.Generator, k: int):
+            n_false = int(rng.integers(0, case.max_false + 1))
+            return n_false, synthetic_centroids(camera, attitudes[k], catalog, mag_limit=case.mag_limit,
+                                                sigma_px=case.sigma_px, n_false=n_false, dropout=case.dropout,
+                                                mag_sigma=case.mag_sigma, rng=rng)
+
+        def solve(k: int, drawn) -> dict[str, Any]:
+            n_false, field = drawn
+            xy = field.xy[:200]
+            if key not in _WARMED:
+                solve_centroids(xy, case.width, case.height, epoch=epoch)
+                _WARMED.add(key)
+            cpu, t0 = time.thread_time(), time.perf_counter()
+            sol = solve_centroids(xy, case.width, case.height, epoch=epoch)
+            ms, cpu_ms = 1e3 * (time.perf_counter() - t0), 1e3 * (time.thread_time() - cpu)
+            row = trial_row(c * n + k, {"case": case.name, "frame": k, "n_false": n_false}, sol, attitudes[k],
+                            camera, int((field.star_id != 0).sum()), ms)
+            return {**row, "cpu_ms": cpu_ms}
+
+        return sequence_batch(key, frames, start, draw, solve)
+
+    def run_trial(self, trial: int) -> dict[str, Any]:
+        return replace(self, batch_size=1).run_batch(trial)[0]
+
+    def warm(self) -> None:
+        from skyfix import warmup
+
+        warmup.ensure(["solve"], missing_ok=True)
+
+
+def field_study(cases: Sequence[FieldCase], n: int, seed: int = 0, *, epoch: float = 2025.0,
+                batch_size: int | None = None) -> FieldStudy:
+    """The :class:`FieldStudy` of ``n`` frames of each of ``cases`` (a batch a case by default:
+    a case's frames are one random sequence)."""
+    settings = {"cases": [c._asdict() for c in cases], "n": int(n), "seed": int(seed), "epoch": float(epoch)}
+    return FieldStudy(n * len(cases), batch_size or n, settings)
+
+
+def campaign_trials(cases: Sequence[FieldCase], n: int, seed: int = 0, *, epoch: float = 2025.0,
+                    workers: int = 0, scheduler: str | None = None, output: str | Path | None = None,
+                    progress: Callable[[int, int], None] | None = None
+                    ) -> list[tuple[FieldCase, list[FieldTrial]]]:
+    """``n`` frames of each of ``cases`` (:func:`field_study` on the engine: ``workers``
+    processes, 0 this one, or the Dask ``scheduler``; the rows into ``output``, Parquet, or a
+    temporary file; ``progress(done, total)`` counts finished batches), by case."""
+    rows = run_rows(field_study(cases, n, seed, epoch=epoch), output, workers=workers, scheduler=scheduler,
+                    progress=progress)
+    trials = [FieldTrial(trial_of_row(r), r["time_ms"], r["cpu_ms"]) for r in rows]
+    return [(case, trials[k * n:(k + 1) * n]) for k, case in enumerate(cases)]
+
+
+def field_trials(case: FieldCase, n: int, seed: int = 0, *, epoch: float = 2025.0,
+                 progress: Callable[[int], None] | None = None, workers: int = 0,
+                 scheduler: str | None = None, output: str | Path | None = None) -> list[FieldTrial]:
+    """``n`` frames of ``case`` at uniformly random attitudes (reproducible from ``seed``), each
+    solved with no hint (:func:`campaign_trials` of the one case; ``progress(n)`` when done)."""
+    [(_, trials)] = campaign_trials([case], n, seed, epoch=epoch, workers=workers, scheduler=scheduler,
+                                   output=output)
+    if progress is not None:
+        progress(len(trials))
+    return trials
 
 
 def summarize_case(case: FieldCase, trials: Sequence[FieldTrial]) -> dict:
@@ -183,28 +296,45 @@ def _plot(results: list[tuple[FieldCase, list[FieldTrial]]], path: Path) -> Path
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m skyfix.analysis.field_campaign [--n 100] [--seed 2026] [--out DIR]``: every case
-    of :data:`CASES`, with a progress bar; writes :func:`write_campaign`'s files and prints the table."""
+    """``python -m skyfix.analysis.field_campaign [--n 100] [--seed 2026] [--out DIR] [--workers N |
+    --scheduler ADDRESS]``: every case of :data:`CASES` on the campaign engine, with a progress
+    bar; writes the rows (``DIR/fields.parquet``) and :func:`write_campaign`'s files and prints the
+    table. Exit status 2 with one line for bad input or a scheduler out of reach."""
     import argparse
+    import sys
 
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from skyfix.errors import CampaignError
 
     ap = argparse.ArgumentParser(prog="python -m skyfix.analysis.field_campaign",
                                  description=__doc__.split("\n")[0])
     ap.add_argument("--n", type=int, default=100, help="random attitudes per case (default 100)")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--out", type=Path, default=Path("field-campaign"))
+    ap.add_argument("--workers", type=int, default=None,
+                    help="local worker processes (default 0: the cases one after another in this process)")
+    ap.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                    help="a running Dask scheduler (tcp://HOST:8786) instead of local workers")
     args = ap.parse_args(argv)
     if args.n < 1:
         ap.error("--n must be at least 1")
-    results = []
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                  transient=True) as bar:
-        task = bar.add_task("field campaign", total=args.n * len(CASES))
-        for case in CASES:
-            bar.update(task, description=f"field campaign: {case.name}")
-            results.append((case, field_trials(case, args.n, args.seed,
-                                               progress=lambda k: bar.advance(task, k))))
+    if args.workers is not None and args.workers < 0:
+        ap.error(f"--workers must be ≥ 0, got {args.workers}")
+    if args.workers and args.scheduler:
+        ap.error("give --workers or --scheduler, not both")
+    args.out.mkdir(parents=True, exist_ok=True)
+    try:
+        with Progress(TextColumn("field campaign, cases"), BarColumn(), MofNCompleteColumn(),
+                      TimeRemainingColumn(), transient=True) as bar:
+            task = bar.add_task("field campaign", total=len(CASES))
+            results = campaign_trials(
+                CASES, args.n, args.seed, workers=args.workers or 0, scheduler=args.scheduler,
+                output=args.out / "fields.parquet",
+                progress=lambda done, total: bar.update(task, completed=done, total=total))
+    except CampaignError as exc:
+        print(f"{ap.prog}: error: {exc}", file=sys.stderr)
+        return 2
     command = f"python -m skyfix.analysis.field_campaign --n {args.n} --seed {args.seed}"
     paths = write_campaign(results, args.out, command=command)
     print(paths[1].read_text())
