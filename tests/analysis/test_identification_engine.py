@@ -5,7 +5,6 @@ are read back and continued, and an unreachable scheduler is one line."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import pytest
@@ -53,8 +52,7 @@ def _dask(study, output):
 def test_grid_rows_are_its_fields_here_and_on_dask(tmp_path):
     settings = st.QUICK._replace(trials=3)  # 15°: noise-free and every error, 3 fields each
     study = st.grid_study(settings, METHODS)
-    assert (study.trials, study.batch_size) == (12, 20)
-    study = dataclasses.replace(study, batch_size=4)  # 3 batches of 2 fields
+    assert (study.trials, study.batch_size, study.n_batches) == (12, 4, 3)  # batches of 2 fields
     here = run_campaign(study, tmp_path / "here.parquet", workers=0).table
     there = _dask(study, tmp_path / "dask.parquet").table
     assert _rows(here) == _rows(there)

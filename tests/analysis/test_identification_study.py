@@ -79,10 +79,10 @@ def test_cli_case_and_bad_names(tmp_path):
                                    "--trials", "5", "--safety-trials", "4", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
     # off a terminal, a line as each stage starts and as each of its engine batches ends: the grid's
-    # 10 fields are one batch, the safety case's 4 frames another
+    # 10 fields in batches of 2, the safety case's 4 frames in batches of 2
     steps = [line.split(" (")[0] for line in res.output.splitlines() if line.startswith("skyfix: ")]
-    assert steps == ["skyfix: identification grid 0/1", "skyfix: identification grid 1/1",
-                     "skyfix: safety frames 0/1", "skyfix: safety frames 1/1"], steps
+    assert steps == [f"skyfix: identification grid {k}/5" for k in range(6)] + [
+        f"skyfix: safety frames {k}/2" for k in range(3)], steps
     data = json.loads((tmp_path / "identification_study.json").read_text())
     assert len(data["records"]) == 10
     # the trial rows beside the JSON, as Parquet: the same records

@@ -239,7 +239,7 @@ class SafetySettings(NamedTuple):
     seed: int = 0
     workers: int = 0  # 0: in this process; N: a local Dask cluster of N worker processes
     mix: SafetyMix = SAFETY_MIX
-    block: int = 2  # frames per engine batch (~0.64 CPU-s a frame for the nine methods)
+    block: int = 1  # frames per engine batch (~0.64 CPU-s a frame for the nine methods on average)
     # Solve against the default FOV bands, each built on first need (as a user's solve); False: the
     # standard band's database alone (nothing else built: the quick run's frames are all 15°).
     bands: bool = True
@@ -253,7 +253,7 @@ SAFETY_STUDY = SafetySettings(trials=1_000)
 # fields or for a calibrated camera, ~130 MB) against the standard band's database alone (the
 # narrow, wide and fine bands and the Gaia catalogue, ~290 MB on disk, are neither built nor
 # loaded, and a frame that fails is not searched again in them).
-SAFETY_QUICK = SafetySettings(trials=20, block=5, bands=False,
+SAFETY_QUICK = SafetySettings(trials=20, block=2, bands=False,
                               mix=SAFETY_MIX._replace(fovs_deg=(15.0,), camera_given_share=0.0))
 
 
