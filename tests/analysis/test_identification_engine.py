@@ -30,7 +30,8 @@ PINNED_SAFETY_CENTROIDS = [29, 47, 22]
 
 def _untimed(row: dict) -> dict:
     """A row without its time, NaN as None (comparable with ==)."""
-    return {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in row.items() if k != "time_ms"}
+    return {k: None if isinstance(v, float) and math.isnan(v) else v
+            for k, v in row.items() if k != "time_ms"}
 
 
 def _plain(records) -> list[dict]:
@@ -84,6 +85,29 @@ def test_safety_rows_stop_continue_and_replay(tmp_path):
     assert [None if math.isnan(r.boresight_arcsec) else r.boresight_arcsec for r in records] == (
         PINNED_SAFETY_BORESIGHT)
     assert [r.n_centroids for r in records[::2]] == PINNED_SAFETY_CENTROIDS
+
+
+@pytest.mark.slow  # two whole (tiny) studies: 9 s at load 6
+def test_a_stopped_study_continues(tmp_path):
+    """A run of the whole study that stopped in its safety case: run again into the same folder, the
+    finished grid is kept and the safety case continues from its finished batches."""
+    settings = st.QUICK._replace(trials=2, methods=("quad-hash",))
+    safety = sf.SAFETY_QUICK._replace(trials=4, methods=("quad-hash",))
+    first = st.run_study(settings, safety=safety, out=tmp_path)
+    (tmp_path / "identification_safety.parquet").unlink()
+    run_campaign(sf.safety_study(safety, ["quad-hash"]), tmp_path / "identification_safety.parquet",
+                 workers=0, max_batches=1)  # the stop
+    starts = {}
+
+    def progress(stage: str, done: int, total: int) -> None:
+        starts.setdefault(stage, (done, total))
+
+    again = st.run_study(settings, progress, safety=safety, out=tmp_path)
+    assert starts == {"safety frames": (1, 2)}  # the grid not run (the engine reports nothing)
+    assert _plain(again["records"]) == _plain(first["records"])  # the grid's rows, times and all, kept
+    assert [r.time_ms for r in again["records"]] == [r.time_ms for r in first["records"]]
+    assert _plain(again["safety"]["records"]) == _plain(first["safety"]["records"])
+    assert not parts_folder(tmp_path / "identification_safety.parquet").exists()
 
 
 def test_an_unreachable_scheduler_is_one_line(tmp_path, monkeypatch):

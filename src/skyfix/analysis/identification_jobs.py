@@ -248,11 +248,12 @@ def engine_client(workers: int, scheduler: str | None = None) -> Iterator[Any]:
 
 
 def run_on_engine(study: BatchedStudy, output: str | Path | None, client: Any = None,
-                  progress: Callable[[int, int], None] | None = None) -> pa.Table:
+                  progress: Callable[[int, int], None] | None = None, fresh: bool = True) -> pa.Table:
     """The rows of ``study`` from the campaign engine: on ``client`` (:func:`engine_client`), or in
-    this process with none. ``output``: the Parquet to write — a finished one there is run again,
-    a stopped run's batches (``OUTPUT.parts``) are kept and the run continues; None: a temporary
-    file. ``progress(done, total)``: batches finished."""
+    this process with none. ``output``: the Parquet to write — a stopped run's batches
+    (``OUTPUT.parts``) are kept and the run continues; a finished one there is run again when
+    ``fresh``, else kept (its settings the same); None: a temporary file. ``progress(done,
+    total)``: batches finished."""
     from skyfix.montecarlo.engine import run_campaign
 
     if output is None:
@@ -260,5 +261,6 @@ def run_on_engine(study: BatchedStudy, output: str | Path | None, client: Any = 
             return run_on_engine(study, Path(tmp) / f"{study.kind}.parquet", client, progress)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    output.unlink(missing_ok=True)
+    if fresh:
+        output.unlink(missing_ok=True)
     return run_campaign(study, output, workers=0, client=client, progress=progress).table

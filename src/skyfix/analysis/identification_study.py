@@ -192,12 +192,19 @@ def run_study(settings: StudySettings = FULL, progress: Callable[[str, int, int]
     :data:`CASES` with their defaults), each a study on the campaign engine, all on one cluster
     (``settings.workers`` local processes, or ``scheduler``; 0 and none: in this process).
     ``out``: the folder for their rows (``identification_study.parquet``,
-    ``identification_safety.parquet``, ``identification_cases.parquet``; None: temporary files).
+    ``identification_safety.parquet``, ``identification_cases.parquet``; None: temporary files);
+    when a stopped run left finished batches there (``NAME.parquet.parts``), the run continues —
+    its studies already finished kept — else every study runs afresh.
     ``progress(stage, done, total)``: the batches of each stage finished. Returns
     ``{"settings", "records", "tables"}`` (records as :class:`TrialRecord`), with ``"safety"``
     (as :func:`run_safety`'s) and ``"cases"`` (name → result) when run."""
+    from skyfix.montecarlo.engine import parts_folder
+
     methods = method_names(settings.methods)
     folder = None if out is None else Path(out)
+    names = ["study", *(["safety"] if safety is not None else []), *(["cases"] if cases else [])]
+    fresh = folder is None or not any(parts_folder(folder / f"identification_{n}.parquet").exists()
+                                      for n in names)
 
     def stage(name: str) -> Callable[[int, int], None] | None:
         return None if progress is None else (lambda done, total: progress(name, done, total))
@@ -211,7 +218,7 @@ def run_study(settings: StudySettings = FULL, progress: Callable[[str, int, int]
         tables["pattern_database"] = {"bytes": int(path.stat().st_size) if path.exists() else 0}
         grid = grid_study(settings, methods)
         records = GridStudy.records(run_on_engine(grid, output("identification_study.parquet"), client,
-                                                  stage("identification grid")))
+                                                  stage("identification grid"), fresh))
         meta = dict(settings._asdict(), conditions=[c._asdict() for c in settings.conditions],
                     methods=methods, camera=f"{WIDTH}×{HEIGHT}", mag_limit=MAG_LIMIT, epoch=EPOCH,
                     cpu_count=os.cpu_count())
@@ -219,11 +226,11 @@ def run_study(settings: StudySettings = FULL, progress: Callable[[str, int, int]
         if safety is not None:
             run = safety._replace(methods=tuple(methods), workers=settings.workers)
             table = run_on_engine(safety_study(run, methods), output("identification_safety.parquet"), client,
-                                  stage("safety frames"))
+                                  stage("safety frames"), fresh)
             study["safety"] = safety_result(run, methods, safety_records(table))
         if cases:
             table = run_on_engine(case_study(cases), output("identification_cases.parquet"), client,
-                                  stage("seed experiments"))
+                                  stage("seed experiments"), fresh)
             study["cases"] = case_results(table)
     return study
 
