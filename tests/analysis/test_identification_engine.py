@@ -87,6 +87,23 @@ def test_safety_rows_stop_continue_and_replay(tmp_path):
     assert [r.n_centroids for r in records[::2]] == PINNED_SAFETY_CENTROIDS
 
 
+def test_seed_experiments_are_a_study_of_cases(tmp_path, monkeypatch):
+    import pyarrow.parquet as pq
+
+    from skyfix.analysis import identification_cases as ic
+
+    monkeypatch.setitem(ic.CASES, "fake-a", lambda: {"case": "fake-a", "worst": math.nan, "n": (1, 2)})
+    monkeypatch.setitem(ic.CASES, "fake-b", lambda: {"case": "fake-b", "rate": 0.25})
+    out = tmp_path / "identification_cases.parquet"
+    results = ic.run_cases(["fake-b", "fake-a"], out=out)
+    assert results == {"fake-b": {"case": "fake-b", "rate": 0.25},
+                       "fake-a": {"case": "fake-a", "worst": None, "n": [1, 2]}}  # as the JSON writes them
+    table = pq.read_table(out)
+    assert table.column("case").to_pylist() == ["fake-b", "fake-a"]
+    assert table.column("trial").to_pylist() == [0, 1]
+    assert all(t >= 0 for t in table.column("seconds").to_pylist())
+
+
 @pytest.mark.slow  # two whole (tiny) studies: 9 s at load 6
 def test_a_stopped_study_continues(tmp_path):
     """A run of the whole study that stopped in its safety case: run again into the same folder, the
