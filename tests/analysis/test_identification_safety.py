@@ -86,9 +86,9 @@ def test_judge_counts_a_wrong_attitude(monkeypatch, catalog, trial, bore, roll, 
 def test_small_run_bookkeeping_and_replay(tmp_path):
     mix = sf.SAFETY_MIX._replace(fovs_deg=(15.0, 30.0))  # the 8° frames' refusals take the time
     settings = sf.SafetySettings(trials=6, methods=("quad-hash", "grid"), block=4, mix=mix)
-    safety = sf.run_safety(settings, checkpoint=tmp_path / "part.jsonl")
+    safety = sf.run_safety(settings, out=tmp_path / "safety.parquet")
     recs = safety["records"]
-    back = sf.read_checkpoint(tmp_path / "part.jsonl")  # the blocks as they came, read back in order
+    back = sf.read_safety(tmp_path / "safety.parquet")  # the rows the engine wrote, read back
     assert len(back) == len(recs)
     for a, b in zip(back, recs, strict=True):
         same = [x == y or (isinstance(x, float) and math.isnan(x) and math.isnan(y))

@@ -78,12 +78,20 @@ def test_cli_case_and_bad_names(tmp_path):
     res = CliRunner().invoke(app, ["analyze", "identification", "--quick", "--methods", "quad-hash",
                                    "--trials", "5", "--safety-trials", "4", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    # off a terminal, a line per stage: the start, the warm-up, the two cells, the safety block
-    steps = [line for line in res.output.splitlines() if line.startswith("skyfix: identification study")]
-    assert len(steps) == 5 and "methods warmed" in steps[1] and steps[-1].startswith(
-        "skyfix: identification study 4/4: safety frames 0–3")
+    # off a terminal, a line as each stage starts and as each of its engine batches ends: the grid's
+    # 10 fields in batches of 2, the safety case's 4 frames in batches of 2
+    steps = [line.split(" (")[0] for line in res.output.splitlines() if line.startswith("skyfix: ")]
+    assert steps == [f"skyfix: identification grid {k}/5" for k in range(6)] + [
+        f"skyfix: safety frames {k}/2" for k in range(3)], steps
     data = json.loads((tmp_path / "identification_study.json").read_text())
     assert len(data["records"]) == 10
+    # the trial rows beside the JSON, as Parquet: the same records
+    import pyarrow.parquet as pq
+
+    rows = pq.read_table(tmp_path / "identification_study.parquet").to_pylist()
+    assert [r["trial"] for r in rows] == list(range(10)) and [r["field"] for r in rows] == [*range(5)] * 2
+    assert [r["boresight_arcsec"] for r in rows] == [r["boresight_arcsec"] for r in data["records"]]
+    assert pq.read_table(tmp_path / "identification_safety.parquet").num_rows == 4
     safety = data["safety"]
     assert safety["summary"]["quad-hash"]["n"] == 4 and safety["records"]["trial"] == [0, 1, 2, 3]
     assert safety["summary"]["quad-hash"]["wrong"] == 0

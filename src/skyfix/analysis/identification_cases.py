@@ -12,20 +12,36 @@
 - ``perturbation`` — thesis 000 Table 6 and §6.4: one star of a catalogue cluster moved along
   x by a growing shift, the fraction still identified right (:func:`perturbation_sweep`).
 
+Each runs as a trial of :class:`CaseStudy` on the campaign engine (a row of
+``identification_cases.parquet``: the case, its time, its result as JSON), so several run on as
+many workers.
+
 docs/identification-study.md has a full run's numbers beside the theses'.
 """
 
 from __future__ import annotations
 
 import itertools
+import json
 import math
 import time
 from collections.abc import Callable
-from typing import NamedTuple
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from skyfix.analysis.identification_jobs import EPOCH, HEIGHT, WIDTH, judge_identification, upper_bound_95
+from skyfix.analysis._json import strict_json
+from skyfix.analysis.identification_jobs import (
+    EPOCH,
+    HEIGHT,
+    WIDTH,
+    engine_client,
+    judge_identification,
+    run_on_engine,
+    upper_bound_95,
+)
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
 from skyfix.attitude import solve_attitude
 from skyfix.camera import Camera, camera_from_preset
@@ -33,9 +49,14 @@ from skyfix.catalog import load_hipparcos
 from skyfix.geometry import attitude_from_radec_roll, normalize, rotation_angle_between, vector_to_radec
 from skyfix.identify import Identification, PatternDatabase, default_database, identify
 from skyfix.identify.common.hypothesis import chance_log_probability, frame_for, hypothesis
+from skyfix.montecarlo.study import BatchedStudy
 
-__all__ = ["CASES", "MatchingRow", "SHIFTS_PX", "TABLE_3_7_ROWS", "perturbation_sweep", "quest_catalogue",
-           "sparse_fields", "table_3_7", "three_star_frames"]
+if TYPE_CHECKING:
+    import pyarrow as pa
+
+__all__ = ["CASES", "CaseStudy", "MatchingRow", "SHIFTS_PX", "TABLE_3_7_ROWS", "case_results",
+           "case_study", "perturbation_sweep", "quest_catalogue", "run_cases", "sparse_fields",
+           "table_3_7", "three_star_frames"]
 
 _ARCSEC = math.pi / (180.0 * 3600.0)
 
@@ -341,3 +362,40 @@ def sparse_fields(fov_deg: float = 30.0, n_fields: int = 200, n_bright: int = 3,
 
 
 CASES["sparse-fields"] = sparse_fields
+
+
+@dataclass(frozen=True)
+class CaseStudy(BatchedStudy):
+    """Named cases (``settings["cases"]``, keys of :data:`CASES`, each with its defaults) on the
+    campaign engine: trial ``i`` runs case ``i``; its row holds the name, the wall time and the
+    result as (strict) JSON. Use batches of one case."""
+
+    kind = "identification-cases"
+    columns = {"trial": "int64", "case": "string", "seconds": "float64", "result": "string"}
+
+    def run_trial(self, trial: int) -> dict[str, Any]:
+        name = self.settings["cases"][trial]
+        t0 = time.perf_counter()
+        result = CASES[name]()
+        return {"trial": trial, "case": name, "seconds": time.perf_counter() - t0,
+                "result": json.dumps(strict_json(result))}
+
+
+def case_study(names: list[str] | tuple[str, ...]) -> CaseStudy:
+    """The cases ``names`` as a study (a batch each)."""
+    return CaseStudy(len(names), 1, {"cases": list(names)})
+
+
+def case_results(table: pa.Table) -> dict[str, dict]:
+    """A :class:`CaseStudy`'s rows as name → result."""
+    return {row["case"]: json.loads(row["result"]) for row in table.to_pylist()}
+
+
+def run_cases(names: list[str] | tuple[str, ...], workers: int = 0, scheduler: str | None = None, *,
+              out: str | Path | None = None,
+              progress: Callable[[int, int], None] | None = None) -> dict[str, dict]:
+    """The cases ``names`` on the campaign engine (``workers`` local processes or ``scheduler``;
+    0 and none: in this process), their rows written to ``out`` (Parquet; None: a temporary
+    file): name → result."""
+    with engine_client(workers, scheduler) as client:
+        return case_results(run_on_engine(case_study(names), out, client, progress))

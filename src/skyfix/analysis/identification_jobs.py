@@ -3,26 +3,36 @@ experiments (:mod:`skyfix.analysis.identification_cases`) and its safety case
 (:mod:`skyfix.analysis.identification_safety`) share: the simulated frames' settings and
 conditions, the methods run, a solve judged against its truth
 (:func:`skyfix.analysis.truth.judge`, the one definition of a wrong attitude), the 95 % bound on a
-rate, and the pool of warmed worker processes every job runs in.
+rate, the methods warmed once per process, and how they run on the campaign engine
+(:func:`skyfix.montecarlo.engine.run_campaign`): :class:`MethodTrials`, a study whose trial is one
+method on one frame, and :func:`run_on_engine`.
 """
 
 from __future__ import annotations
 
+import tempfile
 import time
-from collections.abc import Callable
-from typing import NamedTuple
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple, get_type_hints
 
 import numpy as np
 
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
-from skyfix.analysis.truth import Judgement, judge
+from skyfix.analysis.truth import Judgement, judge, upper_bound_95
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
 from skyfix.identify import METHODS, default_database, get_method, identify
+from skyfix.montecarlo.study import BatchedStudy
 
-__all__ = ["CONDITIONS", "Condition", "EPOCH", "HEIGHT", "MAG_LIMIT", "WARMED", "WIDTH", "condition_key",
-           "judge_identification", "method_names", "pool_steps", "run_pool", "study_field", "table_nbytes",
-           "upper_bound_95", "warm_methods"]
+if TYPE_CHECKING:
+    import pyarrow as pa
+
+__all__ = ["CONDITIONS", "Condition", "EPOCH", "HEIGHT", "MAG_LIMIT", "WIDTH", "MethodTrials",
+           "condition_key", "engine_client", "judge_identification", "method_names", "record_columns",
+           "run_on_engine", "study_field", "table_nbytes", "upper_bound_95", "warm_methods", "warm_once"]
 
 EPOCH = 2025.0
 WIDTH, HEIGHT = 1280, 960
@@ -63,16 +73,6 @@ def method_names(methods: tuple[str, ...] | list[str] = ()) -> list[str]:
             seen[id(fn)] = m
             out.append(m)
     return out
-
-
-def upper_bound_95(k: int, n: int) -> float:
-    """One-sided 95 % Clopper–Pearson upper bound of a rate seen ``k`` times in ``n`` (with
-    ``k = 0``: 1 − 0.05^(1/n) ≈ 3/n, the rule of three)."""
-    from scipy.stats import beta
-
-    if n <= 0:
-        return 1.0
-    return 1.0 if k >= n else float(beta.ppf(0.95, k + 1, n - k))
 
 
 def study_field(fov: float, cond: Condition, trial: int, seed: int, catalog):
@@ -123,7 +123,25 @@ def warm_methods(methods: list[str], fovs_deg: tuple[float, ...] = (8.0, 15.0, 3
         for fov, f in fields:
             identify(f.xy, WIDTH, HEIGHT, method=m, camera=Camera.from_fov(WIDTH, HEIGHT, fov), database=db,
                      epoch=EPOCH)
+    _WARMED.update(_warm_keys(methods, fovs_deg, cameras))
     return out
+
+
+_WARMED: set[tuple[str, float, bool]] = set()
+"""(method, FOV, camera given) warmed in this process (:func:`warm_methods`)."""
+
+
+def _warm_keys(methods, fovs_deg, cameras: bool) -> set[tuple[str, float, bool]]:
+    given = (False, True) if cameras else (False,)
+    return {(m, float(f), c) for m in methods for f in fovs_deg for c in given}
+
+
+def warm_once(methods, fovs_deg, cameras: bool = False) -> None:
+    """:func:`warm_methods` unless this process has warmed these methods and FOVs (and cameras)
+    already: what every engine worker does before its first batch (what the study's own pool did
+    in its initializer), so that no trial's time holds the build of a method's tables."""
+    if not _warm_keys(methods, fovs_deg, cameras) <= _WARMED:
+        warm_methods(list(methods), tuple(fovs_deg), cameras=cameras)
 
 
 def table_nbytes(value, seen: set | None = None) -> int:
@@ -143,53 +161,106 @@ def table_nbytes(value, seen: set | None = None) -> int:
     return 0
 
 
-WARMED = "methods warmed (their tables built)"
-"""The step :func:`run_pool` reports when it has warmed the methods in this process."""
+_ARROW = {"int": "int64", "float": "float64", "bool": "bool", "str": "string"}
 
 
-def _pool_size(workers: int, n_jobs: int) -> int:
-    return max(1, min(int(workers), n_jobs))
+def record_columns(record: type, number: str) -> dict[str, str]:
+    """A study's Parquet columns for rows of ``record`` (a NamedTuple of ints, floats, bools and
+    strings): the engine's ``trial`` first, then the record's fields, its own ``trial`` (the
+    frame's number) renamed ``number``."""
+    return {"trial": "int64", **{(number if f == "trial" else f): _ARROW[t.__name__]
+                                 for f, t in get_type_hints(record).items()}}
 
 
-def pool_steps(n_jobs: int, workers: int) -> int:
-    """How many times :func:`run_pool` calls ``progress`` for ``n_jobs`` jobs: once a job, and once
-    for the warm-up when it runs them here (one worker)."""
-    return n_jobs + (_pool_size(workers, n_jobs) == 1)
+@dataclass(frozen=True)
+class MethodTrials(BatchedStudy):
+    """A study of the methods ``settings["methods"]`` (M of them) on numbered frames: trial ``i``
+    is method ``i % M`` on frame ``i // M`` — one row per solve, the frame's methods interleaved as
+    the study always ran them — and a batch of whole frames (``batch_size`` a multiple of M)
+    simulates each frame once for its methods. A subclass names its ``record`` (a NamedTuple whose
+    ``trial`` field is the frame's number, the column ``number``), the set-up a batch shares
+    (:meth:`context`), what a frame's solves are (:meth:`solve_frame`) and the warm-up
+    (:meth:`warm_args`: :func:`warm_once`'s methods, FOVs and cameras)."""
+
+    record: ClassVar[type]
+    number: ClassVar[str] = "frame"
+
+    @property
+    def methods(self) -> list[str]:
+        return list(self.settings["methods"])
+
+    def context(self) -> Any:
+        """What a batch's frames share (a catalogue, a database)."""
+
+    def solve_frame(self, context: Any, frame: int, methods: list[str]) -> list:
+        """The records of ``methods`` on frame ``frame`` (0, 1, … in the study)."""
+        raise NotImplementedError(f"{type(self).__name__}.solve_frame")
+
+    def warm_args(self) -> tuple[list[str], tuple[float, ...], bool]:
+        return self.methods, (), False
+
+    def warm(self) -> None:
+        warm_once(*self.warm_args())
+
+    def run_trial(self, trial: int) -> dict[str, Any]:
+        return self._rows(range(trial, trial + 1))[0]
+
+    def run_batch(self, batch: int) -> list[dict[str, Any]]:
+        return self._rows(self.batch_trials(batch))
+
+    def _rows(self, trials: range) -> list[dict[str, Any]]:
+        self.warm()
+        context, methods, rows = self.context(), self.methods, []
+        m = len(methods)
+        for frame in range(trials.start // m, (trials.stop - 1) // m + 1):
+            mine = [i for i in trials if i // m == frame]
+            records = self.solve_frame(context, frame, [methods[i % m] for i in mine])
+            for i, r in zip(mine, records, strict=True):
+                row = r._asdict()
+                row[self.number] = row.pop("trial")
+                rows.append({"trial": i, **row})
+        return rows
+
+    @classmethod
+    def records(cls, table: pa.Table) -> list:
+        """The rows of ``table`` (this study's Parquet) as records, in trial order."""
+        return [cls.record(**{f: row[cls.number if f == "trial" else f] for f in cls.record._fields})
+                for row in table.to_pylist()]
 
 
-def run_pool(jobs: list[tuple], workers: int, methods: list[str], fovs_deg: tuple[float, ...],
-          progress: Callable[[str], None] | None, label: Callable[[tuple], str],
-          done: Callable[[object], None] | None = None, cameras: bool = True) -> list:
-    """Run ``jobs`` — ``(function, *args)`` tuples — in ``workers`` spawned processes (each warmed
-    by :func:`warm_methods`, calibrated cameras included unless ``cameras`` is False: no job gives
-    a camera) or, with one worker, here (then the warm-up is a step of ``progress`` too:
-    :data:`WARMED`); returns their results in the jobs' order (``done`` is given each result as
-    it comes)."""
-    results: list = [None] * len(jobs)
-    workers = _pool_size(workers, len(jobs))
-    if workers == 1:
-        warm_methods(methods, fovs_deg, cameras=cameras)
-        if progress is not None:
-            progress(WARMED)
-        for i, (fn, *args) in enumerate(jobs):
-            results[i] = fn(*args)
-            if done is not None:
-                done(results[i])
-            if progress is not None:
-                progress(label(jobs[i]))
-        return results
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+@contextmanager
+def engine_client(workers: int, scheduler: str | None = None) -> Iterator[Any]:
+    """One Dask client for the studies of a run (:func:`skyfix.montecarlo.engine.connect`:
+    ``workers`` local worker processes, or the scheduler at ``scheduler``), closed at the end; None
+    with ``workers=0`` and no scheduler (the studies then run in this process)."""
+    if not workers and not scheduler:
+        yield None
+        return
+    from skyfix.montecarlo.engine import connect
 
-    ctx = mp.get_context("spawn")  # no fork of a process holding numba's and rich's threads
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=warm_methods,
-                             initargs=(methods, fovs_deg, cameras)) as pool:
-        futures = {pool.submit(fn, *args): i for i, (fn, *args) in enumerate(jobs)}
-        for fut in as_completed(futures):
-            i = futures[fut]
-            results[i] = fut.result()
-            if done is not None:
-                done(results[i])
-            if progress is not None:
-                progress(label(jobs[i]))
-    return results
+    client, cluster = connect(workers, scheduler)
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def run_on_engine(study: BatchedStudy, output: str | Path | None, client: Any = None,
+                  progress: Callable[[int, int], None] | None = None, fresh: bool = True) -> pa.Table:
+    """The rows of ``study`` from the campaign engine: on ``client`` (:func:`engine_client`), or in
+    this process with none. ``output``: the Parquet to write — a stopped run's batches
+    (``OUTPUT.parts``) are kept and the run continues; a finished one there is run again when
+    ``fresh``, else kept (its settings the same); None: a temporary file. ``progress(done,
+    total)``: batches finished."""
+    from skyfix.montecarlo.engine import run_campaign
+
+    if output is None:
+        with tempfile.TemporaryDirectory(prefix="skyfix-identification-") as tmp:
+            return run_on_engine(study, Path(tmp) / f"{study.kind}.parquet", client, progress)
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    if fresh:
+        output.unlink(missing_ok=True)
+    return run_campaign(study, output, workers=0, client=client, progress=progress).table

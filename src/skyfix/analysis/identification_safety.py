@@ -9,6 +9,11 @@ their 3, or 4–5, brightest stars) and every method solves it as a user would, 
 definition (:func:`skyfix.analysis.truth.is_wrong`: boresight beyond max(60″, 1 px) or roll beyond
 0.5°). Every frame is a function of (seed, frame number), so a wrong one is replayed by
 :func:`replay_safety`.
+
+The case is a study on the campaign engine (:class:`SafetyStudy`,
+:func:`skyfix.montecarlo.engine.run_campaign`): a trial is one method on one frame, a row of
+``identification_safety.parquet``; a stopped run keeps its finished batches and the same command
+continues it (:func:`read_safety` reads a stopped run's rows).
 """
 
 from __future__ import annotations
@@ -18,8 +23,9 @@ import math
 import os
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -29,8 +35,11 @@ from skyfix.analysis.identification_jobs import (
     HEIGHT,
     MAG_LIMIT,
     WIDTH,
+    MethodTrials,
+    engine_client,
     method_names,
-    run_pool,
+    record_columns,
+    run_on_engine,
     upper_bound_95,
 )
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
@@ -39,11 +48,14 @@ from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
 from skyfix.identify import default_database
 
+if TYPE_CHECKING:
+    import pyarrow as pa
+
 __all__ = ["SAFETY_BOUNDS", "SAFETY_FULL", "SAFETY_MIX", "SAFETY_QUICK", "SAFETY_STUDY", "SafetyDraw",
-           "SafetyMix", "SafetySettings", "SafetyTrial", "read_checkpoint", "replay_safety", "run_safety",
-           "run_safety_block", "safety_draw", "safety_field", "safety_job_label", "safety_jobs",
-           "safety_json", "safety_markdown", "safety_plot", "safety_result", "safety_summary",
-           "safety_trial", "write_safety"]
+           "SafetyMix", "SafetySettings", "SafetyStudy", "SafetyTrial", "read_safety", "replay_safety",
+           "run_safety", "run_safety_block", "safety_draw", "safety_field", "safety_frame", "safety_json",
+           "safety_markdown", "safety_plot", "safety_records", "safety_result", "safety_study",
+           "safety_summary", "safety_trial", "write_safety"]
 
 _ARCSEC = math.pi / (180.0 * 3600.0)
 
@@ -189,18 +201,26 @@ def safety_trial(method: str, draw: SafetyDraw, camera: Camera, field, bounds: d
                        reason)
 
 
+def _safety_context(bands: bool) -> tuple:
+    """The catalogue and the database (None: the default bands) a batch of safety frames shares."""
+    catalog = load_hipparcos(epoch=EPOCH, mag_limit=MAG_LIMIT + 1.0)
+    return catalog, None if bands else default_database(progress=False)
+
+
+def safety_frame(trial: int, methods: list[str], seed: int, mix: SafetyMix, bounds: dict[str, dict] | None,
+                 catalog, database) -> list[SafetyTrial]:
+    """Every method in ``methods`` on safety frame ``trial``."""
+    draw = safety_draw(trial, seed, mix)
+    camera, field = safety_field(draw, catalog, seed)
+    return [safety_trial(m, draw, camera, field, bounds, database) for m in methods]
+
+
 def run_safety_block(trials: range, methods: list[str], seed: int = 0, mix: SafetyMix = SAFETY_MIX,
                      bounds: dict[str, dict] | None = None, bands: bool = True) -> list[SafetyTrial]:
-    """Every method on the safety frames ``trials`` (a worker's job), interleaved frame by frame;
-    ``bands`` as :class:`SafetySettings`'s."""
-    catalog = load_hipparcos(epoch=EPOCH, mag_limit=MAG_LIMIT + 1.0)
-    database = None if bands else default_database(progress=False)
-    out = []
-    for t in trials:
-        draw = safety_draw(t, seed, mix)
-        camera, field = safety_field(draw, catalog, seed)
-        out += [safety_trial(m, draw, camera, field, bounds, database) for m in methods]
-    return out
+    """Every method on the safety frames ``trials``, interleaved frame by frame; ``bands`` as
+    :class:`SafetySettings`'s."""
+    context = _safety_context(bands)
+    return [r for t in trials for r in safety_frame(t, methods, seed, mix, bounds, *context)]
 
 
 def replay_safety(trial: int, method: str, seed: int = 0, mix: SafetyMix = SAFETY_MIX,
@@ -217,9 +237,9 @@ class SafetySettings(NamedTuple):
     first: int = 0  # the first frame's number (a campaign split in parts: frames first … first + trials − 1)
     methods: tuple[str, ...] = ()  # empty: every registered method
     seed: int = 0
-    workers: int = 1
+    workers: int = 0  # 0: in this process; N: a local Dask cluster of N worker processes
     mix: SafetyMix = SAFETY_MIX
-    block: int = 100  # frames per worker job (and per checkpoint)
+    block: int = 1  # frames per engine batch (~0.64 CPU-s a frame for the nine methods on average)
     # Solve against the default FOV bands, each built on first need (as a user's solve); False: the
     # standard band's database alone (nothing else built: the quick run's frames are all 15°).
     bands: bool = True
@@ -233,47 +253,66 @@ SAFETY_STUDY = SafetySettings(trials=1_000)
 # fields or for a calibrated camera, ~130 MB) against the standard band's database alone (the
 # narrow, wide and fine bands and the Gaia catalogue, ~290 MB on disk, are neither built nor
 # loaded, and a frame that fails is not searched again in them).
-SAFETY_QUICK = SafetySettings(trials=20, block=10, bands=False,
+SAFETY_QUICK = SafetySettings(trials=20, block=2, bands=False,
                               mix=SAFETY_MIX._replace(fovs_deg=(15.0,), camera_given_share=0.0))
 
 
-def run_safety(settings: SafetySettings = SAFETY_FULL, progress: Callable[[str], None] | None = None,
-               checkpoint: str | Path | None = None) -> dict:
+@dataclass(frozen=True)
+class SafetyStudy(MethodTrials):
+    """The safety case on the campaign engine: frame ``k`` of the study is safety frame
+    ``first + k`` (:func:`safety_draw`), solved by every method (a row each: :class:`SafetyTrial`,
+    the frame's number the column ``frame``). Build it with :func:`safety_study`."""
+
+    kind = "identification-safety"
+    record = SafetyTrial
+    number = "frame"
+    columns = record_columns(SafetyTrial, "frame")
+
+    def context(self) -> Any:
+        return _safety_context(self.settings["bands"])
+
+    def solve_frame(self, context: Any, frame: int, methods: list[str]) -> list[SafetyTrial]:
+        s = self.settings
+        mix = SafetyMix(**{**s["mix"], "fovs_deg": tuple(s["mix"]["fovs_deg"])})
+        return safety_frame(s["first"] + frame, methods, s["seed"], mix, s["bounds"], *context)
+
+    def warm_args(self) -> tuple[list[str], tuple[float, ...], bool]:
+        mix = self.settings["mix"]
+        return self.methods, tuple(mix["fovs_deg"]), mix["camera_given_share"] > 0
+
+
+def safety_study(settings: SafetySettings, methods: list[str]) -> SafetyStudy:
+    """The safety case of ``settings`` (its workers aside) as a study of ``methods``."""
+    return SafetyStudy(settings.trials * len(methods), max(1, int(settings.block)) * len(methods),
+                       {"methods": list(methods), "first": settings.first, "seed": settings.seed,
+                        "mix": settings.mix._asdict(), "bounds": SAFETY_BOUNDS, "bands": settings.bands})
+
+
+def run_safety(settings: SafetySettings = SAFETY_FULL,
+               progress: Callable[[int, int], None] | None = None, *, out: str | Path | None = None,
+               scheduler: str | None = None) -> dict:
     """The safety case: ``settings.trials`` random frames (:func:`safety_draw`), each solved by
-    every method through :func:`skyfix.pipeline.solve_centroids`. Returns ``{"settings",
-    "records"}`` (records as :class:`SafetyTrial`, in frame then method order). With
-    ``checkpoint``, each block's records are appended to that file as JSON lines as they come
-    (a long run's work survives its end)."""
+    every method through :func:`skyfix.pipeline.solve_centroids`, on the campaign engine
+    (``settings.workers`` local processes, or ``scheduler``; 0 and none: in this process).
+    ``out``: the rows' Parquet (a stopped run's finished batches are kept beside it and the same
+    call continues; None: a temporary file). ``progress(done, total)``: batches finished.
+    Returns ``{"settings", "records"}`` (records as :class:`SafetyTrial`, in frame then method
+    order)."""
     methods = method_names(settings.methods)
-    done = None
-    if checkpoint is not None:
-        path = Path(checkpoint)
-        path.write_text("")
-
-        def done(part: list[SafetyTrial]) -> None:
-            with path.open("a") as fh:
-                fh.writelines(json.dumps(strict_json(r._asdict())) + "\n" for r in part)
-
-    parts = run_pool(safety_jobs(settings, methods), settings.workers, methods, settings.mix.fovs_deg,
-                     progress, safety_job_label, done, cameras=settings.mix.camera_given_share > 0)
-    return safety_result(settings, methods, parts)
+    with engine_client(settings.workers, scheduler) as client:
+        table = run_on_engine(safety_study(settings, methods), out, client, progress)
+    return safety_result(settings, methods, safety_records(table))
 
 
-def safety_job_label(job: tuple) -> str:
-    """What a safety job (:func:`safety_jobs`) did, for the progress bar."""
-    return f"safety frames {job[1].start}–{job[1].stop - 1}"
+def safety_records(table: pa.Table) -> list[SafetyTrial]:
+    """A safety study's rows as records, in frame then method order."""
+    return SafetyStudy.records(table)
 
 
-def safety_jobs(settings: SafetySettings, methods: list[str]) -> list[tuple]:
-    step, end = max(1, int(settings.block)), settings.first + settings.trials
-    return [(run_safety_block, range(a, min(a + step, end)), methods, settings.seed, settings.mix, None,
-             settings.bands) for a in range(settings.first, end, step)]
-
-
-def safety_result(settings: SafetySettings, methods: list[str], parts: list[list[SafetyTrial]]) -> dict:
+def safety_result(settings: SafetySettings, methods: list[str], records: list[SafetyTrial]) -> dict:
     meta = dict(settings._asdict(), mix=settings.mix._asdict(), methods=methods, camera=f"{WIDTH}×{HEIGHT}",
                 mag_limit=MAG_LIMIT, epoch=EPOCH, bounds=SAFETY_BOUNDS, cpu_count=os.cpu_count())
-    return {"settings": meta, "records": [r for part in parts for r in part]}
+    return {"settings": meta, "records": records}
 
 
 def _kind(r: SafetyTrial) -> str:
@@ -408,16 +447,15 @@ def write_safety(safety: dict, out_dir: str | Path, command: str = "") -> list[P
     return [pj, pm, safety_plot(summary, out)]
 
 
-def read_checkpoint(path: str | Path) -> list[SafetyTrial]:
-    """The records a safety run checkpointed (:func:`run_safety`'s ``checkpoint``; several parts'
-    files may be concatenated), in frame then method order — for :func:`safety_summary`,
-    :func:`safety_markdown` and :func:`safety_plot` when a run was stopped or split."""
-    nan_fields = ("boresight_arcsec", "roll_deg", "normalised", "prob_false")
-    records = []
-    for line in Path(path).read_text().splitlines():
-        if line.strip():
-            row = json.loads(line)
-            row.update({k: math.nan for k in nan_fields if row[k] is None})
-            records.append(SafetyTrial(**row))
-    order = {m: i for i, m in enumerate(dict.fromkeys(r.method for r in records))}
-    return sorted(records, key=lambda r: (r.trial, order[r.method]))
+def read_safety(path: str | Path) -> list[SafetyTrial]:
+    """The records of a safety run's Parquet — or of a stopped run, its finished batches
+    (``identification_safety.parquet.parts``; several parts' tables may be given one by one and
+    added) — in frame then method order, for :func:`safety_summary`, :func:`safety_markdown` and
+    :func:`safety_plot` when a run was stopped or split."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = Path(path)
+    files = sorted(path.glob("batch-*.parquet")) if path.is_dir() else [path]
+    table = pa.concat_tables([pq.read_table(p) for p in files]).sort_by("trial")
+    return safety_records(table)

@@ -16,14 +16,19 @@ wrong). Times are wall-clock per call (median, p99) after two warm-up calls per 
 FOV; each method's own tables (what it builds beside the shared pattern database) are sized and
 timed as those first calls build them.
 
-With ``workers > 1`` the (FOV, condition) blocks run in that many processes
-(``concurrent.futures`` with spawned workers, as :mod:`skyfix.analysis.tracking_study` —
-Dask is not installed here).
+The grid is a study on the campaign engine (:class:`GridStudy`,
+:func:`skyfix.montecarlo.engine.run_campaign`): a trial is one method on one field, a pure
+function of the settings and the trial's number (the field seeded by FOV, condition and field
+number as always), a row of ``identification_study.parquet``. ``workers=0`` runs its batches in
+this process; ``workers=N`` on a local Dask cluster of N processes, ``scheduler`` on a running
+one — each worker warmed once (:func:`~skyfix.analysis.identification_jobs.warm_once`) before its
+first batch; the rows are the same whichever runs them.
 
-The seeds' experiments (:mod:`skyfix.analysis.identification_cases`) and the safety case
-(:mod:`skyfix.analysis.identification_safety`) run as jobs of the same pool when asked
-(:func:`run_study`'s ``cases`` and ``safety``); what all three share — frames, conditions, the
-judge of a solve, the pool — is :mod:`skyfix.analysis.identification_jobs`.
+The seeds' experiments (:mod:`skyfix.analysis.identification_cases`, :class:`CaseStudy`) and the
+safety case (:mod:`skyfix.analysis.identification_safety`, :class:`SafetyStudy`) run on the same
+cluster when asked (:func:`run_study`'s ``cases`` and ``safety``); what all three share — frames,
+conditions, the judge of a solve, the warm-up, the engine — is
+:mod:`skyfix.analysis.identification_jobs`.
 
 docs/identification-study.md has a full run's numbers beside the theses'.
 """
@@ -35,13 +40,14 @@ import math
 import os
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from skyfix.analysis._json import strict_json
-from skyfix.analysis.identification_cases import CASES
+from skyfix.analysis.identification_cases import case_results, case_study
 from skyfix.analysis.identification_jobs import (
     CONDITIONS,
     EPOCH,
@@ -49,30 +55,32 @@ from skyfix.analysis.identification_jobs import (
     MAG_LIMIT,
     WIDTH,
     Condition,
+    MethodTrials,
+    engine_client,
     judge_identification,
     method_names,
-    pool_steps,
-    run_pool,
+    record_columns,
+    run_on_engine,
     study_field,
     upper_bound_95,
     warm_methods,
 )
 from skyfix.analysis.identification_safety import (
     SafetySettings,
-    run_safety_block,
-    safety_job_label,
-    safety_jobs,
     safety_json,
     safety_markdown,
     safety_plot,
+    safety_records,
     safety_result,
+    safety_study,
     safety_summary,
 )
 from skyfix.catalog import load_hipparcos
 from skyfix.identify import Identification, default_database, default_database_path, identify
 
-__all__ = ["FULL", "QUICK", "StudySettings", "TrialRecord", "cell_summary", "markdown", "plots", "run_block",
-           "run_study", "study_steps", "summarize", "write_study"]
+__all__ = ["FIELDS_PER_BATCH", "FULL", "QUICK", "GridStudy", "StudySettings", "TrialRecord",
+           "cell_summary", "field_trials", "grid_study", "markdown", "plots", "run_block", "run_study",
+           "summarize", "write_study"]
 
 
 class StudySettings(NamedTuple):
@@ -83,7 +91,7 @@ class StudySettings(NamedTuple):
     trials: int = 100
     methods: tuple[str, ...] = ()  # empty: every registered method
     seed: int = 0
-    workers: int = 1
+    workers: int = 0  # 0: in this process; N: a local Dask cluster of N worker processes
     fov_tolerance: float = 0.1  # the FOV the methods are told, relative
 
 
@@ -106,81 +114,125 @@ class TrialRecord(NamedTuple):
     reason: str
 
 
-def run_block(fov: float, cond: Condition, trials: range, methods: list[str], seed: int,
-              fov_tolerance: float = 0.1) -> list[TrialRecord]:
-    """Every method on the fields ``trials`` of one FOV and condition (a worker's job)."""
-    catalog = load_hipparcos(epoch=EPOCH, mag_limit=MAG_LIMIT + 1.0)
-    db = default_database(progress=False)
-    kw = dict(fov_deg=fov, fov_tolerance_deg=fov * fov_tolerance, database=db, epoch=EPOCH)
+def field_trials(fov: float, cond: Condition, trial: int, methods: list[str], seed: int, fov_tolerance: float,
+                 catalog, database) -> list[TrialRecord]:
+    """Every method in ``methods`` on field ``trial`` of one FOV and condition."""
+    camera, f = study_field(fov, cond, trial, seed, catalog)
+    n_stars = int(np.sum(f.star_id > 0))
+    kw = dict(fov_deg=fov, fov_tolerance_deg=fov * fov_tolerance, database=database, epoch=EPOCH)
     records = []
-    for t in trials:
-        camera, f = study_field(fov, cond, t, seed, catalog)
-        n_stars = int(np.sum(f.star_id > 0))
-        for m in methods:
-            t0 = time.perf_counter()
-            try:
-                ident = identify(f.xy, WIDTH, HEIGHT, method=m, **kw)
-            except Exception as exc:  # a method's bug is its failure here, not the study's end
-                ident = Identification(False, f"error: {type(exc).__name__}: {exc}")
-            dt = 1e3 * (time.perf_counter() - t0)
-            verdict = judge_identification(ident, f.A_icrs_to_cam, camera) if ident.success else None
-            wrong, bore = (verdict.wrong, verdict.boresight_arcsec) if verdict else (False, math.nan)
-            records.append(TrialRecord(m, fov, cond.name, t, n_stars, bool(ident.success), bool(wrong), bore,
-                                       dt, ident.reason))
+    for m in methods:
+        t0 = time.perf_counter()
+        try:
+            ident = identify(f.xy, WIDTH, HEIGHT, method=m, **kw)
+        except Exception as exc:  # a method's bug is its failure here, not the study's end
+            ident = Identification(False, f"error: {type(exc).__name__}: {exc}")
+        dt = 1e3 * (time.perf_counter() - t0)
+        verdict = judge_identification(ident, f.A_icrs_to_cam, camera) if ident.success else None
+        wrong, bore = (verdict.wrong, verdict.boresight_arcsec) if verdict else (False, math.nan)
+        records.append(TrialRecord(m, fov, cond.name, trial, n_stars, bool(ident.success), bool(wrong), bore,
+                                   dt, ident.reason))
     return records
 
 
-def run_study(settings: StudySettings = FULL, progress: Callable[[str], None] | None = None,
-              safety: SafetySettings | None = None, cases: tuple[str, ...] = ()) -> dict:
+def _grid_context() -> tuple:
+    return load_hipparcos(epoch=EPOCH, mag_limit=MAG_LIMIT + 1.0), default_database(progress=False)
+
+
+def run_block(fov: float, cond: Condition, trials: range, methods: list[str], seed: int,
+              fov_tolerance: float = 0.1) -> list[TrialRecord]:
+    """Every method on the fields ``trials`` of one FOV and condition (to replay a cell's fields)."""
+    catalog, db = _grid_context()
+    return [r for t in trials for r in field_trials(fov, cond, t, methods, seed, fov_tolerance, catalog, db)]
+
+
+FIELDS_PER_BATCH = 2
+"""Fields per engine batch, each solved by every method: ~0.75 CPU-s for the nine methods on
+average (the full grid, 2700 fields, took ~17 min of CPU), 0.1 s at 30° to ~7 s at 8° under load 6."""
+
+
+@dataclass(frozen=True)
+class GridStudy(MethodTrials):
+    """The grid on the campaign engine: field ``k`` is field ``k % fields`` of the (FOV, condition)
+    block ``k // fields`` (FOVs outer, conditions inner), each solved by every method (a row each:
+    :class:`TrialRecord`, its field's number the column ``field``). Build it with :func:`grid_study`."""
+
+    kind = "identification-grid"
+    record = TrialRecord
+    number = "field"
+    columns = record_columns(TrialRecord, "field")
+
+    def context(self) -> Any:
+        return _grid_context()
+
+    def solve_frame(self, context: Any, frame: int, methods: list[str]) -> list[TrialRecord]:
+        s = self.settings
+        fov, cond = s["blocks"][frame // s["fields"]]
+        return field_trials(fov, Condition(**cond), frame % s["fields"], methods, s["seed"],
+                            s["fov_tolerance"], *context)
+
+    def warm_args(self) -> tuple[list[str], tuple[float, ...], bool]:
+        return self.methods, tuple(sorted({fov for fov, _ in self.settings["blocks"]})), False
+
+
+def grid_study(settings: StudySettings, methods: list[str]) -> GridStudy:
+    """The grid of ``settings`` (its workers aside) as a study: ``methods`` on ``settings.trials``
+    fields per FOV and condition."""
+    blocks = [[float(fov), c._asdict()] for fov in settings.fovs_deg for c in settings.conditions]
+    return GridStudy(len(blocks) * settings.trials * len(methods), FIELDS_PER_BATCH * len(methods),
+                     {"methods": list(methods), "blocks": blocks, "fields": settings.trials,
+                      "seed": settings.seed, "fov_tolerance": settings.fov_tolerance})
+
+
+def run_study(settings: StudySettings = FULL, progress: Callable[[str, int, int], None] | None = None,
+              safety: SafetySettings | None = None, cases: tuple[str, ...] = (), *,
+              out: str | Path | None = None, scheduler: str | None = None) -> dict:
     """Run the grid and, when asked, the safety case (:func:`run_safety`, with ``safety``'s frames,
-    seed and bounds; its methods and workers are the grid's) and seed experiments (``cases``,
-    names of :data:`CASES` with their defaults), all as jobs of one pool of ``settings.workers``
-    processes. Returns ``{"settings", "records", "tables"}`` (records as :class:`TrialRecord`),
-    with ``"safety"`` (as :func:`run_safety`'s) and ``"cases"`` (name → result) when run."""
+    seed and bounds; its methods are the grid's) and seed experiments (``cases``, names of
+    :data:`CASES` with their defaults), each a study on the campaign engine, all on one cluster
+    (``settings.workers`` local processes, or ``scheduler``; 0 and none: in this process).
+    ``out``: the folder for their rows (``identification_study.parquet``,
+    ``identification_safety.parquet``, ``identification_cases.parquet``; None: temporary files);
+    when a stopped run left finished batches there (``NAME.parquet.parts``), the run continues —
+    its studies already finished kept — else every study runs afresh.
+    ``progress(stage, done, total)``: the batches of each stage finished. Returns
+    ``{"settings", "records", "tables"}`` (records as :class:`TrialRecord`), with ``"safety"``
+    (as :func:`run_safety`'s) and ``"cases"`` (name → result) when run."""
+    from skyfix.montecarlo.engine import parts_folder
+
     methods = method_names(settings.methods)
-    tables = warm_methods(methods, settings.fovs_deg)  # in this process: the tables' sizes and build times
-    path = default_database_path()
-    tables["pattern_database"] = {"bytes": int(path.stat().st_size) if path.exists() else 0}
-    blocks = [(fov, c) for fov in settings.fovs_deg for c in settings.conditions]
-    case_jobs = [(CASES[c],) for c in cases]  # the longest first: they set the pool's end
-    grid_jobs = [(run_block, fov, c, range(settings.trials), methods, settings.seed, settings.fov_tolerance)
-                 for fov, c in blocks]
-    safety_part = [] if safety is None else safety_jobs(safety, methods)
-    warm_fovs = tuple(sorted(set(settings.fovs_deg) | set(() if safety is None else safety.mix.fovs_deg)))
-    cameras = bool(case_jobs) or (safety is not None and safety.mix.camera_given_share > 0)
-    parts = run_pool(case_jobs + grid_jobs + safety_part, settings.workers, methods, warm_fovs, progress,
-                     _job_label, cameras=cameras)
-    records: list[TrialRecord] = [r for part in parts[len(case_jobs):len(case_jobs) + len(grid_jobs)]
-                                  for r in part]
-    order = {(fov, c.name): i for i, (fov, c) in enumerate(blocks)}
-    records.sort(key=lambda r: (order[(r.fov_deg, r.condition)], r.trial, methods.index(r.method)))
-    meta = dict(settings._asdict(), conditions=[c._asdict() for c in settings.conditions], methods=methods,
-                camera=f"{WIDTH}×{HEIGHT}", mag_limit=MAG_LIMIT, epoch=EPOCH, cpu_count=os.cpu_count())
-    study = {"settings": meta, "records": records, "tables": tables}
-    if safety is not None:
-        study["safety"] = safety_result(safety._replace(methods=tuple(methods), workers=settings.workers),
-                                        methods, parts[len(case_jobs) + len(grid_jobs):])
-    if cases:
-        study["cases"] = dict(zip(cases, parts[:len(case_jobs)], strict=True))
+    folder = None if out is None else Path(out)
+    names = ["study", *(["safety"] if safety is not None else []), *(["cases"] if cases else [])]
+    fresh = folder is None or not any(parts_folder(folder / f"identification_{n}.parquet").exists()
+                                      for n in names)
+
+    def stage(name: str) -> Callable[[int, int], None] | None:
+        return None if progress is None else (lambda done, total: progress(name, done, total))
+
+    def output(name: str) -> Path | None:
+        return None if folder is None else folder / name
+
+    with engine_client(settings.workers, scheduler) as client:
+        tables = warm_methods(methods, settings.fovs_deg)  # here: the tables' sizes and build times
+        path = default_database_path()
+        tables["pattern_database"] = {"bytes": int(path.stat().st_size) if path.exists() else 0}
+        grid = grid_study(settings, methods)
+        records = GridStudy.records(run_on_engine(grid, output("identification_study.parquet"), client,
+                                                  stage("identification grid"), fresh))
+        meta = dict(settings._asdict(), conditions=[c._asdict() for c in settings.conditions],
+                    methods=methods, camera=f"{WIDTH}×{HEIGHT}", mag_limit=MAG_LIMIT, epoch=EPOCH,
+                    cpu_count=os.cpu_count())
+        study = {"settings": meta, "records": records, "tables": tables}
+        if safety is not None:
+            run = safety._replace(methods=tuple(methods), workers=settings.workers)
+            table = run_on_engine(safety_study(run, methods), output("identification_safety.parquet"), client,
+                                  stage("safety frames"), fresh)
+            study["safety"] = safety_result(run, methods, safety_records(table))
+        if cases:
+            table = run_on_engine(case_study(cases), output("identification_cases.parquet"), client,
+                                  stage("seed experiments"), fresh)
+            study["cases"] = case_results(table)
     return study
-
-
-def study_steps(settings: StudySettings, safety: SafetySettings | None = None, cases: tuple[str, ...] = ()
-                ) -> int:
-    """How many progress steps :func:`run_study` reports with these arguments."""
-    n_jobs = (len(settings.fovs_deg) * len(settings.conditions) + len(cases)
-              + (len(safety_jobs(safety, [])) if safety is not None else 0))
-    return pool_steps(n_jobs, settings.workers)
-
-
-def _job_label(job: tuple) -> str:
-    """What a job of :func:`run_study`'s pool did, for the progress bar."""
-    fn = job[0]
-    if fn is run_block:
-        return f"{job[1]:g}° {job[2].name}"
-    if fn is run_safety_block:
-        return safety_job_label(job)
-    return next((name for name, f in CASES.items() if f is fn), getattr(fn, "__name__", "case"))
 
 
 def cell_summary(records: list[TrialRecord]) -> dict:

@@ -12,6 +12,9 @@ The error itself is taken at the pixel the solution calls its boresight (its pri
 :func:`attitude_error_rad`): with no camera file the optical axis is not known, but the sky
 direction of that pixel and the roll there are. Where both sides share one camera this is the
 plain camera-frame error :func:`skyfix.attitude.attitude_error`.
+
+How often a method is wrong is bounded by :func:`upper_bound_95` (Clopper–Pearson), the bound
+every study's and campaign's wrong rate carries.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from skyfix.camera import Camera
 from skyfix.identify.accept import WRONG_BORESIGHT_ARCSEC, WRONG_ROLL_DEG
 
 __all__ = ["Judgement", "WRONG_BORESIGHT_ARCSEC", "WRONG_ROLL_DEG", "attitude_error_rad", "is_wrong",
-           "judge", "judge_error"]
+           "judge", "judge_error", "upper_bound_95"]
 
 _ARCSEC = math.pi / (180.0 * 3600.0)
 
@@ -69,3 +72,13 @@ def judge(A_est: np.ndarray, camera_est: Camera | None, A_true: np.ndarray, came
     one) against the truth; one pixel is the true camera's."""
     err = attitude_error_rad(A_est, camera_est or camera_true, A_true, camera_true)
     return judge_error(err, math.degrees(camera_true.plate_scale_rad) * 3600.0)
+
+
+def upper_bound_95(k: int, n: int) -> float:
+    """One-sided 95 % Clopper–Pearson upper bound of a rate seen ``k`` times in ``n`` (with
+    ``k = 0``: 1 − 0.05^(1/n) ≈ 3/n, the rule of three)."""
+    from scipy.stats import beta
+
+    if n <= 0:
+        return 1.0
+    return 1.0 if k >= n else float(beta.ppf(0.95, k + 1, n - k))

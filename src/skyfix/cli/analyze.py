@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import typer
@@ -449,8 +450,10 @@ def identification(
     safety_first: int = typer.Option(0, "--safety-first", min=0, help="Number of the first safety frame (a "
                                      "campaign split in parts: frames N … N + --safety-trials − 1)."),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed (attitudes, noise)."),
-    workers: int = typer.Option(1, "--workers", min=1, help="Processes for the grid's blocks, the safety "
-                                "frames and the seed experiments."),
+    workers: int = typer.Option(0, "--workers", min=0, help="Local Dask worker processes for the grid, the "
+                                "safety frames and the seed experiments (0: in this process)."),
+    scheduler: str = typer.Option(None, "--scheduler", metavar="ADDRESS", help="A running Dask scheduler "
+                                  "(tcp://HOST:8786) to run them on instead."),
     case: str = typer.Option("", "--case", help="Run only these (comma-separated): safety, quest-catalogue, "
                              "three-star-frames, sparse-fields, perturbation, table-3-7."),
     verbose: int = VERBOSE,
@@ -459,11 +462,12 @@ def identification(
     noise, false stars, dropped stars, magnitude noise): solved %, wrong % with its 95 % upper
     bound, median and p99 time, table size and build time; the safety case (≥ 10⁴ random noisy
     frames per method through the solve, every wrong attitude kept to replay); and the seeds'
-    experiments. Without --case and --quick: all of them."""
+    experiments — each a study on the campaign engine, its rows written as Parquet. Without
+    --case and --quick: all of them."""
     from skyfix.analysis import identification_safety as sf
     from skyfix.analysis import identification_study as st
-    from skyfix.analysis.identification_cases import CASES
-    from skyfix.analysis.identification_jobs import method_names, pool_steps
+    from skyfix.analysis.identification_cases import CASES, run_cases
+    from skyfix.analysis.identification_jobs import method_names
 
     add_verbosity(verbose)
     names = tuple(m.strip().lower() for m in methods.split(",") if m.strip())
@@ -474,7 +478,8 @@ def identification(
     if bad:
         fail(f"--case: {unknown_name('case', ', '.join(bad), ('safety', *CASES))}")
     base = st.QUICK if quick else st.FULL
-    workers = check_count(workers, "--workers", minimum=1)
+    workers = check_count(workers, "--workers", minimum=0)
+    check_cluster(workers or None, scheduler)
     settings = base._replace(methods=tuple(method_list), seed=int(seed), workers=workers,
                              trials=check_count(trials, "--trials") if trials is not None else base.trials)
     safety_base = sf.SAFETY_QUICK if quick else sf.SAFETY_FULL if cases else sf.SAFETY_STUDY
@@ -488,47 +493,59 @@ def identification(
                + (f" --trials {trials}" if trials else "")
                + (f" --safety-trials {safety_trials}" if safety_trials is not None else "")
                + (f" --safety-first {safety_first}" if safety_first else "")
-               + (f" --seed {seed}" if seed else "") + (f" --workers {workers}" if workers != 1 else "")
+               + (f" --seed {seed}" if seed else "") + (f" --workers {workers}" if workers else "")
+               + (f" --scheduler {scheduler}" if scheduler else "")
                + (f" --case {','.join(cases)}" if cases else ""))
     prepare_outputs({"--out": [out / "identification_study.json"]})
     seed_cases = [c for c in cases if c != "safety"]
     if "safety" in cases and n_safety:
-        n_jobs = pool_steps(len(sf.safety_jobs(safety, [])), workers)
-        with _progress(n_jobs, False) as bar, compile_notice(bar):
-            task = bar.add_task("safety", total=n_jobs)
-            out.mkdir(parents=True, exist_ok=True)
-            result = sf.run_safety(safety, checkpoint=out / "identification_safety.partial.jsonl",
-                                   progress=lambda what: bar.update(task, advance=1, description=what))
+        with _progress(0, False) as bar, compile_notice(bar):
+            stage = _stages(bar)
+            result = sf.run_safety(safety, lambda done, total: stage("safety frames", done, total),
+                                   out=out / "identification_safety.parquet", scheduler=scheduler)
         paths = sf.write_safety(result, out, command=command)
         typer.echo(paths[1].read_text())
-        for p in paths:
+        for p in [*paths, out / "identification_safety.parquet"]:
             typer.echo(f"wrote {p}")
     if seed_cases:
-        results = {}
-        with _progress(len(seed_cases), False) as bar, compile_notice(bar):
-            task = bar.add_task("seed experiments", total=len(seed_cases))
-            for c in seed_cases:
-                bar.update(task, description=c)
-                results[c] = CASES[c]()
-                bar.update(task, advance=1)
-        out.mkdir(parents=True, exist_ok=True)
+        with _progress(0, False) as bar, compile_notice(bar):
+            stage = _stages(bar)
+            results = run_cases(seed_cases, workers, scheduler, out=out / "identification_cases.parquet",
+                                progress=lambda done, total: stage("seed experiments", done, total))
         path = out / "identification_cases.json"
         path.write_text(json.dumps(results, indent=1))
         typer.echo(json.dumps(results, indent=1))
         typer.echo(f"wrote {path}")
+        typer.echo(f"wrote {out / 'identification_cases.parquet'}")
     if cases:
         return
     all_cases = () if quick else tuple(CASES)
     study_safety = safety if n_safety else None
-    n_jobs = st.study_steps(settings, study_safety, all_cases)
-    with _progress(n_jobs, False) as bar, compile_notice(bar):
-        task = bar.add_task("identification study", total=n_jobs)
-        study = st.run_study(settings, progress=lambda what: bar.update(task, advance=1, description=what),
-                             safety=study_safety, cases=all_cases)
+    with _progress(0, False) as bar, compile_notice(bar):
+        study = st.run_study(settings, progress=_stages(bar), safety=study_safety, cases=all_cases, out=out,
+                             scheduler=scheduler)
     paths = st.write_study(study, out, command=command)
     typer.echo(paths[1].read_text())
-    for p in paths:
+    parquet = [out / f"identification_{n}.parquet" for n, run in
+               (("study", True), ("safety", study_safety is not None), ("cases", bool(all_cases))) if run]
+    for p in [*paths, *parquet]:
         typer.echo(f"wrote {p}")
+
+
+def _stages(bar) -> Callable[[str, int, int], None]:
+    """``progress(stage, done, total)`` for a study on the campaign engine: a task of ``bar`` per
+    stage, advanced to ``done`` of its ``total`` batches."""
+    tasks: dict[str, list[int]] = {}
+
+    def update(stage: str, done: int, total: int) -> None:
+        if stage not in tasks:
+            tasks[stage] = [bar.add_task(stage, total=total), 0]
+        task, last = tasks[stage]
+        if done > last:
+            bar.update(task, advance=done - last)
+            tasks[stage][1] = done
+
+    return update
 
 
 @analyze_app.command()

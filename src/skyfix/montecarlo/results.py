@@ -111,7 +111,7 @@ def batch_table(campaign: Campaign, rows: Iterable[Mapping[str, Any]]) -> pa.Tab
 
 # --- summary -----------------------------------------------------------------------------------
 def _upper_bound_95(k: int, n: int) -> float:
-    from skyfix.analysis.identification_jobs import upper_bound_95
+    from skyfix.analysis.truth import upper_bound_95
 
     return upper_bound_95(k, n)
 
