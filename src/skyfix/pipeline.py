@@ -616,10 +616,9 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     A_apparent = A_reported = A
     if seen is not None:
         places = seen.places(fit.catalog_ids)
+        A_apparent = Deferred(apparent_attitude, (A, places, fit.catalog_vectors))  # a WCS or plot reads it
         if observation.apparent:  # the attitude reported: found now
-            A_apparent = A_reported = apparent_attitude(A, places, fit.catalog_vectors)
-        else:  # read by a WCS or a plot only: found when first read
-            A_apparent = Deferred(apparent_attitude, (A, places, fit.catalog_vectors))
+            A_apparent = A_reported = apparent_attitude(*A_apparent.args)
     pointing, table, rmse = solution_numbers(A_reported, xy, idx, places, fit.catalog_mag, fit.residuals_rad)
     pointing = pointing.tolist()
     sol.status = "solved"

@@ -22,6 +22,7 @@ pytest.importorskip("pyarrow")
 
 from skyfix.analysis import blind_campaign as bc  # noqa: E402
 from skyfix.analysis import field_campaign as fc  # noqa: E402
+from skyfix.montecarlo.engine import run_rows  # noqa: E402
 
 EPOCH = 2025.0
 
@@ -132,7 +133,7 @@ def test_field_rows_in_process_and_on_dask_threads_are_the_serial_loop(tmp_path)
     cases, n = [fc.CASES[2], fc.CASES[5]], 12
     study = fc.field_study(cases, n, seed=7, epoch=EPOCH, batch_size=5)  # batches across both cases
     _forget_sequences()
-    here = bc.run_rows(study, tmp_path / "here.parquet", workers=0)
+    here = run_rows(study, tmp_path / "here.parquet", workers=0).to_pylist()
     _forget_sequences()
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
                       dashboard_address=None) as cluster, Client(cluster, set_as_default=False) as client:

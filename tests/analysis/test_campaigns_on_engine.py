@@ -12,7 +12,7 @@ import pytest
 
 from skyfix.analysis import allsky_campaign as ac
 from skyfix.analysis import preset_campaign as pc
-from skyfix.analysis.study_run import run_rows
+from skyfix.montecarlo.engine import run_rows
 from skyfix.montecarlo.study import table_of
 
 

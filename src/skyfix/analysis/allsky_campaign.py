@@ -24,7 +24,7 @@ from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from skyfix.analysis.study_run import run_rows
+from skyfix.montecarlo.engine import run_rows, trial_progress
 from skyfix.montecarlo.study import BatchedStudy
 
 __all__ = ["LENSES", "SIZES", "AllSkyResult", "AllSkyStudy", "allsky_campaign", "allsky_frame", "result_of",
@@ -144,11 +144,12 @@ def allsky_campaign(seeds: Iterable[int], *, workers: int = 0, scheduler: str | 
     """Render and solve the campaign's frames ``seeds`` (no hint, no camera; ``solve_options`` are
     :func:`skyfix.solve`'s, plain JSON values) on the campaign engine: ``workers=0`` in this
     process, else that many local worker processes, or the Dask ``scheduler``'s workers
-    (:func:`skyfix.analysis.study_run.run_rows`); ``output``: the trial rows' Parquet file
+    (:func:`skyfix.montecarlo.engine.run_rows`); ``output``: the trial rows' Parquet file
     (default: a temporary one); ``progress(frames done, frames)``."""
     study = AllSkyStudy(len(seeds := [int(s) for s in seeds]), batch_size,
                         {"seeds": seeds, "solve_options": dict(solve_options)})
-    table = run_rows(study, output, workers=workers, scheduler=scheduler, progress=progress)
+    table = run_rows(study, output, workers=workers, scheduler=scheduler,
+                     progress=trial_progress(study, progress))
     return [result_of(row) for row in table.to_pylist()]
 
 

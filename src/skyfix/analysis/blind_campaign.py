@@ -33,7 +33,6 @@ the results (``tests/analysis/test_blind_campaign.py``).
 from __future__ import annotations
 
 import math
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Hashable, Iterator, Mapping
@@ -46,10 +45,11 @@ import numpy as np
 from skyfix.analysis.truth import attitude_error_rad, judge_error
 from skyfix.camera import Camera, camera_from_preset
 from skyfix.catalog import load_hipparcos
+from skyfix.montecarlo.engine import run_rows
 from skyfix.montecarlo.study import BatchedStudy
 
 __all__ = ["TRIAL_COLUMNS", "PresetImageStudy", "Trial", "UncalibratedField", "UncalibratedStudy",
-           "preset_image_trials", "random_uncalibrated_camera", "run_rows", "sequence_batch", "summarize",
+           "preset_image_trials", "random_uncalibrated_camera", "sequence_batch", "summarize",
            "trial_of_row", "trial_result", "trial_row", "uncalibrated_centroid_trials", "uncalibrated_fields"]
 
 _ARCSEC = math.pi / (180.0 * 3600.0)
@@ -172,24 +172,6 @@ def sequence_batch(key: Hashable, trials: range, start: Callable[[], np.random.G
     return rows
 
 
-def run_rows(study: BatchedStudy, output: str | Path | None = None, *, workers: int = 0,
-             scheduler: str | None = None, client=None, progress: Callable[[int, int], None] | None = None
-             ) -> list[dict[str, Any]]:
-    """The rows of ``study`` (trial order) run by :func:`skyfix.montecarlo.engine.run_campaign`
-    into ``output`` (Parquet; None: a temporary file), on ``workers`` processes (0: this one),
-    the Dask scheduler at ``scheduler`` or an open Dask ``client`` (several studies on one
-    cluster); ``progress(done, total)`` counts finished batches. A finished ``output`` of the
-    same study is read back, not run again."""
-    from skyfix.montecarlo.engine import run_campaign
-
-    if output is not None:
-        return run_campaign(study, output, workers=workers, scheduler=scheduler, client=client,
-                            progress=progress).table.to_pylist()
-    with tempfile.TemporaryDirectory(prefix="skyfix-study-") as tmp:
-        return run_rows(study, Path(tmp) / "rows.parquet", workers=workers, scheduler=scheduler,
-                        client=client, progress=progress)
-
-
 def _trial_counter(study: BatchedStudy, advance: Callable[[int], None] | None
                    ) -> Callable[[int, int], None] | None:
     """The engine's ``progress(done batches, total)`` as ``advance(trials)`` calls."""
@@ -289,11 +271,12 @@ def uncalibrated_centroid_trials(n: int, seed: int = 0, *, epoch: float = 2025.0
                                  scheduler: str | None = None, client=None, output: str | Path | None = None,
                                  batch_size: int = 50) -> list[Trial]:
     """``n`` blind solves of the fields of :func:`uncalibrated_fields` (:class:`UncalibratedStudy`
-    on the engine, :func:`run_rows`: ``workers``, ``scheduler``, ``client``, ``output``);
+    on the engine, :func:`skyfix.montecarlo.engine.run_rows`: ``workers``, ``scheduler``,
+    ``client``, ``output``);
     ``progress(k)`` is told of every ``k`` trials finished."""
     study = UncalibratedStudy(n, batch_size, {"seed": int(seed), "epoch": float(epoch)})
     rows = run_rows(study, output, workers=workers, scheduler=scheduler, client=client,
-                    progress=_trial_counter(study, progress))
+                    progress=_trial_counter(study, progress)).to_pylist()
     return [trial_of_row(r) for r in rows]
 
 
@@ -349,12 +332,13 @@ def preset_image_trials(preset: str, n: int, seed: int = 0, *, false_stars: int 
                         workers: int = 0, scheduler: str | None = None, client=None,
                         output: str | Path | None = None, batch_size: int = 10) -> list[Trial]:
     """``n`` blind solves of images rendered with ``preset`` (its realistic exposure and noise)
-    at uniformly random attitudes (:class:`PresetImageStudy` on the engine, :func:`run_rows`)."""
+    at uniformly random attitudes (:class:`PresetImageStudy` on the engine,
+    :func:`skyfix.montecarlo.engine.run_rows`)."""
     settings = {"preset": preset, "seed": int(seed), "false_stars": int(false_stars),
                 "hot_pixels": int(hot_pixels), "epoch": float(epoch)}
     study = PresetImageStudy(n, batch_size, settings)
     rows = run_rows(study, output, workers=workers, scheduler=scheduler, client=client,
-                    progress=_trial_counter(study, progress))
+                    progress=_trial_counter(study, progress)).to_pylist()
     return [trial_of_row(r) for r in rows]
 
 

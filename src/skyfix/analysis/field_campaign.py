@@ -34,7 +34,6 @@ import numpy as np
 from skyfix.analysis.blind_campaign import (
     TRIAL_COLUMNS,
     Trial,
-    run_rows,
     sequence_batch,
     summarize,
     trial_of_row,
@@ -42,6 +41,7 @@ from skyfix.analysis.blind_campaign import (
 )
 from skyfix.camera import Camera
 from skyfix.catalog import load_gaia
+from skyfix.montecarlo.engine import run_rows
 from skyfix.montecarlo.study import BatchedStudy
 
 __all__ = ["CASES", "FieldCase", "FieldStudy", "FieldTrial", "campaign_trials", "case_camera", "field_study",
@@ -206,7 +206,7 @@ def campaign_trials(cases: Sequence[FieldCase], n: int, seed: int = 0, *, epoch:
     processes, 0 this one, or the Dask ``scheduler``; the rows into ``output``, Parquet, or a
     temporary file; ``progress(done, total)`` counts finished batches), by case."""
     rows = run_rows(field_study(cases, n, seed, epoch=epoch), output, workers=workers, scheduler=scheduler,
-                    progress=progress)
+                    progress=progress).to_pylist()
     trials = [FieldTrial(trial_of_row(r), r["time_ms"], r["cpu_ms"]) for r in rows]
     return [(case, trials[k * n:(k + 1) * n]) for k, case in enumerate(cases)]
 

@@ -37,9 +37,7 @@ from skyfix.analysis.identification_jobs import (
     EPOCH,
     HEIGHT,
     WIDTH,
-    engine_client,
     judge_identification,
-    run_on_engine,
     upper_bound_95,
 )
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
@@ -49,6 +47,7 @@ from skyfix.catalog import load_hipparcos
 from skyfix.geometry import attitude_from_radec_roll, normalize, rotation_angle_between, vector_to_radec
 from skyfix.identify import Identification, PatternDatabase, default_database, identify
 from skyfix.identify.common.hypothesis import chance_log_probability, frame_for, hypothesis
+from skyfix.montecarlo.engine import cluster, run_rows
 from skyfix.montecarlo.study import BatchedStudy
 
 if TYPE_CHECKING:
@@ -397,5 +396,5 @@ def run_cases(names: list[str] | tuple[str, ...], workers: int = 0, scheduler: s
     """The cases ``names`` on the campaign engine (``workers`` local processes or ``scheduler``;
     0 and none: in this process), their rows written to ``out`` (Parquet; None: a temporary
     file): name → result."""
-    with engine_client(workers, scheduler) as client:
-        return case_results(run_on_engine(case_study(names), out, client, progress))
+    with cluster(workers, scheduler) as client:
+        return case_results(run_rows(case_study(names), out, client=client, fresh=True, progress=progress))

@@ -5,17 +5,13 @@ conditions, the methods run, a solve judged against its truth
 (:func:`skyfix.analysis.truth.judge`, the one definition of a wrong attitude), the 95 % bound on a
 rate, the methods warmed once per process, and how they run on the campaign engine
 (:func:`skyfix.montecarlo.engine.run_campaign`): :class:`MethodTrials`, a study whose trial is one
-method on one frame, and :func:`run_on_engine`.
+method on one frame, run by :func:`skyfix.montecarlo.engine.run_rows`.
 """
 
 from __future__ import annotations
 
-import tempfile
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple, get_type_hints
 
 import numpy as np
@@ -31,8 +27,8 @@ if TYPE_CHECKING:
     import pyarrow as pa
 
 __all__ = ["CONDITIONS", "Condition", "EPOCH", "HEIGHT", "MAG_LIMIT", "WIDTH", "MethodTrials",
-           "condition_key", "engine_client", "judge_identification", "method_names", "record_columns",
-           "run_on_engine", "study_field", "table_nbytes", "upper_bound_95", "warm_methods", "warm_once"]
+           "condition_key", "judge_identification", "method_names", "record_columns",
+           "study_field", "table_nbytes", "upper_bound_95", "warm_methods", "warm_once"]
 
 EPOCH = 2025.0
 WIDTH, HEIGHT = 1280, 960
@@ -226,41 +222,3 @@ class MethodTrials(BatchedStudy):
         """The rows of ``table`` (this study's Parquet) as records, in trial order."""
         return [cls.record(**{f: row[cls.number if f == "trial" else f] for f in cls.record._fields})
                 for row in table.to_pylist()]
-
-
-@contextmanager
-def engine_client(workers: int, scheduler: str | None = None) -> Iterator[Any]:
-    """One Dask client for the studies of a run (:func:`skyfix.montecarlo.engine.connect`:
-    ``workers`` local worker processes, or the scheduler at ``scheduler``), closed at the end; None
-    with ``workers=0`` and no scheduler (the studies then run in this process)."""
-    if not workers and not scheduler:
-        yield None
-        return
-    from skyfix.montecarlo.engine import connect
-
-    client, cluster = connect(workers, scheduler)
-    try:
-        yield client
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
-
-
-def run_on_engine(study: BatchedStudy, output: str | Path | None, client: Any = None,
-                  progress: Callable[[int, int], None] | None = None, fresh: bool = True) -> pa.Table:
-    """The rows of ``study`` from the campaign engine: on ``client`` (:func:`engine_client`), or in
-    this process with none. ``output``: the Parquet to write — a stopped run's batches
-    (``OUTPUT.parts``) are kept and the run continues; a finished one there is run again when
-    ``fresh``, else kept (its settings the same); None: a temporary file. ``progress(done,
-    total)``: batches finished."""
-    from skyfix.montecarlo.engine import run_campaign
-
-    if output is None:
-        with tempfile.TemporaryDirectory(prefix="skyfix-identification-") as tmp:
-            return run_on_engine(study, Path(tmp) / f"{study.kind}.parquet", client, progress)
-    output = Path(output)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    if fresh:
-        output.unlink(missing_ok=True)
-    return run_campaign(study, output, workers=0, client=client, progress=progress).table

@@ -36,10 +36,8 @@ from skyfix.analysis.identification_jobs import (
     MAG_LIMIT,
     WIDTH,
     MethodTrials,
-    engine_client,
     method_names,
     record_columns,
-    run_on_engine,
     upper_bound_95,
 )
 from skyfix.analysis.synthetic_centroids import random_attitudes, synthetic_centroids
@@ -47,6 +45,7 @@ from skyfix.analysis.truth import judge
 from skyfix.camera import Camera
 from skyfix.catalog import load_hipparcos
 from skyfix.identify import default_database
+from skyfix.montecarlo.engine import cluster, run_rows
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -299,8 +298,8 @@ def run_safety(settings: SafetySettings = SAFETY_FULL,
     Returns ``{"settings", "records"}`` (records as :class:`SafetyTrial`, in frame then method
     order)."""
     methods = method_names(settings.methods)
-    with engine_client(settings.workers, scheduler) as client:
-        table = run_on_engine(safety_study(settings, methods), out, client, progress)
+    with cluster(settings.workers, scheduler) as client:
+        table = run_rows(safety_study(settings, methods), out, client=client, fresh=True, progress=progress)
     return safety_result(settings, methods, safety_records(table))
 
 

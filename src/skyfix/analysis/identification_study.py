@@ -56,11 +56,9 @@ from skyfix.analysis.identification_jobs import (
     WIDTH,
     Condition,
     MethodTrials,
-    engine_client,
     judge_identification,
     method_names,
     record_columns,
-    run_on_engine,
     study_field,
     upper_bound_95,
     warm_methods,
@@ -77,6 +75,7 @@ from skyfix.analysis.identification_safety import (
 )
 from skyfix.catalog import load_hipparcos
 from skyfix.identify import Identification, default_database, default_database_path, identify
+from skyfix.montecarlo.engine import cluster, run_rows
 
 __all__ = ["FIELDS_PER_BATCH", "FULL", "QUICK", "GridStudy", "StudySettings", "TrialRecord",
            "cell_summary", "field_trials", "grid_study", "markdown", "plots", "run_block", "run_study",
@@ -212,25 +211,25 @@ def run_study(settings: StudySettings = FULL, progress: Callable[[str, int, int]
     def output(name: str) -> Path | None:
         return None if folder is None else folder / name
 
-    with engine_client(settings.workers, scheduler) as client:
+    with cluster(settings.workers, scheduler) as client:
         tables = warm_methods(methods, settings.fovs_deg)  # here: the tables' sizes and build times
         path = default_database_path()
         tables["pattern_database"] = {"bytes": int(path.stat().st_size) if path.exists() else 0}
         grid = grid_study(settings, methods)
-        records = GridStudy.records(run_on_engine(grid, output("identification_study.parquet"), client,
-                                                  stage("identification grid"), fresh))
+        records = GridStudy.records(run_rows(grid, output("identification_study.parquet"), client=client,
+                                             progress=stage("identification grid"), fresh=fresh))
         meta = dict(settings._asdict(), conditions=[c._asdict() for c in settings.conditions],
                     methods=methods, camera=f"{WIDTH}×{HEIGHT}", mag_limit=MAG_LIMIT, epoch=EPOCH,
                     cpu_count=os.cpu_count())
         study = {"settings": meta, "records": records, "tables": tables}
         if safety is not None:
             run = safety._replace(methods=tuple(methods), workers=settings.workers)
-            table = run_on_engine(safety_study(run, methods), output("identification_safety.parquet"), client,
-                                  stage("safety frames"), fresh)
+            table = run_rows(safety_study(run, methods), output("identification_safety.parquet"),
+                             client=client, progress=stage("safety frames"), fresh=fresh)
             study["safety"] = safety_result(run, methods, safety_records(table))
         if cases:
-            table = run_on_engine(case_study(cases), output("identification_cases.parquet"), client,
-                                  stage("seed experiments"), fresh)
+            table = run_rows(case_study(cases), output("identification_cases.parquet"), client=client,
+                             progress=stage("seed experiments"), fresh=fresh)
             study["cases"] = case_results(table)
     return study
 

@@ -42,11 +42,11 @@ import numpy as np
 
 from skyfix.analysis._json import strict_json
 from skyfix.analysis.preset_check import THESIS_FIGURES, detection_snr
-from skyfix.analysis.study_run import run_rows
 from skyfix.analysis.truth import judge
 from skyfix.camera import Camera
 from skyfix.identify import PatternDatabase
 from skyfix.identify.catalogue.bands import served_fov_deg
+from skyfix.montecarlo.engine import run_rows, trial_progress
 from skyfix.montecarlo.study import BatchedStudy
 
 if TYPE_CHECKING:
@@ -301,10 +301,11 @@ def run_campaign(n: int = 100, seed: int = 0, *, rows: tuple[CampaignRow, ...] =
     with skyfix's databases or, given one (a file), with ``database`` and, for fields it does not
     serve, one built for the field — on the campaign engine: ``workers=0`` in this process, else
     that many local worker processes, or the Dask ``scheduler``'s workers
-    (:func:`skyfix.analysis.study_run.run_rows`). ``output``: the trial rows' Parquet file
+    (:func:`skyfix.montecarlo.engine.run_rows`). ``output``: the trial rows' Parquet file
     (resumable; default: a temporary one). ``progress(frames done, frames)``."""
     study = campaign_study(n, seed, rows=rows, epoch=epoch, database=database, batch_size=batch_size)
-    table = run_rows(study, output, workers=workers, scheduler=scheduler, progress=progress)
+    table = run_rows(study, output, workers=workers, scheduler=scheduler,
+                     progress=trial_progress(study, progress))
     return campaign_of(study, table)
 
 

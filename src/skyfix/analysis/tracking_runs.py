@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -186,7 +185,7 @@ def run_study(settings: StudySettings = FULL, progress: Callable[[int, int], Non
     stopped part-way continues from its finished sequences (``output``'s parts folder).
     ``progress(done, total)`` is called after each Table 5-1 cell and each finished sequence
     (:func:`study_steps`)."""
-    from skyfix.montecarlo.engine import connect, run_campaign
+    from skyfix.montecarlo.engine import connect, run_rows
 
     owned = None
     if scheduler is not None and client is None:  # out of reach: say so before the timing's minute
@@ -199,12 +198,9 @@ def run_study(settings: StudySettings = FULL, progress: Callable[[int, int], Non
         n_cells = len(settings.rois) * len(settings.star_counts)
         study = TrackingSequences.of(sequence_specs(settings))
         engine_progress = None if progress is None else (lambda done, _n: progress(n_cells + done, total))
-        with tempfile.TemporaryDirectory(prefix="skyfix-tracking-") as tmp:
-            path = Path(tmp) / "tracking_study.parquet" if output is None else Path(output)
-            path.unlink(missing_ok=True)  # a finished run's rows: run again (the parts resume)
-            result = run_campaign(study, path, workers=int(settings.workers), client=client,
-                                  progress=engine_progress)
-            rows = result.table.to_pylist()
+        # a finished run's rows are run again (fresh); a stopped one's batches are kept
+        rows = run_rows(study, output, workers=int(settings.workers), client=client, fresh=True,
+                        progress=engine_progress).to_pylist()
     finally:
         if owned is not None:
             owned.close()

@@ -28,12 +28,14 @@ What runs is a :class:`skyfix.montecarlo.study.Study`: a campaign file
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
 import shutil
+import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -46,7 +48,8 @@ from skyfix.montecarlo.study import Study, table_of
 if TYPE_CHECKING:
     import pyarrow as pa
 
-__all__ = ["CONNECT_TIMEOUT_S", "RunResult", "as_study", "connect", "parts_folder", "run_campaign"]
+__all__ = ["CONNECT_TIMEOUT_S", "RunResult", "as_study", "cluster", "connect", "parts_folder", "run_campaign",
+           "run_rows", "trial_progress"]
 
 #: How long to try reaching a scheduler before the run is refused.
 CONNECT_TIMEOUT_S = 10.0
@@ -297,3 +300,55 @@ def _run_batches(client, campaign: Study, todo: list[int], parts: Path, max_batc
     finally:
         client.cancel(list(futures))
     return ran
+
+
+@contextlib.contextmanager
+def cluster(workers: int, scheduler: str | None = None) -> Iterator[Any]:
+    """A Dask client for the studies of one run (:func:`connect`: ``workers`` local worker
+    processes, or the scheduler at ``scheduler``), closed at the end; None with ``workers=0``
+    and no scheduler (the studies then run in this process)."""
+    if not workers and not scheduler:
+        yield None
+        return
+    client, local = connect(workers, scheduler)
+    try:
+        yield client
+    finally:
+        client.close()
+        if local is not None:
+            local.close()
+
+
+def run_rows(study: Study, output: str | Path | None = None, *, workers: int = 0,
+             scheduler: str | None = None, client=None, fresh: bool = False,
+             progress: Callable[[int, int], None] | None = None) -> pa.Table:
+    """Every trial's row of ``study`` (a table in trial order), run by :func:`run_campaign` into
+    ``output`` (Parquet; its folder made; None: a temporary file, removed) on ``workers`` local
+    processes (0: this one), the scheduler at ``scheduler`` or an open ``client`` (several studies
+    on one :func:`cluster`). A stopped run's finished batches beside ``output`` are kept and the run
+    continues; a finished ``output`` of the same study is read back, or run again when ``fresh``.
+    ``progress(done, total)``: batches finished (:func:`trial_progress` counts trials)."""
+    if output is None:
+        with tempfile.TemporaryDirectory(prefix="skyfix-study-") as tmp:
+            return run_rows(study, Path(tmp) / "rows.parquet", workers=workers, scheduler=scheduler,
+                            client=client, progress=progress)
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    if fresh:
+        output.unlink(missing_ok=True)
+    result = run_campaign(study, output, workers=workers, scheduler=scheduler, client=client,
+                          progress=progress)
+    assert result.table is not None  # every batch ran (no max_batches)
+    return result.table
+
+
+def trial_progress(study: Study, progress: Callable[[int, int], None] | None
+                   ) -> Callable[[int, int], None] | None:
+    """The engine's ``progress(batches done, batches)`` as ``progress(trials done, trials)``."""
+    if progress is None:
+        return None
+
+    def batches_done(done: int, total: int) -> None:
+        progress(min(done * study.batch_size, study.trials), study.trials)
+
+    return batches_done
