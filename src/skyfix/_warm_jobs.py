@@ -285,10 +285,13 @@ def track() -> None:
 
 
 def simulate() -> None:
-    """The simulator: a frame at rest and one turning (smear, rolling shutter), of the scene's stars."""
+    """The simulator: a frame at rest and one turning (smear, rolling shutter), of the scene's
+    stars; and one aberrated by an observer's velocity (what ``skyfix simulate`` renders)."""
     from skyfix.simulate import render
 
     s = scene()
     for rate in (None, (0.002, -0.001, 0.003)):
         render(s.A_icrs_to_cam, "generic", exposure_s=0.1, epoch=2026.0, seed=1, catalog=s.catalog,
                rate_rad_s=rate)
+    render(s.A_icrs_to_cam, "generic", exposure_s=0.1, epoch="2026-06-01T00:00:00", seed=1, catalog=s.catalog,
+           observer_velocity_km_s=(20.0, -15.0, 5.0))
