@@ -60,7 +60,8 @@ def test_preset_rows_are_the_trial_function_in_process_and_on_dask(tmp_path):
     assert row == pc.CampaignRow("generic") and dbs == {"bands": None}
     got = [v for f in frames for v in (f.n_detectable, f.solves["bands/blind"].boresight_arcsec,
                                        f.solves["bands/camera"].boresight_arcsec)]
-    assert got == pytest.approx(PRESET_BEFORE, rel=1e-12, abs=0)
+    # the default database's stars are moved to the day it was built: pinned to 1 mas, not the bit
+    assert got == pytest.approx(PRESET_BEFORE, rel=1e-6, abs=1e-3)
 
 
 @pytest.mark.slow  # two 2 MP fisheye frames rendered and solved: 17 s at load 6

@@ -72,7 +72,8 @@ def test_rows_hold_the_numbers_of_the_study_before_the_engine(here):
     pinned.append((pend, "pred_small_angle_meas_px", PINNED["pend_pred_small_angle_meas_px"]))
     for row, column, want in pinned:
         got = np.asarray(row[column], np.float64)
-        np.testing.assert_allclose(got, np.asarray(want, np.float64), rtol=1e-9, equal_nan=True,
+        # to 1 mas (or 1e-6): the default database's stars are moved to the day it is built
+        np.testing.assert_allclose(got, np.asarray(want, np.float64), rtol=1e-6, atol=1e-3, equal_nan=True,
                                    err_msg=column)
 
 
