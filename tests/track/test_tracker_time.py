@@ -9,8 +9,15 @@ from astropy.utils import iers
 
 from skyfix.attitude import attitude_error
 from skyfix.camera import Camera
+from skyfix.catalog import load_hipparcos
 from skyfix.corrections import earth_state
-from skyfix.geometry import attitude_from_quaternion, attitude_from_radec_roll
+from skyfix.geometry import (
+    angle_between,
+    attitude_from_quaternion,
+    attitude_from_radec_roll,
+    radec_to_vector,
+    vector_to_radec,
+)
 from skyfix.obstime import julian_year, parse_time
 from skyfix.track import Tracker
 from skyfix.track.sky import SPACE_REFRESH_S
@@ -66,6 +73,14 @@ def test_tracking_with_the_velocity_follows_the_true_attitude(frames):
     assert last.bodies is not None and last.observer_velocity_km_s == V_ORBIT.tolist()
     # the matches report their catalogue places, the residuals are against the seen stars
     assert last.rmse_arcsec < 5.0
+    assert last.method == "track"
+    places = load_hipparcos(epoch=julian_year(T0))
+    row = {int(i): k for k, i in enumerate(places.ids)}
+    ids = [m.id for m in last.matches]
+    ra, dec = vector_to_radec(places.vectors[[row[i] for i in ids]])
+    said = radec_to_vector(*np.radians([[m.ra_deg for m in last.matches], [m.dec_deg for m in last.matches]]))
+    off = angle_between(said, radec_to_vector(ra, dec)) / ARCSEC
+    assert len(ids) >= 6 and off.max() < 0.01  # the catalogue place, not the one seen (8.7″ away here)
 
 
 def test_the_first_frame_file_gives_the_time(frames, tmp_path):

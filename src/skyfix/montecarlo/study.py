@@ -18,7 +18,7 @@ import hashlib
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -26,7 +26,6 @@ if TYPE_CHECKING:
 __all__ = ["BatchedStudy", "Study", "fingerprint_of", "schema_for", "table_of"]
 
 
-@runtime_checkable
 class Study(Protocol):
     """The engine's view of a campaign: its trials in batches, the rows of one batch, their
     schema, and what decides them (``to_dict``, hashed into ``fingerprint``)."""
