@@ -30,6 +30,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,14 +38,17 @@ import skyfix
 from skyfix.calibration.camera_file import camera_file
 from skyfix.calibration.joint import SKEW, JointFit, MatchedImage, fit_joint, numbers_of_parameters
 from skyfix.camera import Camera
-from skyfix.errors import CalibrationError, unknown_name
+from skyfix.errors import CalibrationError, InputError, unknown_name
 from skyfix.geometry import radec_to_vector, rotation_angle_between
+
+if TYPE_CHECKING:
+    from skyfix.corrections.observation import Observation
 
 __all__ = ["CALIBRATION_MODELS", "MIN_IMAGES", "MIN_STARS", "PRINCIPAL_POINT_SIGMA_PX", "REMATCH_FLOOR_PX",
            "REMATCH_SIGMA", "SAME_FIELD_DEG", "SIGNIFICANCE", "CalibrationModel", "StarCalibration",
            "StarFrame", "calibrate_frames", "calibrate_stars", "calibration_model", "check_not_one_field",
-           "choose_model", "CALIBRATION_CENTROIDER", "frame_catalogues", "parameter_table", "prepare_frames",
-           "rematch_frame", "solution_matches"]
+           "choose_model", "CALIBRATION_CENTROIDER", "frame_catalogues", "ground_observation",
+           "parameter_table", "prepare_frames", "rematch_frame", "seen_directions", "solution_matches"]
 
 MIN_IMAGES = 3
 """Fewest images a star calibration takes (one image pins a pinhole down in principle, but its
@@ -101,7 +105,10 @@ _DEFAULTS = {"k1": {"k1": 0.0}, "k2": {"k2": 0.0}, "k3": {"k3": 0.0}, "k4": {"k4
 @dataclass(frozen=True)
 class StarFrame:
     """An image ready to calibrate: its name, size, centroids (N, 2) brightest first, their flux
-    (N,), and its blind solution (:class:`skyfix.solution.Solution`)."""
+    (N,), its blind solution (:class:`skyfix.solution.Solution`), and the circumstances it was
+    taken in (:class:`skyfix.corrections.observation.Observation`, None: unknown) — with a time
+    and a site, the catalogue is fitted as the camera saw it (aberrated, refracted:
+    :func:`seen_directions`)."""
 
     name: str
     width: int
@@ -109,6 +116,7 @@ class StarFrame:
     xy: np.ndarray
     flux: np.ndarray
     solution: object
+    observation: Observation | None = None
 
 
 @dataclass(frozen=True)
@@ -124,6 +132,8 @@ class StarCalibration:
     refused : dict — parameter → why it was held (not constrained, not significant).
     rounds : int — fit / re-identification rounds.
     solve_rms_arcsec : (M,) — each image's RMS from its own blind solve.
+    observation : Observation or None — the images' time and site the catalogue was corrected
+        for (:func:`ground_observation`; None: the catalogue's places were fitted).
     """
 
     fit: JointFit
@@ -133,6 +143,7 @@ class StarCalibration:
     refused: dict
     rounds: int
     solve_rms_arcsec: np.ndarray = field(repr=False)
+    observation: Observation | None = field(default=None, repr=False)
 
     @property
     def camera(self) -> Camera:
@@ -148,6 +159,14 @@ class StarCalibration:
             "rms_arcsec": float(np.sqrt(np.nanmean(fit.rms_arcsec() ** 2)))}
         if self.refused:
             table["refused"] = list(self.refused)
+        obs = self.observation
+        if obs is not None:
+            table["corrections"] = list(obs.applied)
+            if obs.time.known:
+                table["time"] = obs.time.iso
+            if obs.site is not None:
+                table["site"] = [obs.site.lat_deg, obs.site.lon_deg, obs.site.height_m]
+                table["refraction"] = obs.refraction
         return camera_file(self.camera, table, fit.sigma)
 
 
@@ -167,9 +186,12 @@ thresholded centre of mass a solve uses (docs/calibration.md)."""
 
 
 def prepare_frames(images: Sequence[str | Path | np.ndarray], *, max_stars: int = 300,
-                   fov_deg: float | None = None, centroid: str = CALIBRATION_CENTROIDER) -> list[StarFrame]:
+                   fov_deg: float | None = None, centroid: str = CALIBRATION_CENTROIDER,
+                   observation: Observation | None = None) -> list[StarFrame]:
     """Read, extract (with the centroider ``centroid``) and solve each image lost in space
-    (:class:`StarFrame`).
+    (:class:`StarFrame`), under ``observation`` when one is given (:func:`ground_observation`:
+    every image's time and site; the solve's final fit and the calibration then fit the catalogue
+    as the camera saw it).
 
     Raises :class:`~skyfix.errors.CalibrationError` naming the image for too few images, images
     of different sizes, an image that does not solve or matches fewer than :data:`MIN_STARS`."""
@@ -185,23 +207,55 @@ def prepare_frames(images: Sequence[str | Path | np.ndarray], *, max_stars: int 
             raise CalibrationError(f"{name}: {w}×{h}, but {frames[0].name} is "
                                    f"{frames[0].width}×{frames[0].height}: one camera, one frame size")
         stars = extract_centroids(data, max_stars=max_stars, centroid=centroid)
-        sol = skyfix.solve_centroids(stars.xy, w, h, fov_deg=fov_deg, name=name)
+        sol = skyfix.solve_centroids(stars.xy, w, h, fov_deg=fov_deg, name=name, observation=observation)
         if not sol.solved:
             raise CalibrationError(f"{name}: not solved ({sol.reason})")
         if sol.n_matched < MIN_STARS:
             raise CalibrationError(f"{name}: too few stars matched ({sol.n_matched}; a calibration needs "
                                    f"{MIN_STARS} an image)")
-        frames.append(StarFrame(name, w, h, stars.xy, stars.flux, sol))
+        frames.append(StarFrame(name, w, h, stars.xy, stars.flux, sol, observation))
     return frames
+
+
+def ground_observation(time=None, site=None, weather=None, refraction: str = "erfa") -> Observation | None:
+    """The :class:`~skyfix.corrections.observation.Observation` of images taken from ``site`` at
+    ``time`` (their text as ``--time``, ``--site``, ``--weather`` take it), or None when neither is
+    given. A site needs a time (refraction and the Earth's rotation depend on it): an
+    :class:`~skyfix.errors.InputError` otherwise."""
+    if time is None and site is None and weather is None:
+        return None
+    from skyfix.corrections.observation import observe
+
+    obs = observe(time, site=site, weather=weather, refraction=refraction)
+    if obs.site is not None and not obs.time.known:
+        raise InputError("a site needs a time (--time): where the zenith is among the stars depends on it")
+    return obs
+
+
+def seen_directions(frame: StarFrame, vectors: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Catalogue unit vectors (K, 3) of the stars numbered ``ids`` as ``frame``'s camera saw them
+    (:meth:`~skyfix.corrections.observation.Observation.seen`: aberration, and on the ground the
+    refraction of each star), or themselves when the frame's observation is unknown. Parallaxes
+    are Hipparcos's, looked up only for a Hipparcos solve's numbers."""
+    obs = frame.observation
+    if obs is None or not obs.moves_stars:
+        return vectors
+    hip = np.asarray(ids, dtype=np.int64)
+    if str(frame.solution.catalog).startswith("Gaia"):
+        hip = np.zeros_like(hip)
+    return obs.seen(np.ascontiguousarray(vectors, dtype=np.float64), hip)
 
 
 def calibrate_stars(images: Sequence[str | Path | np.ndarray], *, model: str = "brown-conrady",
                     skew: bool = False, max_stars: int = 300, fov_deg: float | None = None,
-                    max_rounds: int = 5, centroid: str = CALIBRATION_CENTROIDER) -> StarCalibration:
-    """Calibrate one camera from star images: :func:`prepare_frames`, then :func:`calibrate_frames`."""
+                    max_rounds: int = 5, centroid: str = CALIBRATION_CENTROIDER,
+                    observation: Observation | None = None) -> StarCalibration:
+    """Calibrate one camera from star images: :func:`prepare_frames`, then :func:`calibrate_frames`
+    (``observation``: :func:`ground_observation`, the images' time and site)."""
     calibration_model(model)
-    return calibrate_frames(prepare_frames(images, max_stars=max_stars, fov_deg=fov_deg, centroid=centroid),
-                            model=model, skew=skew, max_rounds=max_rounds)
+    frames = prepare_frames(images, max_stars=max_stars, fov_deg=fov_deg, centroid=centroid,
+                            observation=observation)
+    return calibrate_frames(frames, model=model, skew=skew, max_rounds=max_rounds)
 
 
 def calibration_model(name: str) -> CalibrationModel:
@@ -218,6 +272,7 @@ def solution_matches(frame: StarFrame) -> MatchedImage:
     ra = np.radians([m.ra_deg for m in sol.matches])
     r = radec_to_vector(ra, np.radians([m.dec_deg for m in sol.matches])).reshape(-1, 3)
     mag = np.array([m.mag for m in sol.matches], dtype=np.float64)
+    r = seen_directions(frame, r, np.array([m.id for m in sol.matches], dtype=np.int64))
     A = np.asarray(sol.A_icrs_to_cam, dtype=np.float64)
     return MatchedImage(frame.name, xy, r, A, _flux_at(frame, xy), mag)
 
@@ -259,7 +314,7 @@ def rematch_frame(frame: StarFrame, catalogue, camera: Camera, A: np.ndarray, ra
 
     half = math.radians(camera.fov_diagonal_deg) / 2.0 * 1.05
     idx = catalogue.cone(A[2], half)
-    r = catalogue.vectors[idx]
+    r = seen_directions(frame, catalogue.vectors[idx], np.asarray(catalogue.ids)[idx])
     uv, front = camera.ray_to_pixel(r @ A.T)
     seen = front & camera.in_frame(uv, margin=-radius_px)
     r, uv, mag = r[seen], uv[seen], np.asarray(catalogue.mag, dtype=np.float64)[idx][seen]
@@ -391,7 +446,7 @@ def calibrate_frames(frames: Sequence[StarFrame], *, model: str = "brown-conrady
                      start)
     solve_rms = np.array([f.solution.rmse_arcsec for f in frames])
     return StarCalibration(fit=fit, before=before, model=model, scores=scores, refused=refused, rounds=rounds,
-                           solve_rms_arcsec=solve_rms)
+                           solve_rms_arcsec=solve_rms, observation=frames[0].observation)
 
 
 def parameter_table(calibration: StarCalibration) -> list[tuple[str, float, float]]:

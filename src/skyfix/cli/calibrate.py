@@ -23,6 +23,7 @@ from pathlib import Path
 import typer
 
 from skyfix.cli.common import VERBOSE, OneLineErrors, add_verbosity, checking, fail, guarded, prepare_outputs
+from skyfix.cli.observation import observation_option, observation_options
 from skyfix.validate import check_positive
 
 __all__ = ["calibrate_app", "calibrate_checkerboard_command", "calibrate_frames", "calibrate_stars_command"]
@@ -54,11 +55,22 @@ def calibrate_stars_command(
                                  "(default gaussian, the most precise)."),
     plot: Path | None = typer.Option(None, "--plot", help="PNG of the residuals across the frame, before and "
                                      "after."),
+    obs_time: str = observation_option("--time"),
+    site: str = observation_option("--site"),
+    weather: str = observation_option("--weather"),
+    refraction: str = observation_option("--refraction"),
     verbose: int = VERBOSE,
 ) -> None:
     """Calibrate a camera from star images: solve each, fit one camera and one attitude per image
-    jointly, re-identify stars through the camera until it converges."""
-    from skyfix.calibration.stars import calibrate_stars, calibration_model, parameter_table
+    jointly, re-identify stars through the camera until it converges. With --time (and --site for a
+    camera on the ground) the catalogue is fitted as the camera saw it — aberrated, refracted — so
+    the camera file holds the lens, not the atmosphere."""
+    from skyfix.calibration.stars import (
+        calibrate_stars,
+        calibration_model,
+        ground_observation,
+        parameter_table,
+    )
     from skyfix.detect.centroid import CENTROIDERS
     from skyfix.errors import unknown_name
 
@@ -68,9 +80,15 @@ def calibrate_stars_command(
     with checking("--centroid", centroid):
         if centroid not in CENTROIDERS:
             raise unknown_name("centroider", centroid, CENTROIDERS)
+    given = observation_options(obs_time, None, site, weather, refraction, None, False)
+    with checking("--site", site):
+        observation = ground_observation(given["time"], given["site"], given["weather"], given["refraction"])
     outputs = {"--output": [output]} | ({"--plot": [plot]} if plot else {})
     prepare_outputs(outputs, inputs=images)
-    cal = calibrate_stars(images, model=model, skew=skew, max_stars=max_stars, centroid=centroid)
+    cal = calibrate_stars(images, model=model, skew=skew, max_stars=max_stars, centroid=centroid,
+                          observation=observation)
+    if observation is not None:
+        typer.echo(f"corrections: {', '.join(observation.applied) or 'none'}")
     _print_parameters(parameter_table(cal))
     for name, why in cal.refused.items():
         typer.echo(f"refused {name}: {why}")
