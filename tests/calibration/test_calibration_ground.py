@@ -113,7 +113,9 @@ def test_rendered_ground_frames_calibrate_to_the_lens_with_time_and_site(ground)
                      catalog=sky, seed=10 + i).image for i, A in enumerate(attitudes)]
     good = calibrate_stars(frames, observation=obs)
     bad = calibrate_stars(frames)
-    assert good.observation is obs and bad.observation is None
+    assert good.observation is obs and bad.observation is None and bad.boresights_altaz() is None
+    for (alt, az), seen_at in zip(POINTINGS, good.boresights_altaz(), strict=True):
+        assert abs(seen_at.alt_deg - alt) < 0.01 and abs((seen_at.az_deg - az + 180) % 360 - 180) < 0.01
     cam = good.camera
     assert abs(cam.fx / TRUTH.fx - 1) < 5e-4 and abs(cam.fy / TRUTH.fy - 1) < 5e-4
     assert _grid_error_px(cam, good.fit.attitudes[0], attitudes[0]) < 0.2
@@ -164,6 +166,8 @@ def test_esa_frames_with_their_time_and_site(real_dir):
     assert 1.0 < ground.camera.fx - plain.camera.fx < 1.8
     assert 2.0 < ground.camera.fy - plain.camera.fy < 2.9
     assert ground.fit.sigma_px < plain.fit.sigma_px < 0.125
+    alts = sorted(a.alt_deg for a in ground.boresights_altaz())  # the names' Alt 40 and 60
+    assert 40.9 < alts[0] and alts[3] < 41.5 and 61.0 < alts[4] and alts[7] < 61.6
     rms = ground.fit.rms_arcsec()
     assert np.all(rms < ground.before.rms_arcsec())
     assert np.mean(rms) < np.mean(plain.fit.rms_arcsec())

@@ -149,6 +149,17 @@ class StarCalibration:
     def camera(self) -> Camera:
         return self.fit.camera
 
+    def boresights_altaz(self) -> list | None:
+        """Each image's fitted boresight as :class:`~skyfix.corrections.refraction.AltAz` (observed
+        altitude and azimuth, degrees) when a site and time were given, else None: a check of the
+        time given (a camera's commanded Alt/Az against these)."""
+        obs = self.observation
+        if obs is None or obs.ground is None:
+            return None
+        from skyfix.corrections.refraction import altaz_of
+
+        return [altaz_of(A[2], obs.ground) for A in self.fit.attitudes]
+
     def to_toml(self) -> str:
         """The camera file: the ``[camera]`` table (:meth:`Camera.to_toml`, read back bit for bit)
         and a ``[calibration]`` table of how it was made — each number's 1σ, the residuals."""

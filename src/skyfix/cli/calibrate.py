@@ -94,10 +94,13 @@ def calibrate_stars_command(
         typer.echo(f"refused {name}: {why}")
     typer.echo(f"model {' + '.join(cal.fit.params)} (BIC, {cal.rounds} round(s)); {cal.fit.n_stars} stars, "
                f"σ {cal.fit.sigma_px:.3f} px per axis")
-    typer.echo("image  rms_before_arcsec  rms_solve_arcsec  rms_after_arcsec  stars")
-    for name, b, s, a, k in zip(cal.fit.names, cal.before.rms_arcsec(), cal.solve_rms_arcsec,
-                                cal.fit.rms_arcsec(), cal.fit.inliers, strict=True):
-        typer.echo(f"{name}  {b:.2f}  {s:.2f}  {a:.2f}  {int(k.sum())}")
+    altaz = cal.boresights_altaz()
+    typer.echo("image  rms_before_arcsec  rms_solve_arcsec  rms_after_arcsec  stars"
+               + ("  alt_deg  az_deg" if altaz else ""))
+    for i, (name, b, s, a, k) in enumerate(zip(cal.fit.names, cal.before.rms_arcsec(), cal.solve_rms_arcsec,
+                                               cal.fit.rms_arcsec(), cal.fit.inliers, strict=True)):
+        where = f"  {altaz[i].alt_deg:.2f}  {altaz[i].az_deg:.2f}" if altaz else ""
+        typer.echo(f"{name}  {b:.2f}  {s:.2f}  {a:.2f}  {int(k.sum())}{where}")
     output.write_text(cal.to_toml())
     if plot:
         from skyfix.calibration.plot import plot_residuals
