@@ -17,7 +17,8 @@ from skyfix._kernels import drop_stale_kernel_caches as _drop_stale_kernel_cache
 
 _drop_stale_kernel_caches()
 
-# numba's BLAS/LAPACK check and calls without importing all of scipy.linalg (~0.3 s of a solve)
+# numba's BLAS/LAPACK check and calls without importing all of scipy.linalg (~0.3 s of a solve), and
+# scipy's OpenBLAS loaded only by a kernel's first BLAS/LAPACK call (a plain solve makes none)
 from skyfix._numba_lapack import install as _install_numba_lapack  # noqa: E402
 
 _install_numba_lapack()

@@ -219,11 +219,9 @@ def _exports() -> dict[str, list[dict[str, Any]]]:
     folder = str(aot_folder())
     if folder not in sys.path:
         sys.path.append(folder)
-    # the exports call BLAS/LAPACK through scipy's Cython modules, as numba does: load those
-    # two without scipy.linalg's __init__ (skyfix._numba_lapack; about 0.5 s otherwise)
-    from skyfix._numba_lapack import preload
-
-    preload()
+    # the exports call BLAS/LAPACK through scipy's Cython modules, as numba does: `import skyfix`
+    # put stand-ins for those two in sys.modules, loaded on a kernel's first BLAS or LAPACK call
+    # without scipy.linalg's __init__ (skyfix._numba_lapack)
     out: dict[str, list[dict[str, Any]]] = {}
     for entry in index["exports"]:
         out.setdefault(entry["kernel"], []).append(entry)

@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-import tomllib
 
 from skyfix._kernels import lens
 from skyfix.errors import CameraError, unknown_name
@@ -291,6 +290,8 @@ class Camera:
 
     @classmethod
     def from_toml(cls, text: str) -> Camera:
+        import tomllib  # here: a solve with no camera file does without it
+
         try:
             table = tomllib.loads(text)["camera"]
         except (tomllib.TOMLDecodeError, KeyError, TypeError) as exc:

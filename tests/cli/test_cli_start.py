@@ -42,7 +42,9 @@ _DRIVER = textwrap.dedent("""
         except SystemExit as exc:
             if exc.code not in (0, None):
                 raise
-    print("\\nMODULES " + json.dumps(sorted(sys.modules)))
+    # the modules loaded: not the stand-ins of scipy's BLAS/LAPACK modules (skyfix._numba_lapack)
+    loaded = sorted(m for m, v in sys.modules.items() if type(v).__name__ != "_StandIn")
+    print("\\nMODULES " + json.dumps(loaded))
 """)
 
 
@@ -110,20 +112,42 @@ def test_help_of_every_command_imports_nothing_heavy():
     assert _implementation(modules) == []
 
 
+#: What a plain solve of a PNG (no time, site, mounting, camera file or hint) has no use for.
+SOLVE_UNNEEDED = ("skyfix.track.tracker", "skyfix.analysis", "skyfix.simulate", "skyfix.plot", "skyfix.wcs",
+                  "matplotlib", "astropy", "dask", "scipy.stats", "scipy.optimize",
+                  # numba's BLAS/LAPACK come from the two Cython modules alone (skyfix._numba_lapack):
+                  # not from scipy.linalg's __init__, nor what it drags in
+                  "scipy.linalg._", "scipy._lib._array_api", "numpy.f2py", "numpy.testing",
+                  # a plain solve skips typer's value coercion (skyfix.cli.solve.plain_solve)
+                  "pydantic",
+                  # the streak fit (30 kernels to set up) is for the tracker and --smear
+                  "skyfix.detect.streak",
+                  # issue 22, the first solve in a process: the other detectors, the apparent places
+                  # (a time), a site's refraction and ERFA, the body frames (a mounting), TOML (a
+                  # camera file), platformdirs (the XDG rule is read on Linux)
+                  "skyfix.detect.hillclimb", "skyfix.detect.region_grow", "skyfix.detect.regionprops",
+                  "skyfix.corrections.apparent", "skyfix.corrections.refraction", "erfa", "skyfix.frames",
+                  "tomllib", "platformdirs",
+                  # the solve's kernels call no BLAS or LAPACK (3 × 3 products, Wahba's rotation and
+                  # a 3 × 3 eigen-decomposition are written out): scipy's OpenBLAS is not loaded
+                  "scipy.linalg")
+
+
 def test_solve_imports_only_what_it_runs(database):
     modules = _modules_after(["solve", str(EXAMPLE)])
     assert {"skyfix.pipeline", "numba"} <= modules  # it did solve
-    unneeded = ("skyfix.track.tracker", "skyfix.analysis", "skyfix.simulate", "skyfix.plot", "skyfix.wcs",
-                "matplotlib", "astropy", "dask", "scipy.stats", "scipy.optimize",
-                # numba's BLAS/LAPACK come from the two Cython modules alone (skyfix._numba_lapack):
-                # not from scipy.linalg's __init__, nor what it drags in
-                "scipy.linalg._", "scipy._lib._array_api", "numpy.f2py", "numpy.testing",
-                # a plain solve skips typer's value coercion (skyfix.cli.solve.plain_solve)
-                "pydantic",
-                # the streak fit (30 kernels to set up) is for the tracker and --smear
-                "skyfix.detect.streak")
-    assert sorted(m for m in modules if m.startswith(unneeded)) == []
-    assert "scipy.linalg" not in modules and "scipy.linalg.cython_lapack" in modules
+    assert sorted(m for m in modules if m.startswith(SOLVE_UNNEEDED)) == []
+
+
+def test_a_python_solve_imports_only_what_it_runs(database):
+    code = ("import json, sys, skyfix\n"
+            f"assert skyfix.solve({str(EXAMPLE)!r}).status == 'solved'\n"
+            "print(json.dumps([m for m, v in sys.modules.items() if type(v).__name__ != '_StandIn']))")
+    run = subprocess.run([sys.executable, "-c", code], cwd=SRC, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    modules = set(json.loads(run.stdout.strip().splitlines()[-1]))
+    assert "skyfix.final_fit" in modules
+    assert sorted(m for m in modules if m.startswith(SOLVE_UNNEEDED)) == []
 
 
 def test_track_names_load_on_first_use():

@@ -342,3 +342,18 @@ def test_processes_on_a_cold_cache_all_succeed(tmp_path):
     assert len(lines) == 1, lines  # built once: one epoch, one pattern count
     assert PatternDatabase.load(cache / default_database_path(FOV, FOV).name)
     _no_temporaries(cache)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the XDG rule is read on Linux only")
+@pytest.mark.parametrize("xdg, home", [(None, "/home/ann"), ("/data/cache", "/home/ann"),
+                                       ("relative/cache", "/root/"), ("", "/"), (None, "relative-home"),
+                                       (None, None)])
+def test_the_user_cache_folder_is_platformdirs_without_importing_it(monkeypatch, xdg, home):
+    import platformdirs
+
+    for name, value in (("XDG_CACHE_HOME", xdg), ("HOME", home)):
+        if value is None:
+            monkeypatch.delenv(name, raising=False)
+        else:
+            monkeypatch.setenv(name, value)
+    assert skyfix.cache._user_cache_dir() == Path(platformdirs.user_cache_dir("skyfix"))

@@ -38,7 +38,7 @@ from skyfix._kernels.camera_models import (
     score_models,
 )
 from skyfix._kernels.lens import CX, CY, FX, FY, K1, K2, K3, K4, KANNALA_BRANDT, P1, P2, PROJECTION
-from skyfix._kernels.rotation import rodrigues, spd_inverse
+from skyfix._kernels.rotation import matmul3, rodrigues, spd_inverse, symmetric_eigen3
 
 __all__ = ["ASPECT", "F", "HELD_SHIFT_CHI2", "K1_TERM", "K2_TERM", "K3_TERM", "K4_TERM", "KB_PRIOR_CODES",
            "MODEL_CHANGES", "OUTLIER_CHI2", "PP_AUTO", "PP_CHI2", "PP_FIT", "PP_HOLD", "PRINCIPAL_POINT",
@@ -424,7 +424,7 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options, weights):
                 for k in range(n_codes):
                     if not free[k]:
                         hold_at_prior(cam, prior, codes[k])
-                A = rodrigues(step) @ A
+                A = matmul3(rodrigues(step), A)
                 cam = apply_step(cam, rmax, codes_f, step)
                 continue
             J, res = jacobian_rows(xs, _rotated(rs, A), cam, rmax, codes_f)
@@ -455,7 +455,7 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options, weights):
                             for b in range(row.shape[0]):
                                 JtJ[a, b] -= wr * row[a] * row[b]
                     _, _, step = _posterior(JtJ, g, sigma2, lam, dev)
-                    A = rodrigues(step) @ A
+                    A = matmul3(rodrigues(step), A)
                     cam = apply_step(cam, rmax, codes_f, step)
                     keep = np.ones(xs.shape[0], dtype=np.bool_)
                     keep[worst] = False
@@ -464,7 +464,7 @@ def prior_gauss_newton(xy, r, A, cam, half_diag_px, prior, options, weights):
                     drops += 1
                     it = 0
                     continue
-            A = rodrigues(step) @ A
+            A = matmul3(rodrigues(step), A)
             cam = apply_step(cam, rmax, codes_f, step)
             if converged:
                 break
@@ -562,7 +562,18 @@ def frame_covariance(inv, fx_over_fy):
         T[k, k] = 1.0
     T[1, STEP_CX] = 1.0
     T[0, STEP_CY] = -fx_over_fy
-    return T @ np.ascontiguousarray(inv) @ T.T
+    P = inv.shape[0]
+    Tinv = np.zeros((3, P))  # T inv Tᵀ, written out: numba's @ calls BLAS (skyfix._numba_lapack)
+    for i in range(3):
+        for b in range(P):
+            for a in range(P):
+                Tinv[i, b] += T[i, a] * inv[a, b]
+    out = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(3):
+            for b in range(P):
+                out[i, j] += Tinv[i, b] * T[j, b]
+    return out
 
 
 @njit(cache=True)
@@ -579,7 +590,7 @@ def held_shift_chi2(inv, inv_f, cols, step, fx_over_fy):
         for b in range(cols.shape[0]):
             fitted_inv[cols[a], cols[b]] = inv_f[a, b]
     D = frame_covariance(inv, fx_over_fy) - frame_covariance(fitted_inv, fx_over_fy)
-    vals, vecs = np.linalg.eigh(0.5 * (D + D.T))
+    vals, vecs = symmetric_eigen3(0.5 * (D + D.T))
     delta = frame_step(step, fx_over_fy)
     chi2 = 0.0
     for k in range(3):

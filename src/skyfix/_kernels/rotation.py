@@ -14,8 +14,9 @@ import numpy as np
 
 from skyfix._jit import njit
 
-__all__ = ["angles", "cholesky", "chord_angle", "det3", "pointing", "proper_rotation", "radec_of_vectors",
-           "rodrigues", "rotation_vector", "spd_inverse", "triad", "vector_radec"]
+__all__ = ["angles", "cholesky", "chord_angle", "det3", "matmul3", "pointing", "proper_rotation",
+           "radec_of_vectors", "rodrigues", "rotation_vector", "spd_inverse", "symmetric_eigen3", "triad",
+           "vector_radec"]
 
 
 @njit(cache=True, inline="always")
@@ -195,11 +196,112 @@ def det3(M):
             + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
 
 
+@njit(cache=True, inline="always")
+def matmul3(X, Y):
+    """``X @ Y`` of two 3 × 3 matrices, written out (numba's ``@`` calls BLAS, whose library a
+    plain solve then loads for a 3 × 3 product: :mod:`skyfix._numba_lapack`)."""
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = X[i, 0] * Y[0, j] + X[i, 1] * Y[1, j] + X[i, 2] * Y[2, j]
+    return out
+
+
+_JACOBI_SWEEPS = 30  # a 3 × 3 Jacobi converges in 4–6 sweeps; the bound only guards the loop
+_EPS = 2.220446049250313e-16  # float64's machine epsilon
+
+
+@njit(cache=True, inline="always")
+def _jacobi_angle(a, b, g):
+    """Cosine and sine of the Jacobi rotation that zeroes the off-diagonal ``g`` of the symmetric
+    2 × 2 ``[[a, g], [g, b]]`` (the smaller of the two angles that do)."""
+    zeta = (b - a) / (2.0 * g)
+    t = math.copysign(1.0, zeta) / (abs(zeta) + math.sqrt(1.0 + zeta * zeta))
+    c = 1.0 / math.sqrt(1.0 + t * t)
+    return c, c * t
+
+
+@njit(cache=True)
+def symmetric_eigen3(S):
+    """Eigenvalues (3,), ascending, and eigenvectors (3, 3), as columns, of a symmetric 3 × 3
+    matrix: ``np.linalg.eigh``'s answer by cyclic Jacobi rotations, without LAPACK (an element
+    is rotated away while it exceeds ε·√|M_pp M_qq|, which keeps small eigenvalues' relative
+    accuracy)."""
+    M = S.copy()
+    V = np.eye(3)
+    for _ in range(_JACOBI_SWEEPS):
+        rotated = False
+        for p in range(2):
+            for q in range(p + 1, 3):
+                g = M[p, q]
+                if not abs(g) > _EPS * math.sqrt(abs(M[p, p] * M[q, q])):  # also a NaN
+                    continue
+                rotated = True
+                c, s = _jacobi_angle(M[p, p], M[q, q], g)
+                for k in range(3):  # M ← Jᵀ M J, J the rotation in the (p, q) plane
+                    mkp, mkq = M[k, p], M[k, q]
+                    M[k, p], M[k, q] = c * mkp - s * mkq, s * mkp + c * mkq
+                for k in range(3):
+                    mpk, mqk = M[p, k], M[q, k]
+                    M[p, k], M[q, k] = c * mpk - s * mqk, s * mpk + c * mqk
+                M[p, q] = M[q, p] = 0.0
+                for k in range(3):
+                    vkp, vkq = V[k, p], V[k, q]
+                    V[k, p], V[k, q] = c * vkp - s * vkq, s * vkp + c * vkq
+        if not rotated:
+            break
+    order = np.argsort(np.array([M[0, 0], M[1, 1], M[2, 2]]))
+    vals = np.empty(3)
+    vecs = np.empty((3, 3))
+    for j in range(3):
+        vals[j] = M[order[j], order[j]]
+        for k in range(3):
+            vecs[k, j] = V[k, order[j]]
+    return vals, vecs
+
+
 @njit(cache=True)
 def proper_rotation(B):
     """The proper rotation nearest the attitude profile matrix ``B = Σ w b rᵀ`` (Markley's SVD
     solution of Wahba's problem): ``U diag(1, 1, det U · det V) Vᵀ``, so det = +1 even for a
-    mirror image."""
+    mirror image. That is ``u₁v₁ᵀ + u₂v₂ᵀ + (u₁ × u₂)(v₁ × v₂)ᵀ`` for the two largest singular
+    values' vectors, which one-sided Jacobi rotations of ``B``'s columns find without LAPACK
+    (Hestenes: ``B V`` has orthogonal columns ``s_k u_k``); a ``B`` of rank one or less, or not
+    finite, goes to LAPACK's SVD as before."""
+    W = B.copy()
+    V = np.eye(3)
+    for _ in range(_JACOBI_SWEEPS):
+        rotated = False
+        for p in range(2):
+            for q in range(p + 1, 3):
+                a = W[0, p] * W[0, p] + W[1, p] * W[1, p] + W[2, p] * W[2, p]
+                b = W[0, q] * W[0, q] + W[1, q] * W[1, q] + W[2, q] * W[2, q]
+                g = W[0, p] * W[0, q] + W[1, p] * W[1, q] + W[2, p] * W[2, q]
+                if not abs(g) > _EPS * math.sqrt(a * b):  # orthogonal to working precision (or a NaN)
+                    continue
+                rotated = True
+                c, s = _jacobi_angle(a, b, g)
+                for k in range(3):
+                    wp, wq = W[k, p], W[k, q]
+                    W[k, p], W[k, q] = c * wp - s * wq, s * wp + c * wq
+                    vp, vq = V[k, p], V[k, q]
+                    V[k, p], V[k, q] = c * vp - s * vq, s * vp + c * vq
+        if not rotated:
+            break
+    norms = np.empty(3)
+    for k in range(3):
+        norms[k] = math.sqrt(W[0, k] * W[0, k] + W[1, k] * W[1, k] + W[2, k] * W[2, k])
+    order = np.argsort(-norms)
+    i1, i2 = order[0], order[1]
+    if norms[i2] > 1e-12 * norms[i1] and np.isfinite(norms[i1]):
+        u1, u2 = W[:, i1] / norms[i1], W[:, i2] / norms[i2]
+        v1, v2 = V[:, i1], V[:, i2]
+        u3, v3 = np.cross(u1, u2), np.cross(v1, v2)
+        A = np.empty((3, 3))
+        for i in range(3):
+            for j in range(3):
+                A[i, j] = u1[i] * v1[j] + u2[i] * v2[j] + u3[i] * v3[j]
+        return A
     U, _, Vt = np.linalg.svd(B)
     d = 1.0 if det3(U) * det3(Vt) >= 0.0 else -1.0
     A = np.empty((3, 3))

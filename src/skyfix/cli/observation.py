@@ -63,11 +63,10 @@ def observation_options(time: str | None, velocity_kms: str | None, site: str | 
     the observer's state, whose orbit frame the body's attitude is also given in);
     ``camera`` is ``--camera``'s value (a file's ``[mounting]`` and
     ``[exclusion]``, or a preset's exclusion angles). A bad value: one line, exit 2."""
-    # the corrections load astropy/ERFA: not at every CLI start (tests/cli/test_cli_start.py)
+    # the corrections load astropy/ERFA: not at every CLI start, and a site's refraction and the
+    # body frames (ERFA, TOML) only when a site or a mounting is given (tests/cli/test_cli_start.py)
     from skyfix.corrections.observation import observe
     from skyfix.corrections.observer import parse_state, parse_velocity
-    from skyfix.corrections.refraction import check_site_weather
-    from skyfix.frames import Mounting
     from skyfix.obstime import parse_time
 
     with checking("--time", time):
@@ -81,10 +80,16 @@ def observation_options(time: str | None, velocity_kms: str | None, site: str | 
             out["observer"] = parse_state(velocity_kms, position_km)
         elif velocity_kms is not None:
             out["observer"] = parse_velocity(velocity_kms)
-        out["site"], out["weather"] = check_site_weather(site, weather, names=("--site", "--weather"))
+        out["site"] = out["weather"] = None
+        if site is not None or weather is not None:
+            from skyfix.corrections.refraction import check_site_weather
+
+            out["site"], out["weather"] = check_site_weather(site, weather, names=("--site", "--weather"))
         if refraction is not None and site is None:
             raise InputError("--refraction needs a --site: refraction depends on where the camera is")
         if mounting is not None:
+            from skyfix.frames import Mounting
+
             out["mounting"] = Mounting.parse(mounting, "--mounting")
         else:
             out["mounting"] = _camera_table(camera, "mounting")

@@ -44,7 +44,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from skyfix.catalog import hipparcos_parallax
-from skyfix.corrections.apparent import ApparentFrame, apparent_directions, apparent_frame
 from skyfix.corrections.bodies import (
     EXCLUSION_DEG,
     BodyDirections,
@@ -67,11 +66,13 @@ from skyfix.obstime import (
 )
 
 if TYPE_CHECKING:
+    from skyfix.corrections.apparent import ApparentFrame
     from skyfix.corrections.refraction import GroundFrame, Site, Weather
     from skyfix.frames import Mounting
 
 # A site's refraction (ERFA's astrometry) and the body frames are imported when a site or a mounting
-# is given: a plain solve's process does without them (erfa, skyfix.frames: ~30 ms at start).
+# is given, the apparent places when a time is: a plain solve's process does without them (erfa,
+# skyfix.frames: ~30 ms at start).
 
 __all__ = ["ALL_SKY_FOV_DEG", "CORRECTIONS", "NO_TIME_REASON", "Observation", "apparent_attitude", "observe",
            "observer_of", "time_of_image"]
@@ -153,6 +154,8 @@ class Observation:
         p = np.asarray(vectors, dtype=np.float64)
         parallax = hipparcos_parallax(ids)
         if self.ground is None:
+            from skyfix.corrections.apparent import apparent_directions
+
             return apparent_directions(p, self.space, parallax if parallax.any() else None)
         if parallax.any():  # seen from the site's barycentric place (ERFA's astrometry holds it)
             p = p - parallax[:, None] * _barycentric_au(self.ground)
@@ -337,6 +340,8 @@ def observe(time=None, *, observer=None, site=None, weather=None, refraction: st
     if t.known:
         applied += ["parallax", "light_deflection", "aberration"]
         if site is None:
+            from skyfix.corrections.apparent import apparent_frame
+
             space = apparent_frame(t, obs if obs is not None else GEOCENTRE)  # speed ≥ c: InputError
         else:
             from skyfix.corrections.refraction import ground_frame

@@ -20,6 +20,7 @@ Bad frames (constant, black, saturated, 1×1, too many non-finite pixels) give a
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -31,9 +32,6 @@ from skyfix.detect.centroid import CENTROIDERS, GAUSSIAN, Refined, refine_centro
 from skyfix.detect.centroids import Centroids, background_snr
 from skyfix.detect.components import Options, float32_frame
 from skyfix.detect.components import run as run_components
-from skyfix.detect.hillclimb import extract_hillclimb
-from skyfix.detect.region_grow import extract_region_grow
-from skyfix.detect.regionprops import extract_regionprops
 from skyfix.detect.saturation import saturation_level
 from skyfix.errors import ImageReadError, unknown_name
 from skyfix.io import as_image
@@ -51,18 +49,22 @@ class Method(NamedTuple):
     raw_frames: bool = False
 
 
-def _seed(extract: Callable[..., Centroids]) -> Method:
-    """A seed thesis's detector: it reads the threshold, the cap on the count and the saturation
-    level (the other options apply to ``"components"`` only)."""
-    return Method(lambda img, o: extract(img, sigma=o.sigma, max_stars=o.max_stars, saturation=o.saturation))
+def _seed(module: str, function: str) -> Method:
+    """A seed thesis's detector, ``function`` of ``module``: it reads the threshold, the cap on the
+    count and the saturation level (the other options apply to ``"components"`` only). Its module
+    is imported on its first use: a solve runs ``"components"`` alone."""
+    def extract(img: np.ndarray, o: Options) -> Centroids:
+        run = getattr(importlib.import_module(module), function)
+        return run(img, sigma=o.sigma, max_stars=o.max_stars, saturation=o.saturation)
+    return Method(extract)
 
 
 #: Detection methods by name (``method=`` of :func:`extract_centroids`, ``skyfix detect --method``).
 METHODS: dict[str, Method] = {
     "components": Method(run_components, raw_frames=True),
-    "threshold_hillclimb": _seed(extract_hillclimb),
-    "region_grow": _seed(extract_region_grow),
-    "regionprops": _seed(extract_regionprops),
+    "threshold_hillclimb": _seed("skyfix.detect.hillclimb", "extract_hillclimb"),
+    "region_grow": _seed("skyfix.detect.region_grow", "extract_region_grow"),
+    "regionprops": _seed("skyfix.detect.regionprops", "extract_regionprops"),
 }
 
 

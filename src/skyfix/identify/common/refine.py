@@ -15,7 +15,7 @@ import numpy as np
 
 from skyfix._jit import njit
 from skyfix._kernels.lens import k1_offset
-from skyfix._kernels.rotation import rodrigues
+from skyfix._kernels.rotation import matmul3, rodrigues
 from skyfix.identify.catalogue.kernel_data import ImageStars, RefineSettings, Refit, StarIndex, ViewBuffers
 from skyfix.identify.common.verify import gather_stars, grid_index, match_grid, project_stars, star_limit
 
@@ -156,7 +156,7 @@ def _gauss_newton(A, f, k1, v, q, n_params, iterations, cauchy_px):
         step, ok = _solve_spd(N, -g)
         if not ok:
             break
-        A = rodrigues(step[:3]) @ A
+        A = matmul3(rodrigues(step[:3]), A)
         if n_params > 3:
             f += step[3]
         if n_params > 4:
