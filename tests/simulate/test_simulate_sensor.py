@@ -294,3 +294,23 @@ def test_bad_sensor_input():
         Sensor.from_dict({"qe": 0.5, "colour": "red"})
     with pytest.raises(SimulationError, match="noise sources"):
         apply_detector(np.zeros((4, 4)), PLAIN, 1.0, streams(), noise={"shott": False})
+
+
+def test_a_frame_is_the_same_in_another_process():
+    # the streams are seeded from the frame's own SeedSequence only: a worker process of a
+    # campaign renders the same bits
+    import hashlib
+    import subprocess
+    import sys
+
+    code = ("import hashlib, numpy as np\n"
+            "from skyfix.simulate.sensor import Sensor, apply_detector\n"
+            "ss = np.random.SeedSequence(5).spawn(4)\n"
+            "st = dict(zip(('shot', 'dark', 'read', 'ktc'), (np.random.default_rng(s) for s in ss)))\n"
+            "lam = np.random.default_rng(0).uniform(0, 30, (300, 200))\n"
+            "img = apply_detector(lam, Sensor(ktc_noise_e=2.0), 0.5, st, hot_pixels=20)\n"
+            "print(hashlib.sha256(img.tobytes()).hexdigest())\n")
+    other = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    lam = np.random.default_rng(0).uniform(0, 30, (300, 200))
+    here = apply_detector(lam, Sensor(ktc_noise_e=2.0), 0.5, streams(5), hot_pixels=20)
+    assert other.stdout.strip() == hashlib.sha256(here.tobytes()).hexdigest()
