@@ -47,7 +47,7 @@ def test_jpeg_quality_75_moves_centroids_and_loses_faint_stars():
     common = np.intersect1d(j0, j1)
     # measured: 186 stars found raw, 99 after JPEG q75; on the 91 found in both the centroid
     # error RMS (per axis) is 0.134 px raw and 0.321 px after JPEG (the detector's streams of
-    # 30 Nov: 176, 99, 90, 0.112 and 0.305 before; seeds 3–10 found 184.1 stars and 0.177 px RMS
+    # 29 Nov 2026: 176, 99, 90, 0.112 and 0.305 before; seeds 3–10 found 184.1 stars and 0.177 px RMS
     # on average before, 186.0 and 0.172 px now)
     assert len(j0) == 186 and 90 <= len(j1) <= 110 and len(common) >= 80
     assert _rms_on(e0, j0, common) == pytest.approx(0.134, abs=0.01)
