@@ -622,14 +622,20 @@ def _axes_at_pixel(numbers: np.ndarray, pixel: tuple[float, float], along: str) 
     """The axes (3, 3) of the frame at ``pixel`` (:func:`frame_at_pixel`) in the frame of the camera
     whose kernel numbers are ``numbers`` (:data:`skyfix._kernels.lens.CAMERA_NUMBERS`): z the
     pixel's ray, the column's (or the row's) direction from the ray half a pixel on."""
-    p0 = np.array([pixel], dtype=np.float64)
-    step = [0.5, 0.0] if along == "column" else [0.0, 0.5]
-    ray0, ray1 = lens.pixel_rays(np.concatenate([p0, p0 + step]), numbers)  # one call for both pixels
-    z = ray0 / np.linalg.norm(ray0)
+    x, y = pixel
+    pixels = np.array([[x, y], [x + 0.5, y] if along == "column" else [x, y + 0.5]], dtype=np.float64)
+    ray0, ray1 = lens.pixel_rays(pixels, numbers)  # one call for both pixels
+    z = ray0 / math.sqrt(ray0 @ ray0)
     t = ray1 - ray0
     t -= (t @ z) * z
-    t /= np.linalg.norm(t)
-    return np.vstack([t, np.cross(z, t), z] if along == "column" else [np.cross(t, z), t, z])
+    t /= math.sqrt(t @ t)
+    return np.array([t, _cross(z, t), z] if along == "column" else [_cross(t, z), t, z])
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a × b`` of two 3-vectors (``np.cross`` costs tens of µs a call: the frame covariance makes
+    a dozen frames)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 def frame_covariance_at_pixel(fit: PriorFit, pixel: tuple[float, float], along: str = "row") -> np.ndarray:
