@@ -146,7 +146,10 @@ def run_kind(key: str, n_frames: int, repeat: int, seed: int, count: bool) -> di
             times.append(1e3 * (time.perf_counter() - t0))
         e_centre = frame_rotation_at_pixel(fit.A_icrs_to_cam, fit.camera, A, cam, centre)
         e_bore = attitude_error_rad(fit.A_icrs_to_cam, fit.camera, A, cam)
-        sig = np.sqrt(np.diag(fit.covariance_rad2))
+        # the error at the boresight pixel over that pixel's frame covariance (the axes' holds the
+        # principal point's uncertainty too when it was fitted: issue 26 part 1)
+        judged = getattr(fit, "precision_covariance_rad2", None)  # (a tree before it: None)
+        sig = np.sqrt(np.diag(fit.covariance_rad2 if judged is None else judged))
         rows.append({"identified": True, "ms": float(np.median(times)), "n_stars": len(fit.star_index),
                      "bore_arcsec": math.hypot(e_centre[0], e_centre[1]) / ARCSEC,
                      "roll_arcsec": abs(e_centre[2]) / ARCSEC, "z": (e_bore / sig).tolist(),

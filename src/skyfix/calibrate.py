@@ -28,9 +28,9 @@ from skyfix.camera import PROJECTION_ALIASES, Camera
 from skyfix.errors import unknown_name
 
 __all__ = ["CAMERA_PARAMETERS", "CameraFit", "CameraPrior", "ModelScore", "PriorFit", "fit_camera",
-           "fit_camera_with_prior", "frame_at_pixel", "frame_rotation_at_pixel", "prior_parameters",
-           "score_camera_models", "select_camera_model", "PRIOR_PARAMETERS", "UNCALIBRATED_DISTORTION",
-           "PARAMETERS", "MODEL_LADDER"]
+           "fit_camera_with_prior", "frame_at_pixel", "frame_covariance_at_pixel", "frame_rotation_at_pixel",
+           "prior_parameters", "score_camera_models", "select_camera_model", "PRIOR_PARAMETERS",
+           "UNCALIBRATED_DISTORTION", "PARAMETERS", "MODEL_LADDER"]
 
 _BOTH = ("pinhole", "kannala-brandt")
 
@@ -613,16 +613,64 @@ def frame_at_pixel(A_icrs_to_cam: np.ndarray, camera: Camera, pixel: tuple[float
 def _frame_axes(camera: Camera, pixel: tuple[float, float], along: str) -> np.ndarray:
     """:func:`frame_at_pixel`'s axes (3, 3) in ``camera``'s frame (read-only; a campaign's
     judgements ask for the same camera and pixel every trial)."""
-    p0 = np.array([pixel], dtype=np.float64)
-    step = [0.5, 0.0] if along == "column" else [0.0, 0.5]
-    ray0, ray1 = camera.pixel_to_ray(np.concatenate([p0, p0 + step]))  # one call for both pixels
-    z = ray0 / np.linalg.norm(ray0)
-    t = ray1 - ray0
-    t -= (t @ z) * z
-    t /= np.linalg.norm(t)
-    rows = np.vstack([t, np.cross(z, t), z] if along == "column" else [np.cross(t, z), t, z])
+    rows = _axes_at_pixel(camera.numbers(), pixel, along)
     rows.flags.writeable = False
     return rows
+
+
+def _axes_at_pixel(numbers: np.ndarray, pixel: tuple[float, float], along: str) -> np.ndarray:
+    """The axes (3, 3) of the frame at ``pixel`` (:func:`frame_at_pixel`) in the frame of the camera
+    whose kernel numbers are ``numbers`` (:data:`skyfix._kernels.lens.CAMERA_NUMBERS`): z the
+    pixel's ray, the column's (or the row's) direction from the ray half a pixel on."""
+    x, y = pixel
+    pixels = np.array([[x, y], [x + 0.5, y] if along == "column" else [x, y + 0.5]], dtype=np.float64)
+    ray0, ray1 = lens.pixel_rays(pixels, numbers)  # one call for both pixels
+    z = ray0 / math.sqrt(ray0 @ ray0)
+    t = ray1 - ray0
+    t -= (t @ z) * z
+    t /= math.sqrt(t @ t)
+    return np.array([t, _cross(z, t), z] if along == "column" else [_cross(t, z), t, z])
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a × b`` of two 3-vectors (``np.cross`` costs tens of µs a call: the frame covariance makes
+    a dozen frames)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def frame_covariance_at_pixel(fit: PriorFit, pixel: tuple[float, float], along: str = "row") -> np.ndarray:
+    """The covariance (3, 3) rad² of the error of the frame at ``pixel`` (:func:`frame_at_pixel`:
+    its sky direction, and the roll of the row's — or the column's — direction there) about that
+    frame's own axes, from the posterior of the camera fit ``fit``
+    (:attr:`PriorFit.parameter_covariance`: the attitude and every camera number of
+    :attr:`PriorFit.parameters`): ``T C Tᵀ`` with ``T`` (3, P) the Jacobian of that frame's rotation
+    by the fit's step. A rotation ``δθ`` of the camera turns the frame at the pixel by ``M δθ``
+    (``M`` its axes in the camera frame); a camera number moves the pixel's ray and the row's
+    direction, a column found by central differences (a hundredth of the number's posterior σ).
+    At the principal point of a camera without skew it is :attr:`PriorFit.covariance_rad2` to
+    first order; away from it, the principal point's own uncertainty moves the pixel's sky
+    direction less than the axes' (the camera axes' covariance is the rotation block of ``C``)."""
+    cov = np.asarray(fit.parameter_covariance, dtype=np.float64)
+    cam = fit.camera
+    numbers = cam.numbers()
+    pixel = (float(pixel[0]), float(pixel[1]))
+    M = _axes_at_pixel(numbers, pixel, along)
+    T = np.zeros((3, cov.shape[0]))
+    T[:, :3] = M
+    rmax = math.hypot(cam.width, cam.height) / 2.0 / cam.fx  # the fit's scaled units (fit_camera_with_prior)
+    codes = _codes(fit.parameters)
+    apply_step = kernels.apply_step.py_func  # a dozen numbers: no kernel call for it
+    for k in range(3, cov.shape[0]):
+        h = 0.01 * math.sqrt(max(cov[k, k], 0.0))
+        if h == 0.0:
+            continue
+        p = np.zeros(cov.shape[0])
+        p[k] = h
+        plus = _axes_at_pixel(apply_step(numbers, rmax, codes, p), pixel, along) @ M.T
+        minus = _axes_at_pixel(apply_step(numbers, rmax, codes, -p), pixel, along) @ M.T
+        d = (plus - minus) / (2.0 * h)  # the small rotation's matrix: its antisymmetric part [δφ]×
+        T[:, k] = 0.5 * (d[2, 1] - d[1, 2]), 0.5 * (d[0, 2] - d[2, 0]), 0.5 * (d[1, 0] - d[0, 1])
+    return T @ cov @ T.T
 
 
 def frame_rotation_at_pixel(A: np.ndarray, camera: Camera, A_ref: np.ndarray, camera_ref: Camera,

@@ -29,13 +29,19 @@ from skyfix._kernels.camera_fit import OUTLIER_CHI2
 from skyfix._rematch import CatalogueCone, equidistant_consensus, match_catalogue
 from skyfix._rematch import Matches as _Matches
 from skyfix.attitude import CENTROID_NOISE_FLOOR_PX, attitude_covariance, solve_attitude
-from skyfix.calibrate import CameraPrior, fit_camera_with_prior
+from skyfix.calibrate import (
+    CameraPrior,
+    PriorFit,
+    fit_camera_with_prior,
+    frame_at_pixel,
+    frame_covariance_at_pixel,
+)
 from skyfix.camera import MAX_FOV_DEG, Camera
 from skyfix.errors import CameraError
 from skyfix.identify import default_database
 from skyfix.identify.accept import PROB_THRESHOLD, chance_log_probability
 
-__all__ = ["FinalFit", "final_fit"]
+__all__ = ["FinalFit", "covariance_at_pixel", "final_fit"]
 
 
 @dataclass(frozen=True)
@@ -51,7 +57,10 @@ class FinalFit:
     catalog_vectors : (M, 3) — the catalogue directions fitted: as the camera sees them with ``seen``.
     catalog_mag : (M,)
     residuals_rad : (M,) — angle between each star's ray and its catalogue direction.
-    covariance_rad2 : (3, 3) — attitude error about the camera axes (x, y, roll).
+    covariance_rad2 : (3, 3) — attitude error about the camera axes (x, y, roll): with a fitted
+        principal point (``camera``'s away from the image centre) the principal point's own
+        uncertainty is in it, as the axes move with it; with the principal point at the centre
+        (given, or held there by the fit) it is the frame at that pixel's.
     camera_params : tuple of str — camera parameters fitted (empty when the camera was given).
     log_prob_chance : float — log probability that the final matches are chance (with the
         fitted camera's freedom paid for; identification's when the stars were not re-matched).
@@ -60,6 +69,12 @@ class FinalFit:
     residual_dof : float — the degrees of freedom of the residuals that noise was estimated
         from: 2M − 3 with a given camera, 2M less the fit's effective number of parameters
         (:attr:`skyfix.calibrate.PriorFit.n_effective`, the divisor of its σ²) with a fitted one.
+    camera_fit : PriorFit or None — the fitted camera's posterior, from which any pixel's frame
+        covariance follows (:func:`covariance_at_pixel`); None with a camera given.
+    precision_covariance_rad2 : (3, 3) or None — what the precision rule judges
+        (:func:`skyfix.identify.accept.precision_failure`): the frame at the principal point's
+        pixel, where a wrong attitude is judged (:mod:`skyfix.analysis.truth`); an all-sky
+        fisheye's, the axes' (:func:`_fit_fisheye_camera`). None: ``covariance_rad2``.
     """
 
     A_icrs_to_cam: np.ndarray
@@ -74,6 +89,27 @@ class FinalFit:
     log_prob_chance: float = 0.0
     noise_sigma_rad: float = math.nan
     residual_dof: float = math.nan
+    camera_fit: PriorFit | None = None
+    precision_covariance_rad2: np.ndarray | None = None
+
+
+def covariance_at_pixel(fit: FinalFit, pixel: tuple[float, float], along: str = "row") -> np.ndarray:
+    """The covariance (3, 3) rad² of the error of the frame at ``pixel`` of the final fit ``fit``
+    (:func:`skyfix.calibrate.frame_at_pixel`: the pixel's sky direction and, with ``along="row"``,
+    the roll of image-up there, as :meth:`skyfix.solution.Solution.center_pointing` reports the
+    image centre's), about that frame's axes — the same σ scale as ``fit.covariance_rad2``. With a
+    camera given, the attitude's turned into that frame (``M P Mᵀ``); with a fitted one, from the
+    fit's posterior of attitude and camera (:func:`skyfix.calibrate.frame_covariance_at_pixel`),
+    so that the principal point's uncertainty counts only as far as it moves the pixel's
+    direction. At the principal point of a camera without skew it is ``fit.covariance_rad2``."""
+    cam = fit.camera
+    pixel = (float(pixel[0]), float(pixel[1]))
+    if pixel == (float(cam.cx), float(cam.cy)) and cam.skew == 0.0:
+        return fit.covariance_rad2
+    if fit.camera_fit is None:
+        M = frame_at_pixel(np.eye(3), cam, pixel, along)
+        return M @ fit.covariance_rad2 @ M.T
+    return frame_covariance_at_pixel(fit.camera_fit, pixel, along)
 
 
 def angles(b: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -347,11 +383,13 @@ def _fit_fisheye_camera(xy: np.ndarray, ident, database, epoch: float | None, me
     polynomial inside the frame ends a stage's grow. Raises CameraError when no such camera fits
     the identified stars.
 
-    The covariance is the camera axes' (``_final``'s ``axis_covariance``): the principal point the
-    boresight's RA/Dec and the quaternion refer to is fitted, known to 0.02–0.08 px, which at an
-    all-sky frame's 300–700″ a pixel is 4–40″, 4× the error of the sky direction of that pixel.
-    Campaign seeds 0–39, the error (x, y) against the truth's quaternion over the σ reported: RMS
-    5.3, 5.3 with the pixel's covariance, 1.10, 1.05 with this (docs/all-sky.md#error-bars)."""
+    The covariance is the camera axes' (as every fit whose principal point is off the image
+    centre: :func:`_final`): the principal point the boresight's RA/Dec and the quaternion refer
+    to is fitted, known to 0.02–0.08 px, which at an all-sky frame's 300–700″ a pixel is 4–40″, 4×
+    the error of the sky direction of that pixel. Campaign seeds 0–39, the error (x, y) against the
+    truth's quaternion over the σ reported: RMS 5.3, 5.3 with the pixel's covariance, 1.10, 1.05
+    with this (docs/all-sky.md#error-bars). The precision rule judges the axes' covariance here
+    too (``judge_axes``), as since session 10."""
     cam0: Camera = ident.camera
     prior = CameraPrior.uncalibrated(cam0.width, cam0.height, cam0.projection)._replace(
         cx=cam0.cx, cy=cam0.cy, sigma_principal_point_px=_ALLSKY_CENTRE_SIGMA * cam0.fx)
@@ -383,7 +421,7 @@ def _fit_fisheye_camera(xy: np.ndarray, ident, database, epoch: float | None, me
             freed = _fit_without_outliers(xy, cur, fit.camera, fit.A_icrs_to_cam, stage)
             fit, cur, log_p = _grow(xy[:n_use], *freed, rematch._replace(prior=stage), log_p)
     return _final(xy, fit, cur, max(log_p, math.log(max(ident.prob_false, 1e-300))), method, prior,
-                  axis_covariance=True)
+                  judge_axes=True)
 
 
 # An all-sky frame's principal point is known from its disc to within this share of the focal length.
@@ -456,7 +494,7 @@ _NOISE_MODEL_MIN_STARS = 20
 
 
 def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str,
-           prior: CameraPrior | None = None, axis_covariance: bool = False) -> FinalFit:
+           prior: CameraPrior | None = None, judge_axes: bool = False) -> FinalFit:
     """The attitude by the chosen Wahba solver through the fitted camera, and the fit's
     covariance. Where the stars' centroid noise grows with their magnitude (a faint star's
     centroid is worse; :func:`_magnitude_noise` on the fit's residuals and the stars' catalogue
@@ -465,10 +503,14 @@ def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str,
     rendered 8° / 15° frames the boresight's median error 0.25 → 0.11″ / 0.19 → 0.11″
     (``benchmarks/bench_final_fit.py --kinds r8,r15``). The weighted fit is under ``prior``
     (default: the uncalibrated one of the camera's projection); one that is no camera (its θ
-    polynomial folding inside the frame) leaves the unweighted fit. The covariance is that of the
-    frame at the principal point's pixel (:attr:`skyfix.calibrate.PriorFit.covariance_rad2`), or
-    with ``axis_covariance`` that of the camera's axes, the principal point's own uncertainty in it
-    (the rotation block of :attr:`~skyfix.calibrate.PriorFit.parameter_covariance`)."""
+    polynomial folding inside the frame) leaves the unweighted fit.
+
+    The covariance is that of the camera's axes, the principal point's own uncertainty in it (the
+    rotation block of :attr:`~skyfix.calibrate.PriorFit.parameter_covariance`), when the principal
+    point is away from the image centre; held at the centre, that of the frame at that pixel
+    (:attr:`skyfix.calibrate.PriorFit.covariance_rad2`), the image centre's
+    (:func:`covariance_at_pixel` gives any pixel's). The precision rule judges the frame at the
+    principal point's pixel (where a wrong attitude is judged), or with ``judge_axes`` the axes'."""
     weights = None
     if len(cur.idx) >= _NOISE_MODEL_MIN_STARS and len(fit.residuals_px) == len(cur.idx):
         variance, ratio = _magnitude_noise(np.sum(fit.residuals_px**2, axis=1),
@@ -486,9 +528,14 @@ def _final(xy: np.ndarray, fit, cur: _Matches, log_p: float, method: str,
     b = lens.pixel_rays(np.ascontiguousarray(xy[cur.idx], dtype=np.float64), lens.camera_numbers(fit.camera))
     A = solve_attitude(b, cur.r, weights=weights, method=method)
     resid = rotation.angles(b, cur.r, np.ascontiguousarray(A))
-    covariance = fit.parameter_covariance[:3, :3] if axis_covariance else fit.covariance_rad2
-    return FinalFit(A, fit.camera, cur.idx, cur.ids, cur.r, cur.mag, resid, covariance,
-                    fit.fitted, log_p, residual_dof=2 * len(cur.idx) - fit.n_effective)
+    cam = fit.camera
+    axes = fit.parameter_covariance[:3, :3]
+    centred = (cam.cx, cam.cy) == ((cam.width - 1) / 2.0, (cam.height - 1) / 2.0)
+    covariance = fit.covariance_rad2 if centred else axes
+    judged = axes if judge_axes else fit.covariance_rad2
+    return FinalFit(A, cam, cur.idx, cur.ids, cur.r, cur.mag, resid, covariance, fit.fitted, log_p,
+                    residual_dof=2 * len(cur.idx) - fit.n_effective, camera_fit=fit,
+                    precision_covariance_rad2=None if judged is covariance else judged)
 
 
 @njit(cache=True)

@@ -28,7 +28,7 @@ from skyfix._kernels import rotation
 from skyfix.camera import Camera
 from skyfix.corrections.observation import Observation, apparent_attitude, observe, time_of_image
 from skyfix.errors import CameraError, InputError
-from skyfix.final_fit import final_fit
+from skyfix.final_fit import covariance_at_pixel, final_fit
 from skyfix.identify import PatternDatabase, get_method, method_options
 from skyfix.identify.accept import PROB_THRESHOLD, error_covariance, noise_posterior, precision_failure
 from skyfix.identify.catalogue import bands
@@ -601,12 +601,14 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     # attitude's 3 and the camera's effective share (Student's tails for a few stars). A centroid
     # noise stated beside a given camera is combined with it (accept.noise_posterior).
     dof = fit.residual_dof
-    covariance = fit.covariance_rad2
+    scale = 1.0
     if centroid_sigma_px is not None and math.isfinite(fit.noise_sigma_rad):
         noise = noise_posterior(fit.residuals_rad, dof, centroid_sigma_px * camera.plate_scale_rad)
-        covariance = covariance * (noise.sigma_rad / fit.noise_sigma_rad) ** 2
+        scale = (noise.sigma_rad / fit.noise_sigma_rad) ** 2
         dof = noise.dof
-    imprecise = precision_failure(covariance, camera.plate_scale_rad, dof, camera_given)
+    covariance = fit.covariance_rad2 * scale
+    judged = covariance if fit.precision_covariance_rad2 is None else fit.precision_covariance_rad2 * scale
+    imprecise = precision_failure(judged, camera.plate_scale_rad, dof, camera_given)
     if imprecise:
         sol.reason = imprecise
         log.info("%s: %s", sol.image, imprecise)
@@ -629,12 +631,16 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
     sol.quaternion_xyzw = pointing[3:]
     # Student's variance for a σ from dof residual degrees of freedom (the rule above took the scale).
     sol.covariance_arcsec2 = (error_covariance(covariance, dof) / _ARCSEC**2).tolist()
+    if judged is not covariance:  # else it reads as covariance_arcsec2
+        sol.frame_covariance_arcsec2 = (error_covariance(judged, dof) / _ARCSEC**2).tolist()
     sol.n_matched = len(idx)
     sol.prob_false = max(float(ident.prob_false), math.exp(fit.log_prob_chance))
     sol.rmse_arcsec = rmse / _ARCSEC
     sol.A_icrs_to_cam = A
     sol.A_apparent_to_cam = A_apparent
     sol.camera = camera
+    # the image centre's, when first read (a JSON line, the summary): the same when it is the boresight
+    sol.center_covariance_arcsec2 = Deferred(_pixel_covariance_arcsec2, (fit, sol.center_px, scale, dof))
     observation.report(sol, A, A_reported, camera=camera)
     for line in sol.warnings:  # a bright body inside its exclusion angle
         log.warning("%s: %s", sol.image, line)
@@ -642,6 +648,13 @@ def _fill_attitude(sol: Solution, xy: np.ndarray, ident, attitude_method: str, *
         sol.catalog = str(db.meta.get("catalog", ""))
         sol.catalog_epoch = float(epoch if epoch is not None else db.epoch)
     sol.matches = MatchTable(table, fit.catalog_ids)  # made into Match tuples when first read
+
+
+def _pixel_covariance_arcsec2(fit, pixel: list[float], scale: float, dof: float) -> list[list[float]]:
+    """The covariance (3 × 3, arcsec², Student-scaled as ``covariance_arcsec2``) of the frame at
+    ``pixel`` (:func:`skyfix.final_fit.covariance_at_pixel`), ``scale`` the centroid noise's (σ²
+    stated over σ² fitted)."""
+    return (error_covariance(covariance_at_pixel(fit, pixel) * scale, dof) / _ARCSEC**2).tolist()
 
 
 class _Places:

@@ -73,6 +73,17 @@ class _Lazy:
         obj.__dict__[self.slot] = None if isinstance(value, _Lazy) else value
 
 
+class _OrCovariance(_Lazy):
+    """:attr:`Solution.frame_covariance_arcsec2`: as assigned, or ``covariance_arcsec2`` when
+    ``None`` (a camera given, a tracked frame)."""
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return None
+        value = obj.__dict__[self.slot]
+        return obj.covariance_arcsec2 if value is None else value
+
+
 class _Matches(_Lazy):
     """:attr:`Solution.matches`: a list of :class:`Match`, stored as given, or a
     :class:`MatchTable` that becomes that list when first read (``None`` assigned: an empty list)."""
@@ -110,7 +121,13 @@ class Solution:
     mirrored: bool = False  #: solved as a mirror image (skyfix.parity: parity="mirrored" or "either")
     fov_deg: float | None = None
     quaternion_xyzw: list[float] | None = None
+    #: the attitude's error covariance (3 × 3, arcsec²) about the camera axes x, y, roll — with a
+    #: fitted principal point its uncertainty included (the axes move with it)
     covariance_arcsec2: list[list[float]] | None = None
+    #: the image centre's (``center_px``): its direction's error about the x, y axes of its frame and
+    #: the roll of image-up there (``center_roll_deg``), arcsec²; ``covariance_arcsec2`` when the
+    #: boresight is the centre. May be assigned as a :class:`Deferred` (computed when first read).
+    center_covariance_arcsec2: list[list[float]] | None = field(default=_Lazy())
     n_detected: int = 0
     #: the detection threshold that found them, σ of the filtered frame's noise (5; 3.5 when a
     #: sparse frame solved only on a second, fainter look: skyfix.pipeline.look_fainter); None
@@ -152,6 +169,13 @@ class Solution:
     #: plot of catalogue stars need. ``A_icrs_to_cam`` itself when no correction moved the stars.
     #: A solve with a time may assign it as a :class:`Deferred`: found when first read.
     A_apparent_to_cam: np.ndarray | None = field(default=_Lazy(), repr=False)
+    #: The attitude's error covariance (arcsec²) relative to :attr:`camera`: the frame at
+    #: ``boresight_px`` as a pixel of that camera, the principal point's own move left out (an
+    #: all-sky fisheye's: the axes', as ``covariance_arcsec2``) — what the precision rule judged,
+    #: the studies' errors at that pixel (:mod:`skyfix.analysis.truth`) are divided by, and a
+    #: tracker that keeps the camera starts its filter from. Read as ``covariance_arcsec2`` when
+    #: not assigned (the principal point at the image centre, a camera given, a tracked frame).
+    frame_covariance_arcsec2: list[list[float]] | None = field(default=_OrCovariance(), repr=False)
 
     @property
     def success(self) -> bool:
@@ -263,6 +287,16 @@ class Solution:
         return Pointing(math.degrees(ra), math.degrees(dec), math.degrees(roll))
 
     @property
+    def center_sigma_arcsec(self) -> list[float] | None:
+        """σ (arcsec) of the image centre's direction about its frame's x and y axes and of the roll
+        there: the square roots of :attr:`center_covariance_arcsec2`'s diagonal (what the summary
+        line of ``skyfix solve`` prints beside the centre's RA/Dec); None unless known."""
+        c = self.center_covariance_arcsec2
+        if c is None:
+            return None
+        return [math.sqrt(max(float(c[k][k]), 0.0)) if c[k][k] is not None else math.nan for k in range(3)]
+
+    @property
     def center_ra_deg(self) -> float | None:
         """RA (degrees) of the image centre (:meth:`center_pointing`)."""
         return _finite_or_none(self.center_pointing().ra_deg)
@@ -286,6 +320,8 @@ class Solution:
         centre = self.center_pointing()
         out = {}
         for key, value in d.items():
+            if key == "center_covariance_arcsec2":
+                continue  # beside the centre's numbers, below
             out[key] = value
             if key == "reason":
                 out["next_step"] = self.next_step
@@ -294,8 +330,10 @@ class Solution:
                 out["center_dec_deg"] = _finite_or_none(centre.dec_deg)
                 out["center_roll_deg"] = _finite_or_none(centre.roll_deg)
                 out["center_px"] = self.center_px
+                out["center_covariance_arcsec2"] = d["center_covariance_arcsec2"]
         d = out
         d.pop("A_apparent_to_cam")
+        d.pop("frame_covariance_arcsec2")
         camera = self.frame_camera
         d["camera"] = camera.to_dict() if hasattr(camera, "to_dict") else None
         d["matches"] = matches

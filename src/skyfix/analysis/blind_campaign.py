@@ -103,7 +103,7 @@ def trial_result(sol, A_true: np.ndarray, camera_true: Camera, n_stars: int) -> 
         nan = np.full(3, np.nan)
         return Trial(False, sol.reason, n_stars, camera_true.fov_deg, nan, nan, scale)
     err = attitude_error_rad(sol.A_icrs_to_cam, sol.camera, A_true, camera_true)
-    sigma = np.sqrt(np.diag(np.asarray(sol.covariance_arcsec2))) * _ARCSEC
+    sigma = np.sqrt(np.diag(np.asarray(sol.frame_covariance_arcsec2))) * _ARCSEC  # the error's pixel
     return Trial(True, "", n_stars, camera_true.fov_deg, err, sigma, scale)
 
 

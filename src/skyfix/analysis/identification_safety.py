@@ -190,7 +190,7 @@ def safety_trial(method: str, draw: SafetyDraw, camera: Camera, field, bounds: d
         wrong, bore, roll = verdict.wrong, verdict.boresight_arcsec, verdict.roll_deg
         e = verdict.error_rad / _ARCSEC
         try:
-            norm = float(math.sqrt(e @ np.linalg.solve(np.asarray(sol.covariance_arcsec2), e)))
+            norm = float(math.sqrt(e @ np.linalg.solve(np.asarray(sol.frame_covariance_arcsec2), e)))
         except (np.linalg.LinAlgError, ValueError):
             norm = math.inf
     return SafetyTrial(method, draw.trial, draw.fov_deg, draw.sigma_px, draw.n_false, draw.dropout,

@@ -131,7 +131,7 @@ def _outcome(sol, A_true: np.ndarray, camera_true, seconds: float) -> SolveOutco
     if not sol.solved:
         return SolveOutcome(False, sol.reason, False, nan, nan, 0, seconds)
     verdict = judge(sol.A_icrs_to_cam, sol.camera, A_true, camera_true)
-    sigma = np.sqrt(np.diag(np.asarray(sol.covariance_arcsec2, dtype=np.float64))) * _ARCSEC
+    sigma = np.sqrt(np.diag(np.asarray(sol.frame_covariance_arcsec2, dtype=np.float64))) * _ARCSEC
     return SolveOutcome(True, "", verdict.wrong, verdict.error_rad, sigma, int(sol.n_matched), seconds)
 
 

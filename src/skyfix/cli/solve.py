@@ -386,10 +386,9 @@ def _summary(sol) -> str:
         step = step_to_add(sol.reason)
         return f"{sol.image}: failed: {sol.reason}" + (f" — try: {step}" if step else "")
     path = " | near the attitude hint" if sol.method == "attitude-hint" else ""
-    sig = [v**0.5 for v in (sol.covariance_arcsec2[0][0], sol.covariance_arcsec2[1][1],
-                            sol.covariance_arcsec2[2][2])]
-    # The image centre's numbers, as other plate solvers give them; the boresight named where the
-    # stars put the principal point elsewhere (docs/design.md#the-solution).
+    # The image centre's numbers and their σ, as other plate solvers give them; the boresight named
+    # where the stars put the principal point elsewhere (docs/design.md#the-solution).
+    sig = sol.center_sigma_arcsec
     bx, by = sol.boresight_px
     where = ""
     if sol.boresight_off_centre:

@@ -354,7 +354,7 @@ def _judged(row: dict[str, Any], sol, A: np.ndarray, camera: Camera,
 
     j = judge(sol.A_icrs_to_cam, sol.camera, A, camera)
     err = j.error_rad / _ARCSEC
-    sigma = np.sqrt(np.diag(np.asarray(sol.covariance_arcsec2, dtype=np.float64)))
+    sigma = np.sqrt(np.diag(np.asarray(sol.frame_covariance_arcsec2, dtype=np.float64)))  # the error's pixel
     if true_ids is not None:  # the matches whose catalogue star is not the centroid's own
         row["n_mismatched"] = sum(true_ids.get((m.x, m.y), -1) != m.id for m in sol.matches)
     row.update(status="solved", reason="", wrong=j.wrong, n_matched=sol.n_matched, prob_false=sol.prob_false,

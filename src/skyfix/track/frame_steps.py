@@ -72,7 +72,7 @@ class FrameSteps:
         explain mean it is wrong — else lost."""
         lis, aided = self._solve_lost(img, pred.rate_rad_s, t)
         if lis.solved:
-            P = np.asarray(lis.covariance_arcsec2) * _ARCSEC ** 2
+            P = np.asarray(lis.frame_covariance_arcsec2) * _ARCSEC ** 2
             nis = innovation(pred.A_icrs_to_cam, pred.attitude_cov_rad2, lis.A_icrs_to_cam, P).nis
             if nis <= self.settings.nis_gate:
                 xy = np.array([(m.x, m.y) for m in lis.matches]).reshape(-1, 2)

@@ -283,7 +283,9 @@ class SelfCalibration:
         ra, dec = np.radians([(m.ra_deg, m.dec_deg) for m in sol.matches]).T
         r = radec_to_vector(ra, dec)
         P = camera_attitude_covariance(self.camera, self.fit.covariance, sol.A_icrs_to_cam, xy, r)
+        frame = np.asarray(sol.frame_covariance_arcsec2)  # the tracker's, relative to the camera
         sol.covariance_arcsec2 = (np.asarray(sol.covariance_arcsec2) + P / _ARCSEC**2).tolist()
+        sol.frame_covariance_arcsec2 = (frame + P / _ARCSEC**2).tolist()
 
     def describe(self) -> str:
         """One line: which camera, from what, each fitted number with its 1σ."""

@@ -435,7 +435,7 @@ class Tracker(FrameSteps):
                 pred = self._predictor.predict(t, gyro_rate_rad_s=gyro)
                 self._use_camera(cal.camera)
                 rate_sigma = math.sqrt(float(np.max(np.diagonal(pred.rate_cov_rad2_s2))))
-                P = np.asarray(sol.covariance_arcsec2) * _ARCSEC ** 2
+                P = np.asarray(sol.frame_covariance_arcsec2) * _ARCSEC ** 2
                 self._restart(A, t, P, gyro, pred.rate_rad_s, rate_sigma)
         cal.account(sol)
 
@@ -481,7 +481,7 @@ class Tracker(FrameSteps):
         """(Re)start the predictor from a lost-in-space Solution at ``t``: acquiring next, or
         tracking when the rate is known (gyro rates, or a ``rate`` with its σ ``rate_sigma``
         kept for the Kalman filter)."""
-        P = np.asarray(sol.covariance_arcsec2) * _ARCSEC ** 2
+        P = np.asarray(sol.frame_covariance_arcsec2) * _ARCSEC ** 2
         stars = None
         if self.predictor_name == "small-angle":  # it measures the rate from the stars' motion
             stars = (np.array([(m.x, m.y) for m in sol.matches]).reshape(-1, 2),
