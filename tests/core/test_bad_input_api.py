@@ -157,7 +157,9 @@ def test_mirror_image_is_named(database):
     from skyfix.io import read_image
 
     mirrored = np.ascontiguousarray(read_image(EXAMPLE)[:, ::-1])
-    sol = solve(mirrored, database=database)
+    # the search must run out of patterns, not out of time: the 2 s default is wall time, which
+    # a loaded machine reaches first (then the reason is "time limit … reached", and no mirror)
+    sol = solve(mirrored, database=database, time_limit_s=120.0)
     assert sol.status == "failed"
     assert "mirror image" in sol.reason
     assert sol.reason.startswith("no match after ")
