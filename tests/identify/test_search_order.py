@@ -1,4 +1,4 @@
-"""How the 4-star search shares its work: tolerance tiers by modelled time, bands by their share.
+"""How the 4-star search shares its work: the loose tier within the tight one's time, bands by share.
 
 Frames of suite b's hardest kind (``benchmarks/suite_synthetic.py``: 1280×960, 15°, Hipparcos to
 mag 8, σ 1 px, 8 false stars, 10 % dropouts; the same generator and seed, the catalogue at 2025.0)
@@ -6,9 +6,10 @@ whose first pattern of four true stars comes after 245–357 image patterns, sol
 With the loose tier a fixed factor of 4 behind the tight one in patterns, these three frames
 verified 944, 989 and 814 candidates with the standard database (most of them the loose tier's,
 10–30 times the cost of a tight pattern each, while the tight tier held the hit) and 2602, 2771
-and 2351 through the default bands; with the tiers sharing the modelled time equally and the
-bands by their share of the fields, 580, 649 and 620, and 1804, 1684 and 1814. Counts, not times:
-the search's order does not depend on the clock (test_search_determinism.py).
+and 2351 through the default bands; with the loose tier also never ahead of the tight one in
+modelled time and the bands sharing it by the part of the fields each serves, 580, 649 and 620,
+and under 2000 each. Counts, not times: the search's order does not depend on the clock
+(test_search_determinism.py).
 """
 
 from __future__ import annotations

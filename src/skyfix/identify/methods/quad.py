@@ -7,7 +7,7 @@
    in all five ratios, imply a focal length in the allowed range, and (at that focal length)
    agree within the centroid-noise tolerance. Two tolerance tiers run interleaved: a tight one
    first, and a loose one (unmodelled distortion, a far-off focal-length guess) a factor of 4
-   behind it in patterns.
+   behind it in patterns and never ahead of it in modelled time (:func:`search_work`).
 3. Each candidate gets its vertex correspondence (the permutation whose six edges agree best)
    and its attitude from the four stars (SVD, proper rotations only: a mirror image fits badly
    and is rejected), then verification: the brightest catalogue stars in the frame are matched
@@ -110,6 +110,9 @@ def warm_kernels() -> None:
 # (search_work), not by the clock, so that a frame's result does not depend on the machine's
 # load — with the clock, the same frame was solved in one run and not in another.
 SEARCH_COST_S = (7.7e-6, 6.9e-8, 1.66e-5)
+# The loose tolerance tier looks up at most one image pattern for every this many of the tight tier's
+# (and takes no more modelled time than the tight tier: _Search.next_stop).
+_LOOSE_LAG = 4
 # A hit whose refit is refused: about a refit's time.
 REFUSED_HIT_COST_S = 5e-4
 
@@ -238,7 +241,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     radius = match_radius * max(width, height)
 
     # Tolerance tiers: tight first (few false candidates), then loose (unmodelled distortion,
-    # far-off focal-length guess) lagging behind by a factor of 4 in patterns.
+    # far-off focal-length guess) 4 times behind in patterns, never ahead in time (_Search.next_stop).
     if ratio_tolerance is not None or key_tolerance is not None:
         tiers = [(key_tolerance if key_tolerance is not None else (0.012 if free_fov else 0.008),
                   ratio_tolerance if ratio_tolerance is not None else 0.006)]
@@ -382,11 +385,14 @@ class _Search:
         """Where ``tier``'s next kernel call stops in a turn whose tight tier goes to ``target``
         (of ``total`` patterns): the tight tier to ``target``; a looser one, which sees every
         candidate the tight one sees and more of them (each costing a verification), only while
-        its modelled time is below the tight tier's and never past the tight tier's patterns —
-        to ``total`` once the tight tier has finished. Equal time, not equal patterns: a loose
-        pattern costs 10–30 times a tight one on frames of 8 false stars, and with the loose tier
-        a fixed factor of 4 behind in patterns those frames spent most of their search verifying
-        its candidates while the tight tier held the hit (docs/identification-methods.md)."""
+        its modelled time is below the tight tier's and no further than :data:`_LOOSE_LAG` times
+        behind the tight tier in patterns — to ``total`` once the tight tier has finished. The
+        time bound: a frame the tight tier holds then costs at most twice the tight tier's time.
+        With the pattern lag alone, a frame of suite b's with 8 false stars and no FOV spent
+        70–80 % of its candidates on the loose tier (a loose pattern of the standard band costs
+        ~9 times a tight one there) while the tight tier held the hit; with the time bound alone,
+        a FOV's cheap loose patterns (~2 tight ones) took more time than before
+        (docs/identification-methods.md)."""
         start = self.pos[tier]
         if tier == 0:
             return min(target, start + 512)
@@ -395,11 +401,12 @@ class _Search:
         behind = self.tier_work_s[0] - self.tier_work_s[tier]
         if behind <= 0.0:
             return start
+        lag = self.pos[0] // _LOOSE_LAG
         if not start:  # one pattern first: its cost is what the next calls are sized by
-            return min(self.pos[0], 1)
+            return min(lag, 1)
         per_pattern = self.tier_work_s[tier] / start
         n = max(1, math.ceil(behind / per_pattern)) if per_pattern > 0.0 else 512
-        return min(self.pos[0], start + n, start + 512)
+        return max(start, min(lag, start + n, start + 512))
 
     def database(self) -> PatternDatabase:
         return self.source if isinstance(self.source, PatternDatabase) else band_database(self.source)
