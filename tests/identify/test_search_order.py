@@ -8,7 +8,7 @@ verified 944, 989 and 814 candidates with the standard database (most of them th
 10–30 times the cost of a tight pattern each, while the tight tier held the hit) and 2602, 2771
 and 2351 through the default bands; with the loose tier also never ahead of the tight one in
 modelled time and the bands sharing it by the part of the fields each serves, 580, 649 and 620,
-and under 2000 each. Counts, not times: the search's order does not depend on the clock
+and 1807, 1994 and 1804. Counts, not times: the search's order does not depend on the clock
 (test_search_determinism.py).
 """
 
@@ -57,13 +57,13 @@ def test_false_star_frames_solve_within_700_candidates(hard_frames, database):
         assert res.n_candidates <= 700, res.n_candidates
 
 
-def test_false_star_frames_through_the_default_bands_within_2000_candidates(hard_frames):
-    """No FOV, no database (every default band): right within 2000 candidates (2351–2771 before)."""
+def test_false_star_frames_through_the_default_bands_within_2200_candidates(hard_frames):
+    """No FOV, no database (every default band): right within 2200 candidates (2351–2771 before)."""
     for xy, A in hard_frames:
         res = identify(xy, W, H, time_limit_s=60.0)
         assert res.success, res.reason
         assert _boresight_error_arcsec(res.A_icrs_to_cam, A) < 60.0
-        assert res.n_candidates <= 2000, res.n_candidates
+        assert res.n_candidates <= 2200, res.n_candidates
 
 
 def test_band_shares_are_their_log_overlap():
