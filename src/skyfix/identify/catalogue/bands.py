@@ -45,7 +45,7 @@ from skyfix.errors import DatabaseError, unknown_name
 from skyfix.identify.catalogue.database import DATABASE_VERSION, PatternDatabase, ProgressCallback
 
 __all__ = ["BANDS", "Band", "DEEP", "FOV_MARGIN", "band_database", "bands_for", "database_for_fov",
-           "default_database", "default_database_path", "served_fov_deg", "served_range_deg"]
+           "default_database", "default_database_path", "log_overlap", "served_fov_deg", "served_range_deg"]
 
 log = logging.getLogger(__name__)
 
@@ -110,13 +110,21 @@ def bands_for(fov_lo_deg: float | None = None, fov_hi_deg: float | None = None) 
     Empty when no band serves any of the range."""
     if fov_lo_deg is None or fov_hi_deg is None:
         return list(BANDS)
-
-    def overlap(band: Band) -> float:
-        lo, hi = band.served_fov_deg
-        return math.log(min(hi, fov_hi_deg)) - math.log(max(lo, fov_lo_deg))
-
-    scored = [(overlap(b), i, b) for i, b in enumerate(BANDS)]
+    scored = [(log_overlap(b.served_fov_deg, fov_lo_deg, fov_hi_deg), i, b) for i, b in enumerate(BANDS)]
     return [b for score, _, b in sorted(scored, key=lambda s: (-s[0], s[1])) if score >= 0.0]
+
+
+def log_overlap(served_deg: tuple[float, float], fov_lo_deg: float | None = None,
+                fov_hi_deg: float | None = None) -> float:
+    """How much of the fields ``fov_lo_deg``–``fov_hi_deg`` (None: any) a database serving
+    ``served_deg`` covers, on a log scale: ``ln(min(hi, fov_hi) / max(lo, fov_lo))`` (negative when
+    they do not meet). It orders the bands (:func:`bands_for`) and shares the search's time among
+    them (:func:`skyfix.identify.methods.quad.identify`): a field's width has no preferred scale,
+    so with nothing else known each ratio of widths is as likely as any other."""
+    lo, hi = served_deg
+    lo = lo if fov_lo_deg is None else max(lo, fov_lo_deg)
+    hi = hi if fov_hi_deg is None else min(hi, fov_hi_deg)
+    return math.log(hi) - math.log(lo)
 
 
 def database_for_fov(fov_deg: float, *, progress: bool | ProgressCallback = True) -> PatternDatabase:

@@ -7,7 +7,7 @@
    in all five ratios, imply a focal length in the allowed range, and (at that focal length)
    agree within the centroid-noise tolerance. Two tolerance tiers run interleaved: a tight one
    first, and a loose one (unmodelled distortion, a far-off focal-length guess) a factor of 4
-   behind it in patterns.
+   behind it in patterns and never ahead of it in modelled time (:func:`search_work`).
 3. Each candidate gets its vertex correspondence (the permutation whose six edges agree best)
    and its attitude from the four stars (SVD, proper rotations only: a mirror image fits badly
    and is rejected), then verification: the brightest catalogue stars in the frame are matched
@@ -35,7 +35,13 @@ from skyfix._kernels import lens
 from skyfix.camera import Camera
 from skyfix.errors import CameraError
 from skyfix.identify.accept import PROB_THRESHOLD, QUAD_CENTROID_SIGMA_PX, refit_accepted, refit_focal_allowed
-from skyfix.identify.catalogue.bands import band_database, bands_for, served_fov_deg, served_range_deg
+from skyfix.identify.catalogue.bands import (
+    band_database,
+    bands_for,
+    log_overlap,
+    served_fov_deg,
+    served_range_deg,
+)
 from skyfix.identify.catalogue.database import PatternDatabase, readonly_view
 from skyfix.identify.catalogue.kernel_data import (
     FocalRange,
@@ -104,6 +110,9 @@ def warm_kernels() -> None:
 # (search_work), not by the clock, so that a frame's result does not depend on the machine's
 # load — with the clock, the same frame was solved in one run and not in another.
 SEARCH_COST_S = (7.7e-6, 6.9e-8, 1.66e-5)
+# The loose tolerance tier looks up at most one image pattern for every this many of the tight tier's
+# (and takes no more modelled time than the tight tier: _Search.next_stop).
+_LOOSE_LAG = 4
 # A hit whose refit is refused: about a refit's time.
 REFUSED_HIT_COST_S = 5e-4
 
@@ -210,14 +219,15 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     passes = []
     for source in sources:
         served = served_fov_deg(source) if isinstance(source, PatternDatabase) else source.served_fov_deg
+        share = max(log_overlap(served, *hinted), 0.0)  # its share of the search's time
         if camera is not None:
             if served[0] <= hinted[1] and hinted[0] <= served[1]:
-                passes.append((source, (f0, f_lo, f_hi)))
+                passes.append((source, (f0, f_lo, f_hi), share))
             continue
         lo = max(f_lo, _focal_from_fov(width, min(served[1], 179.0)))
         hi = min(f_hi, _focal_from_fov(width, served[0]))
         if lo <= hi:
-            passes.append((source, (f0 if math.isfinite(f0) else math.sqrt(lo * hi), lo, hi)))
+            passes.append((source, (f0 if math.isfinite(f0) else math.sqrt(lo * hi), lo, hi), share))
     if not passes:
         fov = camera.fov_deg if camera is not None else fov_deg
         return _failure(_outside_reason(fov, *hinted, sources), t0)
@@ -231,7 +241,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     radius = match_radius * max(width, height)
 
     # Tolerance tiers: tight first (few false candidates), then loose (unmodelled distortion,
-    # far-off focal-length guess) lagging behind by a factor of 4 in patterns.
+    # far-off focal-length guess) 4 times behind in patterns, never ahead in time (_Search.next_stop).
     if ratio_tolerance is not None or key_tolerance is not None:
         tiers = [(key_tolerance if key_tolerance is not None else (0.012 if free_fov else 0.008),
                   ratio_tolerance if ratio_tolerance is not None else 0.006)]
@@ -264,39 +274,45 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
     # A wide search's pattern order puts the central stars' patterns forward (_CENTRE_SHARE).
     centre_first = _CentreFirst(xy[:n_pat], geometry)
     searches = []
-    for i, (source, focal) in enumerate(passes):
+    for i, (source, focal, share) in enumerate(passes):
         hypotheses = _distortion_hypotheses(camera, focal, geometry)
         order = centre_first if len(hypotheses) > 1 else (lambda stop: combos)
         first_chunk = 16 if i == 0 else 4
         searches += [_Search(source, focal, camera, xy[:n_p], geometry, tolerances(source), first_chunk,
-                             distortion, order) for distortion in hypotheses]
+                             distortion, order, share) for distortion in hypotheses]
     total = min(len(combos), max_patterns)
     n_lookups = n_cand = 0
     loading_s = 0.0  # spent loading databases or kernels (not counted against time_limit_s)
     while True:
-        # The database that has taken the least (modelled) time so far goes next (the first one,
-        # the common case, first) — its distortion hypotheses share its time — one chunk of
-        # patterns longer than its last: a database whose wrong candidates are cheap to reject
-        # gets through more patterns in the same time.
+        # The database that has taken the least (modelled) time for its share so far goes next
+        # (the first one, the common case, first) — its distortion hypotheses share its time —
+        # one chunk of patterns longer than its last: a database whose wrong candidates are cheap
+        # to reject gets through more patterns in the same time. A database's share is the part
+        # of the fields allowed that it serves, on a log scale (bands.log_overlap): its chance of
+        # holding the frame when no width is more likely than another. Time in proportion to
+        # that chance is the best order when the pattern that finds a frame is about as likely
+        # in each band and its place has a 1/P tail (an image's false stars decide it, whichever
+        # band is searched): docs/fields.md.
         live = [s for s in searches if s.pos[0] < total]
         if not live:
             break
         spent: dict[int, float] = {}
         for s in searches:
             spent[id(s.source)] = spent.get(id(s.source), 0.0) + s.work_s
-        search = min(live, key=lambda s: (spent[id(s.source)], s.work_s))
+        search = min(live, key=lambda s: (spent[id(s.source)] / s.share if s.share > 0.0 else math.inf,
+                                          s.work_s))
         target = min(total, search.pos[0] + search.chunk)
         search.chunk = min(2 * search.chunk, 512)
         for tier, tier_tolerances in enumerate(search.tiers):
-            # the loose tier lags the tight one by a factor of 4 in patterns
-            goal = target if tier == 0 or target >= total else target // 4
-            while search.pos[tier] < goal:
+            while True:
+                start = search.pos[tier]
+                stop = search.next_stop(tier, target, total)
+                if stop <= start:
+                    break
                 if n_lookups and time.perf_counter() - t0 - loading_s > time_limit_s:
                     n_tried = max(s.pos[0] for s in searches)
                     return _failure(f"time limit {time_limit_s:g} s reached after {n_tried} patterns"
                                     + _mirror_note(xy, width, height, cx, retry()), t0, n_tried, n_cand)
-                start = search.pos[tier]
-                stop = min(goal, start + 512)
                 t_load = time.perf_counter()
                 plain = search.plain()
                 loading_s += time.perf_counter() - t_load
@@ -307,7 +323,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                 if search_entry.n_compiled != known:  # compiled or loaded from numba's cache just now
                     loading_s += time.perf_counter() - t_call
                 search.pos[tier] = start + hit.n_done
-                search.work_s += search_work(hit)
+                search.add_work(tier, search_work(hit))
                 n_lookups += hit.n_done
                 n_cand += hit.n_candidates
                 if hit.success:
@@ -322,7 +338,7 @@ def identify(xy: np.ndarray, width: int, height: int, *, fov_deg: float | None =
                     if res is not None:
                         return res
                     # A refit that fails or leaves the allowed range: search on.
-                    search.work_s += REFUSED_HIT_COST_S
+                    search.add_work(tier, REFUSED_HIT_COST_S)
     n_tried = max(s.pos[0] for s in searches)
     return _failure(f"no match after {n_tried} patterns ({n_cand} candidates verified)"
                     + _mirror_note(xy, width, height, cx, retry()) + _shallow_note(hinted[1]),
@@ -348,15 +364,49 @@ class _Search:
 
     def __init__(self, source, focal: tuple[float, float, float], camera: Camera | None, xy: np.ndarray,
                  geometry: tuple[int, int, float, float], tiers: list[tuple], first_chunk: int,
-                 distortion: _Distortion, combos: Callable[[int], np.ndarray]) -> None:
+                 distortion: _Distortion, combos: Callable[[int], np.ndarray], share: float = 1.0) -> None:
         self.source, self.focal, self.camera, self.xy, self.geometry = source, focal, camera, xy, geometry
+        self.share = share  # its database's share of the search's time (log_overlap of the fields allowed)
         self.distortion = distortion  # the radial distortion assumed (see _distortion_hypotheses)
         self.combos = combos
         self.tiers = tiers  # its tolerance tiers, as the kernel takes them
         self.pos = [0] * len(tiers)
+        self.tier_work_s = [0.0] * len(tiers)  # modelled time of each tier
         self.work_s = 0.0
         self.chunk = first_chunk
         self._plain: _Plain | None = None
+
+    def add_work(self, tier: int, work_s: float) -> None:
+        """Count ``work_s`` (modelled seconds) against ``tier`` and the search."""
+        self.tier_work_s[tier] += work_s
+        self.work_s += work_s
+
+    def next_stop(self, tier: int, target: int, total: int) -> int:
+        """Where ``tier``'s next kernel call stops in a turn whose tight tier goes to ``target``
+        (of ``total`` patterns): the tight tier to ``target``; a looser one, which sees every
+        candidate the tight one sees and more of them (each costing a verification), only while
+        its modelled time is below the tight tier's and no further than :data:`_LOOSE_LAG` times
+        behind the tight tier in patterns — to ``total`` once the tight tier has finished. The
+        time bound: a frame the tight tier holds then costs at most twice the tight tier's time.
+        With the pattern lag alone, a frame of suite b's with 8 false stars and no FOV spent
+        70–80 % of its candidates on the loose tier (a loose pattern of the standard band costs
+        ~9 times a tight one there) while the tight tier held the hit; with the time bound alone,
+        a FOV's cheap loose patterns (~2 tight ones) took more time than before
+        (docs/identification-methods.md)."""
+        start = self.pos[tier]
+        if tier == 0:
+            return min(target, start + 512)
+        if target >= total:
+            return min(total, start + 512)
+        behind = self.tier_work_s[0] - self.tier_work_s[tier]
+        if behind <= 0.0:
+            return start
+        lag = self.pos[0] // _LOOSE_LAG
+        if not start:  # one pattern first: its cost is what the next calls are sized by
+            return min(lag, 1)
+        per_pattern = self.tier_work_s[tier] / start
+        n = max(1, math.ceil(behind / per_pattern)) if per_pattern > 0.0 else 512
+        return max(start, min(lag, start + n, start + 512))
 
     def database(self) -> PatternDatabase:
         return self.source if isinstance(self.source, PatternDatabase) else band_database(self.source)
