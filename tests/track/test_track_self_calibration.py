@@ -106,8 +106,10 @@ def test_error_bars_hold_the_cameras_uncertainty(short_run):
     for part in (z[2:6], z[6:]):
         rms = np.sqrt(np.mean(part ** 2, axis=0))
         assert np.all((0.4 < rms) & (rms < 1.5)), rms
-    # the NIS of the tracked frames (χ²₃ when consistent): measured mean 0.66 over 6 frames; the
-    # 6-frame mean's 99.9 % upper bound is χ²₁₈(0.999)/6 = 7.1
+    # the NIS of the tracked frames (χ²₃ when consistent; a keyframe's frame restarts the filter,
+    # whose last NIS is then NaN): measured mean 0.66 over 6 frames; the 6-frame mean's 99.9 %
+    # upper bound is χ²₁₈(0.999)/6 = 7.1
+    nis = [x for x in nis if math.isfinite(x)]
     assert len(nis) == 6 and np.mean(nis) < 7.1, nis
 
 
@@ -116,7 +118,8 @@ def test_the_filter_carries_the_camera(short_run):
     covariance, and a tracked frame's reported covariance is the filter's own (no add-on)."""
     frames, tracker, (sols, _, _), _, _ = short_run
     filt = tracker._predictor.filter
-    np.testing.assert_array_equal(filt.camera_covariance, tracker.calibration.camera_covariance)
+    C = tracker.calibration.camera_covariance  # the joint fit's, symmetrised in the filter
+    np.testing.assert_allclose(filt.camera_covariance, 0.5 * (C + C.T), rtol=1e-15, atol=0)
     assert filt.camera_covariance.shape == (len(tracker.calibration.fit.sigma),) * 2
     assert sols[-1].method == "track"
     P = filt.state.covariance[:3, :3] / ARCSEC**2
@@ -194,7 +197,7 @@ def test_100_frames_with_no_camera_file():
     assert np.all((0.25 < rms) & (rms < 2.0)), rms
     # measured: 0.57, 0.68, 0.59 (the true camera's run 0.58, 0.67, 0.58); mean NIS 0.45 over 77
     # tracked frames (the true camera's 0.49): cautious, never over-confident (χ²₂₃₁(0.999)/77 = 3.9)
-    assert np.mean(nis) < 3.9, np.mean(nis)
+    assert np.nanmean(nis) < 3.9, np.nanmean(nis)
 
 
 def test_track_command_with_no_camera(short_run, tmp_path):

@@ -518,7 +518,7 @@ class Tracker(FrameSteps):
         its own the cross-covariance ``camera_cross`` (3, n) of ``A`` with the camera's numbers
         (:meth:`~skyfix.track.self_calibration.SelfCalibration.start`)."""
         opts = dict(self._predictor_options, gyro=gyro is not None)
-        if camera_cross is not None:
+        if camera_cross is not None and camera_cross.shape[1]:  # (a camera with no free number: none)
             opts["camera_covariance"] = self.calibration.camera_covariance
             opts["camera_cross_rad"] = camera_cross
         if rate_sigma is not None:
