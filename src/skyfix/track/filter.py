@@ -40,6 +40,21 @@ correction ``Â ← R(K_att z) Â``, ``ω̂ ← ω̂ + K_rate z`` (or ``β̂``),
 ``zᵀ S⁻¹ z`` (NIS) is χ² with 3 degrees of freedom for a consistent measurement:
 :meth:`AttitudeFilter.innovation_nis` lets a tracker refuse one above :data:`NIS_GATE`.
 
+**The camera's uncertainty** (a tracker that calibrated its own camera,
+:mod:`skyfix.track.self_calibration`): its ``n`` free camera numbers are *consider* states
+(Schmidt–Kalman; Markley & Crassidis §6.2's consider form, Tapley, Schutz & Born §6.4): not
+estimated — their covariance ``C`` (n × n, the joint fit's) never changes — but carried with the
+cross-covariance ``X`` (6 × n) between the filter's state (the corrections ``a``, ``b``: truth −
+estimate) and the camera's error. A star fit through a camera off by ``δc`` errs by
+``ν + G δc`` (``G``, 3 × n: what each number does to the frame's fitted attitude,
+:func:`skyfix.track.self_calibration.camera_attitude_sensitivity`), the same ``δc`` for every
+frame: a bias, not white noise. Then ``X ← Φ X`` over an interval,
+``P_xy = P Hᵀ + X Gᵀ``, ``S = P_att + X_att Gᵀ + G X_attᵀ + G C Gᵀ + R``, ``K = P_xy S⁻¹`` (no gain
+on the camera), ``P ← P − K P_xyᵀ − P_xy Kᵀ + K S Kᵀ`` and ``X ← X − K (X_att + G C)``. The
+attitude's covariance ``P_att`` then holds what the camera leaves unknown, and a filter fed many
+frames through one camera does not average that part away. Without a camera covariance the filter
+is the plain MEKF above, its kernels untouched.
+
 The arithmetic is three small numba kernels (propagate, correct, and the input checks) on
 fixed-size arrays, with the shared ``rodrigues``, ``rotation_vector`` and ``spd_inverse`` of
 :mod:`skyfix._kernels.rotation`: numpy's per-call overhead on 3 × 3 and 6 × 6 arrays (1–7 µs an
@@ -65,11 +80,13 @@ __all__ = [
     "as_covariance",
     "as_rotation",
     "as_time",
+    "consider_correct",
     "corrected_rate",
     "gate_innovation",
     "gated_correct",
     "innovation",
     "interval_model",
+    "propagate_cross",
     "propagate_estimate",
 ]
 
@@ -207,6 +224,27 @@ def propagate_estimate(A, P, omega, dt, q_rate, q_att, sign):
     return A_new, P_new
 
 
+@njit(cache=True, inline="always")
+def _times3(K, M):
+    """``K M`` of a (6, 3) and a 3 × 3 matrix, by loops (the gain's products)."""
+    out = np.zeros((6, 3))
+    for i in range(6):
+        for j in range(3):
+            out[i, j] = K[i, 0] * M[0, j] + K[i, 1] * M[1, j] + K[i, 2] * M[2, j]
+    return out
+
+
+@njit(cache=True, inline="always")
+def _corrected_attitude(dx, A_pred):
+    """``R(δθ) A_pred`` for the state correction ``dx`` (its first three: ``δθ``)."""
+    Rc = rodrigues(dx[:3])
+    A_new = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            A_new[i, j] = Rc[i, 0] * A_pred[0, j] + Rc[i, 1] * A_pred[1, j] + Rc[i, 2] * A_pred[2, j]
+    return A_new
+
+
 @njit(cache=True)
 def _innovation(A_pred, P, A_meas, R):
     """``z`` (rotation vector of ``A_meas A_predᵀ``), ``S = P[:3, :3] + R``, ``S⁻¹``, whether
@@ -233,10 +271,7 @@ def _correct(A_pred, P, A_meas, R):
     z, S, S_inv, ok, nis = _innovation(A_pred, P, A_meas, R)
     if not ok:
         return False, A_pred, np.zeros(6), P, nis
-    K = np.zeros((6, 3))  # P Hᵀ S⁻¹
-    for i in range(6):
-        for j in range(3):
-            K[i, j] = P[i, 0] * S_inv[0, j] + P[i, 1] * S_inv[1, j] + P[i, 2] * S_inv[2, j]
+    K = _times3(P, S_inv)  # P Hᵀ S⁻¹
     dx = np.zeros(6)
     IKH = np.eye(6)
     for i in range(6):
@@ -250,10 +285,7 @@ def _correct(A_pred, P, A_meas, R):
             if f != 0.0:
                 for j in range(6):
                     IKHP[i, j] += f * P[k, j]
-    KR = np.zeros((6, 3))
-    for i in range(6):
-        for j in range(3):
-            KR[i, j] = K[i, 0] * R[0, j] + K[i, 1] * R[1, j] + K[i, 2] * R[2, j]
+    KR = _times3(K, R)
     P_new = np.empty((6, 6))
     for i in range(6):
         for j in range(i, 6):
@@ -264,11 +296,7 @@ def _correct(A_pred, P, A_meas, R):
                 t += KR[i, k] * K[j, k]
             P_new[i, j] = t
             P_new[j, i] = t
-    Rc = rodrigues(dx[:3])
-    A_new = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            A_new[i, j] = Rc[i, 0] * A_pred[0, j] + Rc[i, 1] * A_pred[1, j] + Rc[i, 2] * A_pred[2, j]
+    A_new = _corrected_attitude(dx, A_pred)
     return True, A_new, dx, P_new, nis
 
 
@@ -339,6 +367,82 @@ def corrected_rate(omega, g, bias, dx, gyro):
     return rate, bias
 
 
+@njit(cache=True)
+def propagate_cross(omega, dt, X, sign):
+    """``Φ X`` over ``dt`` (module docstring: the cross-covariance (6, n) of the filter's errors
+    with the consider states; ``sign`` as :func:`propagate_estimate`'s)."""
+    m = interval_model(omega, dt)
+    n = X.shape[1]
+    out = X.copy()
+    for i in range(3):
+        for j in range(n):
+            t = 0.0
+            for k in range(3):
+                t += m[0, i, k] * X[k, j] + sign * m[1, i, k] * X[3 + k, j]
+            out[i, j] = t
+    return out
+
+
+@njit(cache=True)
+def consider_correct(A_pred, P, X, C, A_meas, R, G, nis_gate):
+    """The measurement update with consider states (module docstring): the prediction ``A_pred``,
+    ``P`` (6, 6), cross-covariance ``X`` (6, n), the consider states' covariance ``C`` (n, n), the
+    star fit ``A_meas`` with covariance ``R`` (symmetrised in place) and its sensitivity ``G``
+    (3, n) to the consider states. The checks and results of :func:`gated_correct`, and the new
+    cross-covariance last."""
+    rotation_code = _rotation_code(A_meas)
+    covariance_code = _symmetrize_code(R)
+    n = C.shape[0]
+    Y = np.empty((3, n))  # cov(the measurement's error, the camera's) = X_att + G C
+    for i in range(3):
+        for j in range(n):
+            t = X[i, j]
+            for k in range(n):
+                t += G[i, k] * C[k, j]
+            Y[i, j] = t
+    Pxy = np.empty((6, 3))  # cov(the state's error, the innovation's) = P Hᵀ + X Gᵀ
+    for i in range(6):
+        for j in range(3):
+            t = P[i, j]
+            for k in range(n):
+                t += X[i, k] * G[j, k]
+            Pxy[i, j] = t
+    R_all = np.empty((3, 3))  # S − P_att: R + X_att Gᵀ + G Yᵀ
+    for i in range(3):
+        for j in range(3):
+            t = R[i, j]
+            for k in range(n):
+                t += X[i, k] * G[j, k] + G[i, k] * Y[j, k]
+            R_all[i, j] = t
+    for i in range(3):
+        for j in range(i + 1, 3):
+            m = 0.5 * (R_all[i, j] + R_all[j, i])
+            R_all[i, j] = m
+            R_all[j, i] = m
+    z, S, S_inv, ok, nis = _innovation(A_pred, P, A_meas, R_all)
+    if rotation_code != _OK or covariance_code != _OK or not ok or not nis <= nis_gate:
+        return rotation_code, covariance_code, ok, z, S, nis, False, A_pred, np.zeros(6), P, X
+    K = _times3(Pxy, S_inv)
+    dx = np.zeros(6)
+    for i in range(6):
+        dx[i] = K[i, 0] * z[0] + K[i, 1] * z[1] + K[i, 2] * z[2]
+    KS = _times3(K, S)
+    P_new = np.empty((6, 6))
+    for i in range(6):
+        for j in range(i, 6):
+            t = P[i, j]
+            for k in range(3):
+                t += -K[i, k] * Pxy[j, k] - Pxy[i, k] * K[j, k] + KS[i, k] * K[j, k]
+            P_new[i, j] = t
+            P_new[j, i] = t
+    X_new = X.copy()
+    for i in range(6):
+        for j in range(n):
+            X_new[i, j] -= K[i, 0] * Y[0, j] + K[i, 1] * Y[1, j] + K[i, 2] * Y[2, j]
+    A_new = _corrected_attitude(dx, A_pred)
+    return rotation_code, covariance_code, ok, z, S, nis, True, A_new, dx, P_new, X_new
+
+
 # --- checks and the innovation -----------------------------------------------------------------
 def as_time(t_s, name: str = "filter time") -> float:
     """A finite time in seconds as a float; InputError otherwise."""
@@ -399,6 +503,25 @@ def _positive(x, name: str) -> float:
     return x
 
 
+def _consider_states(covariance, cross) -> tuple[np.ndarray, np.ndarray]:
+    """The consider states' covariance (n, n), checked (finite, symmetric, no negative variance),
+    and the cross-covariance (6, n) of the filter's state — the corrections ``a = −δθ`` and
+    ``ω − ω̂``, truth − estimate — with them: ``−cross`` on the attitude's rows, zeros below."""
+    try:
+        C = np.array(covariance, dtype=np.float64)
+        X3 = np.zeros((3, len(C))) if cross is None else np.array(cross, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError("camera_covariance and camera_cross_rad must be arrays of numbers") from None
+    n = C.shape[0] if C.ndim == 2 else 0
+    if C.shape != (n, n) or n == 0 or not np.all(np.isfinite(C)) or np.any(np.diagonal(C) < 0):
+        raise InputError(f"camera_covariance must be a finite (n, n) covariance, got shape {C.shape}")
+    if X3.shape != (3, n) or not np.all(np.isfinite(X3)):
+        raise InputError(f"camera_cross_rad must be a finite (3, {n}) array, got shape {X3.shape}")
+    X = np.zeros((6, n))
+    X[:3] = -X3
+    return np.ascontiguousarray(0.5 * (C + C.T)), X
+
+
 def innovation(A_pred: np.ndarray, P_att_rad2: np.ndarray, A_meas: np.ndarray, cov_meas_rad2: np.ndarray
                ) -> Innovation:
     """The innovation of an attitude measurement against a prediction with covariance
@@ -443,6 +566,13 @@ class AttitudeFilter:
     gyro_noise : gyro angle random walk σ_v, rad/√s (:data:`DEFAULT_GYRO_NOISE`).
     bias_walk : gyro bias random walk σ_u, rad/s/√s (:data:`DEFAULT_BIAS_WALK`).
     gyro_bias_rad_s : initial bias (default 0) and ``bias_sigma_rad_s`` its σ per axis.
+    camera_covariance : (n, n), optional — the covariance of the camera's ``n`` free numbers
+        (consider states, module docstring; the camera's units). Then every measurement needs its
+        ``camera_sensitivity`` (3, n). None: no consider states, the plain MEKF.
+    camera_cross_rad : (3, n), optional — the cross-covariance of the initial attitude's error
+        ``δθ`` with the camera numbers' errors (rad × the camera's units; default zeros): ``G C``
+        when ``A_icrs_to_cam`` was fitted through the camera (and ``attitude_cov_rad2`` then
+        holds ``R + G C Gᵀ``).
 
     Raises
     ------
@@ -457,7 +587,9 @@ class AttitudeFilter:
                  accel_psd: float = DEFAULT_ACCEL_PSD, gyro: bool = False,
                  gyro_noise: float = DEFAULT_GYRO_NOISE, bias_walk: float = DEFAULT_BIAS_WALK,
                  gyro_bias_rad_s: np.ndarray | None = None,
-                 bias_sigma_rad_s: float = DEFAULT_BIAS_SIGMA_RAD_S) -> None:
+                 bias_sigma_rad_s: float = DEFAULT_BIAS_SIGMA_RAD_S,
+                 camera_covariance: np.ndarray | None = None,
+                 camera_cross_rad: np.ndarray | None = None) -> None:
         self._t = as_time(t_s)
         self._A = as_rotation(A_icrs_to_cam, "attitude")
         self._gyro = bool(gyro)
@@ -478,6 +610,10 @@ class AttitudeFilter:
             self._gyro_rate = None
             P[3:, 3:] = _positive(rate_sigma_rad_s, "rate_sigma_rad_s") ** 2 * np.eye(3)
         self._P = P
+        self._C: np.ndarray | None = None  # the consider states' covariance (n, n), or None
+        self._X: np.ndarray | None = None  # the state's errors' cross-covariance with them (6, n)
+        if camera_covariance is not None:
+            self._C, self._X = _consider_states(camera_covariance, camera_cross_rad)
         self._cached: tuple | None = None  # (key, (A, P, ω̂, gyro rate)) of the last prediction
         self.last_nis = float("nan")
         """NIS of the last committed measurement."""
@@ -487,6 +623,48 @@ class AttitudeFilter:
     def gyro(self) -> bool:
         """Whether the filter runs on gyro rates (state: attitude + gyro bias)."""
         return self._gyro
+
+    @property
+    def camera_covariance(self) -> np.ndarray | None:
+        """The consider states' covariance (n, n, a copy), or None without them."""
+        return None if self._C is None else self._C.copy()
+
+    def camera_cross(self, t_s: float, gyro_rate_rad_s: np.ndarray | None = None) -> np.ndarray | None:
+        """The cross-covariance (6, n) of the state's errors (the attitude's ``δθ``, then the
+        rate's or bias's estimate − truth) with the camera numbers' errors, propagated to ``t_s``,
+        or None without consider states."""
+        if self._X is None:
+            return None
+        _, _, omega, _ = self._predicted(t_s, gyro_rate_rad_s)
+        return -self._cross_at(as_time(t_s), omega)  # the state inside is truth − estimate
+
+    def _cross_at(self, t: float, omega: np.ndarray) -> np.ndarray:
+        """The cross-covariance propagated from the state's time to ``t`` at the rate ``omega``."""
+        dt = t - self._t
+        if dt == 0.0:
+            return self._X
+        return propagate_cross(omega, dt, self._X, 1.0 if self._gyro else -1.0)
+
+    def _sensitivity(self, camera_sensitivity) -> np.ndarray:
+        """A measurement's sensitivity to the consider states, checked: (3, n) finite."""
+        n = self._C.shape[0]
+        if camera_sensitivity is None:
+            raise InputError(f"this filter carries {n} camera numbers: a measurement needs its "
+                             f"camera_sensitivity (3, {n})")
+        G = np.ascontiguousarray(camera_sensitivity, dtype=np.float64)
+        if G.shape != (3, n) or not np.all(np.isfinite(G)):
+            raise InputError(f"camera_sensitivity must be a finite (3, {n}) array, got shape {G.shape}")
+        return G
+
+    def _consider_correct(self, t: float, A_meas, R: np.ndarray, camera_sensitivity, nis_gate: float,
+                          gyro_rate_rad_s) -> tuple:
+        """:func:`consider_correct` at ``t`` against the prediction; its results and the
+        prediction's (ω̂, gyro rate)."""
+        G = self._sensitivity(camera_sensitivity)
+        A_pred, P, omega, g = self._predicted(t, gyro_rate_rad_s)
+        X = self._cross_at(t, omega)
+        A_meas = _matrix3(A_meas, _ROTATION_MESSAGES, "measured attitude", copy=False)
+        return consider_correct(A_pred, P, X, self._C, A_meas, R, G, float(nis_gate)), omega, g
 
     @property
     def state(self) -> FilterState:
@@ -545,6 +723,8 @@ class AttitudeFilter:
         """Commit the prediction to ``t_s`` without a measurement (a frame with no fit; in gyro
         mode, each gyro sample between measurements)."""
         A, P, omega, g = self._predicted(t_s, gyro_rate_rad_s)
+        if self._X is not None:
+            self._X = self._cross_at(as_time(t_s), omega)
         self._t, self._A, self._P, self._omega = as_time(t_s), A, P, omega
         if g is not None:
             self._gyro_rate = g
@@ -553,9 +733,16 @@ class AttitudeFilter:
 
     # --- measurement update ------------------------------------------------------------------
     def innovation(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray,
-                   gyro_rate_rad_s: np.ndarray | None = None) -> Innovation:
+                   gyro_rate_rad_s: np.ndarray | None = None, camera_sensitivity: np.ndarray | None = None
+                   ) -> Innovation:
         """The measurement ``A_meas`` (covariance ``cov_meas_rad2``, rad²) at ``t_s`` against the
-        prediction, not committed."""
+        prediction, not committed; with consider states, ``camera_sensitivity`` is its ``G``."""
+        if self._C is not None:
+            R = _matrix3(cov_meas_rad2, _COVARIANCE_MESSAGES, "measurement covariance")
+            # a gate no NIS passes: the innovation alone, nothing corrected
+            out, _, _ = self._consider_correct(as_time(t_s), A_meas, R, camera_sensitivity, -1.0,
+                                               gyro_rate_rad_s)
+            return gate_innovation(*out[:6])
         A_pred, P, _, _ = self._predicted(t_s, gyro_rate_rad_s)
         z, S, _, ok, nis = _innovation(A_pred, P, as_rotation(A_meas, "measured attitude"),
                                        as_covariance(cov_meas_rad2, "measurement covariance"))
@@ -564,15 +751,18 @@ class AttitudeFilter:
         return Innovation(z, S, float(nis))
 
     def innovation_nis(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray,
-                       gyro_rate_rad_s: np.ndarray | None = None) -> float:
+                       gyro_rate_rad_s: np.ndarray | None = None,
+                       camera_sensitivity: np.ndarray | None = None) -> float:
         """Normalised innovation squared of a measurement: χ²(3) when it agrees with the
         prediction; above :data:`NIS_GATE` it is inconsistent at the 0.999 level."""
-        return self.innovation(t_s, A_meas, cov_meas_rad2, gyro_rate_rad_s).nis
+        return self.innovation(t_s, A_meas, cov_meas_rad2, gyro_rate_rad_s, camera_sensitivity).nis
 
     def update(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray,
-               gyro_rate_rad_s: np.ndarray | None = None) -> FilterState:
+               gyro_rate_rad_s: np.ndarray | None = None, camera_sensitivity: np.ndarray | None = None
+               ) -> FilterState:
         """Propagate to ``t_s`` (> the state's time) and correct with the star fit ``A_meas`` of
         covariance ``cov_meas_rad2`` (rad², camera frame); commits and returns the new state.
+        With consider states ``camera_sensitivity`` (3, n) is the fit's ``G`` (module docstring).
 
         Raises
         ------
@@ -585,6 +775,13 @@ class AttitudeFilter:
             raise InputError(f"filter time must increase: t={t!r} s after the state's {self._t!r} s")
         A_meas = as_rotation(A_meas, "measured attitude")
         R = as_covariance(cov_meas_rad2, "measurement covariance")
+        if self._C is not None:
+            out, omega, g = self._consider_correct(t, A_meas, R, camera_sensitivity, math.inf,
+                                                   gyro_rate_rad_s)
+            if not out[2]:
+                raise InputError("attitude innovation covariance is not positive definite")
+            self._commit(t, out[7], out[8], out[9], g, omega, out[5], out[10])
+            return self.state
         A_pred, P, omega, g = self._predicted(t, gyro_rate_rad_s)
         ok, A_new, dx, P_new, nis = _correct(A_pred, P, A_meas, R)
         if not ok:
@@ -593,9 +790,11 @@ class AttitudeFilter:
         return self.state
 
     def update_gated(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray, nis_gate: float,
-                     gyro_rate_rad_s: np.ndarray | None = None) -> tuple[bool, Innovation]:
+                     gyro_rate_rad_s: np.ndarray | None = None, camera_sensitivity: np.ndarray | None = None
+                     ) -> tuple[bool, Innovation]:
         """:meth:`update` only when the measurement agrees with the prediction, its NIS at most
-        ``nis_gate`` (a tracker's check, :meth:`innovation`, and its update in one call).
+        ``nis_gate`` (a tracker's check, :meth:`innovation`, and its update in one call; with
+        consider states ``camera_sensitivity`` is the fit's ``G``).
         Returns whether it was committed (else the state is unchanged) and the innovation; the
         new estimate is :attr:`state`, or :meth:`prediction` at ``t_s``.
 
@@ -609,6 +808,13 @@ class AttitudeFilter:
             raise InputError(f"filter time must increase: t={t!r} s after the state's {self._t!r} s")
         A_meas = _matrix3(A_meas, _ROTATION_MESSAGES, "measured attitude", copy=False)  # only read
         R = _matrix3(cov_meas_rad2, _COVARIANCE_MESSAGES, "measurement covariance")  # symmetrised
+        if self._C is not None:
+            out, omega, g = self._consider_correct(t, A_meas, R, camera_sensitivity, nis_gate,
+                                                   gyro_rate_rad_s)
+            inn = gate_innovation(*out[:6])
+            if out[6]:
+                self._commit(t, out[7], out[8], out[9], g, omega, out[5], out[10])
+            return bool(out[6]), inn
         A_pred, P, omega, g = self._predicted(t, gyro_rate_rad_s)
         rotation_code, covariance_code, ok, z, S, nis, done, A_new, dx, P_new = gated_correct(
             A_pred, P, A_meas, R, float(nis_gate))
@@ -617,11 +823,15 @@ class AttitudeFilter:
             self._commit(t, A_new, dx, P_new, g, omega, nis)
         return bool(done), inn
 
-    def _commit(self, t: float, A_new: np.ndarray, dx: np.ndarray, P_new: np.ndarray, g, omega, nis) -> None:
-        """Take a corrected estimate at ``t`` (:func:`_correct`'s) as the state."""
+    def _commit(self, t: float, A_new: np.ndarray, dx: np.ndarray, P_new: np.ndarray, g, omega, nis,
+                X_new: np.ndarray | None = None) -> None:
+        """Take a corrected estimate at ``t`` (:func:`_correct`'s, or :func:`consider_correct`'s
+        with its cross-covariance ``X_new``) as the state."""
         bias = self._bias if self._gyro else _NO_BIAS
         rate, bias = corrected_rate(omega, omega if g is None else g, bias, dx, self._gyro)
         self.take(t, A_new, P_new, rate, bias, g, nis)
+        if X_new is not None:
+            self._X = X_new
 
     # --- one compiled step (skyfix.track.step) -------------------------------------------------
     def step_inputs(self, t_s: float, gyro_rate_rad_s: np.ndarray | None = None) -> tuple:
@@ -633,6 +843,9 @@ class AttitudeFilter:
         t = as_time(t_s)
         if not t > self._t:
             raise InputError(f"filter time must increase: t={t!r} s after the state's {self._t!r} s")
+        if self._C is not None:
+            raise InputError("a filter with camera consider states is updated by update_gated with each "
+                             "fit's camera_sensitivity, not by a compiled step")
         A, P, omega, g = self._predicted(t, gyro_rate_rad_s)
         if self._gyro:
             return A, P, omega, g, self._bias, True

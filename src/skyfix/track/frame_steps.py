@@ -73,12 +73,20 @@ class FrameSteps:
         lis, aided = self._solve_lost(img, pred.rate_rad_s, t)
         if lis.solved:
             P = np.asarray(lis.frame_covariance_arcsec2) * _ARCSEC ** 2
-            nis = innovation(pred.A_icrs_to_cam, pred.attitude_cov_rad2, lis.A_icrs_to_cam, P).nis
+            kw = {}
+            if self._considering:  # the camera's numbers are consider states: the fit's sensitivity
+                from skyfix.track.self_calibration import solution_stars
+
+                A = np.asarray(lis.A_icrs_to_cam)
+                kw["camera_sensitivity"] = self.calibration.sensitivity(A, solution_stars(lis)[1] @ A.T)
+                nis = self._predictor.filter.innovation(t, A, P, gyro, kw["camera_sensitivity"]).nis
+            else:
+                nis = innovation(pred.A_icrs_to_cam, pred.attitude_cov_rad2, lis.A_icrs_to_cam, P).nis
             if nis <= self.settings.nis_gate:
                 xy = np.array([(m.x, m.y) for m in lis.matches]).reshape(-1, 2)
                 ids = np.array([m.id for m in lis.matches], np.int64)
                 post = self._predictor.update(t, lis.A_icrs_to_cam, P, xy=xy, ids=ids, camera=self.camera,
-                                              gyro_rate_rad_s=gyro)
+                                              gyro_rate_rad_s=gyro, **kw)
                 lis.mode = self.mode
                 self.mode = "tracking"
                 self._coast = 0

@@ -39,7 +39,10 @@ Interface of every predictor class, started from a first star fit::
         # update only when the NIS is at most nis_gate (None: not committed)
 
 Only the MEKF uses gyro rates (``gyro=True``: attitude + gyro bias); the thesis predictors had
-no gyro and ignore them.
+no gyro and ignore them. Only the MEKF carries a self-calibrated camera's uncertainty
+(``camera_covariance=``, ``camera_cross_rad=``: consider states, :mod:`skyfix.track.filter`);
+its ``update``, ``update_gated`` and ``innovation_nis`` then take each fit's
+``camera_sensitivity=G`` (3, n).
 """
 
 from __future__ import annotations
@@ -133,27 +136,34 @@ class MekfPredictor(_Predictor):
                  rate_sigma_rad_s: float = DEFAULT_RATE_SIGMA_RAD_S,
                  accel_psd: float = DEFAULT_ACCEL_PSD, gyro_noise: float = DEFAULT_GYRO_NOISE,
                  bias_walk: float = DEFAULT_BIAS_WALK,
-                 bias_sigma_rad_s: float = DEFAULT_BIAS_SIGMA_RAD_S) -> None:
+                 bias_sigma_rad_s: float = DEFAULT_BIAS_SIGMA_RAD_S,
+                 camera_covariance: np.ndarray | None = None,
+                 camera_cross_rad: np.ndarray | None = None) -> None:
         self.filter = AttitudeFilter(A_icrs_to_cam, t_s, attitude_cov_rad2, rate_rad_s=rate_rad_s,
                                      rate_sigma_rad_s=rate_sigma_rad_s, accel_psd=accel_psd, gyro=gyro,
                                      gyro_noise=gyro_noise, bias_walk=bias_walk,
-                                     bias_sigma_rad_s=bias_sigma_rad_s)
+                                     bias_sigma_rad_s=bias_sigma_rad_s, camera_covariance=camera_covariance,
+                                     camera_cross_rad=camera_cross_rad)
 
     def update(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray, *, xy=None, ids=None,
-               camera=None, gyro_rate_rad_s: np.ndarray | None = None) -> Prediction:
-        return _prediction(self.filter.update(t_s, A_meas, cov_meas_rad2, gyro_rate_rad_s))
+               camera=None, gyro_rate_rad_s: np.ndarray | None = None,
+               camera_sensitivity: np.ndarray | None = None) -> Prediction:
+        state = self.filter.update(t_s, A_meas, cov_meas_rad2, gyro_rate_rad_s, camera_sensitivity)
+        return _prediction(state)
 
     def update_gated(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray, nis_gate: float, *,
-                     xy=None, ids=None, camera=None, gyro_rate_rad_s: np.ndarray | None = None
-                     ) -> tuple[Prediction | None, Innovation]:
-        done, inn = self.filter.update_gated(t_s, A_meas, cov_meas_rad2, nis_gate, gyro_rate_rad_s)
+                     xy=None, ids=None, camera=None, gyro_rate_rad_s: np.ndarray | None = None,
+                     camera_sensitivity: np.ndarray | None = None) -> tuple[Prediction | None, Innovation]:
+        done, inn = self.filter.update_gated(t_s, A_meas, cov_meas_rad2, nis_gate, gyro_rate_rad_s,
+                                             camera_sensitivity)
         return (Prediction(*self.filter.prediction(t_s)) if done else None), inn
 
     def predict(self, t_s: float, gyro_rate_rad_s: np.ndarray | None = None) -> Prediction:
         return Prediction(*self.filter.prediction(t_s, gyro_rate_rad_s))
 
-    def innovation_nis(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray) -> float:
-        return self.filter.innovation_nis(t_s, A_meas, cov_meas_rad2)
+    def innovation_nis(self, t_s: float, A_meas: np.ndarray, cov_meas_rad2: np.ndarray, *,
+                       camera_sensitivity: np.ndarray | None = None) -> float:
+        return self.filter.innovation_nis(t_s, A_meas, cov_meas_rad2, camera_sensitivity=camera_sensitivity)
 
 
 class _Fit(NamedTuple):

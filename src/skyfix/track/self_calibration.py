@@ -24,21 +24,28 @@ makes the camera from the sequence itself and keeps it honest:
    one too many, the oldest of the two nearest in pointing goes, so that the set spreads over
    the sky the sequence has seen. The tracker takes the new camera at once, its attitude
    restarted at the keyframe's refitted one, the rate kept.
-3. **The camera's uncertainty in the reported error.** A solved frame's covariance gains what
-   the camera's covariance (the joint fit's, :attr:`~skyfix.calibration.joint.JointFit.covariance`)
-   does to that frame's attitude (:func:`camera_attitude_covariance`): for each free camera
-   number, the frame's attitude refitted to its own stars through the camera moved by it
-   (linearised), the change judged at the principal point's pixel as
-   :mod:`skyfix.analysis.truth` judges an error — ``P += G Σ_c Gᵀ``. It is added to the
-   reported covariance, not fed to the filter: the camera's error is one bias that every frame
-   shares, which a filter given it as each frame's measurement noise would average down as if
-   it were new every frame.
+3. **The camera's uncertainty in the filter.** What each free camera number does to a frame's
+   attitude is ``G`` (3 × n, :func:`camera_attitude_sensitivity`): the frame's attitude refitted
+   to its own stars through the camera moved by that number (linearised), the change judged at
+   the principal point's pixel as :mod:`skyfix.analysis.truth` judges an error. The camera's
+   error is one bias that every frame shares — not noise new each frame, which a filter would
+   average down — so the MEKF carries the camera numbers as consider states
+   (:mod:`skyfix.track.filter`: their covariance ``Σ_c`` the joint fit's,
+   :attr:`~skyfix.calibration.joint.JointFit.covariance`, the cross-covariance with the attitude
+   and rate carried from frame to frame, each fit's ``G`` its sensitivity). A filter (re)started
+   from an attitude fitted through the camera with covariance ``R`` starts from
+   ``P = R + G Σ_c Gᵀ`` and cross-covariance ``G Σ_c`` (:meth:`SelfCalibration.start`), and from
+   a keyframe's refit with ``R`` its stars' own (:meth:`SelfCalibration.keyframe_start`). The
+   filter's covariance is then what a tracked frame reports. A frame solved lost in space, whose
+   attitude no filter made, reports ``R + G Σ_c Gᵀ`` (:meth:`SelfCalibration.account`,
+   :func:`camera_attitude_covariance`), as does every frame of a predictor other than the MEKF.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -59,7 +66,8 @@ from skyfix.camera import Camera
 from skyfix.errors import CalibrationError, CameraError
 from skyfix.geometry import radec_to_vector, rotation_angle_between
 
-__all__ = ["SelfCalibration", "camera_attitude_covariance", "keyframe_stars"]
+__all__ = ["CameraSensitivity", "SelfCalibration", "camera_attitude_covariance",
+           "camera_attitude_sensitivity", "free_numbers", "keyframe_stars", "solution_stars"]
 
 _ARCSEC = math.pi / (180 * 3600)
 # Steps of the numerical derivatives: a rotation (rad), the pixel-valued camera numbers (px),
@@ -79,24 +87,31 @@ def _rotation(v: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(v).as_matrix()
 
 
-def camera_attitude_covariance(camera: Camera, covariance: np.ndarray, A_icrs_to_cam: np.ndarray,
-                               xy: np.ndarray, r_icrs: np.ndarray) -> np.ndarray:
-    """The covariance (3, 3, rad², about the camera's x, y and roll axes) that the camera's own
-    uncertainty gives an attitude fitted to the stars ``xy`` (N, 2, px) of catalogue directions
-    ``r_icrs`` (N, 3) at ``A_icrs_to_cam`` (module text, item 3).
+class CameraSensitivity(NamedTuple):
+    """What a camera's numbers do to one frame's fitted attitude (:func:`camera_attitude_sensitivity`)."""
 
-    ``covariance`` is that of the camera numbers (12, 12, ``lens.CAMERA_NUMBERS`` order, the
-    camera's units; zero rows for numbers held), e.g. a :class:`JointFit`'s. For each free
-    number ``c_j``: ``δθ_j = −(J_θᵀJ_θ)⁻¹ J_θᵀ J_c,j`` is the frame's attitude refitted to its
-    stars (``J_θ`` the pixels' derivatives by a rotation, ``J_c,j`` by the number), and ``G_j``
-    the change of the frame at the moved camera's principal point
-    (:func:`skyfix.calibrate.frame_rotation_at_pixel`); the result is ``G Σ Gᵀ``."""
-    cov = np.asarray(covariance, dtype=np.float64)
-    free = [i for i, n in enumerate(_NUMBERS) if cov[i, i] > 0.0]
-    if not free or len(xy) < 2:
-        return np.zeros((3, 3))
+    G: np.ndarray         # (3, n) rad per unit of each free number, about the camera's x, y, roll axes
+    normal: np.ndarray    # (3, 3) J_θᵀ J_θ, px²/rad²: the stars' information on the rotation per px⁻²
+
+
+def free_numbers(covariance: np.ndarray) -> list[int]:
+    """The camera numbers a covariance (12, 12, ``lens.CAMERA_NUMBERS`` order) leaves free: those
+    of positive variance (a held number's row is zero)."""
+    return [i for i in range(len(_NUMBERS)) if covariance[i, i] > 0.0]
+
+
+def camera_attitude_sensitivity(camera: Camera, free: list[int], A_icrs_to_cam: np.ndarray,
+                                rays: np.ndarray) -> CameraSensitivity:
+    """The sensitivity ``G`` (3, n) of an attitude ``A_icrs_to_cam`` fitted to stars along
+    ``rays`` (N ≥ 2, 3, camera frame) to the camera numbers ``free`` (``lens.CAMERA_NUMBERS``
+    indices; module text, item 3), and the stars' normal matrix ``J_θᵀ J_θ``.
+
+    For each free number ``c_j``: ``δθ_j = −(J_θᵀJ_θ)⁻¹ J_θᵀ J_c,j`` is the frame's attitude
+    refitted to its stars (``J_θ`` the pixels' derivatives by a rotation, ``J_c,j`` by the
+    number), and ``G_j`` the change of the frame at the moved camera's principal point
+    (:func:`skyfix.calibrate.frame_rotation_at_pixel`)."""
     A = np.asarray(A_icrs_to_cam, dtype=np.float64)
-    b = np.asarray(r_icrs, dtype=np.float64) @ A.T
+    b = np.asarray(rays, dtype=np.float64)
     uv0, _ = camera.ray_to_pixel(b)
     J_rot = np.empty((2 * len(b), 3))
     for a in range(3):
@@ -117,8 +132,24 @@ def camera_attitude_covariance(camera: Camera, covariance: np.ndarray, A_icrs_to
         dtheta = -np.linalg.lstsq(J_rot, J_cam, rcond=None)[0] * h
         A_moved = _rotation(dtheta) @ A
         G[:, j] = (frame_rotation_at_pixel(A_moved, moved, A, camera, (moved.cx, moved.cy)) - base) / h
-    S = cov[np.ix_(free, free)]
-    return G @ S @ G.T
+    return CameraSensitivity(G, J_rot.T @ J_rot)
+
+
+def camera_attitude_covariance(camera: Camera, covariance: np.ndarray, A_icrs_to_cam: np.ndarray,
+                               xy: np.ndarray, r_icrs: np.ndarray) -> np.ndarray:
+    """The covariance (3, 3, rad², about the camera's x, y and roll axes) that the camera's own
+    uncertainty gives an attitude fitted to the stars ``xy`` (N, 2, px) of catalogue directions
+    ``r_icrs`` (N, 3) at ``A_icrs_to_cam``: ``G Σ Gᵀ`` (:func:`camera_attitude_sensitivity`).
+
+    ``covariance`` is that of the camera numbers (12, 12, ``lens.CAMERA_NUMBERS`` order, the
+    camera's units; zero rows for numbers held), e.g. a :class:`JointFit`'s."""
+    cov = np.asarray(covariance, dtype=np.float64)
+    free = free_numbers(cov)
+    if not free or len(xy) < 2:
+        return np.zeros((3, 3))
+    A = np.asarray(A_icrs_to_cam, dtype=np.float64)
+    G = camera_attitude_sensitivity(camera, free, A, np.asarray(r_icrs, dtype=np.float64) @ A.T).G
+    return G @ cov[np.ix_(free, free)] @ G.T
 
 
 def keyframe_stars(image: np.ndarray, camera: Camera, max_stars: int, rate_rad_s=None,
@@ -150,6 +181,13 @@ def keyframe_stars(image: np.ndarray, camera: Camera, max_stars: int, rate_rad_s
         velocity = streak_motion(camera, xy, rate, h) / h
         xy = xy - velocity * row_time_offset.py_func(xy[:, 1], line_time_s, image.shape[0])[:, None]
     return xy, flux
+
+
+def solution_stars(sol) -> tuple[np.ndarray, np.ndarray]:
+    """A Solution's matched stars: pixels (N, 2) and catalogue directions (N, 3, ICRS)."""
+    xy = np.array([(m.x, m.y) for m in sol.matches], dtype=np.float64).reshape(-1, 2)
+    ra, dec = np.radians([(m.ra_deg, m.dec_deg) for m in sol.matches]).reshape(-1, 2).T
+    return xy, radec_to_vector(ra, dec)
 
 
 class SelfCalibration:
@@ -274,14 +312,43 @@ class SelfCalibration:
         del self.matched[best[1]], self.frames[best[1]]
 
     # --- 3. the camera's uncertainty -----------------------------------------------------
+    @property
+    def camera_covariance(self) -> np.ndarray:
+        """The covariance (n, n) of the camera's free numbers: the filter's consider states."""
+        free = free_numbers(self.fit.covariance)
+        return self.fit.covariance[np.ix_(free, free)]
+
+    def sensitivity(self, A_icrs_to_cam: np.ndarray, rays: np.ndarray) -> np.ndarray:
+        """``G`` (3, n) of an attitude fitted through the camera to stars along ``rays`` (N, 3,
+        camera frame): :func:`camera_attitude_sensitivity` for the free numbers."""
+        free = free_numbers(self.fit.covariance)
+        return camera_attitude_sensitivity(self.camera, free, A_icrs_to_cam, rays).G
+
+    def start(self, A_icrs_to_cam: np.ndarray, rays: np.ndarray, R: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """A filter's start from an attitude fitted through the camera to stars along ``rays``
+        with covariance ``R`` (3, 3, rad², the camera taken as exact): its covariance
+        ``R + G Σ_c Gᵀ`` and its cross-covariance ``G Σ_c`` (3, n) with the camera's numbers."""
+        G = self.sensitivity(A_icrs_to_cam, rays)
+        cross = G @ self.camera_covariance
+        return np.asarray(R, dtype=np.float64) + cross @ G.T, cross
+
+    def keyframe_start(self) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`start` at the newest keyframe's refitted attitude, its ``R`` its stars' own:
+        ``σ² (J_θᵀ J_θ)⁻¹`` with σ the joint fit's pixel σ."""
+        m = self.matched[-1]
+        A = m.A_icrs_to_cam
+        rays = m.r_icrs @ A.T
+        normal = camera_attitude_sensitivity(self.camera, [], A, rays).normal
+        return self.start(A, rays, self.fit.sigma_px ** 2 * np.linalg.inv(normal))
+
     def account(self, sol) -> None:
         """Add to a solved Solution's covariance what the camera's uncertainty gives its
-        attitude (:func:`camera_attitude_covariance`, on its matched stars)."""
+        attitude (:func:`camera_attitude_covariance`, on its matched stars): for an attitude no
+        filter made (lost in space, or another predictor's)."""
         if self.fit is None or not sol.solved or not sol.matches:
             return
-        xy = np.array([(m.x, m.y) for m in sol.matches], dtype=np.float64)
-        ra, dec = np.radians([(m.ra_deg, m.dec_deg) for m in sol.matches]).T
-        r = radec_to_vector(ra, dec)
+        xy, r = solution_stars(sol)
         P = camera_attitude_covariance(self.camera, self.fit.covariance, sol.A_icrs_to_cam, xy, r)
         frame = np.asarray(sol.frame_covariance_arcsec2)  # the tracker's, relative to the camera
         sol.covariance_arcsec2 = (np.asarray(sol.covariance_arcsec2) + P / _ARCSEC**2).tolist()

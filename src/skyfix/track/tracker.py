@@ -48,8 +48,10 @@ Solution carries the frame's time and what :func:`skyfix.solve` reports with it.
 
 With no camera (``Tracker()``), the first frames are ``"calibrating"``: solved lost in space
 with no camera until three are, then one camera fitted to them jointly and refined on keyframes
-across the sequence, its uncertainty added to every reported covariance
-(:mod:`skyfix.track.self_calibration`; ``calibration_options`` are its keywords).
+across the sequence, its uncertainty carried by the MEKF as consider states (each tracked frame
+updated step by step, :meth:`Tracker._steps`, with its fit's sensitivity to the camera) and so in
+every reported covariance (:mod:`skyfix.track.self_calibration`; ``calibration_options`` are its
+keywords).
 
 Bad input raises a one-line :mod:`skyfix.errors` exception and leaves the state unchanged:
 a time that is not after the last frame's (out of order, repeated), not finite, or missing;
@@ -435,9 +437,16 @@ class Tracker(FrameSteps):
                 pred = self._predictor.predict(t, gyro_rate_rad_s=gyro)
                 self._use_camera(cal.camera)
                 rate_sigma = math.sqrt(float(np.max(np.diagonal(pred.rate_cov_rad2_s2))))
-                P = np.asarray(sol.frame_covariance_arcsec2) * _ARCSEC ** 2
-                self._restart(A, t, P, gyro, pred.rate_rad_s, rate_sigma)
-        cal.account(sol)
+                P, cross = cal.keyframe_start()
+                self._restart(A, t, P, gyro, pred.rate_rad_s, rate_sigma, camera_cross=cross)
+        if sol.method != "track" or not self._considering:  # else the filter's covariance holds it
+            cal.account(sol)
+
+    @property
+    def _considering(self) -> bool:
+        """Whether the filter carries the camera's numbers as consider states: a camera of the
+        tracker's own making, and the MEKF."""
+        return self.calibration is not None and self.predictor_name == "mekf"
 
     # --- lost in space ---------------------------------------------------------------------
     def _solve_lost(self, img: np.ndarray, rate=None, t: float | None = None) -> tuple[Solution, bool]:
@@ -482,6 +491,12 @@ class Tracker(FrameSteps):
         tracking when the rate is known (gyro rates, or a ``rate`` with its σ ``rate_sigma``
         kept for the Kalman filter)."""
         P = np.asarray(sol.frame_covariance_arcsec2) * _ARCSEC ** 2
+        cross = None
+        if self._considering:
+            from skyfix.track.self_calibration import solution_stars
+
+            _, r = solution_stars(sol)
+            P, cross = self.calibration.start(sol.A_icrs_to_cam, r @ np.asarray(sol.A_icrs_to_cam).T, P)
         stars = None
         if self.predictor_name == "small-angle":  # it measures the rate from the stars' motion
             stars = (np.array([(m.x, m.y) for m in sol.matches]).reshape(-1, 2),
@@ -489,17 +504,23 @@ class Tracker(FrameSteps):
         keep = rate is not None and self.predictor_name == "mekf"
         if not keep:
             rate = rate_sigma = None
-        self._restart(sol.A_icrs_to_cam, t, P, gyro, rate, rate_sigma, stars)
+        self._restart(sol.A_icrs_to_cam, t, P, gyro, rate, rate_sigma, stars, cross)
         mags = [m.mag for m in sol.matches]
         if mags:
             self._select_mag = max(float(np.max(mags)), 4.0)
             self._local = None  # made again at this depth
         self.mode = "tracking" if gyro is not None or keep else "acquiring"
 
-    def _restart(self, A: np.ndarray, t: float, P: np.ndarray, gyro, rate, rate_sigma, stars=None) -> None:
+    def _restart(self, A: np.ndarray, t: float, P: np.ndarray, gyro, rate, rate_sigma, stars=None,
+                 camera_cross: np.ndarray | None = None) -> None:
         """A new predictor from the attitude ``A`` (covariance ``P``) at ``t``; the MEKF also
-        takes a rate and its σ (default: unknown, σ ``max_rate_dps``/3)."""
+        takes a rate and its σ (default: unknown, σ ``max_rate_dps``/3), and with a camera of
+        its own the cross-covariance ``camera_cross`` (3, n) of ``A`` with the camera's numbers
+        (:meth:`~skyfix.track.self_calibration.SelfCalibration.start`)."""
         opts = dict(self._predictor_options, gyro=gyro is not None)
+        if camera_cross is not None and camera_cross.shape[1]:  # (a camera with no free number: none)
+            opts["camera_covariance"] = self.calibration.camera_covariance
+            opts["camera_cross_rad"] = camera_cross
         if rate_sigma is not None:
             opts["rate_sigma_rad_s"] = rate_sigma
         if rate is not None and gyro is None and self.predictor_name == "mekf":
@@ -512,8 +533,9 @@ class Tracker(FrameSteps):
     # --- tracking --------------------------------------------------------------------------
     def _track(self, img: np.ndarray, t: float, gyro, t0: float) -> Solution:
         """One tracked frame: with the MEKF in one compiled call (:meth:`_step`), else step by
-        step (:meth:`_steps`)."""
-        if self.predictor_name == "mekf":
+        step (:meth:`_steps`): another predictor, or the MEKF carrying the camera's numbers as
+        consider states (each fit's sensitivity to them computed between the steps)."""
+        if self.predictor_name == "mekf" and self.calibration is None:
             return self._step(img, t, gyro, t0)
         return self._steps(img, t, gyro, t0)
 
@@ -526,10 +548,13 @@ class Tracker(FrameSteps):
         t_fit = time.perf_counter()
         if fit is not None:
             # the fit's NIS against the prediction, and the predictor's update when it agrees
+            kw = {}
+            if self._considering:
+                kw["camera_sensitivity"] = self.calibration.sensitivity(fit.A_icrs_to_cam, fit.b)
             post, inn = self._predictor.update_gated(t, fit.A_icrs_to_cam, fit.covariance_rad2,
                                                      self.settings.nis_gate, xy=fit.xy,
                                                      ids=fit.ids, camera=self.camera,
-                                                     gyro_rate_rad_s=gyro)
+                                                     gyro_rate_rad_s=gyro, **kw)
             times = {"predict": 1e3 * (t_pred - t0), "measure": 1e3 * (t_fit - t_pred),
                      "filter": 1e3 * (time.perf_counter() - t_fit)}
             if post is not None:
@@ -549,7 +574,10 @@ class Tracker(FrameSteps):
             dt = t - self._t_last
             rate_sigma = max(2.0 * float(np.linalg.norm(inn.residual_rad)) / dt,
                              math.sqrt(float(np.max(np.diagonal(pred.rate_cov_rad2_s2)))))
-            self._restart(fit.A_icrs_to_cam, t, fit.covariance_rad2, gyro, pred.rate_rad_s, rate_sigma)
+            P, cross = fit.covariance_rad2, None
+            if self._considering:
+                P, cross = self.calibration.start(fit.A_icrs_to_cam, fit.b, P)
+            self._restart(fit.A_icrs_to_cam, t, P, gyro, pred.rate_rad_s, rate_sigma, camera_cross=cross)
             post = self._predictor.predict(t, gyro_rate_rad_s=gyro)
             return self._tracked(post, fit, times)
         why = f"the star fit disagrees with the prediction (NIS {inn.nis:.3g})"
