@@ -2,8 +2,7 @@
 commit in the same run, and whether the two give the same rows.
 
 Run: ``PYTHONPATH=src .venv/bin/python benchmarks/montecarlo_throughput.py
-[--campaign campaigns/quick.toml] [--trials N] [--against main] [--batch B] [--set KEY=VALUE …]
-[--cpu]``
+[--campaign campaigns/quick.toml] [--trials N] [--against main] [--batch B] [--set KEY=VALUE …]``
 
 One process, no Dask: whole batches (:func:`skyfix.montecarlo.trials.run_batch`) of the
 campaign are run alternately by this tree's code and by ``--against``'s — its trial code and the
@@ -14,9 +13,8 @@ side: trials per second (the trials over the sum of the batches' wall times), an
 trial of the whole trial, the simulation and the solve, and the rest (seeding, the true
 attitude, the prediction, the judgement). Then whether every row is the same on both sides
 (the times, and the columns one side lacks, left out). ``--set hint=truth`` (any
-``[parameters]`` value) changes the campaign first; ``--cpu`` times the batches by the process's
-CPU time (steadier than the wall clock when other jobs keep the cores busy). Then each side's
-solved and wrong counts. The machine is shared: compare the two columns of one run, not runs.
+``[parameters]`` value) changes the campaign first. The machine is shared: compare the two
+columns of one run, not runs.
 """
 
 from __future__ import annotations
@@ -100,11 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--against", default="main", help="the commit to compare with (default main)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a [parameters] value (TOML), e.g. hint=\"truth\"")
-    ap.add_argument("--cpu", action="store_true",
-                    help="the batches timed by this process's CPU time, not the wall clock (a loaded "
-                         "machine's wall time includes waiting for a core); the rows' times stay wall")
     args = ap.parse_args(argv)
-    clock = time.process_time if args.cpu else time.perf_counter
     import importlib
 
     from skyfix.montecarlo.campaign import campaign_from_dict, load_campaign
@@ -130,9 +124,9 @@ def main(argv: list[str] | None = None) -> int:
     for k in range(campaign.n_batches):
         for side in (sides if k % 2 else reversed(list(sides))):
             with swapped(sides[side], after, bindings):
-                t0 = clock()
+                t0 = time.perf_counter()
                 got = sides[side]["skyfix.montecarlo.trials"].run_batch(campaign, k)
-                wall = clock() - t0
+                wall = time.perf_counter() - t0
             if k == 0:
                 continue  # warm-up
             walls[side].append(wall)
@@ -140,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
             per_trial[side].append(1e3 * wall / len(got))
     n = len(rows["after"])
     print(f"{campaign.name} ({campaign.level} level), {n} trials a side in batches of {batch}, "
-          f"before = {args.against}; {' '.join(args.set)}{' (CPU time)' if args.cpu else ''}")
+          f"before = {args.against}; {' '.join(args.set)}")
     print(f"{'':8s} {'trials/s':>9s} {'ms/trial':>9s} {'simulate':>9s} {'solve':>9s} {'rest':>9s}")
     rate = {}
     for side in sides:
@@ -150,9 +144,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{side:8s} {rate[side]:9.1f} {whole:9.3f} {np.nanmean(sim):9.3f} {np.nanmean(solve):9.3f} "
               f"{whole - np.nanmean(sim) - np.nanmean(solve):9.3f}")
     print(f"after / before: {rate['after'] / rate['before']:.2f}× the trials per second (means per trial)")
-    for side in sides:
-        solved = sum(r["status"] == "solved" for r in rows[side])
-        print(f"{side}: {solved} of {n} solved, {sum(bool(r.get('wrong')) for r in rows[side])} wrong")
     pairs = zip(rows["before"], rows["after"], strict=True)
     same = all(_comparable(a, b) == _comparable(b, a) for a, b in pairs)
     print(f"rows equal (times and the columns one side lacks left out): {same}")

@@ -281,11 +281,12 @@ def render(A_icrs_to_cam: np.ndarray, camera: Camera | str, *, sensor: Sensor | 
         flux_e = scintillate(electrons, sigma_rel, streams["scintillation"])
 
     # --- expected photo-electrons ------------------------------------------------------
+    expected = np.zeros((h, w), dtype=np.float32)
     background = 0.0
     if sky_mag_arcsec2 is not None:
         background = sky_electrons_per_pixel(sky_mag_arcsec2, optics, sensor, exposure_s,
                                              camera.plate_scale_rad)
-    expected = np.full((h, w), background, dtype=np.float32)  # the sky in one pass
+        expected += background
     if stray_light is not None:
         expected += stray_light_map(stray_light, camera, A, exposure_s)
     _add_sources(expected, tracks, flux_e, optics, camera, seeing_px)
