@@ -52,11 +52,11 @@ from skyfix.identify.catalogue.kernel_data import (
     Tolerances,
     VerifySettings,
 )
+from skyfix.identify.common._field_notes import _outside_reason, _shallow_note
 from skyfix.identify.common.hypothesis import failure
 from skyfix.identify.common.refine import refine_entry
 from skyfix.identify.common.result import Identification, finite_centroids
 from skyfix.identify.common.search import breadth_first_combinations, centre_first_combinations, search_entry
-from skyfix.identify.methods._quad_notes import _outside_reason, _shallow_note
 
 __all__ = ["METHOD", "MIRROR_NOTE", "REFUSED_HIT_COST_S", "SEARCH_COST_S", "identify", "search_work",
            "warm_kernels"]

@@ -1,4 +1,4 @@
-"""What a failed quad search says about the field (:mod:`skyfix.identify.methods.quad`'s failure
+"""What a failed search says about the field (:mod:`skyfix.identify.methods.quad`'s failure
 notes): a FOV no database serves, with the commands that build one that does, and a field too
 narrow for the bundled catalogue."""
 
