@@ -221,6 +221,15 @@ def _jacobi_angle(a, b, g):
     return c, c * t
 
 
+@njit(cache=True, inline="always")
+def _rotate_columns(X, p, q, c, s):
+    """Columns ``p`` and ``q`` of ``X`` (3 rows) turned by the plane rotation ``(c, s)``, in place:
+    ``X ← X J`` (the step both Jacobi kernels take; ``X.T`` turns rows)."""
+    for k in range(3):
+        xp, xq = X[k, p], X[k, q]
+        X[k, p], X[k, q] = c * xp - s * xq, s * xp + c * xq
+
+
 @njit(cache=True)
 def symmetric_eigen3(S):
     """Eigenvalues (3,), ascending, and eigenvectors (3, 3), as columns, of a symmetric 3 × 3
@@ -238,16 +247,10 @@ def symmetric_eigen3(S):
                     continue
                 rotated = True
                 c, s = _jacobi_angle(M[p, p], M[q, q], g)
-                for k in range(3):  # M ← Jᵀ M J, J the rotation in the (p, q) plane
-                    mkp, mkq = M[k, p], M[k, q]
-                    M[k, p], M[k, q] = c * mkp - s * mkq, s * mkp + c * mkq
-                for k in range(3):
-                    mpk, mqk = M[p, k], M[q, k]
-                    M[p, k], M[q, k] = c * mpk - s * mqk, s * mpk + c * mqk
+                _rotate_columns(M, p, q, c, s)  # M ← Jᵀ M J, J the rotation in the (p, q) plane
+                _rotate_columns(M.T, p, q, c, s)
                 M[p, q] = M[q, p] = 0.0
-                for k in range(3):
-                    vkp, vkq = V[k, p], V[k, q]
-                    V[k, p], V[k, q] = c * vkp - s * vkq, s * vkp + c * vkq
+                _rotate_columns(V, p, q, c, s)
         if not rotated:
             break
     order = np.argsort(np.array([M[0, 0], M[1, 1], M[2, 2]]))
@@ -281,11 +284,8 @@ def proper_rotation(B):
                     continue
                 rotated = True
                 c, s = _jacobi_angle(a, b, g)
-                for k in range(3):
-                    wp, wq = W[k, p], W[k, q]
-                    W[k, p], W[k, q] = c * wp - s * wq, s * wp + c * wq
-                    vp, vq = V[k, p], V[k, q]
-                    V[k, p], V[k, q] = c * vp - s * vq, s * vp + c * vq
+                _rotate_columns(W, p, q, c, s)
+                _rotate_columns(V, p, q, c, s)
         if not rotated:
             break
     norms = np.empty(3)
